@@ -1,0 +1,226 @@
+"""gmsh geometry builders with named physical groups. Lengths in mm.
+
+``phantom`` is the breast phantom of seed 000: a half-ellipsoid dome on a fixed flat base.
+
+    base radius R = 50 mm, height H = 45 mm, base at z = 0 (physical group ``base``)
+    actuator patches: discs of radius 5 mm (10 mm across) on the side at height z_a = 15 mm,
+        centred at azimuths 0, 90, 180, 270 deg: ``act_px``, ``act_py``, ``act_nx``, ``act_ny``
+        (3-actuator variant: azimuths 0, 120, 240 deg: ``act_a``, ``act_b``, ``act_c``)
+    skin: the rest of the curved surface (``skin``), traction free
+    targets T1..T5: mesh vertices in the actuator plane z = 15 mm,
+        T1 (0, 0), T2 (12, 0), T3 (0, 12), T4 (-12, 0), T5 (0, -12)
+    volume: ``tissue``
+
+``box`` is an axis-aligned block with faces ``xmin``, ``xmax``, ``ymin``, ``ymax``, ``zmin``,
+``zmax``; ``rectangle`` is its 2D (plane strain) analogue with edges ``xmin`` .. ``ymax``.
+"""
+from __future__ import annotations
+
+import contextlib
+import math
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import CaseError
+from .io import atomic_path, read_msh
+from .mesh import MeshData
+
+__all__ = ["phantom", "phantom3", "box", "rectangle", "BUILDERS", "build", "PhantomGeometry",
+           "PHANTOM"]
+
+
+@dataclass(frozen=True)
+class PhantomGeometry:
+    radius: float = 50.0
+    height: float = 45.0
+    actuator_height: float = 15.0
+    patch_radius: float = 5.0
+    targets: tuple = (("T1", (0.0, 0.0, 15.0)), ("T2", (12.0, 0.0, 15.0)),
+                      ("T3", (0.0, 12.0, 15.0)), ("T4", (-12.0, 0.0, 15.0)),
+                      ("T5", (0.0, -12.0, 15.0)))
+
+    def side_point(self, azimuth_deg: float) -> np.ndarray:
+        """Point of the dome surface at the actuator height and the given azimuth."""
+        z = self.actuator_height
+        r = self.radius * math.sqrt(1.0 - (z / self.height) ** 2)
+        a = math.radians(azimuth_deg)
+        return np.array([r * math.cos(a), r * math.sin(a), z])
+
+
+PHANTOM = PhantomGeometry()
+ACTUATORS_4 = (("act_px", 0.0), ("act_py", 90.0), ("act_nx", 180.0), ("act_ny", 270.0))
+ACTUATORS_3 = (("act_a", 0.0), ("act_b", 120.0), ("act_c", 240.0))
+
+
+_GMSH_STATE = {"on": False}
+
+
+@contextlib.contextmanager
+def _gmsh_session(name: str, size: float, *, order: int = 1):
+    import gmsh
+
+    if size <= 0 or not math.isfinite(size):
+        raise CaseError(f"mesh size must be a positive length in mm, got {size!r}")
+    started = not _GMSH_STATE["on"]
+    if started:
+        gmsh.initialize(readConfigFiles=False)
+        _GMSH_STATE["on"] = True
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add(name)
+        gmsh.option.setNumber("Mesh.CharacteristicLengthMin", size)
+        gmsh.option.setNumber("Mesh.CharacteristicLengthMax", size)
+        gmsh.option.setNumber("Mesh.CharacteristicLengthFromPoints", 0)
+        gmsh.option.setNumber("Mesh.CharacteristicLengthExtendFromBoundary", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+        gmsh.option.setNumber("Mesh.Algorithm3D", 1)  # Delaunay
+        gmsh.option.setNumber("Mesh.Optimize", 1)
+        gmsh.option.setNumber("General.NumThreads", 1)
+        gmsh.option.setNumber("Mesh.RandomFactor", 1e-9)
+        yield gmsh
+    finally:
+        gmsh.model.remove()
+        if started:
+            gmsh.finalize()
+            _GMSH_STATE["on"] = False
+
+
+def _finish(gmsh, dim: int, out) -> MeshData:
+    """Mesh, write a .msh (to ``out`` or a temporary) and read it back through ``read_msh``."""
+    gmsh.model.mesh.generate(dim)
+    gmsh.option.setNumber("Mesh.SaveAll", 0)
+    gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
+    if out is not None:
+        with atomic_path(out, suffix=".msh") as tmp:
+            gmsh.write(str(tmp))
+        return read_msh(out)
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "mesh.msh"
+        gmsh.write(str(p))
+        return read_msh(p)
+
+
+def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANTOM) -> MeshData:
+    g = geometry
+    with _gmsh_session("phantom", size) as gmsh:
+        occ = gmsh.model.occ
+        s = occ.addSphere(0, 0, 0, g.radius)
+        occ.dilate([(3, s)], 0, 0, 0, 1, 1, g.height / g.radius)
+        cut = occ.addBox(-2 * g.radius, -2 * g.radius, -2 * g.height, 4 * g.radius, 4 * g.radius,
+                         2 * g.height)
+        dome, _ = occ.cut([(3, s)], [(3, cut)])
+        # actuator plugs: short cylinders along the inward radial direction at each patch,
+        # intersected with the dome; fragmenting imprints their outer faces on the skin.
+        plugs = []
+        depth = 3.0 * g.patch_radius
+        for _, az in actuators:
+            p = g.side_point(az)
+            d = -p / np.linalg.norm(p)
+            d[2] = 0.0
+            d /= np.linalg.norm(d)
+            start = p - 2.0 * g.patch_radius * d
+            c = occ.addCylinder(*start, *(d * (depth + 2.0 * g.patch_radius)), g.patch_radius)
+            plugs.append(c)
+        occ.synchronize()
+        inter = []
+        for c in plugs:
+            dcopy = occ.copy(dome)
+            r, _ = occ.intersect(dcopy, [(3, c)])
+            inter.extend(r)
+        out_map = occ.fragment(dome, inter)[0]
+        occ.synchronize()
+        vols = [t for d, t in out_map if d == 3]
+        # targets embedded as mesh vertices
+        pts = [occ.addPoint(*xyz, size) for _, xyz in g.targets]
+        occ.synchronize()
+        main = max(vols, key=lambda v: gmsh.model.occ.getMass(3, v))
+        gmsh.model.mesh.embed(0, pts, 3, main)
+        gmsh.model.addPhysicalGroup(3, vols, 1)
+        gmsh.model.setPhysicalName(3, 1, "tissue")
+        # classify boundary surfaces
+        bnd = gmsh.model.getBoundary([(3, v) for v in vols], combined=True, oriented=False)
+        surfs = sorted({t for _, t in bnd})
+        base, skin, patches = [], [], {n: [] for n, _ in actuators}
+        centres = {n: g.side_point(az) for n, az in actuators}
+        for sf in surfs:
+            c = np.array(gmsh.model.occ.getCenterOfMass(2, sf))
+            if abs(c[2]) < 1e-6 * g.height:
+                base.append(sf)
+                continue
+            near = [n for n, pc in centres.items() if np.linalg.norm(c - pc) < 1.5 * g.patch_radius]
+            (patches[near[0]] if near else skin).append(sf)
+        tag = 10
+        for name, group in [("base", base), ("skin", skin), *patches.items()]:
+            if not group:
+                raise CaseError(f"phantom geometry: no surface found for region {name!r} at "
+                                f"size {size}")
+            gmsh.model.addPhysicalGroup(2, group, tag)
+            gmsh.model.setPhysicalName(2, tag, name)
+            tag += 1
+        for (name, _), p in zip(g.targets, pts):
+            gmsh.model.addPhysicalGroup(0, [p], tag)
+            gmsh.model.setPhysicalName(0, tag, name)
+            tag += 1
+        # finer patches so each actuator touches several vertices
+        gmsh.model.mesh.setSize(gmsh.model.getBoundary([(2, s) for g_ in patches.values() for s in g_],
+                                                       recursive=True), min(size, g.patch_radius))
+        return _finish(gmsh, 3, out)
+
+
+def phantom(size: float = 6.0, *, out=None) -> MeshData:
+    """Seed 000 breast phantom with four side actuators (see module docstring). size in mm."""
+    return _phantom(size, ACTUATORS_4, out)
+
+
+def phantom3(size: float = 6.0, *, out=None) -> MeshData:
+    """Seed 000 phantom with three actuators 120 deg apart (minimal positive basis)."""
+    return _phantom(size, ACTUATORS_3, out)
+
+
+def box(size: float = 5.0, *, lengths=(10.0, 10.0, 10.0), out=None) -> MeshData:
+    """Block [0, Lx] x [0, Ly] x [0, Lz] (mm) with faces xmin .. zmax."""
+    lx, ly, lz = lengths
+    with _gmsh_session("box", size) as gmsh:
+        b = gmsh.model.occ.addBox(0, 0, 0, lx, ly, lz)
+        gmsh.model.occ.synchronize()
+        gmsh.model.addPhysicalGroup(3, [b], 1)
+        gmsh.model.setPhysicalName(3, 1, "tissue")
+        for i, (name, axis, val) in enumerate([("xmin", 0, 0), ("xmax", 0, lx), ("ymin", 1, 0),
+                                               ("ymax", 1, ly), ("zmin", 2, 0), ("zmax", 2, lz)]):
+            for _, sf in gmsh.model.getBoundary([(3, b)], oriented=False):
+                c = gmsh.model.occ.getCenterOfMass(2, sf)
+                if abs(c[axis] - val) < 1e-9 * max(lengths):
+                    gmsh.model.addPhysicalGroup(2, [sf], 10 + i)
+                    gmsh.model.setPhysicalName(2, 10 + i, name)
+        return _finish(gmsh, 3, out)
+
+
+def rectangle(size: float = 2.0, *, lengths=(10.0, 10.0), out=None) -> MeshData:
+    """2D plane-strain rectangle [0, Lx] x [0, Ly] (mm) with edges xmin, xmax, ymin, ymax."""
+    lx, ly = lengths
+    with _gmsh_session("rectangle", size) as gmsh:
+        r = gmsh.model.occ.addRectangle(0, 0, 0, lx, ly)
+        gmsh.model.occ.synchronize()
+        gmsh.model.addPhysicalGroup(2, [r], 1)
+        gmsh.model.setPhysicalName(2, 1, "tissue")
+        for i, (name, axis, val) in enumerate([("xmin", 0, 0), ("xmax", 0, lx), ("ymin", 1, 0),
+                                               ("ymax", 1, ly)]):
+            for _, cv in gmsh.model.getBoundary([(2, r)], oriented=False):
+                c = gmsh.model.occ.getCenterOfMass(1, cv)
+                if abs(c[axis] - val) < 1e-9 * max(lengths):
+                    gmsh.model.addPhysicalGroup(1, [cv], 10 + i)
+                    gmsh.model.setPhysicalName(1, 10 + i, name)
+        return _finish(gmsh, 2, out)
+
+
+BUILDERS = {"phantom": phantom, "phantom-3": phantom3, "box": box, "rectangle": rectangle}
+
+
+def build(name: str, size: float, *, out=None) -> MeshData:
+    """Build a named mesh (see ``BUILDERS``) with characteristic length ``size`` (mm)."""
+    if name not in BUILDERS:
+        raise CaseError(f"unknown mesh builder {name!r}; builders: {sorted(BUILDERS)}")
+    return BUILDERS[name](size, out=out)

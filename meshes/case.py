@@ -1,0 +1,482 @@
+"""The Case: one problem description (mesh + material + boundary conditions + probes + actuators)
+consumed by every solver of the project, reference and fast alike.
+
+Units: length mm, stress kPa (= mN/mm^2), force mN, density kg/mm^3, gravity mm/s^2.
+
+A Case is built once (``load_case`` from a TOML file, or ``Case(...)`` from Python) and validated
+then: unknown regions, bad material values, conflicting prescriptions on one vertex and rigid-body
+freedom are all reported here, before any solver starts.
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from .errors import CaseError, ReadError
+from .mesh import MeshData, cell_volumes, check_cells
+
+__all__ = ["Material", "Boundary", "Probe", "Actuator", "Case", "load_case", "VertexConstraints",
+           "ProbeLocation", "BOUNDARY_TYPES", "MATERIAL_MODELS"]
+
+BOUNDARY_TYPES = ("fixed", "displacement", "affine", "sliding", "traction")
+MATERIAL_MODELS = ("neo-hookean", "linear-elastic")
+
+
+@dataclass(frozen=True)
+class Material:
+    """Isotropic material. E in kPa, density in kg/mm^3.
+
+    neo-hookean (seed 000 eq. 14): psi = mu/2 (J^(-2/3) tr C - 3) + kappa/2 (J - 1)^2,
+    mu = E / (2 (1 + nu)), kappa = E / (3 (1 - 2 nu)).
+    linear-elastic: psi = mu eps:eps + lambda/2 tr(eps)^2.
+    """
+
+    model: str = "neo-hookean"
+    E: float = 6.0
+    nu: float = 0.45
+    density: float = 1.0e-6
+
+    def __post_init__(self):
+        if self.model not in MATERIAL_MODELS:
+            raise CaseError(f"unknown material model {self.model!r}; models: {list(MATERIAL_MODELS)}")
+        if not (isinstance(self.E, (int, float)) and math.isfinite(self.E) and self.E > 0):
+            raise CaseError(f"material E must be > 0 kPa, got E={self.E!r}")
+        if not (isinstance(self.nu, (int, float)) and -1.0 < self.nu < 0.5):
+            raise CaseError(f"material nu must lie in (-1, 0.5), got nu={self.nu!r}")
+        if not (isinstance(self.density, (int, float)) and self.density >= 0):
+            raise CaseError(f"material density must be >= 0 kg/mm^3, got {self.density!r}")
+
+    @property
+    def mu(self) -> float:
+        return self.E / (2.0 * (1.0 + self.nu))
+
+    @property
+    def kappa(self) -> float:
+        return self.E / (3.0 * (1.0 - 2.0 * self.nu))
+
+    @property
+    def lmbda(self) -> float:
+        """Lame's first parameter (kPa)."""
+        return self.E * self.nu / ((1.0 + self.nu) * (1.0 - 2.0 * self.nu))
+
+
+def _vec(value, n, what):
+    try:
+        v = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise CaseError(f"{what} must be a list of {n} numbers, got {value!r}") from exc
+    if v.shape != (n,) or not np.all(np.isfinite(v)):
+        raise CaseError(f"{what} must be a list of {n} finite numbers, got {value!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class Boundary:
+    """A boundary condition on a named region.
+
+    fixed: u = 0.  displacement: u = value (mm), optionally only ``components``.
+    affine: u(X) = gradient @ X + offset.  sliding: u . normal = value (mm), tangential motion free.
+    traction: dead load ``value`` (kPa, per reference area).
+    """
+
+    region: str
+    type: str = "fixed"
+    value: object = None
+    components: tuple | None = None
+    gradient: object = None
+    offset: object = None
+    normal: object = None
+
+    def __post_init__(self):
+        if self.type not in BOUNDARY_TYPES:
+            raise CaseError(f"boundary on {self.region!r}: unknown type {self.type!r}; "
+                            f"types: {list(BOUNDARY_TYPES)}")
+
+
+@dataclass(frozen=True)
+class Probe:
+    """A named point of the reference configuration (mm) where displacements are reported."""
+
+    name: str
+    point: tuple
+
+
+@dataclass(frozen=True)
+class Actuator:
+    """A region pushed rigidly along ``direction`` (normalized on construction)."""
+
+    name: str
+    region: str
+    direction: tuple
+
+    def __post_init__(self):
+        d = np.asarray(self.direction, dtype=np.float64).reshape(-1)
+        n = np.linalg.norm(d)
+        if not np.isfinite(n) or n == 0:
+            raise CaseError(f"actuator {self.name!r}: direction must be a non-zero vector, "
+                            f"got {self.direction!r}")
+        object.__setattr__(self, "direction", tuple((d / n).tolist()))
+
+
+@dataclass(frozen=True)
+class ProbeLocation:
+    """Where a probe sits: a cell and barycentric weights (the point snapped into the mesh)."""
+
+    name: str
+    point: np.ndarray
+    cell: int
+    weights: np.ndarray
+    snapped_point: np.ndarray
+    snap_distance: float
+
+
+@dataclass(frozen=True)
+class VertexConstraints:
+    """Dirichlet-type conditions on vertices, in node-major dof numbering (dof = gdim*v + c).
+
+    dofs / values: prescribed dofs and their values (mm) at full load.
+    sliding: (vertex ids, unit normal, value) for oblique sliding regions (u . n = value).
+    owner: for each prescribed dof, the region that set it.
+    """
+
+    dofs: np.ndarray
+    values: np.ndarray
+    sliding: tuple
+    owner: tuple
+
+
+def _axis_of(normal, tol=1e-12):
+    n = np.abs(normal)
+    k = int(np.argmax(n))
+    return k if np.all(np.delete(n, k) <= tol) else None
+
+
+@dataclass(frozen=True)
+class Case:
+    """One problem. ``mesh`` is a MeshData; the rest as in the module docstring."""
+
+    mesh: MeshData
+    material: Material = field(default_factory=Material)
+    boundaries: tuple = ()
+    probes: tuple = ()
+    actuators: tuple = ()
+    gravity: tuple | None = None
+    name: str = "case"
+    source: str | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "boundaries", tuple(self.boundaries))
+        object.__setattr__(self, "probes", tuple(self.probes))
+        object.__setattr__(self, "actuators", tuple(self.actuators))
+        where = self.source or self.name
+        check_cells(self.mesh, source=where)
+        gdim = self.mesh.gdim
+        for b in self.boundaries:
+            self._check_boundary(b, gdim, where)
+        names = set()
+        for p in self.probes:
+            if p.name in names:
+                raise CaseError(f"{where}: probe name {p.name!r} used twice")
+            names.add(p.name)
+            _vec(p.point, gdim, f"{where}: probe {p.name!r} point")
+        anames = set()
+        for a in self.actuators:
+            if a.name in anames:
+                raise CaseError(f"{where}: actuator name {a.name!r} used twice")
+            anames.add(a.name)
+            self.mesh.region_vertices(a.region)  # raises with the list of regions
+            if len(a.direction) != gdim:
+                raise CaseError(f"{where}: actuator {a.name!r} direction must have {gdim} "
+                                f"components, got {a.direction!r}")
+        if self.gravity is not None:
+            object.__setattr__(self, "gravity", tuple(_vec(self.gravity, gdim, f"{where}: gravity")))
+        self.constraints  # noqa: B018  -- conflicts are reported at construction
+        self._check_rigid_body(where)
+
+    # ----------------------------------------------------------------- validation
+    def _check_boundary(self, b: Boundary, gdim: int, where: str):
+        try:
+            self.mesh.region_vertices(b.region)
+        except CaseError as exc:
+            raise CaseError(f"{where}: boundary {b.type!r}: {exc}") from None
+        what = f"{where}: boundary {b.type!r} on {b.region!r}"
+        if b.type == "displacement":
+            if b.value is None:
+                raise CaseError(f"{what} needs value = [ux, uy{', uz' if gdim == 3 else ''}] (mm)")
+            _vec(b.value, gdim, f"{what}: value")
+            if b.components is not None:
+                comps = list(b.components)
+                if not comps or any(not isinstance(c, int) or not 0 <= c < gdim for c in comps):
+                    raise CaseError(f"{what}: components must be a list of indices in "
+                                    f"0..{gdim - 1}, got {b.components!r}")
+        elif b.type == "affine":
+            g = np.asarray(b.gradient if b.gradient is not None else np.zeros((gdim, gdim)), float)
+            if g.shape != (gdim, gdim) or not np.all(np.isfinite(g)):
+                raise CaseError(f"{what}: gradient must be a {gdim}x{gdim} matrix, got {b.gradient!r}")
+            _vec(b.offset if b.offset is not None else np.zeros(gdim), gdim, f"{what}: offset")
+        elif b.type == "sliding":
+            if b.normal is None:
+                raise CaseError(f"{what} needs normal = [nx, ny{', nz' if gdim == 3 else ''}]")
+            n = _vec(b.normal, gdim, f"{what}: normal")
+            if np.linalg.norm(n) == 0:
+                raise CaseError(f"{what}: normal must be non-zero")
+            float(b.value or 0.0)
+        elif b.type == "traction":
+            if b.region not in self.mesh.facet_regions:
+                raise CaseError(f"{what}: traction needs a boundary (facet) region; facet regions: "
+                                f"{sorted(self.mesh.facet_regions)}")
+            _vec(b.value, gdim, f"{what}: value (kPa)")
+
+    def _check_rigid_body(self, where):
+        """Rank of the constraints restricted to rigid-body modes must be full (6 in 3D, 3 in 2D)."""
+        c = self.constraints
+        d = self.mesh.gdim
+        modes = self.rigid_body_modes()
+        rows = [modes[c.dofs]]
+        for verts, n, _ in c.sliding:
+            rows.append(np.einsum("vcm,c->vm", modes.reshape(-1, d, modes.shape[1])[verts], n))
+        mat = np.concatenate(rows) if rows else np.zeros((0, modes.shape[1]))
+        need = modes.shape[1]
+        rank = np.linalg.matrix_rank(mat, tol=1e-9 * max(1.0, np.abs(mat).max(initial=0.0))) \
+            if len(mat) else 0
+        if rank < need:
+            raise CaseError(
+                f"{where}: the boundary conditions leave {need - rank} rigid-body mode(s) free "
+                f"(constraints fix {rank} of {need}); add a fixed, displacement or sliding region")
+
+    # ----------------------------------------------------------------- derived data
+    def rigid_body_modes(self) -> np.ndarray:
+        """(gdim*n, 6|3) node-major translations and infinitesimal rotations about the centroid."""
+        x = self.mesh.points - self.mesh.points.mean(axis=0)
+        n, d = x.shape
+        if d == 3:
+            m = np.zeros((n, 3, 6))
+            for k in range(3):
+                m[:, k, k] = 1.0
+            m[:, 1, 3], m[:, 2, 3] = -x[:, 2], x[:, 1]
+            m[:, 0, 4], m[:, 2, 4] = x[:, 2], -x[:, 0]
+            m[:, 0, 5], m[:, 1, 5] = -x[:, 1], x[:, 0]
+        else:
+            m = np.zeros((n, 2, 3))
+            m[:, 0, 0] = m[:, 1, 1] = 1.0
+            m[:, 0, 2], m[:, 1, 2] = -x[:, 1], x[:, 0]
+        return m.reshape(n * d, -1)
+
+    @cached_property
+    def constraints(self) -> VertexConstraints:
+        """Prescribed dofs at full load; CaseError when two regions prescribe one dof differently."""
+        d = self.mesh.gdim
+        X = self.mesh.points
+        val: dict[int, float] = {}
+        own: dict[int, str] = {}
+        sliding = []
+
+        def put(verts, comp, values, region):
+            for v, x in zip(verts.tolist(), np.broadcast_to(values, len(verts)).tolist()):
+                k = d * v + comp
+                if k in val and abs(val[k] - x) > 1e-9 * max(1.0, abs(x)):
+                    raise CaseError(
+                        f"{self.source or self.name}: conflicting prescriptions on vertex {v} "
+                        f"(component {comp}): region {own[k]!r} sets {val[k]:g} mm, region "
+                        f"{region!r} sets {x:g} mm")
+                val[k] = x
+                own.setdefault(k, region)
+
+        for b in self.boundaries:
+            verts = self.mesh.region_vertices(b.region)
+            if b.type == "fixed":
+                for c in range(d):
+                    put(verts, c, 0.0, b.region)
+            elif b.type == "displacement":
+                v = np.asarray(b.value, float)
+                for c in (b.components if b.components is not None else range(d)):
+                    put(verts, c, v[c], b.region)
+            elif b.type == "affine":
+                g = np.asarray(b.gradient if b.gradient is not None else np.zeros((d, d)), float)
+                off = np.asarray(b.offset if b.offset is not None else np.zeros(d), float)
+                u = X[verts] @ g.T + off
+                for c in range(d):
+                    put(verts, c, u[:, c], b.region)
+            elif b.type == "sliding":
+                n = np.asarray(b.normal, float)
+                n = n / np.linalg.norm(n)
+                g = float(b.value or 0.0)
+                k = _axis_of(n)
+                if k is not None:
+                    put(verts, k, g * np.sign(n[k]), b.region)
+                else:
+                    sliding.append((verts, n, g))
+        dofs = np.array(sorted(val), dtype=np.int64)
+        return VertexConstraints(dofs, np.array([val[k] for k in dofs.tolist()]), tuple(sliding),
+                                 tuple(own[k] for k in dofs.tolist()))
+
+    def free_dofs(self) -> np.ndarray:
+        """Node-major dofs not prescribed by a Dirichlet-type condition (sliding ones included)."""
+        mask = np.ones(self.mesh.n_vertices * self.mesh.gdim, bool)
+        mask[self.constraints.dofs] = False
+        return np.flatnonzero(mask)
+
+    def external_forces(self, scale: float = 1.0) -> np.ndarray:
+        """Consistent P1 nodal forces (mN), node-major (n*gdim,), of tractions and gravity."""
+        d = self.mesh.gdim
+        f = np.zeros((self.mesh.n_vertices, d))
+        for b in self.boundaries:
+            if b.type == "traction":
+                facets, area = self.mesh.facet_measures(b.region)
+                t = np.asarray(b.value, float)
+                np.add.at(f, facets.ravel(), np.repeat(area / d, d)[:, None] * t)
+        if self.gravity is not None and self.material.density > 0:
+            vol = np.abs(cell_volumes(self.mesh.points, self.mesh.cells))
+            w = self.material.density * vol / (d + 1)
+            np.add.at(f, self.mesh.cells.ravel(), np.repeat(w, d + 1)[:, None] * np.asarray(self.gravity))
+        return scale * f.ravel()
+
+    @cached_property
+    def probe_locations(self) -> tuple:
+        """Each probe's containing cell and barycentric weights; a point outside the discretized
+        surface is snapped to the nearest cell (distance reported in ``snap_distance``)."""
+        from scipy.spatial import cKDTree
+
+        if not self.probes:
+            return ()
+        X = self.mesh.points
+        cells = self.mesh.cells
+        cent = X[cells].mean(axis=1)
+        tree = cKDTree(cent)
+        T = X[cells[:, 1:]] - X[cells[:, :1]]  # (m, d, d) edge vectors as rows
+        out = []
+        for p in self.probes:
+            x = np.asarray(p.point, float)
+            k = min(len(cells), 64)
+            _, cand = tree.query(x, k=k)
+            cand = np.atleast_1d(cand)
+            best = None
+            for c in cand:
+                lam = np.linalg.solve(T[c].T, x - X[cells[c, 0]])
+                w = np.concatenate([[1 - lam.sum()], lam])
+                if w.min() >= -1e-10:
+                    best = (int(c), w, x.copy(), 0.0)
+                    break
+                wc = np.clip(w, 0, None)
+                wc /= wc.sum()
+                y = wc @ X[cells[c]]
+                dist = float(np.linalg.norm(y - x))
+                if best is None or dist < best[3]:
+                    best = (int(c), wc, y, dist)
+            c, w, y, dist = best
+            out.append(ProbeLocation(p.name, x, c, w, y, dist))
+        return tuple(out)
+
+    def probe_values(self, u: np.ndarray) -> dict:
+        """Interpolate a P1 vertex field (n, gdim) at the probes: name -> (gdim,) array."""
+        u = np.asarray(u).reshape(self.mesh.n_vertices, -1)
+        return {loc.name: loc.weights @ u[self.mesh.cells[loc.cell]] for loc in self.probe_locations}
+
+    def actuator(self, name: str) -> Actuator:
+        for a in self.actuators:
+            if a.name == name:
+                return a
+        raise CaseError(f"{self.source or self.name}: unknown actuator {name!r}; actuators: "
+                        f"{[a.name for a in self.actuators]}")
+
+    def probe(self, name: str) -> Probe:
+        for p in self.probes:
+            if p.name == name:
+                return p
+        raise CaseError(f"{self.source or self.name}: unknown probe/target {name!r}; probes: "
+                        f"{[p.name for p in self.probes]}")
+
+    def with_pushes(self, pushes: dict) -> "Case":
+        """A new Case where each named actuator's region is displaced rigidly by
+        ``push * direction`` (mm). Pushes replace any condition already on that region."""
+        if not pushes:
+            return self
+        acts = {name: self.actuator(name) for name in pushes}
+        regions = {a.region for a in acts.values()}
+        kept = [b for b in self.boundaries if b.region not in regions]
+        added = [Boundary(a.region, "displacement",
+                          value=tuple((float(pushes[n]) * np.asarray(a.direction)).tolist()))
+                 for n, a in acts.items()]
+        return replace(self, boundaries=tuple(kept + added))
+
+    def with_material(self, **changes) -> "Case":
+        return replace(self, material=replace(self.material, **changes))
+
+    def with_mesh(self, mesh: MeshData) -> "Case":
+        return replace(self, mesh=mesh)
+
+    def dirichlet_regions(self) -> list[str]:
+        """Regions with a Dirichlet-type condition (fixed, displacement, affine, sliding)."""
+        return [b.region for b in self.boundaries if b.type != "traction"]
+
+
+# --------------------------------------------------------------------------- TOML
+def _case_from_dict(data: dict, base: Path, where: str, mesh: MeshData | None = None) -> Case:
+    from .builders import build
+    from .io import read_mesh
+
+    known = {"name", "mesh", "material", "boundary", "probe", "actuator", "body"}
+    unknown = set(data) - known
+    if unknown:
+        raise CaseError(f"{where}: unknown top-level key(s) {sorted(unknown)}; known: {sorted(known)}")
+    if mesh is None:
+        m = data.get("mesh")
+        if not isinstance(m, dict):
+            raise CaseError(f"{where}: a [mesh] table with file = ... or builtin = ... is required")
+        if "file" in m:
+            mesh = read_mesh(base / m["file"])
+        elif "builtin" in m:
+            mesh = build(m["builtin"], float(m.get("size", 6.0)))
+        else:
+            raise CaseError(f"{where}: [mesh] needs file = \"part.msh\" or builtin = \"phantom\"")
+    mat = data.get("material", {})
+    try:
+        material = Material(**mat)
+    except TypeError as exc:
+        raise CaseError(f"{where}: [material]: {exc}") from None
+
+    def table(key, cls):
+        out = []
+        for i, entry in enumerate(data.get(key, [])):
+            try:
+                out.append(cls(**entry))
+            except TypeError as exc:
+                raise CaseError(f"{where}: [[{key}]] #{i + 1}: {exc}") from None
+        return out
+
+    body = data.get("body", {})
+    unknown = set(body) - {"gravity"}
+    if unknown:
+        raise CaseError(f"{where}: [body]: unknown key(s) {sorted(unknown)}")
+    return Case(mesh=mesh, material=material,
+                boundaries=[replace(b, components=tuple(b.components) if b.components else None)
+                            for b in table("boundary", Boundary)],
+                probes=table("probe", Probe), actuators=table("actuator", Actuator),
+                gravity=body.get("gravity"), name=str(data.get("name", Path(where).stem)),
+                source=where)
+
+
+def load_case(path, *, mesh: MeshData | None = None, size: float | None = None) -> Case:
+    """Read a Case TOML file (mesh paths relative to the file).
+
+    ``mesh`` replaces the file's mesh (e.g. a refined one); ``size`` overrides a builtin's size.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ReadError(f"case file {str(path)!r} does not exist")
+    try:
+        data = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ReadError(f"case file {str(path)!r} is not valid TOML: {exc}") from exc
+    if size is not None and mesh is None:
+        m = dict(data.get("mesh", {}))
+        if "builtin" not in m:
+            raise CaseError(f"{path}: size override needs a builtin mesh, not a mesh file")
+        m["size"] = size
+        data = {**data, "mesh": m}
+    return _case_from_dict(data, path.parent, str(path), mesh)

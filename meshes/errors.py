@@ -1,0 +1,37 @@
+"""Exception hierarchy of the toolkit. Every message names the file, region or value at fault."""
+
+__all__ = ["TissueError", "ReadError", "WriteError", "CaseError", "MeshQualityError",
+           "ConvergenceError", "SolverDivergedError"]
+
+
+class TissueError(Exception):
+    """Base class of every error this toolkit raises on purpose."""
+
+
+class ReadError(TissueError):
+    """A file could not be read (missing, unreadable, wrong format)."""
+
+
+class WriteError(TissueError):
+    """A file could not be written."""
+
+
+class CaseError(TissueError, ValueError):
+    """The problem description is inconsistent (unknown region, bad material value, ...)."""
+
+
+class MeshQualityError(CaseError):
+    """The mesh has inverted or zero-volume cells."""
+
+
+class ConvergenceError(TissueError, RuntimeError):
+    """A nonlinear solve did not converge. ``last_converged`` holds the last good state."""
+
+    def __init__(self, message, *, load_fraction=0.0, last_converged=None):
+        super().__init__(message)
+        self.load_fraction = load_fraction
+        self.last_converged = last_converged
+
+
+class SolverDivergedError(ConvergenceError):
+    """A fast solver diverged (NaN, inverted element, residual growth)."""

@@ -1,0 +1,90 @@
+"""The result every solver returns, and its JSON form (the same keys for every solver)."""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .io import atomic_path
+
+__all__ = ["SolveResult", "write_json"]
+
+
+@dataclass(frozen=True)
+class SolveResult:
+    """A solve of a Case.
+
+    u: (n_vertices, gdim) displacement at the Case mesh's vertices, in its own numbering (mm).
+    probes: probe name -> (gdim,) displacement (mm).  reactions: Dirichlet region -> (gdim,) force
+    the support exerts on the body (mN).  strain_energy in uJ (= kPa mm^3 = mN mm).
+    iterations: Newton iterations (fem) or the fast solver's own iterations.
+    """
+
+    u: np.ndarray
+    converged: bool
+    iterations: int
+    residual: float
+    wall_time_s: float
+    solver: str
+    probes: dict = field(default_factory=dict)
+    reactions: dict = field(default_factory=dict)
+    strain_energy: float = float("nan")
+    load_steps: int = 1
+    degree: int = 1
+    case_name: str = "case"
+    n_vertices: int = 0
+    n_cells: int = 0
+    history: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def dimension(self) -> int:
+        return int(self.u.shape[1])
+
+    def to_json_dict(self, case=None) -> dict:
+        pts = {}
+        if case is not None:
+            pts = {p.name: list(map(float, p.point)) for p in case.probes}
+        d = {
+            "case": self.case_name, "solver": self.solver, "degree": self.degree,
+            "dimension": self.dimension, "n_vertices": self.n_vertices, "n_cells": self.n_cells,
+            "converged": bool(self.converged), "load_steps": int(self.load_steps),
+            "newton_iterations": int(self.iterations) if self.solver == "fem" else 0,
+            "iterations": int(self.iterations),
+            "wall_time_s": float(self.wall_time_s),
+            "probes": {k: {"point": pts.get(k), "displacement": np.asarray(v, float).tolist()}
+                       for k, v in self.probes.items()},
+            "reactions": {k: np.asarray(v, float).tolist() for k, v in self.reactions.items()},
+            "strain_energy": float(self.strain_energy),
+        }
+        d.update({k: v for k, v in self.extra.items() if _jsonable(v)})
+        return d
+
+
+def _jsonable(v) -> bool:
+    try:
+        json.dumps(v)
+        return True
+    except TypeError:
+        return False
+
+
+def write_json(data: dict, path) -> Path:
+    """Write JSON whole or not at all (temporary file + rename)."""
+    path = Path(path)
+    text = json.dumps(data, indent=2, default=_default)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text + "\n")
+    return path
+
+
+def _default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serializable: {type(o).__name__}")
