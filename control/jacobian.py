@@ -1,0 +1,307 @@
+"""Control Jacobians of seed 000 (section III-A) from a tangent stiffness K.
+
+Two sensitivities of the internal targets' displacement (mm) to the actuators:
+
+* ``dirichlet_jacobian`` -- the actuator is a rigid patch (its region's dofs prescribed) pushed
+  along its unit direction d_i. Partition the dofs into free (f) and prescribed (p: the Case's
+  Dirichlet dofs plus every actuator region's dofs), then
+
+      K_ff du_f = -K_fp du_p,   du_p = d_i on actuator i's dofs, 0 elsewhere,
+      dx_target = P du,
+
+  one column per actuator, mm of target per mm of push. This is the exact derivative of the
+  quasi-static solve ``solve(case.with_pushes({A1: s1, ..., An: sn}))`` with respect to s_i when K
+  is the consistent tangent at that solution: every actuator is held at its push (a push of 0 holds
+  its patch in place), exactly as :func:`fd_jacobian` perturbs it.
+
+* ``force_jacobian`` -- seed eq. 19 with point (or patch) forces as inputs:
+  J_s = J_m^T K^-1 J_c (J_c^T K^-1 J_c)^-1 with K restricted to the free dofs of the Case (actuator
+  regions free), J_c the unit force along d_i at actuator i's control point(s), J_m^T = P.
+
+K is node-major (dof = 3 * node + c), full size (constrained dofs included), in the Case's vertex
+numbering; degree-2 tangents carry extra (edge) nodes after the vertices: pass ``P`` (target
+interpolation on the whole dof vector) and ``region_nodes`` (node ids of a region, extra nodes
+included) for them.
+
+Rows of every Jacobian: T1.x, T1.y, T1.z, T2.x, ...; columns: actuators in the Case's order.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from meshes.errors import CaseError, ConvergenceError
+
+__all__ = ["ControlJacobian", "probe_matrix", "point_matrix", "dirichlet_jacobian",
+           "force_jacobian", "fd_jacobian", "max_rel_error", "full_pushes", "target_rows"]
+
+
+@dataclass(frozen=True)
+class ControlJacobian:
+    """J (3 * n_targets, n_actuators), mm per mm (Dirichlet) or mm per mN (forces).
+
+    rows: names "T1.x", "T1.y", ...; ``block(target)`` is the (gdim, n_actuators) block of one target.
+    """
+
+    J: np.ndarray
+    actuators: tuple
+    targets: tuple
+    kind: str = "dirichlet"
+    gdim: int = 3
+    wall_time_s: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def rows(self) -> list[str]:
+        return target_rows(self.targets, self.gdim)
+
+    def block(self, target: str) -> np.ndarray:
+        if target not in self.targets:
+            raise CaseError(f"target {target!r} is not in this Jacobian; targets: {list(self.targets)}")
+        i = self.targets.index(target)
+        return self.J[self.gdim * i: self.gdim * (i + 1)]
+
+
+def target_rows(targets, gdim=3) -> list[str]:
+    return [f"{t}.{'xyz'[c]}" for t in targets for c in range(gdim)]
+
+
+def _names(case, actuators, targets):
+    acts = tuple(a.name for a in case.actuators) if actuators is None else tuple(actuators)
+    tg = tuple(p.name for p in case.probes) if targets is None else tuple(targets)
+    for a in acts:
+        case.actuator(a)  # raises CaseError naming the missing actuator
+    for t in tg:
+        case.probe(t)
+    if not acts:
+        raise CaseError(f"{case.source or case.name}: the Case has no actuators")
+    if not tg:
+        raise CaseError(f"{case.source or case.name}: the Case has no targets (probes)")
+    return acts, tg
+
+
+def probe_matrix(case, targets=None, *, n_dofs=None) -> sp.csr_matrix:
+    """P1 interpolation (gdim * n_targets, n_dofs) at the Case's probes (barycentric weights of
+    ``case.probe_locations``); extra columns (degree-2 nodes) are zero."""
+    d = case.mesh.gdim
+    n_dofs = d * case.mesh.n_vertices if n_dofs is None else int(n_dofs)
+    locs = {loc.name: loc for loc in case.probe_locations}
+    tg = [p.name for p in case.probes] if targets is None else list(targets)
+    rows, cols, vals = [], [], []
+    for i, t in enumerate(tg):
+        if t not in locs:
+            case.probe(t)  # raises naming it
+        loc = locs[t]
+        verts = case.mesh.cells[loc.cell]
+        for c in range(d):
+            rows += [d * i + c] * len(verts)
+            cols += (d * verts + c).tolist()
+            vals += loc.weights.tolist()
+    return sp.csr_matrix((vals, (rows, cols)), shape=(d * len(tg), n_dofs))
+
+
+def point_matrix(mesh, points, *, n_dofs=None):
+    """P1 interpolation (gdim * n_points, n_dofs) at arbitrary points (mm) and a mask of the
+    points that lie inside the mesh (to 1e-9 in barycentric weights). Outside points get zero rows."""
+    from scipy.spatial import cKDTree
+
+    X, cells = mesh.points, mesh.cells
+    d = mesh.gdim
+    pts = np.asarray(points, float).reshape(-1, d)
+    n_dofs = d * len(X) if n_dofs is None else int(n_dofs)
+    T = X[cells[:, 1:]] - X[cells[:, :1]]
+    Tinv = np.linalg.inv(np.transpose(T, (0, 2, 1)))
+    tree = cKDTree(X[cells].mean(axis=1))
+    k = min(len(cells), 48)
+    rows, cols, vals = [], [], []
+    inside = np.zeros(len(pts), bool)
+    for i, x in enumerate(pts):
+        _, cand = tree.query(x, k=k)
+        for c in np.atleast_1d(cand):
+            lam = Tinv[c] @ (x - X[cells[c, 0]])
+            w = np.concatenate([[1 - lam.sum()], lam])
+            if w.min() >= -1e-9:
+                inside[i] = True
+                for cc in range(d):
+                    rows += [d * i + cc] * (d + 1)
+                    cols += (d * cells[c] + cc).tolist()
+                    vals += w.tolist()
+                break
+    return sp.csr_matrix((vals, (rows, cols)), shape=(d * len(pts), n_dofs)), inside
+
+
+def _check_K(K, case, P):
+    d = case.mesh.gdim
+    if not sp.issparse(K):
+        K = sp.csr_matrix(np.asarray(K, float))
+    K = K.tocsr()
+    n = K.shape[0]
+    if K.shape[0] != K.shape[1] or n % d or n < d * case.mesh.n_vertices:
+        raise CaseError(f"tangent K of shape {K.shape} does not fit the Case: it must be square, "
+                        f"node-major with at least {d}*{case.mesh.n_vertices} rows")
+    if n > d * case.mesh.n_vertices and P is None:
+        raise CaseError(f"tangent K has {n // d} nodes but the Case mesh {case.mesh.n_vertices} "
+                        f"vertices (degree 2?): pass P, the target interpolation on all {n} dofs, "
+                        f"and region_nodes")
+    if P is not None and P.shape[1] != n:
+        raise CaseError(f"interpolation P of shape {P.shape} does not match K's {n} dofs")
+    return K
+
+
+def _region_dofs(case, region, d, region_nodes):
+    nodes = case.mesh.region_vertices(region) if region_nodes is None else \
+        np.asarray(region_nodes(region), np.int64)
+    return nodes, (d * nodes[:, None] + np.arange(d)).ravel()
+
+
+def dirichlet_jacobian(case, K, *, actuators=None, targets=None, P=None,
+                       region_nodes=None) -> ControlJacobian:
+    """Exact sensitivity (mm/mm) of target displacements to rigid pushes of actuator patches.
+
+    case: the Case (its Dirichlet dofs stay prescribed; sliding on oblique planes is refused).
+    K: tangent stiffness at the state (CSR, mN/mm, node-major, constrained dofs included).
+    P: optional (gdim * n_targets, n_dofs) interpolation of the targets (default: P1 probes).
+    region_nodes: optional callable region -> node ids of K (degree 2: vertices and edge nodes);
+        default: the Case mesh's region vertices. It is used for the Case's boundary regions too.
+    """
+    t0 = time.perf_counter()
+    acts, tg = _names(case, actuators, targets)
+    K = _check_K(K, case, P)
+    d = case.mesh.gdim
+    n = K.shape[0]
+    c = case.constraints
+    if c.sliding:
+        raise CaseError(f"{case.source or case.name}: oblique sliding conditions are not supported "
+                        f"by dirichlet_jacobian")
+    fixed = np.zeros(n, bool)
+    if region_nodes is None:
+        fixed[c.dofs] = True
+    else:
+        act_regions = {case.actuator(a).region for a in acts}
+        for b in case.boundaries:
+            if b.type == "traction" or b.region in act_regions:
+                continue
+            if b.type == "displacement" and b.components is not None:
+                nodes, _ = _region_dofs(case, b.region, d, region_nodes)
+                for comp in b.components:
+                    fixed[d * nodes + comp] = True
+            elif b.type == "sliding":
+                nodes, _ = _region_dofs(case, b.region, d, region_nodes)
+                k = int(np.argmax(np.abs(np.asarray(b.normal, float))))
+                fixed[d * nodes + k] = True
+            else:
+                fixed[_region_dofs(case, b.region, d, region_nodes)[1]] = True
+    dUp = np.zeros((n, len(acts)))
+    for j, a in enumerate(acts):
+        act = case.actuator(a)
+        nodes, dofs = _region_dofs(case, act.region, d, region_nodes)
+        fixed[dofs] = True
+        dUp[dofs, j] = np.tile(np.asarray(act.direction), len(nodes))
+    free = np.flatnonzero(~fixed)
+    pres = np.flatnonzero(fixed)
+    Kff = K[free][:, free].tocsc()
+    Kfp = K[free][:, pres]
+    rhs = -(Kfp @ dUp[pres])
+    lu = spla.splu(Kff)
+    du = dUp.copy()
+    du[free] = lu.solve(np.ascontiguousarray(rhs))
+    Pm = probe_matrix(case, tg, n_dofs=n) if P is None else sp.csr_matrix(P)
+    J = np.asarray(Pm @ du)
+    return ControlJacobian(J, acts, tg, "dirichlet", d, time.perf_counter() - t0,
+                           {"n_free": int(len(free))})
+
+
+def force_jacobian(case, K, *, actuators=None, targets=None, P=None, control="point",
+                   region_nodes=None) -> ControlJacobian:
+    """Seed 000 eq. 19: J_s = J_m^T K^-1 J_c (J_c^T K^-1 J_c)^-1 (mm of target per mm of control
+    point displacement along d_i), K restricted to the Case's free dofs (actuator regions free).
+
+    control: "point" -- the force acts at the region vertex nearest to the region's centroid;
+             "patch" -- the unit force is spread evenly over the region's nodes (x_c = mean
+             displacement of the patch along d_i).
+    Also returned in ``extra``: "G" = J_m^T K^-1 J_c (mm per mN) and "C" = J_c^T K^-1 J_c.
+    """
+    t0 = time.perf_counter()
+    if control not in ("point", "patch"):
+        raise CaseError(f"control must be 'point' or 'patch', got {control!r}")
+    acts, tg = _names(case, actuators, targets)
+    K = _check_K(K, case, P)
+    d = case.mesh.gdim
+    n = K.shape[0]
+    fixed = np.zeros(n, bool)
+    fixed[case.constraints.dofs] = True
+    for a in acts:
+        r = case.actuator(a).region
+        if np.any(fixed[_region_dofs(case, r, d, None)[1]]):
+            raise CaseError(f"actuator {a!r}: region {r!r} carries a Dirichlet condition in this "
+                            f"Case; force inputs need it free (use the Case without pushes)")
+    Jc = np.zeros((n, len(acts)))
+    for j, a in enumerate(acts):
+        act = case.actuator(a)
+        nodes, _ = _region_dofs(case, act.region, d, region_nodes)
+        if control == "point":
+            X = case.mesh.points
+            verts = case.mesh.region_vertices(act.region)
+            v = verts[np.argmin(np.linalg.norm(X[verts] - X[verts].mean(0), axis=1))]
+            Jc[d * v: d * v + d, j] = act.direction
+        else:
+            for v in nodes:
+                Jc[d * v: d * v + d, j] = np.asarray(act.direction) / len(nodes)
+    free = np.flatnonzero(~fixed)
+    lu = spla.splu(K[free][:, free].tocsc())
+    X = np.zeros((n, len(acts)))
+    X[free] = lu.solve(np.ascontiguousarray(Jc[free]))   # K^-1 J_c
+    Pm = probe_matrix(case, tg, n_dofs=n) if P is None else sp.csr_matrix(P)
+    G = np.asarray(Pm @ X)
+    C = Jc.T @ X
+    J = G @ np.linalg.inv(C)
+    return ControlJacobian(J, acts, tg, "force-" + control, d, time.perf_counter() - t0,
+                           {"G": G, "C": C})
+
+
+def full_pushes(case, pushes=None) -> dict:
+    """Every actuator of the Case with its push (mm); missing ones are held at 0."""
+    pushes = dict(pushes or {})
+    for a in pushes:
+        case.actuator(a)
+    return {a.name: float(pushes.get(a.name, 0.0)) for a in case.actuators}
+
+
+def fd_jacobian(plant, case, state_pushes=None, *, h=0.05, actuators=None, targets=None,
+                initial=None) -> ControlJacobian:
+    """Central finite differences (mm/mm) of the nonlinear solve with respect to each push:
+    (x(s + h e_i) - x(s - h e_i)) / (2 h), every actuator held (pushes of 0 included).
+
+    plant(case, pushes, initial_u) -> SolveResult with ``probes`` (name -> displacement, mm) and ``u``.
+    h in mm. Raises ConvergenceError when a solve does not converge.
+    """
+    t0 = time.perf_counter()
+    if not (np.isfinite(h) and h > 0):
+        raise CaseError(f"finite-difference step h must be > 0 mm, got h={h!r}")
+    acts, tg = _names(case, actuators, targets)
+    base = full_pushes(case, state_pushes)
+    d = case.mesh.gdim
+    J = np.zeros((d * len(tg), len(acts)))
+    for j, a in enumerate(acts):
+        vals = []
+        for s in (+h, -h):
+            p = dict(base)
+            p[a] += s
+            r = plant(case, p, initial)
+            if not r.converged:
+                raise ConvergenceError(f"fd_jacobian: solve with pushes {p} did not converge "
+                                       f"(residual {r.residual:g})")
+            vals.append(np.concatenate([np.asarray(r.probes[t], float) for t in tg]))
+        J[:, j] = (vals[0] - vals[1]) / (2 * h)
+    return ControlJacobian(J, acts, tg, "fd", d, time.perf_counter() - t0, {"h": h})
+
+
+def max_rel_error(J, J_ref) -> float:
+    """max |J - J_ref| / max |J_ref| (the matrix-relative error, dimensionless)."""
+    J, J_ref = np.asarray(J, float), np.asarray(J_ref, float)
+    scale = np.abs(J_ref).max()
+    return float(np.abs(J - J_ref).max() / scale) if scale > 0 else float(np.abs(J).max())

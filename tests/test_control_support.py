@@ -1,0 +1,83 @@
+"""Shared helpers of the control tests (no tests here): a self-made linear-elastic P1 stiffness
+(element B^T D B V, independent of the project's solvers) and a linear Dirichlet 'plant' on it."""
+from __future__ import annotations
+
+import time
+from functools import lru_cache
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from meshes.case import load_case
+from meshes.results import SolveResult
+
+PHANTOM = "meshes/cases/phantom.toml"
+PHANTOM3 = "meshes/cases/phantom-3.toml"
+
+
+@lru_cache(maxsize=None)
+def phantom(path=PHANTOM, size=12.0):
+    return load_case(path, size=size)
+
+
+def linear_p1_stiffness(case, E=None, nu=None):
+    """Linear-elastic P1 stiffness (mN/mm), node-major, full size: sum_e V_e B_e^T D B_e."""
+    X, cells = case.mesh.points, case.mesh.cells
+    E = case.material.E if E is None else E
+    nu = case.material.nu if nu is None else nu
+    lam = E * nu / ((1 + nu) * (1 - 2 * nu))
+    mu = E / (2 * (1 + nu))
+    D = np.zeros((6, 6))
+    D[:3, :3] = lam
+    D[np.arange(3), np.arange(3)] += 2 * mu
+    D[np.arange(3, 6), np.arange(3, 6)] = mu
+    rows, cols, vals = [], [], []
+    for cell in cells:
+        A = np.ones((4, 4))
+        A[:, 1:] = X[cell]
+        V = abs(np.linalg.det(A)) / 6.0
+        grads = np.linalg.inv(A)[1:].T          # (4, 3): gradient of each barycentric function
+        B = np.zeros((6, 12))
+        for a in range(4):
+            gx, gy, gz = grads[a]
+            B[0, 3 * a], B[1, 3 * a + 1], B[2, 3 * a + 2] = gx, gy, gz
+            B[3, 3 * a + 1], B[3, 3 * a + 2] = gz, gy      # yz
+            B[4, 3 * a], B[4, 3 * a + 2] = gz, gx          # xz
+            B[5, 3 * a], B[5, 3 * a + 1] = gy, gx          # xy
+        Ke = V * B.T @ D @ B
+        dofs = (3 * cell[:, None] + np.arange(3)).ravel()
+        rows.append(np.repeat(dofs, 12))
+        cols.append(np.tile(dofs, 12))
+        vals.append(Ke.ravel())
+    n = 3 * len(X)
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(n, n))
+
+
+class LinearPlant:
+    """plant(case, pushes, initial) -> SolveResult of the linear Dirichlet problem K u = 0 with the
+    Case's (pushed) prescriptions; K fixed (built for the unpushed Case's mesh)."""
+
+    def __init__(self, K):
+        self.K = K.tocsr()
+        self._lu = {}
+
+    def __call__(self, case, pushes, initial=None):
+        t0 = time.perf_counter()
+        c = case.with_pushes(pushes).constraints
+        n = self.K.shape[0]
+        u = np.zeros(n)
+        u[c.dofs] = c.values
+        free = np.setdiff1d(np.arange(n), c.dofs)
+        key = c.dofs.tobytes()
+        if key not in self._lu:
+            self._lu[key] = spla.splu(self.K[free][:, free].tocsc())
+        u[free] = self._lu[key].solve(-(self.K[free][:, c.dofs] @ c.values))
+        U = u.reshape(-1, 3)
+        return SolveResult(U, True, 1, 0.0, time.perf_counter() - t0, "linear-test",
+                           probes=case.probe_values(U))
+
+
+def linear_tangent(K):
+    return lambda case, u: K
