@@ -1,0 +1,639 @@
+"""The ground-truth solver: the Case's energy as a UFL form, PETSc Newton with MUMPS LU, load
+stepping with automatic cut-back, converged reason checked every step.
+
+Units: mm, kPa, mN. Serial or under ``mpirun``; every array returned is in the Case's vertex
+numbering and identical on all ranks.
+
+    ref = ReferenceSolver(case, degree=2)     # forms compiled once
+    res = ref.solve(pushes={"A1": 15.0})      # SolveResult
+    tan = ref.tangent(res.u)                  # exact tangent K as scipy CSR
+"""
+from __future__ import annotations
+
+import logging
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from mpi4py import MPI
+from petsc4py import PETSc
+
+import dolfinx
+import dolfinx.fem
+import dolfinx.fem.petsc
+import ufl
+from meshes.case import Case
+from meshes.errors import CaseError, ConvergenceError
+from meshes.results import SolveResult
+
+from .dolfinx_mesh import DolfinxMesh, to_dolfinx
+from .forms import strain_energy_density
+
+__all__ = ["ReferenceSolver", "NewtonSettings", "Tangent", "solve", "tangent_stiffness",
+           "DEFAULT_QUADRATURE"]
+
+log = logging.getLogger("tissue.fem")
+for _name in ("UFL", "FFCx", "ffcx", "root"):
+    logging.getLogger(_name).setLevel(logging.WARNING)
+
+# Quadrature degree per Lagrange degree. P1: F is constant per cell, degree 1 integrates the
+# energy and the body-force term exactly. P2: F is linear; psi is not polynomial, degree 4 is
+# checked against degree 6 in tests (UFL would estimate ~ 146 points per cell for J**(-2/3)).
+DEFAULT_QUADRATURE = {1: 1, 2: 4}
+
+
+@dataclass(frozen=True)
+class NewtonSettings:
+    """rtol: residual reduction per load step; atol_mm: Newton correction (inf-norm, mm) under which
+    a step is converged; max_step_mm: largest prescribed-displacement increment of the first try."""
+
+    rtol: float = 1e-10
+    atol: float = 1e-10
+    atol_mm: float = 1e-10
+    max_iterations: int = 25
+    max_step_mm: float = 5.0
+    min_fraction: float = 1.0 / 1024
+    grow: float = 1.5
+
+    def __post_init__(self):
+        for name in ("rtol", "atol", "atol_mm", "max_step_mm", "min_fraction"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
+                raise ValueError(f"NewtonSettings.{name} must be a positive number, got {v!r}")
+        if self.max_iterations < 1:
+            raise ValueError(f"NewtonSettings.max_iterations must be >= 1, got {self.max_iterations}")
+
+
+@dataclass(frozen=True)
+class Tangent:
+    """Exact tangent stiffness K (mN/mm), node-major (dof = gdim*node + component).
+
+    Nodes 0..n_vertices-1 are the Case's vertices in its own numbering; for degree 2 the edge
+    nodes follow, with coordinates ``node_points``. ``dirichlet_dofs`` are the prescribed dofs.
+    """
+
+    K: object
+    dirichlet_dofs: np.ndarray
+    node_points: np.ndarray
+    n_vertices: int
+    degree: int
+
+
+@dataclass
+class _Timings:
+    assemble: float = 0.0
+    solve: float = 0.0
+    setup: float = 0.0
+
+
+class ReferenceSolver:
+    """Neo-Hookean / linear-elastic reference on one Case mesh; build once, solve many times.
+
+    Args:
+        case: the Case (mesh, material, boundaries, probes).
+        degree: Lagrange degree, 1 or 2.
+        quadrature_degree: override DEFAULT_QUADRATURE[degree].
+        settings: NewtonSettings.
+        comm: MPI communicator.
+        sliding_penalty: factor beta of the oblique-sliding penalty (beta * E / h_min per mm^2).
+    """
+
+    def __init__(self, case: Case, *, degree: int = 1, quadrature_degree: int | None = None,
+                 settings: NewtonSettings | None = None, comm=MPI.COMM_WORLD,
+                 sliding_penalty: float = 1e4):
+        if degree not in (1, 2):
+            raise CaseError(f"degree must be 1 or 2, got {degree!r}")
+        t0 = time.perf_counter()
+        self.case = case
+        self.degree = degree
+        self.comm = comm
+        self.settings = settings or NewtonSettings()
+        self.qdeg = quadrature_degree or DEFAULT_QUADRATURE[degree]
+        self.dm: DolfinxMesh = to_dolfinx(case.mesh, comm)
+        mesh = self.dm.mesh
+        self.gdim = case.mesh.gdim
+        self.V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", degree))
+        self.u = dolfinx.fem.Function(self.V, name="displacement")
+        self.du = dolfinx.fem.Function(self.V)
+        self._node_map()
+        # material and loads as Constants: a changed E or load scale needs no recompilation
+        self.E = dolfinx.fem.Constant(mesh, PETSc.ScalarType(case.material.E))
+        self.nu = dolfinx.fem.Constant(mesh, PETSc.ScalarType(case.material.nu))
+        self.load = dolfinx.fem.Constant(mesh, PETSc.ScalarType(1.0))
+        E, nu = self.E, self.nu
+        mu = E / (2 * (1 + nu))
+        kappa = E / (3 * (1 - 2 * nu))
+        lmbda = E * nu / ((1 + nu) * (1 - 2 * nu))
+        psi, _ = strain_energy_density(self.u, case.material.model, mu, kappa, lmbda)
+        md = {"quadrature_degree": self.qdeg}
+        dx = ufl.Measure("dx", domain=mesh, metadata=md)
+        ds = ufl.Measure("ds", domain=mesh, subdomain_data=self.dm.facet_tags, metadata=md)
+        g = case.gravity if case.gravity is not None else (0.0,) * self.gdim
+        self.body = dolfinx.fem.Constant(mesh, PETSc.ScalarType(
+            tuple(case.material.density * np.asarray(g, float))))
+        internal = psi * dx
+        external = ufl.inner(self.body, self.u) * dx
+        self.tractions = {}
+        for b in case.boundaries:
+            if b.type == "traction":
+                t = dolfinx.fem.Constant(mesh, PETSc.ScalarType(tuple(map(float, b.value))))
+                self.tractions[b.region] = t
+                external = external + ufl.inner(t, self.u) * ds(self.dm.region_tags[b.region])
+        penalty = 0
+        self._oblique = []
+        for b in case.boundaries:
+            if b.type == "sliding":
+                n = np.asarray(b.normal, float)
+                n = n / np.linalg.norm(n)
+                if np.count_nonzero(np.abs(n) > 1e-12) > 1:
+                    self._oblique.append(b.region)
+                    nn = ufl.as_vector(n.tolist())
+                    gval = dolfinx.fem.Constant(mesh, PETSc.ScalarType(float(b.value or 0.0)))
+                    beta = sliding_penalty * case.material.E / self.dm.h_min
+                    penalty = penalty + beta / 2 * (ufl.dot(self.u, nn) - self.load * gval) ** 2 * \
+                        ds(self.dm.region_tags[b.region])
+        self.energy_internal = internal
+        total = internal - self.load * external + penalty
+        v = ufl.TestFunction(self.V)
+        w = ufl.TrialFunction(self.V)
+        self.R_ufl = ufl.derivative(total, self.u, v)
+        self.R_int_ufl = ufl.derivative(internal - self.load * external, self.u, v)
+        self.K_ufl = ufl.derivative(self.R_ufl, self.u, w)
+        self.R_form = dolfinx.fem.form(self.R_ufl)
+        self.R_int_form = dolfinx.fem.form(self.R_int_ufl)
+        self.K_form = dolfinx.fem.form(self.K_ufl)
+        self.W_form = dolfinx.fem.form(internal)
+        self.A = dolfinx.fem.petsc.create_matrix(self.K_form)
+        self.b = dolfinx.fem.petsc.create_vector(self.R_form)
+        self.ksp = PETSc.KSP().create(comm)
+        self.ksp.setOperators(self.A)
+        self.ksp.setType("preonly")
+        pc = self.ksp.getPC()
+        pc.setType("lu")
+        pc.setFactorSolverType("mumps")
+        self._region_dofs = {}
+        self.timings = _Timings(setup=time.perf_counter() - t0)
+
+    # ------------------------------------------------------------------ numbering
+    def _node_map(self):
+        """Map dolfinx (local) dof nodes of V to Case vertices / extra nodes."""
+        V, dm = self.V, self.dm
+        tdim = dm.mesh.topology.dim
+        nv = tdim + 1
+        cell_dofs = V.dofmap.list.array.reshape(-1, V.dofmap.dof_layout.num_dofs)
+        geo = dm.mesh.geometry.dofmap.array.reshape(-1, nv)
+        imap = V.dofmap.index_map
+        n_local = imap.size_local + imap.num_ghosts
+        node_vertex = -np.ones(n_local, np.int64)
+        node_vertex[cell_dofs[:, :nv].ravel()] = dm.node_to_vertex[geo.ravel()]
+        self.n_local_nodes = imap.size_local
+        self.node_vertex = node_vertex  # -1 for edge nodes (degree 2)
+        self.global_nodes = imap.local_to_global(np.arange(n_local, dtype=np.int32))
+        self.n_global_nodes = imap.size_global
+
+    # ------------------------------------------------------------------ boundary conditions
+    def _bcs(self, case: Case, scale: float, override=None):
+        """Dirichlet conditions of ``case`` at load ``scale`` (topological on facet regions), as
+        (DirichletBC, its value Function, parent dofs, collapsed dofs) per component."""
+        V, mesh = self.V, self.dm.mesh
+        tdim = mesh.topology.dim
+        bcs = []
+        for b in case.boundaries:
+            if b.type in ("traction",) or b.region in self._oblique:
+                continue
+            facets = self._facets(b.region)
+            if b.type == "fixed":
+                comps = {c: (lambda x: np.zeros(x.shape[1])) for c in range(self.gdim)}
+            elif b.type == "displacement":
+                val = np.asarray(b.value, float)
+                cs = b.components if b.components is not None else range(self.gdim)
+                comps = {c: (lambda x, c=c: np.full(x.shape[1], scale * val[c])) for c in cs}
+            elif b.type == "affine":
+                G = np.asarray(b.gradient if b.gradient is not None else np.zeros((self.gdim,) * 2))
+                c0 = np.asarray(b.offset if b.offset is not None else np.zeros(self.gdim))
+                comps = {c: (lambda x, c=c: scale * (G[c] @ x[:self.gdim] + c0[c]))
+                         for c in range(self.gdim)}
+            elif b.type == "sliding":
+                n = np.asarray(b.normal, float)
+                n = n / np.linalg.norm(n)
+                k = int(np.argmax(np.abs(n)))
+                g = scale * float(b.value or 0.0) * np.sign(n[k])
+                comps = {k: (lambda x, g=g: np.full(x.shape[1], g))}
+            else:  # pragma: no cover - Boundary validates types
+                raise CaseError(f"unknown boundary type {b.type!r}")
+            for c, fn in comps.items():
+                Vc, _ = self._sub(c)
+                dofs = dolfinx.fem.locate_dofs_topological((V.sub(c), Vc), tdim - 1, facets)
+                bcs.append(self._component_bc(c, dofs, fn))
+        if override is not None:
+            bcs.extend(self._override_bcs(*override))
+        return bcs
+
+    def _sub(self, c):
+        """(collapsed component space, parent dof of each collapsed dof), cached."""
+        if not hasattr(self, "_subs"):
+            self._subs = {}
+        if c not in self._subs:
+            Vc, cmap = self.V.sub(c).collapse()
+            self._subs[c] = (Vc, np.asarray(cmap, np.int64))
+        return self._subs[c]
+
+    def _component_bc(self, c, dofs, fn=None, values=None):
+        """(DirichletBC, value Function, parent dofs, collapsed dofs) of one component."""
+        Vc, _ = self._sub(c)
+        gfun = dolfinx.fem.Function(Vc)
+        if fn is not None:
+            gfun.interpolate(fn)
+        else:
+            gfun.x.array[dofs[1]] = values
+        bc = dolfinx.fem.dirichletbc(gfun, dofs, self.V.sub(c))
+        return bc, gfun, np.asarray(dofs[0]), np.asarray(dofs[1])
+
+    def _override_bcs(self, dofs, values):
+        """Per-vertex prescriptions (Case node-major dofs, values at full load); degree 1."""
+        if self.degree != 1:
+            raise CaseError("dirichlet_override is supported for degree 1 only")
+        dofs = np.asarray(dofs, np.int64)
+        values = np.asarray(values, float)
+        vert_to_node = -np.ones(self.case.mesh.n_vertices, np.int64)
+        has = self.node_vertex >= 0
+        vert_to_node[self.node_vertex[has]] = np.flatnonzero(has)
+        node = vert_to_node[dofs // self.gdim]
+        comp = dofs % self.gdim
+        out = []
+        for c in range(self.gdim):
+            sel = (node >= 0) & (comp == c)
+            if not np.any(sel):
+                continue
+            _, cmap = self._sub(c)
+            inv = np.full(len(self.u.x.array), -1, np.int64)
+            inv[cmap] = np.arange(len(cmap))
+            parent = node[sel] * self.gdim + c
+            pair = [parent.astype(np.int32), inv[parent].astype(np.int32)]
+            out.append(self._component_bc(c, pair, values=values[sel]))
+        return out
+
+    def _facets(self, region):
+        if region not in self.dm.region_tags:
+            raise CaseError(f"Dirichlet conditions need a boundary (facet) region; {region!r} is "
+                            f"not one; facet regions: {sorted(self.dm.region_tags)}")
+        ft = self.dm.facet_tags
+        return ft.indices[ft.values == self.dm.region_tags[region]]
+
+    def region_dofs(self, region) -> np.ndarray:
+        """Local (owned + ghost) block indices of the nodes on a facet region."""
+        if region not in self._region_dofs:
+            self._region_dofs[region] = dolfinx.fem.locate_dofs_topological(
+                self.V, self.dm.mesh.topology.dim - 1, self._facets(region))
+        return self._region_dofs[region]
+
+    # ------------------------------------------------------------------ Newton
+    def _assemble(self, bcs):
+        t0 = time.perf_counter()
+        A, b = self.A, self.b
+        A.zeroEntries()
+        dolfinx.fem.petsc.assemble_matrix(A, self.K_form, bcs=bcs)
+        A.assemble()
+        with b.localForm() as bl:
+            bl.set(0.0)
+        dolfinx.fem.petsc.assemble_vector(b, self.R_form)
+        dolfinx.fem.petsc.apply_lifting(b, [self.K_form], bcs=[bcs], x0=[self.u.vector], scale=-1.0)
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        dolfinx.fem.petsc.set_bc(b, bcs, self.u.vector, -1.0)
+        self.timings.assemble += time.perf_counter() - t0
+
+    def _newton(self, bcs, progress, label):
+        """Newton iterations at fixed load; returns (converged, iterations, residual)."""
+        s = self.settings
+        u, du = self.u, self.du
+        r0 = None
+        for it in range(1, s.max_iterations + 1):
+            self._assemble(bcs)
+            rnorm = self.b.norm()
+            if not math.isfinite(rnorm):
+                return False, it, rnorm
+            if r0 is None:
+                r0 = max(rnorm, 1e-300)
+            elif rnorm <= s.atol or rnorm <= s.rtol * r0:
+                return True, it - 1, rnorm
+            t0 = time.perf_counter()
+            self.b.scale(-1.0)
+            try:
+                self.ksp.solve(self.b, du.vector)
+            except PETSc.Error as exc:  # MUMPS on NaN entries (error 76) and the like
+                log.debug("linear solve failed: %s", exc)
+                return False, it, float("nan")
+            du.x.scatter_forward()
+            self.timings.solve += time.perf_counter() - t0
+            reason = self.ksp.getConvergedReason()
+            if reason < 0:
+                return False, it, rnorm
+            step = du.vector.norm(PETSc.NormType.NORM_INFINITY)
+            if not math.isfinite(step):
+                return False, it, float("nan")
+            u.vector.axpy(1.0, du.vector)
+            u.x.scatter_forward()
+            if progress and self.comm.rank == 0:
+                print(f"  {label} newton {it:2d}  |R| {rnorm:.3e}  |du|_max {step:.3e} mm",
+                      file=sys.stderr, flush=True)
+            if step <= s.atol_mm and it > 1:
+                self._assemble(bcs)
+                return True, it, self.b.norm()
+        return False, s.max_iterations, rnorm
+
+    def _max_prescribed(self, case, override):
+        m = np.abs(case.constraints.values).max(initial=0.0)
+        for b in case.boundaries:
+            if b.type == "sliding":
+                m = max(m, abs(float(b.value or 0.0)))
+        if override is not None:
+            m = max(m, np.abs(np.asarray(override[1], float)).max(initial=0.0))
+        return m
+
+    def solve(self, pushes=None, *, case: Case | None = None, initial=None, dirichlet_override=None,
+              progress: bool = False, cases_first=None) -> SolveResult:
+        """Solve ``case`` (default: the one given at construction) with ``pushes`` applied.
+
+        pushes: actuator name -> push (mm) along its direction.
+        initial: (n_vertices, gdim) warm start in the Case numbering (degree 1), or a previous
+            SolveResult of this solver (any degree); the load path starts from the case's
+            prescribed values at fraction 0 scaled from there.
+        dirichlet_override: (dofs, values): extra per-vertex prescriptions (node-major Case dofs,
+            mm at full load), degree 1.
+        Raises ConvergenceError (with ``last_converged`` SolveResult and the load fraction reached)
+        when a load step still fails after the cut-backs.
+        """
+        t_start = time.perf_counter()
+        case = (case or self.case).with_pushes(pushes or {})
+        if case.mesh is not self.case.mesh:
+            raise CaseError("ReferenceSolver.solve: the case mesh differs from the solver's mesh")
+        self.E.value = case.material.E
+        self.nu.value = case.material.nu
+        s = self.settings
+        warm = initial is not None
+        if warm:
+            self._set_state(initial)
+        else:
+            self.u.x.array[:] = 0.0
+        # Dirichlet data at full load; each load step sets g = start + lam (full - start), where
+        # start is the state's own boundary values (0 when cold), so a warm start ramps from
+        # where it is to the new prescriptions.
+        entries = self._bcs(case, 1.0, dirichlet_override)
+        bcs = [e[0] for e in entries]
+        ramps = []
+        span = 0.0
+        for _, gfun, parent, coll in entries:
+            garr = gfun.x.array
+            full = garr.copy()
+            start = np.zeros_like(full)
+            if warm:
+                start[coll] = self.u.x.array[parent]
+            ramps.append((garr, start, full))
+            span = max(span, np.abs(full[coll] - start[coll]).max(initial=0.0))
+        span = self.comm.allreduce(span, op=MPI.MAX)
+        inc = 1.0 if span <= s.max_step_mm else s.max_step_mm / span
+        lam = 0.0
+        steps = iters = 0
+        last_good = self.u.x.array.copy()
+        residual = 0.0
+        history = {"load_fraction": [], "newton_iterations": [], "residual": []}
+        prev_good, prev_lam = None, 0.0
+        predict = True
+        while lam < 1.0 - 1e-14:
+            trial = min(1.0, lam + inc)
+            for garr, start, full in ramps:
+                garr[:] = start + trial * (full - start)
+            self.load.value = 1.0 if warm else trial
+            if predict and prev_good is not None and lam > prev_lam:
+                # linear extrapolation of the load path (secant predictor)
+                self.u.x.array[:] += (trial - lam) / (lam - prev_lam) * (last_good - prev_good)
+                self.u.x.scatter_forward()
+            ok, it, res = self._newton(bcs, progress, f"load {trial:6.3f}")
+            iters += it
+            if not ok and predict and prev_good is not None:
+                # retry the same step from the last converged state, without the predictor
+                self.u.x.array[:] = last_good
+                self.u.x.scatter_forward()
+                ok, it, res = self._newton(bcs, progress, f"load {trial:6.3f}")
+                iters += it
+            if ok:
+                prev_good, prev_lam = last_good.copy(), lam
+                lam = trial
+                steps += 1
+                residual = res
+                last_good[:] = self.u.x.array
+                history["load_fraction"].append(lam)
+                history["newton_iterations"].append(it)
+                history["residual"].append(res)
+                if progress and self.comm.rank == 0:
+                    print(f"tissue fem: load fraction {lam:.4f} converged in {it} Newton "
+                          f"iterations (|R| {res:.2e})", file=sys.stderr, flush=True)
+                if it <= 5:
+                    inc *= s.grow
+            else:
+                self.u.x.array[:] = last_good
+                self.u.x.scatter_forward()
+                inc /= 2.0
+                if progress and self.comm.rank == 0:
+                    print(f"tissue fem: load fraction {trial:.4f} failed, cutting the step to "
+                          f"{inc:.4f}", file=sys.stderr, flush=True)
+                if inc < s.min_fraction:
+                    self.load.value = 1.0 if warm else lam
+                    wall = time.perf_counter() - t_start
+                    last = self._result(case, False, iters, residual, wall, steps, history, lam)
+                    raise ConvergenceError(
+                        f"{case.source or case.name}: Newton did not converge beyond load fraction "
+                        f"{lam:.4f} (tried {trial:.4f}) after cut-backs down to {inc * 2:.2e}",
+                        load_fraction=lam, last_converged=last)
+        wall = time.perf_counter() - t_start
+        return self._result(case, True, iters, residual, wall, max(steps, 1), history, 1.0)
+
+    # ------------------------------------------------------------------ state I/O
+    def _set_state(self, initial):
+        if isinstance(initial, SolveResult) and "dof_state" in initial.extra:
+            raise CaseError("warm start from a serialized state is not supported")
+        u0 = np.asarray(initial.u if isinstance(initial, SolveResult) else initial, float)
+        n = self.case.mesh.n_vertices
+        if u0.shape != (n, self.gdim):
+            raise CaseError(f"initial displacement must have shape {(n, self.gdim)}, got {u0.shape}")
+        arr = self.u.x.array.reshape(-1, self.gdim)
+        vmask = self.node_vertex >= 0
+        arr[vmask] = u0[self.node_vertex[vmask]]
+        if self.degree == 2:
+            # edge nodes: mean of the two end vertices (P1 field interpolated into P2)
+            self._p1_into_p2(u0, arr)
+        self.u.x.scatter_forward()
+
+    def _p1_into_p2(self, u0, arr):
+        V = self.V
+        cell_dofs = V.dofmap.list.array.reshape(-1, V.dofmap.dof_layout.num_dofs)
+        geo = self.dm.mesh.geometry.dofmap.array.reshape(-1, self.gdim + 1)
+        verts = self.dm.node_to_vertex[geo]
+        # basix P2 edge ordering on the reference simplex: edge i opposite ... use coordinates
+        x = V.tabulate_dof_coordinates()[:, :self.gdim]
+        X = self.case.mesh.points
+        for k in range(self.gdim + 1, cell_dofs.shape[1]):
+            nodes = cell_dofs[:, k]
+            # find the two cell vertices whose midpoint is the node
+            mids = 0.5 * (X[verts][:, :, None, :] + X[verts][:, None, :, :])
+            d = np.linalg.norm(mids - x[nodes][:, None, None, :], axis=3)
+            flat = d.reshape(len(nodes), -1).argmin(axis=1)
+            a, b = np.unravel_index(flat, d.shape[1:])
+            arr[nodes] = 0.5 * (u0[verts[np.arange(len(nodes)), a]] + u0[verts[np.arange(len(nodes)), b]])
+
+    def gather_nodes(self, local_array) -> np.ndarray:
+        """(n_global_nodes, gdim) array of a nodal field (owned values), on every rank."""
+        n_own = self.n_local_nodes
+        vals = np.asarray(local_array).reshape(-1, self.gdim)[:n_own]
+        gidx = self.global_nodes[:n_own]
+        all_idx = self.comm.allgather(gidx)
+        all_val = self.comm.allgather(vals)
+        out = np.zeros((self.n_global_nodes, self.gdim))
+        for i, v in zip(all_idx, all_val):
+            out[i] = v
+        return out
+
+    def _vertex_field(self) -> np.ndarray:
+        """Displacement at the Case vertices (Case numbering), on every rank."""
+        n_own = self.n_local_nodes
+        arr = self.u.x.array.reshape(-1, self.gdim)[:n_own]
+        nv = self.node_vertex[:n_own]
+        mask = nv >= 0
+        ids = self.comm.allgather(nv[mask])
+        vals = self.comm.allgather(arr[mask])
+        out = np.zeros((self.case.mesh.n_vertices, self.gdim))
+        for i, v in zip(ids, vals):
+            out[i] = v
+        return out
+
+    def _probes(self, case: Case, u_vertices) -> dict:
+        if self.degree == 1:
+            return case.probe_values(u_vertices)
+        mesh = self.dm.mesh
+        out = {}
+        tree = dolfinx.geometry.BoundingBoxTree(mesh, mesh.topology.dim)
+        cells_all = case.mesh.cells
+        for loc in case.probe_locations:
+            # nudge the snapped point into its cell so the collision test is unambiguous
+            c = case.mesh.points[cells_all[loc.cell]].mean(axis=0)
+            y = loc.snapped_point + 1e-9 * (c - loc.snapped_point)
+            p = np.zeros((1, 3))
+            p[0, :self.gdim] = y
+            cand = dolfinx.geometry.compute_collisions(tree, p)
+            coll = dolfinx.geometry.compute_colliding_cells(mesh, cand, p)
+            cells = coll.links(0)
+            val = np.zeros(self.gdim)
+            found = 0
+            if len(cells):
+                val = self.u.eval(p, cells[:1])
+                found = 1
+            count = self.comm.allreduce(found)
+            tot = self.comm.allreduce(np.asarray(val, float) * found)
+            out[loc.name] = tot / max(count, 1)
+        return out
+
+    def _reactions(self, case: Case) -> dict:
+        """Force (mN) the supports exert on the body, per Dirichlet region: sum of the internal-minus-
+        external residual over the region's dofs (owned dofs only, summed over ranks)."""
+        r = dolfinx.fem.petsc.assemble_vector(self.R_int_form)
+        r.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        arr = r.array.reshape(-1, self.gdim)
+        out = {}
+        seen = set()
+        for b in case.boundaries:
+            if b.type == "traction" or b.region in seen:
+                continue
+            seen.add(b.region)
+            if b.region not in self.dm.region_tags:
+                continue
+            dofs = self.region_dofs(b.region)
+            dofs = dofs[dofs < self.n_local_nodes]
+            out[b.region] = self.comm.allreduce(arr[dofs].sum(axis=0))
+        r.destroy()
+        return out
+
+    def _result(self, case, converged, iters, residual, wall, steps, history, lam) -> SolveResult:
+        u_v = self._vertex_field()
+        energy = self.comm.allreduce(dolfinx.fem.assemble_scalar(self.W_form))
+        return SolveResult(
+            u=u_v, converged=converged, iterations=iters, residual=float(residual),
+            wall_time_s=wall, solver="fem", probes=self._probes(case, u_v),
+            reactions=self._reactions(case), strain_energy=float(energy), load_steps=steps,
+            degree=self.degree, case_name=case.name, n_vertices=case.mesh.n_vertices,
+            n_cells=case.mesh.n_cells, history=history,
+            extra={"load_fraction": lam, "n_dofs": int(self.V.dofmap.index_map.size_global * self.gdim),
+                   "assemble_s": self.timings.assemble, "linear_solve_s": self.timings.solve})
+
+    # ------------------------------------------------------------------ tangent
+    def tangent(self, u=None, *, pushes=None) -> Tangent:
+        """Exact tangent K at state ``u`` ((n_vertices, gdim) or SolveResult; default: current)."""
+        if self.comm.size > 1:
+            raise CaseError("tangent export runs in serial (it returns one scipy matrix)")
+        import scipy.sparse as sp
+
+        if u is not None:
+            self._set_state(u)
+        case = self.case.with_pushes(pushes or {})
+        self.load.value = 1.0
+        A = dolfinx.fem.petsc.assemble_matrix(self.K_form)
+        A.assemble()
+        indptr, indices, data = A.getValuesCSR()
+        n = A.getSize()[0]
+        K = sp.csr_matrix((data, indices, indptr), shape=(n, n))
+        A.destroy()
+        # permutation: local node -> output node (vertices first in Case order, then edge nodes)
+        nv = self.case.mesh.n_vertices
+        nn = len(self.node_vertex)
+        out_node = np.empty(nn, np.int64)
+        vm = self.node_vertex >= 0
+        out_node[vm] = self.node_vertex[vm]
+        out_node[~vm] = nv + np.arange(np.count_nonzero(~vm))
+        d = self.gdim
+        perm = (out_node[:, None] * d + np.arange(d)).ravel()  # local dof -> output dof
+        P = sp.csr_matrix((np.ones(len(perm)), (perm, np.arange(len(perm)))), shape=(n, n))
+        K = (P @ K @ P.T).tocsr()
+        x = self.V.tabulate_dof_coordinates()[:, :d]
+        node_points = np.empty((nn, d))
+        node_points[out_node] = x
+        bc_dofs = [perm[e[2]] for e in self._bcs(case, 1.0)]
+        dd = np.unique(np.concatenate(bc_dofs)) if bc_dofs else np.zeros(0, np.int64)
+        return Tangent(K, dd, node_points, nv, self.degree)
+
+
+_CACHE: dict = {}
+
+
+def _solver_for(case: Case, degree: int, **kw) -> ReferenceSolver:
+    key = (id(case.mesh), degree, case.material.model, case.gravity,
+           tuple((b.region, b.type, str(b.normal), str(b.value)) for b in case.boundaries
+                 if b.type in ("traction", "sliding")), tuple(sorted(kw.items())))
+    s = _CACHE.get(key)
+    if s is None or s.case.mesh is not case.mesh:
+        if len(_CACHE) > 8:
+            _CACHE.clear()
+        s = ReferenceSolver(case, degree=degree, **kw)
+        _CACHE[key] = s
+    s.case = case
+    return s
+
+
+def solve(case: Case, *, degree: int = 1, pushes=None, initial=None, dirichlet_override=None,
+          progress: bool = False, **kw) -> SolveResult:
+    """Solve a Case with the reference (compiled forms are cached per mesh and degree).
+
+    pushes: actuator name -> push (mm); initial: warm start (n_vertices, gdim) mm;
+    dirichlet_override: (node-major Case dofs, values in mm) added to the Case's prescriptions.
+    """
+    s = _solver_for(case, degree, **kw)
+    return s.solve(pushes, case=case, initial=initial, dirichlet_override=dirichlet_override,
+                   progress=progress)
+
+
+def tangent_stiffness(case: Case, u=None, *, degree: int = 1, pushes=None) -> Tangent:
+    """Exact tangent K (scipy CSR, node-major, Case vertex numbering) at displacement ``u``."""
+    s = _solver_for(case, degree)
+    if u is None:
+        u = np.zeros((case.mesh.n_vertices, case.mesh.gdim))
+    return s.tangent(u, pushes=pushes)
