@@ -1,0 +1,89 @@
+"""The push-only MPC of seed 000 eq. 25: same QP answer from two casadi conic plugins and from an
+independent bounded least-squares solve; constraints honoured; settings validated by name."""
+import numpy as np
+import pytest
+from scipy.optimize import lsq_linear
+
+from control.mpc import MPCSettings, PushOnlyMPC
+from meshes.errors import CaseError
+
+RNG = np.random.default_rng(7)
+J = np.array([[-0.13, 0.005, 0.125, 0.001],
+              [-0.005, -0.107, 0.006, 0.123],
+              [0.01, 0.02, -0.01, 0.015]])
+
+
+def reference_plan(J, x0, xr, mask, Np=5, q=3.0, r=2.0):
+    """Bounded least squares of the stacked eq. 25 (du >= 0), solved by scipy BVLS."""
+    ny, na = J.shape
+    W = np.sqrt(q) * np.diag(mask.astype(float))
+    rows, rhs = [], []
+    for h in range(Np):
+        S = np.zeros((na, na * Np))
+        for k in range(h + 1):
+            S[:, k * na:(k + 1) * na] = np.eye(na)
+        rows.append(W @ J @ S)
+        rhs.append(W @ (xr - x0))
+    A = np.vstack(rows + [np.sqrt(r) * np.eye(na * Np)])
+    b = np.concatenate(rhs + [np.zeros(na * Np)])
+    sol = lsq_linear(A, b, bounds=(0, np.inf), method="bvls", tol=1e-15)
+    return sol.x.reshape(Np, na)
+
+
+@pytest.mark.parametrize("mask", [[True, False, False], [False, True, False], [True, True, False]])
+def test_qpoases_highs_and_bvls_agree(mask):
+    mask = np.array(mask)
+    x0 = np.array([0.0, 0.0, 15.0])
+    for goal in ([-5.0, 0, 0], [0, -5.0, 0], [5.0, 5.0, 0], [2.0, -3.0, 0]):
+        xr = x0 + np.array(goal)
+        ref = reference_plan(J, x0, xr, mask)
+        for plugin in ("qpoases", "highs", "daqp"):
+            step = PushOnlyMPC(4, mask, MPCSettings(solver=plugin)).step(J, x0, xr)
+            assert np.abs(step.plan - ref).max() <= 1e-6 * max(1.0, np.abs(ref).max()), plugin
+
+
+def test_increments_are_never_negative_and_limits_hold():
+    mpc = PushOnlyMPC(4, [True, True, False], MPCSettings(max_step=0.5, max_travel=3.0))
+    x = np.array([0.0, 0.0, 15.0])
+    s = np.zeros(4)
+    xr = x + np.array([5.0, -5.0, 0.0])
+    for _ in range(30):
+        st = mpc.step(J, x, xr, s)
+        assert st.du.min() >= 0.0 and st.du.max() <= 0.5 + 1e-9
+        s = s + st.du
+        x = x + J @ st.du
+        assert s.max() <= 3.0 + 1e-9
+    # the target cannot retract: an actuator pushing the wrong way is simply not used
+    mpc2 = PushOnlyMPC(1, [True, False, False])
+    st = mpc2.step(J[:, :1], x, x + [1.0, 0, 0])   # A1 moves the target along -x only
+    assert np.all(st.du == 0.0)
+
+
+def test_closed_loop_on_exact_linear_model_converges_to_goal():
+    mpc = PushOnlyMPC(4, [True, False, False])
+    x = np.array([0.0, 0.0, 15.0])
+    xr = x + np.array([-5.0, 0, 0])
+    for _ in range(100):
+        x = x + J @ mpc.step(J, x, xr).du
+    assert abs(x[0] - xr[0]) < 1e-3
+
+
+def test_prediction_follows_eq23():
+    mpc = PushOnlyMPC(4, [True, True, False])
+    x = np.array([1.0, 2.0, 15.0])
+    st = mpc.step(J, x, x + [3.0, 3.0, 0.0])
+    assert np.allclose(st.predicted, x + np.cumsum(st.plan, axis=0) @ J.T, atol=1e-12)
+
+
+@pytest.mark.parametrize("kw,name", [({"horizon": 0}, "horizon"), ({"horizon": 2.5}, "horizon"),
+                                     ({"q": -1.0}, "q"), ({"r": float("nan")}, "r"),
+                                     ({"max_travel": 0.0}, "max_travel"),
+                                     ({"solver": "nope"}, "solver")])
+def test_bad_settings_are_named(kw, name):
+    with pytest.raises(CaseError, match=name):
+        MPCSettings(**kw)
+
+
+def test_wrong_jacobian_shape_is_refused():
+    with pytest.raises(CaseError, match="J_s"):
+        PushOnlyMPC(4, [True, False, False]).step(J[:, :3], np.zeros(3), np.ones(3))
