@@ -756,7 +756,13 @@ def _reactions(case, r):
         out.setdefault(owner, np.zeros(d))[dof % d] += flat[dof]
     oblique = [b for b in case.boundaries if b.type == "sliding"
                and _axis_of(np.asarray(b.normal, float) / np.linalg.norm(b.normal)) is None]
+    taken = np.zeros((case.mesh.n_vertices, d), bool)
+    taken.reshape(-1)[c.dofs] = True
     for b, (vs, nrm, _) in zip(oblique, c.sliding):
         out.setdefault(b.region, np.zeros(d))
-        out[b.region] += (r[vs] @ nrm).sum() * nrm
+        pure = ~taken[vs].any(axis=1)               # only the sliding condition on the vertex
+        out[b.region] += (r[vs[pure]] @ nrm).sum() * nrm
+        mixed = vs[~pure]                           # prescribed dofs already counted by owner
+        out[b.region] += np.where(taken[mixed], 0.0, r[mixed]).sum(axis=0)
+        taken[vs] = True                            # a vertex counts once
     return out
