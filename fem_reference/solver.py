@@ -98,11 +98,13 @@ class ReferenceSolver:
         settings: NewtonSettings.
         comm: MPI communicator.
         sliding_penalty: factor beta of the oblique-sliding penalty (beta * E / h_min per mm^2).
+        body_force: optional callable x -> UFL vector (mN/mm^3) of the reference coordinates,
+            added to gravity (used for manufactured solutions).
     """
 
     def __init__(self, case: Case, *, degree: int = 1, quadrature_degree: int | None = None,
                  settings: NewtonSettings | None = None, comm=MPI.COMM_WORLD,
-                 sliding_penalty: float = 1e4):
+                 sliding_penalty: float = 1e4, body_force=None):
         if degree not in (1, 2):
             raise CaseError(f"degree must be 1 or 2, got {degree!r}")
         t0 = time.perf_counter()
@@ -135,6 +137,8 @@ class ReferenceSolver:
             tuple(case.material.density * np.asarray(g, float))))
         internal = psi * dx
         external = ufl.inner(self.body, self.u) * dx
+        if body_force is not None:
+            external = external + ufl.inner(body_force(ufl.SpatialCoordinate(mesh)), self.u) * dx
         self.tractions = {}
         for b in case.boundaries:
             if b.type == "traction":
@@ -566,7 +570,27 @@ class ReferenceSolver:
             extra={"load_fraction": lam, "n_dofs": int(self.V.dofmap.index_map.size_global * self.gdim),
                    "assemble_s": self.timings.assemble, "linear_solve_s": self.timings.solve})
 
-    # ------------------------------------------------------------------ tangent
+    # ------------------------------------------------------------------ residual / tangent
+    def _out_permutation(self):
+        nv = self.case.mesh.n_vertices
+        out_node = np.empty(len(self.node_vertex), np.int64)
+        vm = self.node_vertex >= 0
+        out_node[vm] = self.node_vertex[vm]
+        out_node[~vm] = nv + np.arange(np.count_nonzero(~vm))
+        return out_node, (out_node[:, None] * self.gdim + np.arange(self.gdim)).ravel()
+
+    def internal_forces(self, u=None) -> np.ndarray:
+        """Node-major residual f_int - f_ext (mN) at state ``u`` in the Case numbering (serial)."""
+        if self.comm.size > 1:
+            raise CaseError("internal_forces export runs in serial")
+        if u is not None:
+            self._set_state(u)
+        r = dolfinx.fem.petsc.assemble_vector(self.R_int_form)
+        out = np.empty(len(r.array))
+        out[self._out_permutation()[1]] = r.array
+        r.destroy()
+        return out
+
     def tangent(self, u=None, *, pushes=None) -> Tangent:
         """Exact tangent K at state ``u`` ((n_vertices, gdim) or SolveResult; default: current)."""
         if self.comm.size > 1:
@@ -586,12 +610,8 @@ class ReferenceSolver:
         # permutation: local node -> output node (vertices first in Case order, then edge nodes)
         nv = self.case.mesh.n_vertices
         nn = len(self.node_vertex)
-        out_node = np.empty(nn, np.int64)
-        vm = self.node_vertex >= 0
-        out_node[vm] = self.node_vertex[vm]
-        out_node[~vm] = nv + np.arange(np.count_nonzero(~vm))
         d = self.gdim
-        perm = (out_node[:, None] * d + np.arange(d)).ravel()  # local dof -> output dof
+        out_node, perm = self._out_permutation()  # local dof -> output dof
         P = sp.csr_matrix((np.ones(len(perm)), (perm, np.arange(len(perm)))), shape=(n, n))
         K = (P @ K @ P.T).tocsr()
         x = self.V.tabulate_dof_coordinates()[:, :d]
