@@ -1,0 +1,263 @@
+"""Closed-loop steering of an internal target (seed 000 section IV-B) and its open-loop baseline.
+
+One step (quasi-static, ``dt_s`` seconds of the time axis each):
+  1. the controller's model is re-linearized at the current pushes: J_s = dirichlet_jacobian at the
+     model's own nonlinear solution (the model may differ from the plant: coarser mesh, E off by a
+     factor, another solver);
+  2. the MPC (eq. 25) returns push increments du >= 0 (mm);
+  3. the plant (any solver of the project, nonlinear) is re-solved at the new pushes, warm-started
+     from its previous displacement, and the target position is measured (optional Gaussian noise,
+     seeded, mm).
+
+Open loop: pushes u_open from the *initial* J_s by eq. 22 (least travel, push only), applied with
+the closed loop's time profile u_open(t_k) = u_open * phi_k, phi_k = sum_i s_i(t_k) / sum_i s_i(t_end)
+(non-decreasing, so the open loop never retracts either), no feedback.
+
+Metrics on the controlled coordinates of the task (free ones excluded), with the noise-free plant
+position: error e_k = ||mask * (x_goal - x_k)||_2 (mm); ITAE (eq. 26) = sum_k t_k e_k dt (mm s^2,
+rectangle rule); steady-state error = e at the last step (mm).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from meshes.errors import CaseError, ConvergenceError
+
+from .controllability import UnreachableGoalError, inverse_push, task_goal
+from .jacobian import dirichlet_jacobian
+from .mpc import MPCSettings, PushOnlyMPC
+
+__all__ = ["LoopSettings", "LinearizedModel", "LoopResult", "run_closed_loop", "itae"]
+
+
+def itae(t, e, dt) -> float:
+    """Eq. 26, rectangle rule: sum t_k |e_k| dt (t in s, e in mm)."""
+    return float(np.sum(np.asarray(t) * np.abs(np.asarray(e)) * dt))
+
+
+@dataclass(frozen=True)
+class LoopSettings:
+    """steps: MPC updates; dt_s: time per step (s); noise_mm: std of the measurement noise (mm);
+    seed: RNG seed of the noise; reach_tol_mm: goal-reachability tolerance (mm); open_loop: also
+    run the open-loop baseline; mpc: MPCSettings."""
+
+    steps: int = 60
+    dt_s: float = 1.0
+    noise_mm: float = 0.0
+    seed: int = 0
+    reach_tol_mm: float = 1e-6
+    open_loop: bool = True
+    mpc: MPCSettings = field(default_factory=MPCSettings)
+
+    def __post_init__(self):
+        if not (isinstance(self.steps, (int, np.integer)) and not isinstance(self.steps, bool)
+                and self.steps >= 1):
+            raise CaseError(f"loop setting steps must be an integer >= 1, got steps={self.steps!r}")
+        for name in ("dt_s", "reach_tol_mm"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise CaseError(f"loop setting {name} must be > 0, got {name}={v!r}")
+        if not (isinstance(self.noise_mm, (int, float)) and np.isfinite(self.noise_mm)
+                and self.noise_mm >= 0):
+            raise CaseError(f"loop setting noise_mm must be >= 0 mm, got noise_mm={self.noise_mm!r}")
+        if not isinstance(self.mpc, MPCSettings):
+            raise CaseError(f"loop setting mpc must be an MPCSettings, got {type(self.mpc).__name__}")
+
+
+class LinearizedModel:
+    """The controller's model: a Case, a nonlinear solve and its tangent.
+
+    solve(case, pushes, initial_u) -> SolveResult; tangent(case, u) -> CSR K (mN/mm, P1,
+    node-major, Case numbering; evaluated on ``case.with_pushes(pushes)``).
+    ``jacobian(pushes)`` -> (gdim, n_act) block of the target (mm/mm) at the model's solution.
+    """
+
+    def __init__(self, case, solve, tangent, target: str):
+        case.probe(target)
+        self.case, self.solve, self.tangent, self.target = case, solve, tangent, target
+        self._u = None
+        self.solve_time_s = 0.0
+
+    def jacobian(self, pushes: dict, u=None) -> np.ndarray:
+        """u: the model's displacement at these pushes when already known (model = plant)."""
+        t0 = time.perf_counter()
+        if u is None:
+            r = self.solve(self.case, pushes, self._u)
+            if not r.converged:
+                raise ConvergenceError(f"controller model did not converge at pushes {pushes}")
+            u = r.u
+        self._u = np.asarray(u)
+        pushed = self.case.with_pushes(pushes)
+        K = self.tangent(pushed, self._u)
+        J = dirichlet_jacobian(pushed, K, targets=[self.target]).J
+        self.solve_time_s += time.perf_counter() - t0
+        return J
+
+
+@dataclass(frozen=True)
+class LoopResult:
+    """time_s (steps + 1,), s; target (steps + 1, gdim) plant positions, mm; error_mm (steps + 1,);
+    pushes (steps + 1, n_act) cumulative pushes, mm; itae (mm s^2); steady_state_error_mm;
+    max_retraction_mm (largest decrease of any push, >= 0); mpc_ms per step; open_loop: dict of the
+    baseline (same keys, or None); goal (gdim,) absolute target position, mm; mask."""
+
+    time_s: np.ndarray
+    target: np.ndarray
+    error_mm: np.ndarray
+    pushes: np.ndarray
+    itae: float
+    steady_state_error_mm: float
+    max_retraction_mm: float
+    mpc_ms: np.ndarray
+    goal: np.ndarray
+    mask: np.ndarray
+    actuators: tuple
+    target_name: str
+    task: int
+    open_loop: dict | None = None
+    wall_time_s: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+    def to_json_dict(self) -> dict:
+        """The keys of ``tissue mpc --json`` (issue 4)."""
+        ol = self.open_loop or {}
+        return {"steps": int(len(self.time_s) - 1), "itae": float(self.itae),
+                "steady_state_error_mm": float(self.steady_state_error_mm),
+                "max_retraction_mm": float(self.max_retraction_mm),
+                "mpc_step_median_ms": float(np.median(self.mpc_ms)) if len(self.mpc_ms) else 0.0,
+                "open_loop": {"itae": float(ol.get("itae", float("nan"))),
+                              "steady_state_error_mm": float(ol.get("steady_state_error_mm",
+                                                                    float("nan")))},
+                "time_s": self.time_s.tolist(), "target_error_mm": self.error_mm.tolist(),
+                "actuator_positions_mm": self.pushes.tolist()}
+
+
+def _measure(r, target):
+    if not r.converged:
+        raise ConvergenceError(f"plant solve did not converge (residual {r.residual:g})")
+    return np.asarray(r.probes[target], float)
+
+
+def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task: int, *,
+                    settings: LoopSettings = LoopSettings(), goal=None) -> LoopResult:
+    """Steer ``target`` of ``plant_case`` by seed task 1, 2 or 3 (or an explicit ``goal``
+    displacement (gdim,) mm with NaN on free coordinates) with the push-only MPC.
+
+    plant(case, pushes, initial_u) -> SolveResult (nonlinear, mm). Raises UnreachableGoalError
+    (with the closest reachable displacement) when the goal lies outside the positive span of the
+    initial J_s; CaseError naming a missing target or actuator.
+    """
+    t_start = time.perf_counter()
+    plant_case.probe(target)
+    acts = tuple(a.name for a in plant_case.actuators)
+    macts = tuple(a.name for a in model.case.actuators)
+    if macts != acts:
+        raise CaseError(f"model actuators {list(macts)} differ from the plant's {list(acts)}")
+    if model.target != target:
+        raise CaseError(f"model target {model.target!r} differs from the plant target {target!r}")
+    d = plant_case.mesh.gdim
+    if goal is None:
+        dgoal, mask = task_goal(task, d)
+    else:
+        g = np.asarray(goal, float).reshape(-1)
+        if g.shape != (d,):
+            raise CaseError(f"goal must have {d} components (NaN = free), got {goal!r}")
+        mask = np.isfinite(g)
+        dgoal = np.where(mask, g, 0.0)
+    same = model.case is plant_case and model.solve is plant
+    na = len(acts)
+    s = np.zeros(na)
+    pushes = dict(zip(acts, s.tolist()))
+    r = plant(plant_case, pushes, None)
+    x0 = _measure(r, target)
+    u_prev = r.u
+    x_goal = x0 + dgoal
+    J0 = model.jacobian(pushes, u=r.u if same else None)
+    # reachability (eq. 22 residual) and the open-loop pushes from the initial J_s
+    u_open, p_star, residual = inverse_push(J0[mask], dgoal[mask])
+    if residual > settings.reach_tol_mm:
+        closest = np.zeros(d)
+        closest[mask] = p_star
+        raise UnreachableGoalError(
+            f"target {target!r}: goal displacement {dgoal[mask].tolist()} mm (task {task}) is "
+            f"outside the positive span of the actuators' J_s; closest reachable "
+            f"{p_star.tolist()} mm with pushes {dict(zip(acts, u_open.round(4).tolist()))}",
+            closest=closest, pushes=u_open)
+    rng = np.random.default_rng(settings.seed)
+    mpc = PushOnlyMPC(na, mask, settings.mpc)
+    S = [s.copy()]
+    X = [x0.copy()]
+    y = x0 + (rng.normal(0.0, settings.noise_mm, d) if settings.noise_mm > 0 else 0.0)
+    J = J0
+    for k in range(settings.steps):
+        if k > 0:
+            J = model.jacobian(pushes, u=u_prev if same else None)
+        st = mpc.step(J, y, x_goal, s)
+        s = s + st.du
+        pushes = dict(zip(acts, s.tolist()))
+        r = plant(plant_case, pushes, u_prev)
+        x = _measure(r, target)
+        u_prev = r.u
+        y = x + (rng.normal(0.0, settings.noise_mm, d) if settings.noise_mm > 0 else 0.0)
+        S.append(s.copy())
+        X.append(x)
+    S, X = np.array(S), np.array(X)
+    t = settings.dt_s * np.arange(settings.steps + 1)
+    err = np.linalg.norm((x_goal - X)[:, mask], axis=1)
+    retract = float(max(0.0, -np.diff(S, axis=0).min())) if len(S) > 1 else 0.0
+    ol = None
+    if settings.open_loop:
+        total = S[-1].sum()
+        phi = np.clip(S.sum(axis=1) / total, 0.0, 1.0) if total > 0 else np.ones(len(S))
+        SO, XO = [], []
+        u_prev = None
+        for f in phi:
+            so = f * u_open
+            r = plant(plant_case, dict(zip(acts, so.tolist())), u_prev)
+            u_prev = r.u
+            SO.append(so)
+            XO.append(_measure(r, target))
+        SO, XO = np.array(SO), np.array(XO)
+        eo = np.linalg.norm((x_goal - XO)[:, mask], axis=1)
+        ol = {"itae": itae(t, eo, settings.dt_s), "steady_state_error_mm": float(eo[-1]),
+              "error_mm": eo, "pushes": SO, "target": XO, "u_open": u_open}
+    return LoopResult(t, X, err, S, itae(t, err, settings.dt_s), float(err[-1]), retract,
+                      np.array(mpc.solve_ms), x_goal, mask, acts, target, task, ol,
+                      time.perf_counter() - t_start,
+                      {"model_time_s": model.solve_time_s, "J0": J0})
+
+
+def plot_response(result: LoopResult, path, *, title=None):
+    """Time response of the target's controlled coordinates (closed, open, desired) and of the
+    actuator pushes (seed Figs. 8-13 analog), PNG written whole or not at all."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from meshes.io import atomic_path
+
+    fig, ax = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    t = result.time_s
+    for c in np.flatnonzero(result.mask):
+        lab = "xyz"[c]
+        ax[0].plot(t, result.target[:, c], "b-", label=f"closed loop {lab}")
+        if result.open_loop is not None:
+            ax[0].plot(t, result.open_loop["target"][:, c], "r--", label=f"open loop {lab}")
+        ax[0].axhline(result.goal[c], color="g", lw=1, label=f"desired {lab}")
+    ax[0].set_ylabel("target position (mm)")
+    ax[0].legend(fontsize=8)
+    for j, a in enumerate(result.actuators):
+        ax[1].plot(t, result.pushes[:, j], label=a)
+    ax[1].set_ylabel("actuator push (mm)")
+    ax[1].set_xlabel("time (s)")
+    ax[1].legend(fontsize=8)
+    fig.suptitle(title or f"target {result.target_name}, task {result.task}")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    plt.close(fig)
+    return path
