@@ -1,0 +1,44 @@
+"""``tissue verify CASE [--size MM] [--push A1=15 ...] [--solvers admm mass-tensor] [--out DIR]
+[--json FILE]``: each fast solver against the degree-1 reference on the same Case."""
+from __future__ import annotations
+
+from .common import add_case_args, case_from_args, parse_pushes
+from .verify import FAST_SOLVERS, verify
+
+
+def run(args) -> int:
+    case = case_from_args(args)
+    pushes = parse_pushes(args.push)
+    options = {}
+    if args.stop_mm is not None:
+        for name in args.solvers:
+            if name.startswith("mass-tensor"):
+                options[name] = {"stop_mm": args.stop_mm}
+    res = verify(case, pushes, solvers=tuple(args.solvers), out_dir=args.out, json_file=args.json,
+                 options=options, progress=False)
+    print(f"{case.name}: {case.mesh.n_vertices} vertices, {case.mesh.n_cells} cells, "
+          f"pushes {pushes or '{}'} (mm)")
+    for model, r in res["reference"]["runs"].items():
+        print(f"  reference {model}: {r['iterations']} Newton its, {r['wall_time_s']:.3f} s")
+    for name, e in res["solvers"].items():
+        print(f"  {name:20s} max {e['max_vertex_error_mm']:.4g} mm  rms {e['rms_vertex_error_mm']:.4g} mm"
+              f"  its {e['iterations']}  {e['wall_time_s']:.3f} s  "
+              f"x{e['speedup_vs_reference']:.2f} vs reference ({e['reference_model']})")
+        print("    probes: " + ", ".join(f"{k} {v:.4g}" for k, v in e["probe_error_mm"].items()))
+    if "report" in res:
+        print(f"  report: {res['report']}")
+    return 0
+
+
+def add_parser(sub):
+    p = sub.add_parser("verify", help="fast solvers (ADMM, Mass Tensor) against the reference")
+    add_case_args(p)
+    p.add_argument("--push", action="append", metavar="NAME=MM",
+                   help="push an actuator's region rigidly along its direction (repeatable)")
+    p.add_argument("--solvers", nargs="+", choices=sorted(FAST_SOLVERS),
+                   default=["admm", "mass-tensor"], help="fast solvers to check")
+    p.add_argument("--stop-mm", type=float, default=None,
+                   help="Mass Tensor stopping rule (mm, default 0.01)")
+    p.add_argument("--out", help="folder for report.html and the convergence plots")
+    p.add_argument("--json", help="JSON file of the errors and timings")
+    p.set_defaults(func=run)
