@@ -37,7 +37,8 @@ import scipy.sparse.linalg as spla
 from meshes.errors import CaseError, ConvergenceError
 
 __all__ = ["ControlJacobian", "probe_matrix", "point_matrix", "dirichlet_jacobian",
-           "force_jacobian", "fd_jacobian", "max_rel_error", "full_pushes", "target_rows"]
+           "force_jacobian", "fd_jacobian", "max_rel_error", "full_pushes", "target_rows",
+           "p2_interpolation", "p2_region_nodes"]
 
 
 @dataclass(frozen=True)
@@ -305,3 +306,70 @@ def max_rel_error(J, J_ref) -> float:
     J, J_ref = np.asarray(J, float), np.asarray(J_ref, float)
     scale = np.abs(J_ref).max()
     return float(np.abs(J - J_ref).max() / scale) if scale > 0 else float(np.abs(J).max())
+
+
+# ----------------------------------------------------------------------------- degree 2 support
+def _edge_nodes(case, node_points, pairs):
+    """Node ids (of a degree-2 node list: vertices first, then edge nodes) at the midpoints of the
+    vertex pairs (k, 2); CaseError when one is missing."""
+    from scipy.spatial import cKDTree
+
+    X = case.mesh.points
+    nv = case.mesh.n_vertices
+    extra = np.asarray(node_points, float)[nv:]
+    tree = cKDTree(extra)
+    mid = 0.5 * (X[pairs[:, 0]] + X[pairs[:, 1]])
+    dist, idx = tree.query(mid)
+    h = np.linalg.norm(X[pairs[:, 0]] - X[pairs[:, 1]], axis=1)
+    if np.any(dist > 1e-8 * np.maximum(h, 1.0)):
+        raise CaseError("node_points do not hold an edge node at every edge midpoint "
+                        "(not a degree-2 Lagrange node list in Case numbering)")
+    return nv + idx
+
+
+def p2_interpolation(case, node_points, targets=None) -> sp.csr_matrix:
+    """Degree-2 Lagrange interpolation (gdim * n_targets, gdim * n_nodes) at the Case's probes:
+    vertex shape functions l_i (2 l_i - 1), edge ones 4 l_i l_j (l: barycentric weights)."""
+    d = case.mesh.gdim
+    nn = len(node_points)
+    locs = {loc.name: loc for loc in case.probe_locations}
+    tg = [p.name for p in case.probes] if targets is None else list(targets)
+    rows, cols, vals = [], [], []
+    for i, t in enumerate(tg):
+        if t not in locs:
+            case.probe(t)
+        loc = locs[t]
+        v = case.mesh.cells[loc.cell]
+        lam = loc.weights
+        nodes = list(v)
+        w = list(lam * (2 * lam - 1))
+        pairs = np.array([(v[a], v[b]) for a in range(d + 1) for b in range(a + 1, d + 1)])
+        nodes += _edge_nodes(case, node_points, pairs).tolist()
+        w += [4 * lam[a] * lam[b] for a in range(d + 1) for b in range(a + 1, d + 1)]
+        for c in range(d):
+            rows += [d * i + c] * len(nodes)
+            cols += [d * n + c for n in nodes]
+            vals += w
+    return sp.csr_matrix((vals, (rows, cols)), shape=(d * len(tg), d * nn))
+
+
+def p2_region_nodes(case, node_points):
+    """region -> node ids (vertices and edge nodes of the region's facets) for a degree-2 node
+    list; point/cell regions give their vertices only. Use as ``region_nodes``."""
+    cache = {}
+
+    def nodes(region):
+        if region not in cache:
+            verts = case.mesh.region_vertices(region)
+            facets = case.mesh.facet_regions.get(region)
+            if facets is None or len(facets) == 0:
+                cache[region] = verts
+            else:
+                f = np.asarray(facets)
+                k = f.shape[1]
+                pairs = np.unique(np.sort(np.concatenate(
+                    [f[:, [a, b]] for a in range(k) for b in range(a + 1, k)]), axis=1), axis=0)
+                cache[region] = np.concatenate([verts, np.unique(_edge_nodes(case, node_points,
+                                                                             pairs))])
+        return cache[region]
+    return nodes

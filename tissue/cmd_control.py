@@ -1,0 +1,227 @@
+"""``tissue mpc``, ``tissue table1``, ``tissue manipulability``: seed 000 section III-IV.
+
+mpc: closed-loop push-only MPC steering one target (task 1: -x 5 mm, y free; 2: -y 5 mm, x free;
+3: +x and +y 5 mm), plant and controller model chosen independently (model-plant mismatch on
+purpose: --model admm --model-size 12 --model-E-factor 1.2), with the open-loop eq. 22 baseline.
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from meshes.case import load_case
+from meshes.errors import CaseError
+from meshes.io import atomic_path
+from meshes.results import write_json
+
+from .cmd_jacobian import plant_for, tangent_for
+from .common import add_case_args, case_from_args
+
+
+def _loop_args(p):
+    p.add_argument("--plant", choices=("fem", "admm"), default="fem")
+    p.add_argument("--model", choices=("fem", "admm"), default=None,
+                   help="controller's model solver (default: the plant's)")
+    p.add_argument("--model-E-factor", type=float, default=1.0,
+                   help="the model's E = factor * the Case's E")
+    p.add_argument("--model-size", type=float, default=None,
+                   help="the model's mesh size (mm; default: the plant's mesh)")
+    p.add_argument("--noise", type=float, default=0.0, help="measurement noise std (mm)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--steps", type=int, default=60)
+    p.add_argument("--dt", type=float, default=1.0, help="time per MPC step (s)")
+    p.add_argument("--horizon", type=int, default=5)
+    p.add_argument("--q", type=float, default=3.0)
+    p.add_argument("--r", type=float, default=2.0)
+    p.add_argument("--max-travel", type=float, default=None, help="push limit per actuator (mm)")
+    p.add_argument("--qp-solver", default="qpoases", help="casadi conic plugin")
+
+
+def _setup(args, case):
+    from control.loop import LoopSettings
+    from control.mpc import MPCSettings
+
+    if not (np.isfinite(args.model_E_factor) and args.model_E_factor > 0):
+        raise CaseError(f"--model-E-factor must be > 0, got {args.model_E_factor}")
+    plant = plant_for(args.plant)
+    mname = args.model or args.plant
+    if mname == args.plant and args.model_E_factor == 1.0 and args.model_size is None:
+        mcase, msolve = case, plant          # the model is the plant: reuse its solution
+    else:
+        mcase = load_case(Path(args.case), size=args.model_size if args.model_size is not None
+                          else args.size)
+        mcase = mcase.with_material(E=mcase.material.E * args.model_E_factor)
+        msolve = plant_for(mname)
+    settings = LoopSettings(steps=args.steps, dt_s=args.dt, noise_mm=args.noise, seed=args.seed,
+                            mpc=MPCSettings(horizon=args.horizon, q=args.q, r=args.r,
+                                            max_travel=args.max_travel, solver=args.qp_solver))
+    return plant, mcase, msolve, tangent_for(mname), settings
+
+
+def run_one(case, target, task, plant, mcase, msolve, mtangent, settings):
+    from control.loop import LinearizedModel, run_closed_loop
+
+    model = LinearizedModel(mcase, msolve, mtangent, target)
+    return run_closed_loop(plant, case, model, target, task, settings=settings)
+
+
+def run_mpc(args) -> int:
+    from control.controllability import UnreachableGoalError
+    from control.loop import plot_response
+
+    case = case_from_args(args)
+    plant, mcase, msolve, mtan, settings = _setup(args, case)
+    try:
+        res = run_one(case, args.target, args.task, plant, mcase, msolve, mtan, settings)
+    except UnreachableGoalError as exc:
+        if args.json:
+            write_json({"reachable": False, "error": str(exc),
+                        "closest_reachable_mm": np.asarray(exc.closest).tolist(),
+                        "pushes_mm": np.asarray(exc.pushes).tolist()}, args.json)
+        raise
+    d = res.to_json_dict()
+    if args.json:
+        write_json(d, args.json)
+    if args.out:
+        plot_response(res, Path(args.out) / f"mpc_{args.target}_task{args.task}.png")
+    print(f"{case.name} {args.target} task {args.task}: steps={d['steps']} itae={d['itae']:.2f} "
+          f"sse={d['steady_state_error_mm']:.4f} mm retraction={d['max_retraction_mm']} mm "
+          f"mpc median={d['mpc_step_median_ms']:.3f} ms | open loop itae="
+          f"{d['open_loop']['itae']:.2f} sse={d['open_loop']['steady_state_error_mm']:.4f} mm "
+          f"| wall {res.wall_time_s:.1f} s")
+    return 0
+
+
+def run_table1(args) -> int:
+    from control.controllability import UnreachableGoalError
+    from control.loop import plot_response
+
+    case = case_from_args(args)
+    plant, mcase, msolve, mtan, settings = _setup(args, case)
+    targets = args.targets or [p.name for p in case.probes]
+    rows = []
+    for t in targets:
+        for task in (1, 2, 3):
+            try:
+                res = run_one(case, t, task, plant, mcase, msolve, mtan, settings)
+            except UnreachableGoalError as exc:
+                rows.append({"target": t, "task": task, "reachable": False, "error": str(exc)})
+                print(f"{t} task {task}: unreachable: {exc}", file=sys.stderr)
+                continue
+            d = res.to_json_dict()
+            row = {"target": t, "task": task, "reachable": True,
+                   "open_loop_itae": d["open_loop"]["itae"], "closed_loop_itae": d["itae"],
+                   "open_loop_sse_mm": d["open_loop"]["steady_state_error_mm"],
+                   "closed_loop_sse_mm": d["steady_state_error_mm"],
+                   "max_retraction_mm": d["max_retraction_mm"],
+                   "mpc_step_median_ms": d["mpc_step_median_ms"], "wall_time_s": res.wall_time_s}
+            rows.append(row)
+            print(f"{t} task {task}: open itae {row['open_loop_itae']:.2f} closed "
+                  f"{row['closed_loop_itae']:.2f}  sse open {row['open_loop_sse_mm']:.4f} closed "
+                  f"{row['closed_loop_sse_mm']:.4f} mm  retraction {row['max_retraction_mm']}  "
+                  f"({res.wall_time_s:.1f} s)", flush=True)
+            if args.out:
+                plot_response(res, Path(args.out) / f"response_{t}_task{task}.png")
+    meta = {"case": case.name, "plant": args.plant, "model": args.model or args.plant,
+            "model_E_factor": args.model_E_factor, "model_size": args.model_size,
+            "size": args.size, "steps": args.steps, "noise_mm": args.noise}
+    if args.out:
+        out = Path(args.out)
+        write_json({"meta": meta, "rows": rows}, out / "table1.json")
+        hdr = ["Target", "Task", "Open-loop ITAE", "Closed-loop ITAE", "Open-loop SSE (mm)",
+               "Closed-loop SSE (mm)", "Max retraction (mm)"]
+        body = []
+        for r in rows:
+            if not r["reachable"]:
+                body.append([r["target"], str(r["task"]), "unreachable", "", "", "", ""])
+            else:
+                body.append([r["target"], str(r["task"]), f"{r['open_loop_itae']:.2f}",
+                             f"{r['closed_loop_itae']:.2f}", f"{r['open_loop_sse_mm']:.4f}",
+                             f"{r['closed_loop_sse_mm']:.4f}", f"{r['max_retraction_mm']:.3g}"])
+        md = [f"Table I analog: {json.dumps(meta)}", "", "| " + " | ".join(hdr) + " |",
+              "|" + "---|" * len(hdr)] + ["| " + " | ".join(b) + " |" for b in body]
+        with atomic_path(out / "table1.md") as tmp:
+            tmp.write_text("\n".join(md) + "\n")
+        html = ["<html><body><table border='1'>", "<caption>Table I analog: "
+                f"{json.dumps(meta)}</caption>",
+                "<tr>" + "".join(f"<th>{h}</th>" for h in hdr) + "</tr>"]
+        html += ["<tr>" + "".join(f"<td>{c}</td>" for c in b) + "</tr>" for b in body]
+        html.append("</table></body></html>")
+        with atomic_path(out / "table1.html") as tmp:
+            tmp.write_text("\n".join(html) + "\n")
+    return 0
+
+
+def run_manipulability(args) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from control.controllability import manipulability_map
+
+    paths = [args.case] + list(args.compare or [])
+    out = Path(args.out)
+    maps = []
+    for path in paths:
+        case = load_case(Path(path), size=args.size)
+        K = tangent_for(args.solver)(case, np.zeros((case.mesh.n_vertices, case.mesh.gdim)))
+        mp = manipulability_map(case, K, plane_z=args.plane_z, spacing=args.spacing)
+        maps.append((case.name, mp))
+        data = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in mp.items()
+                if not k.startswith("task")}
+        for t in (1, 2, 3):
+            data[f"task{t}"] = {k: np.where(np.isnan(v), None, v).tolist() if v.dtype.kind == "f"
+                                else v.tolist() for k, v in mp[f"task{t}"].items()}
+        write_json(data, out / f"manipulability_{case.name}.json")
+    vmax = max(np.nanmax(mp[f"task{t}"]["index"]) for _, mp in maps for t in (1, 2, 3))
+    fig, axes = plt.subplots(len(maps), 3, figsize=(12, 3.8 * len(maps)), squeeze=False)
+    for i, (name, mp) in enumerate(maps):
+        for j, t in enumerate((1, 2, 3)):
+            ax = axes[i, j]
+            im = ax.pcolormesh(mp["x"], mp["y"], mp[f"task{t}"]["index"], vmin=0, vmax=vmax,
+                               shading="nearest", cmap="viridis")
+            ax.set_aspect("equal")
+            ax.set_title(f"{name}: task {t}")
+            ax.set_xlabel("x (mm)")
+            ax.set_ylabel("y (mm)")
+    fig.colorbar(im, ax=axes.ravel().tolist(), label="manipulability index (eq. 21)")
+    with atomic_path(out / "manipulability.png") as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
+    plt.close(fig)
+    for name, mp in maps:
+        print(name + ": " + ", ".join(f"task {t} median index {np.nanmedian(mp[f'task{t}']['index']):.4f}"
+                                      for t in (1, 2, 3)))
+    return 0
+
+
+def add_parser(sub):
+    p = sub.add_parser("mpc", help="closed-loop push-only MPC of one target (seed 000)",
+                       description=__doc__)
+    add_case_args(p)
+    p.add_argument("--target", required=True)
+    p.add_argument("--task", type=int, required=True, choices=(1, 2, 3))
+    _loop_args(p)
+    p.add_argument("--out", help="folder for the time-response PNG")
+    p.add_argument("--json", help="write the result here")
+    p.set_defaults(func=run_mpc)
+
+    p = sub.add_parser("table1", help="5 targets x 3 tasks, open vs closed loop (seed Table I)")
+    add_case_args(p)
+    _loop_args(p)
+    p.add_argument("--targets", nargs="*", default=None)
+    p.add_argument("--out", required=True)
+    p.set_defaults(func=run_table1)
+
+    p = sub.add_parser("manipulability", help="manipulability maps over the z = 15 mm section")
+    add_case_args(p)
+    p.add_argument("--compare", nargs="*", default=["meshes/cases/phantom-3.toml"],
+                   help="other cases to map side by side (default: the 3-actuator phantom)")
+    p.add_argument("--solver", choices=("fem", "admm"), default="fem")
+    p.add_argument("--plane-z", type=float, default=15.0)
+    p.add_argument("--spacing", type=float, default=3.0, help="grid spacing (mm)")
+    p.add_argument("--out", required=True)
+    p.set_defaults(func=run_manipulability)
