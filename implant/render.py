@@ -1,7 +1,9 @@
 """Colour map of a per-vertex distance (mm) on the skin, rendered off-screen to PNG, and the field
 written to VTU. pyvista (VTK) off-screen first; on a machine where VTK cannot open an off-screen
 context (no display, no OSMesa/EGL) a matplotlib 3D trisurf PNG is written instead and the
-returned backend says so.
+returned backend says so. The VTK render runs in a child process: VTK's OpenGL set-up can abort
+the whole process (not raise) when other native libraries (PETSc, dolfinx) are loaded, so a
+crash there only costs the fallback.
 """
 from __future__ import annotations
 
@@ -73,14 +75,40 @@ def render_distance_png(points, triangles, values, path, *, title: str = "distan
     'pyvista' or 'matplotlib (pyvista off-screen failed: ...)'."""
     vals = np.asarray(values, float)
     clim = clim or (0.0, max(float(vals.max()), 1e-9))
-    try:
-        _pyvista_png(points, triangles, vals, path, title, clim)
-        return "pyvista"
-    except Exception as exc:  # VTK raises many types when no render context is available
-        reason = f"{type(exc).__name__}: {exc}"[:200]
+    import subprocess
+    import sys
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        npz = Path(d) / "field.npz"
+        np.savez(npz, points=np.asarray(points, float), triangles=np.asarray(triangles),
+                 values=vals, clim=np.asarray(clim, float), title=np.asarray(title))
+        try:
+            r = subprocess.run([sys.executable, "-m", "implant.render", str(npz), str(path)],
+                               capture_output=True, text=True, timeout=120,
+                               cwd=str(Path(__file__).resolve().parents[1]))
+            if r.returncode == 0:
+                return "pyvista"
+            tail = (r.stderr.strip().splitlines() or ["?"])[-1]
+            reason = f"child exited with {r.returncode}: {tail}"[:200]
+        except subprocess.TimeoutExpired:
+            reason = "child timed out"
     try:
         _matplotlib_png(points, triangles, vals, path, title, clim)
     except Exception as exc:
         raise WriteError(f"cannot render {str(path)!r}: pyvista failed ({reason}); matplotlib "
                          f"failed ({exc})") from exc
     return f"matplotlib (pyvista off-screen failed: {reason})"
+
+
+def _main(argv) -> int:
+    z = np.load(argv[0])
+    _pyvista_png(z["points"], z["triangles"], z["values"], argv[1], str(z["title"]),
+                 tuple(z["clim"].tolist()))
+    return 0
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(_main(sys.argv[1:]))
