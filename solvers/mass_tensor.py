@@ -74,8 +74,16 @@ import scipy.sparse as sp
 from meshes.errors import CaseError, SolverDivergedError
 from meshes.results import SolveResult
 
-__all__ = ["stiffness_tensors", "MassTensorModel", "PointTypes", "Plane", "TriSurface",
-           "MTSolution", "solve", "case_point_types"]
+__all__ = [
+    "MTSolution",
+    "MassTensorModel",
+    "Plane",
+    "PointTypes",
+    "TriSurface",
+    "case_point_types",
+    "solve",
+    "stiffness_tensors",
+]
 
 
 # --------------------------------------------------------------------------- tensors
@@ -257,31 +265,44 @@ class PointTypes:
             raise CaseError(f"vertex ids out of range [0, {self.n}): {v[(v < 0) | (v >= self.n)][:5]}")
         return v
 
-    def _add(self, v: int, normal, value: float, what: str, tol: float = 1e-9):
-        if v in self.surface_of:
-            raise CaseError(f"vertex {v}: {what} conflicts with its sliding-on-surface type")
-        n = np.asarray(normal, float)
-        n = n / np.linalg.norm(n)
-        k = self.m[v]
-        Q = self.N[v, :k]
-        coef = Q @ n
-        r = n - coef @ Q
-        rn = np.linalg.norm(r)
-        implied = float(coef @ self.g[v, :k])
-        if rn < 1e-9:
-            if abs(implied - value) > tol * max(1.0, abs(value)):
+    def _add_many(self, verts, normals, values, what: str, tol: float = 1e-9):
+        """Vectorized ``_add`` over vertices (repeated vertices handled in successive rounds)."""
+        verts = np.asarray(verts, np.int64)
+        normals = np.asarray(normals, float)
+        values = np.asarray(values, float)
+        if self.surface_of:
+            hit = [v for v in verts.tolist() if v in self.surface_of]
+            if hit:
+                raise CaseError(f"vertex {hit[0]}: {what} conflicts with its sliding-on-surface type")
+        todo = np.arange(len(verts))
+        while todo.size:
+            _, first = np.unique(verts[todo], return_index=True)
+            now, todo = todo[first], np.delete(todo, first)
+            v = verts[now]
+            n = normals[now] / np.linalg.norm(normals[now], axis=1, keepdims=True)
+            Q = self.N[v]                                    # unused rows are zero
+            coef = np.einsum("kld,kd->kl", Q, n)
+            r = n - np.einsum("kl,kld->kd", coef, Q)
+            rn = np.linalg.norm(r, axis=1)
+            implied = np.einsum("kl,kl->k", coef, self.g[v])
+            dep = rn < 1e-9
+            bad = dep & (np.abs(implied - values[now]) > tol * np.maximum(1.0, np.abs(values[now])))
+            if np.any(bad):
+                b = int(np.flatnonzero(bad)[0])
+                vb = int(v[b])
                 raise CaseError(
-                    f"conflicting point types on vertex {v}: {what} requires u.n = {value:g} mm "
-                    f"along n = {np.round(n, 6).tolist()}, but its {self.label[v]} type gives "
-                    f"{implied:g} mm")
-            return
-        self.N[v, k] = r / rn
-        self.g[v, k] = (value - implied) / rn
-        self.m[v] = k + 1
+                    f"conflicting point types on vertex {vb}: {what} requires u.n = "
+                    f"{values[now][b]:g} mm along n = {np.round(n[b], 6).tolist()}, but its "
+                    f"{self.label[vb]} type gives {implied[b]:g} mm")
+            ind = ~dep
+            vi, k = v[ind], self.m[v[ind]]
+            self.N[vi, k] = r[ind] / rn[ind, None]
+            self.g[vi, k] = (values[now][ind] - implied[ind]) / rn[ind]
+            self.m[vi] = k + 1
 
-    def _set_label(self, v, lab):
-        cur = self.label[v]
-        self.label[v] = lab if cur == "free" or cur == lab else f"{cur}+{lab}"
+    def _set_labels(self, verts, lab):
+        cur = self.label[verts].astype(str)
+        self.label[verts] = np.where((cur == "free") | (cur == lab), lab, np.char.add(cur, "+" + lab))
 
     # -- public
     def free(self, verts):
@@ -291,10 +312,11 @@ class PointTypes:
 
     def border(self, verts):
         """Border points: u_i = 0."""
-        for v in self._ids(verts).tolist():
-            for c in range(self.d):
-                self._add(v, np.eye(self.d)[c], 0.0, "border")
-            self._set_label(v, "border")
+        v = np.unique(self._ids(verts))
+        for c in range(self.d):
+            self._add_many(v, np.broadcast_to(np.eye(self.d)[c], (len(v), self.d)),
+                           np.zeros(len(v)), "border")
+        self._set_labels(v, "border")
         return self
 
     def prescribe(self, verts, normals, values, *, label: str = "prescribed"):
@@ -306,9 +328,8 @@ class PointTypes:
         if not np.all(np.isfinite(nrm)) or np.any(np.linalg.norm(nrm, axis=1) == 0) \
                 or not np.all(np.isfinite(val)):
             raise CaseError(f"{label}: normals must be finite and non-zero, values finite")
-        for i, vi in enumerate(v.tolist()):
-            self._add(vi, nrm[i], float(val[i]), label)
-            self._set_label(vi, label)
+        self._add_many(v, nrm, val, label)
+        self._set_labels(np.unique(v), label)
         return self
 
     def displacement(self, verts, values, *, label: str = "target"):
@@ -318,10 +339,9 @@ class PointTypes:
         if not np.all(np.isfinite(val)):
             raise CaseError(f"{label}: displacements must be finite")
         eye = np.eye(self.d)
-        for i, vi in enumerate(v.tolist()):
-            for c in range(self.d):
-                self._add(vi, eye[c], float(val[i, c]), label)
-            self._set_label(vi, label)
+        for c in range(self.d):
+            self._add_many(v, np.broadcast_to(eye[c], (len(v), self.d)), val[:, c], label)
+        self._set_labels(np.unique(v), label)
         return self
 
     def target(self, verts, positions, *, then_slide=None):
@@ -358,7 +378,7 @@ class PointTypes:
             self.label[vi] = "sliding"
         return self
 
-    def copy(self) -> "PointTypes":
+    def copy(self) -> PointTypes:
         out = PointTypes(self.n, self.d, self.X)
         out.N, out.m, out.g = self.N.copy(), self.m.copy(), self.g.copy()
         out.label = self.label.copy()
@@ -589,7 +609,7 @@ class _State:
         uc = types.prescribed_part()
         u = uc + np.einsum("nab,nb->na", P, u)
         M = self._prec(types, P, method)
-        proj = lambda x: np.einsum("nab,nb->na", P, x)  # noqa: E731
+        proj = lambda x: np.einsum("nab,nb->na", P, x)
         r = proj(self.f - self.Kx(u))
         z = np.einsum("nab,nb->na", M, r)
         p = z.copy()
@@ -635,7 +655,7 @@ class _State:
                 types, _ = self._planes(refresh, u)
                 P = types.projector()
                 M = self._prec(types, P, method)
-                proj = lambda x: np.einsum("nab,nb->na", P, x)  # noqa: E731
+                proj = lambda x, P=P: np.einsum("nab,nb->na", P, x)
                 r = proj(self.f - self.Kx(u))
             else:
                 r = r - alpha * q
@@ -726,7 +746,7 @@ def solve(case, *, pushes=None, initial=None, method: str = "pcg", stop_mm: floa
     f = case.external_forces(1.0).reshape(n, d)
     cb = callback
     if progress:
-        def cb(it, u, _cb=callback):  # noqa: E306
+        def cb(it, u, _cb=callback):
             if it % 100 == 0:
                 print(f"mass-tensor {method}: iteration {it}", flush=True)
             if _cb is not None:

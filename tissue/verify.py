@@ -15,7 +15,6 @@ from __future__ import annotations
 import html
 import importlib
 import logging
-import time
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +23,7 @@ from meshes.errors import CaseError
 from meshes.io import atomic_path
 from meshes.results import write_json
 
-__all__ = ["verify", "FAST_SOLVERS", "reference_material_for"]
+__all__ = ["FAST_SOLVERS", "reference_material_for", "verify"]
 
 log = logging.getLogger(__name__)
 
@@ -159,7 +158,7 @@ def _plot(path: Path, name: str, trace: dict, entry: dict):
     err = np.asarray(trace["max_error_mm"])
     step = np.asarray(trace["max_step_mm"], float)
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    pos = lambda a: np.where(a > 0, a, np.nan)  # noqa: E731  (log scale)
+    pos = lambda a: np.where(a > 0, a, np.nan)
     ax.semilogy(it, pos(err), "-", color="C0", label="max distance to reference over all vertices")
     ax.semilogy(it, pos(step), "--", color="C1", label="max displacement in one iteration")
     stop = entry.get("options", {}).get("stop_mm")
@@ -207,14 +206,14 @@ def _write_report(out_dir: Path, case, out: dict, traces: dict) -> Path:
     parts = [
         "<!DOCTYPE html><html><head><meta charset='utf-8'>",
         f"<title>tissue verify: {html.escape(case.name)}</title>",
-        "<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse;margin:1em 0}"
-        "td,th{border:1px solid #999;padding:3px 8px;text-align:right}th{background:#eee}</style>",
+        ("<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse;margin:1em 0}"
+        "td,th{border:1px solid #999;padding:3px 8px;text-align:right}th{background:#eee}</style>"),
         "</head><body>",
         f"<h1>Verification: {html.escape(case.name)}</h1>",
-        f"<p>{ref['n_vertices']} vertices, {ref['n_cells']} cells; pushes (mm): "
+        (f"<p>{ref['n_vertices']} vertices, {ref['n_cells']} cells; pushes (mm): "
         f"{html.escape(str(ref['pushes_mm']))}. Errors are |u - u_ref| at vertices / probes (mm); "
         "the reference is the FEniCSx P1 solution on the same mesh (Neo-Hookean for ADMM, "
-        "linear-elastic with the same E, nu for the Mass Tensor Method).</p>",
+        "linear-elastic with the same E, nu for the Mass Tensor Method).</p>"),
         "<h2>Reference</h2>",
         _table(["material", "E (kPa)", "nu", "Newton its", "wall time (s)", "converged"], ref_rows),
         "<h2>Fast solvers</h2>",
