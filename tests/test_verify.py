@@ -28,10 +28,10 @@ def run(small_case, tmp_path_factory):
 
 
 def test_json_has_the_issue_3_keys_for_every_solver(run, small_case):
-    res, out = run
+    _, out = run
     on_disk = json.loads((out / "verify.json").read_text())
     assert set(on_disk) >= {"reference", "solvers"}
-    for name, e in on_disk["solvers"].items():
+    for e in on_disk["solvers"].values():
         assert {"probe_error_mm", "max_vertex_error_mm", "rms_vertex_error_mm", "iterations",
                 "wall_time_s", "speedup_vs_reference"} <= set(e)
         assert set(e["probe_error_mm"]) == {p.name for p in small_case.probes}
