@@ -540,6 +540,12 @@ def _bsr_from_blocks(rows, cols, data, n, d):
     return sp.bsr_matrix((data, cols, indptr), shape=(d * n, d * n)).tocsr()
 
 
+def _blockdiag(B):
+    """(n, d, d) blocks -> block-diagonal CSR matrix (n d, n d)."""
+    n, d, _ = B.shape
+    return sp.bsr_matrix((B, np.arange(n), np.arange(n + 1)), shape=(n * d, n * d)).tocsr()
+
+
 class _State:
     """Iteration bookkeeping shared by the phases of one solve."""
 
@@ -602,16 +608,35 @@ class _State:
             if np.max(np.linalg.norm(u - start, axis=1)) < self.stop or self.it == it0:
                 return u
 
+    def _operators(self, types, method, fold):
+        """Projector P, preconditioner M and projected stiffness P K P as block-diagonal / CSR
+        matrices acting on (n, d) arrays (fold: precompute P K P once for the phase)."""
+        P = types.projector()
+        Pm = _blockdiag(P)
+        Mm = _blockdiag(self._prec(types, P, method))
+        shape = (self.model.n_vertices, self.model.gdim)
+        KP = (Pm @ self.K @ Pm).tocsr() if fold else None
+
+        def proj(x):
+            return (Pm @ x.reshape(-1)).reshape(shape)
+
+        def applyM(x):
+            return (Mm @ x.reshape(-1)).reshape(shape)
+
+        def Kproj(x):   # x is in the free subspace: P K P x = P K x
+            if KP is not None:
+                return (KP @ x.reshape(-1)).reshape(shape)
+            return proj(self.Kx(x))
+
+        return proj, applyM, Kproj
+
     def _linear(self, types, u, method, refresh=None):
         """Iterate on u = u_c + P w until the stopping rule (refresh: re-project surfaces each
         iteration, descent only)."""
-        P = types.projector()
-        uc = types.prescribed_part()
-        u = uc + np.einsum("nab,nb->na", P, u)
-        M = self._prec(types, P, method)
-        proj = lambda x: np.einsum("nab,nb->na", P, x)
+        proj, applyM, Kproj = self._operators(types, method, fold=refresh is None)
+        u = types.prescribed_part() + proj(u)
         r = proj(self.f - self.Kx(u))
-        z = np.einsum("nab,nb->na", M, r)
+        z = applyM(r)
         p = z.copy()
         rz = float(np.vdot(r, z))
         r0 = max(float(np.abs(r).max(initial=0.0)), 1e-300)
@@ -623,7 +648,7 @@ class _State:
                 self._diverged("non-positive preconditioned residual", r)
             self.it += 1
             if method == "pcg":
-                q = proj(self.Kx(p))
+                q = Kproj(p)
                 pq = float(np.vdot(p, q))
                 if not pq > 0.0:
                     self._diverged(f"non-positive curvature p.Kp = {pq:g} (stiffness not positive "
@@ -631,7 +656,7 @@ class _State:
                 alpha = rz / pq
                 step = alpha * p
             else:
-                q = proj(self.Kx(z))
+                q = Kproj(z)
                 if self.step_scale is None:
                     zq = float(np.vdot(z, q))
                     if not zq > 0.0:
@@ -653,9 +678,7 @@ class _State:
             self.steps.append(smax)
             if refresh is not None:
                 types, _ = self._planes(refresh, u)
-                P = types.projector()
-                M = self._prec(types, P, method)
-                proj = lambda x, P=P: np.einsum("nab,nb->na", P, x)
+                proj, applyM, Kproj = self._operators(types, method, fold=False)
                 r = proj(self.f - self.Kx(u))
             else:
                 r = r - alpha * q
@@ -667,7 +690,7 @@ class _State:
                 self.callback(self.it, u)
             if smax < self.stop:
                 break
-            z = np.einsum("nab,nb->na", M, r)
+            z = applyM(r)
             rz_new = float(np.vdot(r, z))
             if method == "pcg":
                 p = z + (rz_new / rz) * p
