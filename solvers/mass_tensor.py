@@ -746,8 +746,9 @@ _MODELS: dict = {}
 def _model_for(case) -> MassTensorModel:
     key = (id(case.mesh), case.material.mu, case.material.lmbda)
     m = _MODELS.get(key)
-    if m is None or m.points is not case.mesh.points and not np.array_equal(m.points,
-                                                                             case.mesh.points):
+    same = m is not None and (m.points is case.mesh.points or np.array_equal(m.points, case.mesh.points)) \
+        and (m.cells is case.mesh.cells or np.array_equal(m.cells, case.mesh.cells))
+    if not same:
         m = MassTensorModel(case.mesh.points, case.mesh.cells, case.material)
         _MODELS.clear()
         _MODELS[key] = m
