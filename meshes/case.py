@@ -150,6 +150,19 @@ class VertexConstraints:
     owner: tuple
 
 
+def _closest_barycentric(verts: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Barycentric weights of the point of the simplex ``verts`` closest to ``x`` (NNLS with the
+    partition of unity as a heavily weighted extra row)."""
+    from scipy.optimize import nnls
+
+    scale = max(np.ptp(verts, axis=0).max(), 1.0)
+    big = 1e6
+    A = np.vstack([verts.T / scale, big * np.ones(len(verts))])
+    b = np.concatenate([x / scale, [big]])
+    w, _ = nnls(A, b)
+    return w / w.sum()
+
+
 def _axis_of(normal, tol=1e-12):
     n = np.abs(normal)
     k = int(np.argmax(n))
@@ -362,8 +375,7 @@ class Case:
                 if w.min() >= -1e-10:
                     best = (int(c), w, x.copy(), 0.0)
                     break
-                wc = np.clip(w, 0, None)
-                wc /= wc.sum()
+                wc = _closest_barycentric(X[cells[c]], x)
                 y = wc @ X[cells[c]]
                 dist = float(np.linalg.norm(y - x))
                 if best is None or dist < best[3]:

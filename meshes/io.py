@@ -33,9 +33,9 @@ def read_msh(path) -> MeshData:
     if not path.is_file():
         raise ReadError(f"mesh file {str(path)!r} does not exist")
     try:
-        m = meshio.read(str(path))
-    except Exception as exc:  # meshio raises a variety of types
-        raise ReadError(f"cannot read mesh file {str(path)!r}: {exc}") from exc
+        m = meshio.read(str(path), file_format="gmsh")
+    except (Exception, SystemExit) as exc:  # meshio raises many types, even SystemExit
+        raise ReadError(f"cannot read mesh file {str(path)!r} as gmsh .msh: {exc}") from None
     blocks = [(c.type, c.data) for c in m.cells]
     types = {t for t, _ in blocks}
     if "tetra" in types:
