@@ -75,6 +75,10 @@ def main(argv=None) -> int:
               f"({st.n_points} vertices) mean {st.mean_distance_mm:.4f} mm [<= 0.5], max "
               f"{st.d_max_mm:.4f} mm [<= 1]; max vertex difference "
               f"{np.abs(ref.u - plan.u).max():.4f} mm")
+        if a.sliding:
+            print("  NOTE: with --sliding the reference still holds the targets (it cannot slide on "
+                  "the implant's triangulated surface): these distances are the effect of sliding, "
+                  "not a solver error")
         t2 = time.perf_counter()
         dplan = plan_implant(patient, PlanSettings(shape=a.shape, volume_cc=a.volume, side=a.side,
                                                    sliding=a.sliding, method="descent"))

@@ -132,6 +132,10 @@ def run(args) -> int:
         out["d_max_mm"], out["mean_distance_mm"] = st.d_max_mm, st.mean_distance_mm
         out["max_vertex_difference_mm"] = float(np.abs(ref.u - plan.u).max())
         dist = st.distance
+        if settings.sliding:
+            out["compared"] += ("; NOTE: the reference holds the targets (sliding on the implant's "
+                                "triangulated surface is not expressible there), so with --sliding "
+                                "the distances include the effect of sliding")
         if args.neo_hookean:
             nh = reference_solve(plan, model="neo-hookean")
             sn = surface_distances(pred, plan.tissue.points + nh.u, skin_t, region=region)
