@@ -143,8 +143,13 @@ def run(args) -> int:
                                   "converged": bool(nh.converged), "load_steps": nh.load_steps}
     if postop is not None:
         sv = np.unique(skin_t)
-        reg = icp(postop.points, pred[sv], np.searchsorted(sv, skin_t), method="point-to-plane",
-                  reject_mm=20.0)
+        # register on the skin away from the operated breast (seed 001 sec. 3: common parts)
+        d = postop.points - plan.placement.centre
+        ax = plan.placement.axis
+        radial = np.linalg.norm(d - np.outer(d @ ax, ax), axis=1)
+        away = radial > 0.5 * settings.spec.dimensions()[0] + 30.0
+        reg = icp(postop.points[away], pred[sv], np.searchsorted(sv, skin_t),
+                  method="point-to-plane", reject_mm=20.0)
         st = surface_distances(pred, reg.transform.apply(postop.points), postop.triangles,
                                region=region)
         out["postop"] = {"d_max_mm": st.d_max_mm, "mean_distance_mm": st.mean_distance_mm,
