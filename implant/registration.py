@@ -106,7 +106,6 @@ def icp(moving, fixed_points, fixed_triangles=None, *, initial: RigidTransform |
     scale = max(np.ptp(mv, axis=0).max(), 1e-9)
     converged = False
     it = 0
-    rms = np.inf
     for it in range(1, max_iter + 1):
         cur = T.apply(mv)
         if method == "point-to-point":
@@ -118,7 +117,6 @@ def icp(moving, fixed_points, fixed_triangles=None, *, initial: RigidTransform |
         keep = np.ones(len(cur), bool) if reject_mm is None else d <= reject_mm
         if keep.sum() < 6:
             raise CaseError(f"ICP: only {int(keep.sum())} point pairs within {reject_mm} mm")
-        rms = float(np.sqrt(np.mean(d[keep] ** 2)))
         if method == "point-to-point":
             dT = kabsch(cur[keep], q[keep])
         else:

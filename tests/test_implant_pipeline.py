@@ -13,7 +13,7 @@ from implant.pipeline import PlanSettings, patient_from_file, plan_implant, synt
 from implant.placement import place_implant
 from implant.registration import (RigidTransform, icp, kabsch, rotation_angle_deg,
                                   surface_distances)
-from implant.surface import TriSurface, closest_points
+from implant.surface import closest_points
 from implant.torso import SyntheticTorso, grid_triangles
 
 
