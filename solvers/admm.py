@@ -1,0 +1,830 @@
+"""ADMM fast solver of seed 000 (eqs. 5-10; Overby et al. 2017, "ADMM ⊇ Projective Dynamics").
+
+Problem (seed eq. 5/6), P1 simplices, displacement u (mm) node-major (dof = gdim*v + c):
+
+    min_u  1/(2 dt^2) ||u - u_tilde||_M^2 + sum_e V_e psi(I + H_e) - f_ext . u,   H_e = D_e u = grad u
+
+(the mass term only for implicit-Euler dynamics; quasi-static equilibrium drops it). ADMM splits
+z_e ~ H_e with the constraint W (D u - z) = 0, W_e = w_e I, and iterates (scaled dual lam):
+
+    x-step (eq. 7):  (M/dt^2 + D^T W^2 D) u = M u_tilde/dt^2 + D^T W^2 (z - lam) + f_ext
+    z-step (eq. 8/10, every element at once):
+                     z_e = argmin_z V_e psi(I + z) + w_e^2/2 |z - (D_e u + lam_e)|^2
+    dual (eq. 9):    lam_e += D_e u - z_e
+
+Weights: w_e^2 = rho * V_e (V_e the reference volume, mm^3; rho in kPa), i.e. one penalty
+stiffness per unit volume for the whole mesh. D^T W^2 D is then rho times the P1 vector
+Laplacian, factorized once per Case (scipy splu on the free dofs) and reused by every iteration,
+every load value and every warm start. Default rho = sqrt(mu (kappa + 4 mu / 3)) for
+Neo-Hookean (between the shear and the bulk stiffness), lambda + 2 mu for linear elasticity;
+overridable (``rho=``).
+
+Material (seed eq. 14, ``case.material``): psi = mu/2 (J^(-2/3) I1 - 3) + kappa/2 (J - 1)^2,
+or linear elasticity psi = mu eps:eps + lambda/2 tr(eps)^2. 2D meshes are plane strain (F33 = 1).
+
+z-step: linear elasticity in closed form (skew / deviatoric / volumetric parts). Neo-Hookean:
+one Newton-type step per ADMM iteration for all elements at once (vectorized numpy), with the
+element matrices (A_e + rho I)^-1 (A = dP/dF) frozen and refreshed only for the elements whose
+strain moved by more than ``refresh_strain`` since their last refresh, with a backtracking line
+search keeping J > 0 and decreasing the local objective. At a fixed point the z-step gradient
+vanishes, so the fixed point is exact whatever the frozen matrices.
+
+Stopping rule (mm): primal = max_e h_e |D_e u - z_e|, dual = max_e h_e |z_e^k - z_e^(k-1)|
+(h_e = V_e^(1/gdim), a length); both below ``tol_mm``. ADMM converges linearly, so by default a
+"Newton polish" follows: Newton steps on the same P1 energy with this module's exact tangent
+(``tangent_stiffness``) until the largest Newton step is below ``polish_tol_mm``. Both iteration
+counts are reported (``extra["admm_iterations"]``, ``extra["newton_iterations"]``).
+
+Boundary conditions: prescribed dofs (fixed, displacement, affine, axis-aligned sliding) are
+eliminated; oblique sliding u.n = g by a per-vertex change of basis (exact). Tractions and gravity
+enter as external forces (``case.external_forces``) in the x-step.
+
+Units: mm, kPa, mN, kg, s; energy uJ = kPa mm^3 = mN mm.
+"""
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from meshes.errors import CaseError, SolverDivergedError
+from meshes.results import SolveResult
+
+__all__ = ["solve", "ImplicitEuler", "AdmmOperators", "prepare", "tangent_stiffness",
+           "internal_forces", "strain_energy", "element_kinematics"]
+
+
+# =========================================================================== element kinematics
+@dataclass(frozen=True)
+class ElementKinematics:
+    """P1 kinematics: G (m, d+1, d) reference shape-function gradients (1/mm), V (m,) volumes
+    (mm^3), dofs (m, (d+1)*d) node-major dof ids, d the dimension."""
+
+    G: np.ndarray
+    V: np.ndarray
+    dofs: np.ndarray
+    d: int
+
+
+def element_kinematics(mesh) -> ElementKinematics:
+    """Shape-function gradients and volumes of a MeshData (points in mm)."""
+    X = mesh.points
+    cells = mesh.cells
+    d = X.shape[1]
+    T = np.transpose(X[cells[:, 1:]] - X[cells[:, :1]], (0, 2, 1))  # columns = edges
+    Tinv = np.linalg.inv(T)  # rows = grad N_1..d
+    G = np.concatenate([-Tinv.sum(axis=1, keepdims=True), Tinv], axis=1)
+    V = np.abs(np.linalg.det(T)) / (6.0 if d == 3 else 2.0)
+    dofs = (cells[:, :, None] * d + np.arange(d)).reshape(len(cells), -1)
+    return ElementKinematics(G, V, dofs, d)
+
+
+def _grad(kin: ElementKinematics, u: np.ndarray) -> np.ndarray:
+    """H_e = grad u (m, d, d), H_iJ = sum_a u_ai G_aJ."""
+    ue = u.reshape(-1)[kin.dofs].reshape(len(kin.V), kin.d + 1, kin.d)
+    return np.einsum("mai,maj->mij", ue, kin.G)
+
+
+def _scatter(kin: ElementKinematics, Pv: np.ndarray, n: int) -> np.ndarray:
+    """Nodal forces sum_e V_e P_e : grad N_a, with Pv = V_e P_e (m, d, d); node-major (n,)."""
+    fe = np.einsum("mij,maj->mai", Pv, kin.G).reshape(len(kin.V), -1)
+    return np.bincount(kin.dofs.ravel(), weights=fe.ravel(), minlength=n)
+
+
+# =========================================================================== material laws
+def _det_cof(F):
+    """det and cofactor (J F^-T) of (m, d, d) with closed forms."""
+    if F.shape[1] == 3:
+        a, b, c = F[:, :, 0], F[:, :, 1], F[:, :, 2]  # columns
+        bc = np.stack([b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1], b[:, 2] * c[:, 0] - b[:, 0] * c[:, 2],
+                       b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]], axis=1)
+        ca = np.stack([c[:, 1] * a[:, 2] - c[:, 2] * a[:, 1], c[:, 2] * a[:, 0] - c[:, 0] * a[:, 2],
+                       c[:, 0] * a[:, 1] - c[:, 1] * a[:, 0]], axis=1)
+        ab = np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                       a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
+        J = np.einsum("mi,mi->m", a, bc)
+        return J, np.stack([bc, ca, ab], axis=2)
+    J = F[:, 0, 0] * F[:, 1, 1] - F[:, 0, 1] * F[:, 1, 0]
+    cof = np.empty_like(F)
+    cof[:, 0, 0], cof[:, 1, 1] = F[:, 1, 1], F[:, 0, 0]
+    cof[:, 0, 1], cof[:, 1, 0] = -F[:, 1, 0], -F[:, 0, 1]
+    return J, cof
+
+
+class _Law:
+    """Energy density psi (kPa), first Piola stress P = dpsi/dH (kPa) and A = dP/dH (kPa) of the
+    displacement gradient H (m, d, d)."""
+
+    def __init__(self, material, d):
+        self.model = material.model
+        self.mu, self.kappa, self.lmbda = material.mu, material.kappa, material.lmbda
+        self.d = d
+
+    def psi_J(self, H):
+        d = self.d
+        if self.model == "linear-elastic":
+            eps = 0.5 * (H + np.transpose(H, (0, 2, 1)))
+            tr = np.einsum("mii->m", eps)
+            return self.mu * np.einsum("mij,mij->m", eps, eps) + 0.5 * self.lmbda * tr ** 2, None
+        F = H + np.eye(d)
+        J, _ = _det_cof(F)
+        I1 = np.einsum("mij,mij->m", F, F) + (3 - d)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            Jm = np.where(J > 0, np.abs(J) ** (-2.0 / 3.0), np.inf)
+            psi = 0.5 * self.mu * (Jm * I1 - 3.0) + 0.5 * self.kappa * (J - 1.0) ** 2
+        return psi, J
+
+    def stress(self, H):
+        """(P, J); J is None for linear elasticity."""
+        d = self.d
+        if self.model == "linear-elastic":
+            eps = 0.5 * (H + np.transpose(H, (0, 2, 1)))
+            tr = np.einsum("mii->m", eps)
+            P = 2.0 * self.mu * eps
+            P[:, np.arange(d), np.arange(d)] += (self.lmbda * tr)[:, None]
+            return P, None
+        F = H + np.eye(d)
+        J, cof = _det_cof(F)
+        I1 = np.einsum("mij,mij->m", F, F) + (3 - d)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            Jm = np.abs(J) ** (-2.0 / 3.0)
+            Fi = cof / J[:, None, None]
+            P = (self.mu * Jm)[:, None, None] * (F - (I1 / 3.0)[:, None, None] * Fi) \
+                + (self.kappa * (J - 1.0))[:, None, None] * cof
+        return P, J
+
+    def tangent(self, H):
+        """A (m, d*d, d*d), rows (iJ), columns (kL): A_iJkL = d P_iJ / d H_kL."""
+        d = self.d
+        m = len(H)
+        if self.model == "linear-elastic":
+            I = np.eye(d)
+            A = self.mu * (np.einsum("ik,jl->ijkl", I, I) + np.einsum("il,jk->ijkl", I, I)) \
+                + self.lmbda * np.einsum("ij,kl->ijkl", I, I)
+            return np.broadcast_to(A.reshape(d * d, d * d), (m, d * d, d * d)).copy()
+        F = H + np.eye(d)
+        J, cof = _det_cof(F)
+        I1 = np.einsum("mij,mij->m", F, F) + (3 - d)
+        Jm = np.abs(J) ** (-2.0 / 3.0)
+        Fi = (cof / J[:, None, None]).reshape(m, -1)
+        Ff = F.reshape(m, -1)
+        mu, kappa = self.mu, self.kappa
+        c1 = mu * Jm
+        c2 = -2.0 / 3.0 * mu * Jm
+        c3 = 2.0 / 9.0 * mu * Jm * I1 + kappa * (2.0 * J - 1.0) * J
+        c4 = mu * Jm * I1 / 3.0 - kappa * J * (J - 1.0)
+        Fi3 = Fi.reshape(m, d, d)
+        T = np.einsum("mil,mkj->mijkl", Fi3, Fi3).reshape(m, d * d, d * d)
+        A = c2[:, None, None] * (Ff[:, :, None] * Fi[:, None, :] + Fi[:, :, None] * Ff[:, None, :])
+        A += c3[:, None, None] * (Fi[:, :, None] * Fi[:, None, :])
+        A += c4[:, None, None] * T
+        A[:, np.arange(d * d), np.arange(d * d)] += c1[:, None]
+        return A
+
+
+# =========================================================================== energy, forces, K
+def _case_parts(case):
+    kin = element_kinematics(case.mesh)
+    return kin, _Law(case.material, kin.d)
+
+
+def _as_u(case, u):
+    n, d = case.mesh.n_vertices, case.mesh.gdim
+    u = np.asarray(u, dtype=np.float64)
+    if u.size != n * d:
+        raise CaseError(f"displacement has {u.size} values, expected {n}x{d} = {n * d} "
+                        f"(n_vertices x gdim, mm)")
+    return u.reshape(-1)
+
+
+def strain_energy(case, u) -> float:
+    """P1 strain energy sum_e V_e psi(F_e) (uJ = kPa mm^3) of displacement u (mm, (n, gdim))."""
+    kin, law = _case_parts(case)
+    psi, _ = law.psi_J(_grad(kin, _as_u(case, u)))
+    return float(kin.V @ psi)
+
+
+def internal_forces(case, u) -> np.ndarray:
+    """f_int = dU/du (mN), node-major (n*gdim,), of displacement u (mm)."""
+    kin, law = _case_parts(case)
+    uu = _as_u(case, u)
+    P, _ = law.stress(_grad(kin, uu))
+    return _scatter(kin, kin.V[:, None, None] * P, uu.size)
+
+
+def _element_K(kin, A):
+    """Element stiffness (m, (d+1)d, (d+1)d): V B^T A B, B_(iJ),(a i') = delta_ii' G_aJ."""
+    m, d = len(kin.V), kin.d
+    A5 = A.reshape(m, d, d, d, d)
+    AG = np.einsum("mijkl,mbl->mijkb", A5, kin.G)
+    Ke = np.einsum("maj,mijkb->maibk", kin.G, AG) * kin.V[:, None, None, None, None]
+    nd = (d + 1) * d
+    return Ke.reshape(m, nd, nd)
+
+
+def _assemble(kin, Ke, n):
+    m, nd = kin.dofs.shape
+    rows = np.repeat(kin.dofs, nd, axis=1).ravel()
+    cols = np.tile(kin.dofs, (1, nd)).ravel()
+    return sp.csr_matrix((Ke.ravel(), (rows, cols)), shape=(n, n))
+
+
+def tangent_stiffness(case, u) -> sp.csr_matrix:
+    """Exact Hessian d^2 U / du^2 (mN/mm) of the P1 energy at displacement u (mm), CSR,
+    node-major dofs (gdim*v + c) in the Case vertex numbering, no boundary conditions applied."""
+    kin, law = _case_parts(case)
+    uu = _as_u(case, u)
+    return _assemble(kin, _element_K(kin, law.tangent(_grad(kin, uu))), uu.size)
+
+
+# =========================================================================== constraints
+@dataclass(frozen=True)
+class _Reduction:
+    """u = up_unit * load + Z q; Z (N, nq) orthonormal columns, each on one vertex."""
+
+    Z: sp.csr_matrix
+    up: np.ndarray
+
+
+def _reduction(case) -> _Reduction:
+    n, d = case.mesh.n_vertices, case.mesh.gdim
+    N = n * d
+    c = case.constraints
+    up = np.zeros(N)
+    up[c.dofs] = c.values
+    fixed = np.zeros(N, bool)
+    fixed[c.dofs] = True
+    rows_of: dict[int, list] = {}
+    for verts, nrm, g in c.sliding:
+        for v in np.asarray(verts).tolist():
+            rows_of.setdefault(v, []).append((np.asarray(nrm, float), float(g)))
+    # plain free dofs of vertices without oblique sliding
+    slide_v = np.array(sorted(rows_of), dtype=np.int64)
+    plain = ~fixed
+    if len(slide_v):
+        plain[(slide_v[:, None] * d + np.arange(d)).ravel()] = False
+    plain_dofs = np.flatnonzero(plain)
+    zr, zc, zv = [plain_dofs], [np.arange(len(plain_dofs))], [np.ones(len(plain_dofs))]
+    col = len(plain_dofs)
+    for v in slide_v.tolist():
+        R, g = [], []
+        for k in range(d):
+            if fixed[d * v + k]:
+                e = np.zeros(d)
+                e[k] = 1.0
+                R.append(e)
+                g.append(up[d * v + k])
+        for nrm, val in rows_of[v]:
+            R.append(nrm)
+            g.append(val)
+        R, g = np.array(R), np.array(g)
+        U_, s, Vt = np.linalg.svd(R)
+        rank = int(np.sum(s > 1e-10 * s[0]))
+        upv = np.linalg.lstsq(R, g, rcond=None)[0]
+        if np.linalg.norm(R @ upv - g) > 1e-8 * max(1.0, np.abs(g).max()):
+            raise CaseError(f"vertex {v}: sliding and prescribed conditions conflict "
+                            f"(no displacement satisfies them, residual "
+                            f"{np.linalg.norm(R @ upv - g):.3g} mm)")
+        up[d * v:d * v + d] = upv
+        for b in Vt[rank:]:
+            zr.append(d * v + np.arange(d))
+            zc.append(np.full(d, col))
+            zv.append(b)
+            col += 1
+    Z = sp.csr_matrix((np.concatenate(zv), (np.concatenate(zr), np.concatenate(zc))), shape=(N, col))
+    return _Reduction(Z, up)
+
+
+# =========================================================================== operators
+@dataclass(frozen=True)
+class ImplicitEuler:
+    """Implicit-Euler dynamics (seed eq. 5): ``steps`` steps of ``dt`` (s), lumped mass
+    density * V / (d+1) (kg), initial velocity ``velocity`` (mm/s, (n, gdim)) or zero.
+    Boundary values are applied at full load from the first step."""
+
+    dt: float
+    steps: int = 1
+    velocity: object = None
+
+    def __post_init__(self):
+        if not (np.isfinite(self.dt) and self.dt > 0):
+            raise CaseError(f"ImplicitEuler dt must be > 0 s, got {self.dt!r}")
+        if int(self.steps) < 1:
+            raise CaseError(f"ImplicitEuler steps must be >= 1, got {self.steps!r}")
+
+
+class AdmmOperators:
+    """Everything precomputed once per Case structure (mesh, material, constrained dof set,
+    rho, dt): D, the x-step matrix factorization, the reduction u = up + Z q."""
+
+    def __init__(self, case, *, rho: float | None = None, dt: float | None = None):
+        t0 = time.perf_counter()
+        self.mesh = case.mesh
+        kin, law = _case_parts(case)
+        self.kin, self.law = kin, law
+        n, d = case.mesh.n_vertices, kin.d
+        self.n, self.d, self.N, self.m = n, d, n * d, len(kin.V)
+        mat = case.material
+        if rho is None:
+            rho = mat.kappa + 4.0 * mat.mu / 3.0  # = lambda + 2 mu, the P-wave modulus
+        if not (np.isfinite(rho) and rho > 0):
+            raise CaseError(f"ADMM rho must be > 0 kPa, got {rho!r}")
+        self.rho = float(rho)
+        self.h = kin.V ** (1.0 / d)
+        self.red = _reduction(case)
+        Z = self.red.Z
+        # D: (m*d*d, N) with H_flat = D u
+        m = self.m
+        rows = (np.arange(m)[:, None, None, None] * d * d + np.arange(d)[None, None, :, None] * d
+                + np.arange(d)[None, None, None, :])  # (m, a, i, J)
+        rows = np.broadcast_to(rows, (m, d + 1, d, d))
+        cols = np.broadcast_to(kin.dofs.reshape(m, d + 1, d)[:, :, :, None], (m, d + 1, d, d))
+        vals = np.broadcast_to(kin.G[:, :, None, :], (m, d + 1, d, d))
+        D = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(m * d * d, self.N))
+        self.D = D
+        w2 = self.rho * np.repeat(kin.V, d * d)
+        self.w2 = w2
+        self.DZ = (D @ Z).tocsr()
+        self.DZtW = (self.DZ.T.multiply(w2[None, :])).tocsr()
+        L = (D.T.multiply(w2[None, :]) @ D).tocsr()
+        self.L = L
+        self.dt = dt
+        self.mass = None
+        Mx = L
+        if dt is not None:
+            mv = np.zeros(n)
+            np.add.at(mv, case.mesh.cells.ravel(), np.repeat(mat.density * kin.V / (d + 1), d + 1))
+            self.mass = np.repeat(mv, d)
+            Mx = L + sp.diags(self.mass / dt ** 2)
+        self.Mx = Mx.tocsr()
+        Ar = (Z.T @ self.Mx @ Z).tocsc()
+        self.lu = spla.splu(Ar, permc_spec="MMD_AT_PLUS_A")
+        self.nq = Z.shape[1]
+        self.setup_s = time.perf_counter() - t0
+
+
+_CACHE: "OrderedDict[tuple, AdmmOperators]" = OrderedDict()
+
+
+def _structure_key(case, rho, dt):
+    c = case.constraints
+    sl = tuple((np.asarray(v).tobytes(), tuple(np.asarray(nr, float).round(14))) for v, nr, _ in
+               c.sliding)
+    return (id(case.mesh), c.dofs.tobytes(), sl, case.material, rho, dt)
+
+
+def prepare(case, *, rho: float | None = None, dt: float | None = None) -> AdmmOperators:
+    """The per-Case operators (x-step factorization included), cached for the last 4 Case
+    structures: a Case differing only in prescribed values (e.g. other pushes) reuses them."""
+    key = _structure_key(case, rho, dt)
+    ops = _CACHE.get(key)
+    if ops is not None and ops.mesh is case.mesh:
+        _CACHE.move_to_end(key)
+        return ops
+    ops = AdmmOperators(case, rho=rho, dt=dt)
+    _CACHE[key] = ops
+    while len(_CACHE) > 4:
+        _CACHE.popitem(last=False)
+    return ops
+
+
+def _particular(case, ops: AdmmOperators) -> np.ndarray:
+    """Prescribed part u_p (mm) of the displacement for this Case's boundary values."""
+    c = case.constraints
+    if c.sliding:
+        return _reduction(case).up
+    up = np.zeros(ops.N)
+    up[c.dofs] = c.values
+    return up
+
+
+# =========================================================================== z-step
+class _ZStep:
+    """Per-element proximal step z = argmin psi(I + z) + rho/2 |z - zhat|^2 for all elements."""
+
+    def __init__(self, ops: AdmmOperators, refresh_strain: float):
+        self.ops = ops
+        self.law = ops.law
+        self.rho = ops.rho
+        d = ops.d
+        self.dd = d * d
+        self.refresh_strain = refresh_strain
+        self.Minv = None
+        self.zref = None
+        self.psi_z = None
+        self.refreshes = 0
+        mat = self.law
+        if mat.model == "linear-elastic":
+            r = self.rho
+            self.f_dev = r / (r + 2 * mat.mu)
+            self.f_vol = r / (r + 2 * mat.mu + d * mat.lmbda)
+        # fallback gradient step length for a non-descent frozen direction
+        self.gstep = 1.0 / (self.rho + 2.0 * mat.mu + 3.0 * mat.kappa)
+
+    def __call__(self, zhat, z, it):
+        if self.law.model == "linear-elastic":
+            d = self.ops.d
+            sym = 0.5 * (zhat + np.transpose(zhat, (0, 2, 1)))
+            skew = zhat - sym
+            t = np.einsum("mii->m", sym) / d
+            dev = sym.copy()
+            dev[:, np.arange(d), np.arange(d)] -= t[:, None]
+            out = skew + self.f_dev * dev
+            out[:, np.arange(d), np.arange(d)] += (self.f_vol * t)[:, None]
+            return out
+        return self._neo(zhat, z, it)
+
+    def _refresh(self, z, force=None):
+        m, dd = len(z), self.dd
+        if self.Minv is None:
+            idx = np.arange(m)
+            self.Minv = np.empty((m, dd, dd))
+            self.zref = z.copy()
+        else:
+            dz = (z - self.zref).reshape(m, -1)
+            moved = np.einsum("mi,mi->m", dz, dz) > self.refresh_strain ** 2
+            if force is not None:
+                moved[force] = True
+            idx = np.flatnonzero(moved)
+        if len(idx):
+            A = self.law.tangent(z[idx])
+            A[:, np.arange(dd), np.arange(dd)] += self.rho
+            self.Minv[idx] = np.linalg.inv(A)
+            self.zref[idx] = z[idx]
+            self.refreshes += len(idx)
+
+    def _neo(self, zhat, z, it, rounds=4):
+        """Newton-type steps with the frozen (A + rho I)^-1; elements that needed backtracking
+        get their matrix refreshed at the new z and step again (up to ``rounds`` steps)."""
+        law = self.law
+        self._refresh(z)
+        if self.psi_z is None:
+            self.psi_z, _ = law.psi_J(z)
+        znew, psi_new, partial = self._newton_step(zhat, z, self.psi_z, self.Minv)
+        for _ in range(rounds - 1):
+            idx = np.flatnonzero(partial)
+            if not len(idx):
+                break
+            self._refresh(znew, force=idx)
+            zs, ps, partial_s = self._newton_step(zhat[idx], znew[idx], psi_new[idx],
+                                                  self.Minv[idx])
+            znew[idx], psi_new[idx] = zs, ps
+            partial = np.zeros(len(z), bool)
+            partial[idx[partial_s]] = True
+        self.psi_z = psi_new
+        return znew
+
+    def _newton_step(self, zhat, z, psi_z, Minv):
+        m, dd, rho, d = len(z), self.dd, self.rho, self.ops.d
+        law = self.law
+        P, _ = law.stress(z)
+        g = (P + rho * (z - zhat)).reshape(m, dd)
+        dz = -np.einsum("mij,mj->mi", Minv, g)
+        gd = np.einsum("mi,mi->m", g, dz)
+        bad = ~(gd < 0)
+        if bad.any():
+            dz[bad] = -self.gstep * g[bad]
+            gd[bad] = -self.gstep * np.einsum("mi,mi->m", g[bad], g[bad])
+        dz = dz.reshape(m, d, d)
+        r0 = (z - zhat).reshape(m, dd)
+        phi0 = psi_z + 0.5 * rho * np.einsum("mi,mi->m", r0, r0)
+        znew = z + dz
+        psi1, J1 = law.psi_J(znew)
+        r1 = (znew - zhat).reshape(m, dd)
+        phi1 = psi1 + 0.5 * rho * np.einsum("mi,mi->m", r1, r1)
+        fail = ~((J1 > 0) & (phi1 <= phi0 + 1e-4 * gd))
+        partial = fail | bad
+        if fail.any():
+            idx = np.flatnonzero(fail)
+            alpha = 1.0
+            for _ in range(40):
+                alpha *= 0.5
+                zt = z[idx] + alpha * dz[idx]
+                pt, Jt = law.psi_J(zt)
+                rt = (zt - zhat[idx]).reshape(len(idx), dd)
+                ph = pt + 0.5 * rho * np.einsum("mi,mi->m", rt, rt)
+                ok = (Jt > 0) & (ph <= phi0[idx] + 1e-4 * alpha * gd[idx])
+                znew[idx[ok]] = zt[ok]
+                psi1[idx[ok]] = pt[ok]
+                idx = idx[~ok]
+                if not len(idx):
+                    break
+            if len(idx):  # no decrease found: keep the old z of these elements
+                znew[idx] = z[idx]
+                psi1[idx] = psi_z[idx]
+        return znew, psi1, partial
+
+
+# =========================================================================== helpers
+def _diverged(msg, it, elem):
+    return SolverDivergedError(f"ADMM diverged at iteration {it}: {msg} (element {elem})")
+
+
+def _check_J(ops, H, it, what):
+    if ops.law.model == "linear-elastic":
+        if not np.all(np.isfinite(H)):
+            e = int(np.flatnonzero(~np.isfinite(H.reshape(len(H), -1)).all(axis=1))[0])
+            raise _diverged(f"non-finite displacement gradient in {what}", it, e)
+        return
+    J, _ = _det_cof(H + np.eye(ops.d))
+    bad = ~(J > 0)
+    if bad.any():
+        e = int(np.argmin(np.where(np.isfinite(J), J, -np.inf)))
+        raise _diverged(f"{int(bad.sum())} inverted element(s) in {what}, J = {J[e]:.3g} "
+                        f"<= 0", it, e)
+
+
+def _vertex_norm_max(du, d):
+    return float(np.sqrt((du.reshape(-1, d) ** 2).sum(axis=1)).max(initial=0.0))
+
+
+# =========================================================================== one static/step solve
+def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, refresh_strain, it0,
+          progress, hist):
+    """ADMM iterations from u0. rhs_extra: f_ext (+ M u_tilde / dt^2), mN. Returns (u, iters,
+    converged)."""
+    Z, m, d = ops.red.Z, ops.m, ops.d
+    # move the boundary from u0's values to up's and carry the interior along with the
+    # harmonic (x-step matrix) extension of that change
+    zu0 = Z.T @ u0
+    delta = up - (u0 - Z @ zu0)
+    q = zu0 - ops.lu.solve(Z.T @ (ops.Mx @ delta)) if np.any(delta) else zu0
+    Dup = ops.D @ up
+    H = (ops.DZ @ q + Dup).reshape(m, d, d)
+    z = H.copy()
+    if ops.law.model != "linear-elastic":
+        # elements the prescribed values invert in the start state start from F = I
+        J, _ = _det_cof(H + np.eye(d))
+        z[~(J > 0.05)] = 0.0
+    P, _ = ops.law.stress(z)
+    lam = P / ops.rho
+    rhs_c = Z.T @ (rhs_extra - ops.Mx @ up)
+    zstep = _ZStep(ops, refresh_strain)
+    h = ops.h
+    big = 1e3 * float(np.ptp(ops.mesh.points, axis=0).max())
+    converged = False
+    k = 0
+    for k in range(1, max_iter + 1):
+        q_old = q
+        q = ops.lu.solve(ops.DZtW @ (z - lam).ravel() + rhs_c)
+        Hx = (ops.DZ @ q + Dup).reshape(m, d, d)
+        zhat = Hx + lam
+        znew = zstep(zhat, z, it0 + k)
+        lam = zhat - znew
+        rp = (Hx - znew).reshape(m, -1)
+        rd = (znew - z).reshape(m, -1)
+        ep = h * np.sqrt(np.einsum("mi,mi->m", rp, rp))
+        ed = h * np.sqrt(np.einsum("mi,mi->m", rd, rd))
+        z = znew
+        primal, dual = float(ep.max()), float(ed.max())
+        step = _vertex_norm_max(Z @ (q - q_old), d)
+        hist["primal"].append(primal)
+        hist["dual"].append(dual)
+        hist["max_step_mm"].append(step)
+        if not (np.isfinite(primal) and np.isfinite(dual) and np.isfinite(step)):
+            bad = ~(np.isfinite(ep) & np.isfinite(ed))
+            raise _diverged("non-finite residual", it0 + k,
+                            int(np.flatnonzero(bad)[0]) if bad.any() else -1)
+        if primal > big or step > big:
+            raise _diverged(f"residual growth, primal {primal:.3g} mm", it0 + k, int(np.argmax(ep)))
+        if callback is not None:
+            callback(it0 + k, (up + Z @ q).reshape(-1, d))
+        if progress and k % 100 == 0:
+            print(f"admm {it0 + k}: primal {primal:.3e} mm, dual {dual:.3e} mm, "
+                  f"step {step:.3e} mm", flush=True)
+        if primal < tol_mm and dual < tol_mm:
+            converged = True
+            break
+    return up + Z @ q, k, converged
+
+
+def _tangent_lift(ops, u, up, it):
+    """u with its prescribed part moved to up's values and the interior moved by the linearized
+    (tangent at u) response to that boundary change."""
+    Z = ops.red.Z
+    zu = Z.T @ u
+    delta = up - (u - Z @ zu)
+    if not np.any(delta):
+        return u
+    K = _assemble(ops.kin, _element_K(ops.kin, ops.law.tangent(_grad(ops.kin, u))), ops.N)
+    Kr = (Z.T @ K @ Z).tocsc()
+    try:
+        s = spla.splu(Kr, permc_spec="MMD_AT_PLUS_A").solve(-(Z.T @ (K @ delta)))
+    except RuntimeError as exc:
+        raise _diverged(f"singular tangent in the boundary lift ({exc})", it, -1) from None
+    cand = up + Z @ (zu + s)
+    # keep elements valid: halve the interior part until no element inverts
+    for _ in range(20):
+        if ops.law.model == "linear-elastic":
+            return cand
+        J, _ = _det_cof(_grad(ops.kin, cand) + np.eye(ops.d))
+        if np.all(J > 0):
+            return cand
+        s = 0.5 * s
+        cand = up + Z @ (zu + s)
+    return cand
+
+
+def _energy(ops, u, fext, inertia):
+    psi, J = ops.law.psi_J(_grad(ops.kin, u))
+    e = float(ops.kin.V @ psi) - float(fext @ u)
+    if inertia is not None:
+        mdt, ut = inertia
+        e += 0.5 * float((u - ut) @ (mdt * (u - ut)))
+    return e, J
+
+
+def _residual(ops, u, fext, inertia):
+    P, _ = ops.law.stress(_grad(ops.kin, u))
+    r = _scatter(ops.kin, ops.kin.V[:, None, None] * P, ops.N) - fext
+    if inertia is not None:
+        mdt, ut = inertia
+        r = r + mdt * (u - ut)
+    return r
+
+
+def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback):
+    """Newton on the same P1 energy (exact tangent, backtracking on the energy, J > 0)."""
+    Z, d = ops.red.Z, ops.d
+    k = 0
+    for k in range(1, max_iter + 1):
+        r = _residual(ops, u, fext, inertia)
+        rr = Z.T @ r
+        K = _assemble(ops.kin, _element_K(ops.kin, ops.law.tangent(_grad(ops.kin, u))), ops.N)
+        if inertia is not None:
+            K = K + sp.diags(inertia[0])
+        Kr = (Z.T @ K @ Z).tocsc()
+        try:
+            dq = -spla.splu(Kr, permc_spec="MMD_AT_PLUS_A").solve(rr)
+        except RuntimeError as exc:
+            raise _diverged(f"singular tangent in the Newton polish ({exc})", it0 + k, -1) from None
+        du = Z @ dq
+        e0, _ = _energy(ops, u, fext, inertia)
+        alpha = 1.0
+        for _ in range(40):
+            e1, J1 = _energy(ops, u + alpha * du, fext, inertia)
+            if (J1 is None or np.all(J1 > 0)) and e1 <= e0 + 1e-4 * alpha * float(rr @ dq) + \
+                    1e-12 * abs(e0):
+                break
+            alpha *= 0.5
+        else:
+            H = _grad(ops.kin, u + du)
+            _check_J(ops, H, it0 + k, "the Newton polish")
+            raise _diverged("Newton polish line search found no energy decrease", it0 + k,
+                            int(np.argmax(np.abs(rr))) // d)
+        u = u + alpha * du
+        step = _vertex_norm_max(alpha * du, d)
+        hist["max_step_mm"].append(step)
+        hist["newton_step_mm"].append(step)
+        if callback is not None:
+            callback(it0 + k, u.reshape(-1, d))
+        if step < tol_mm:
+            break
+    return u, k
+
+
+# =========================================================================== public solve
+def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: int = 20000,
+          rho: float | None = None, polish: bool = True, polish_tol_mm: float | None = None,
+          polish_max_iter: int = 25, dynamics: ImplicitEuler | None = None, callback=None,
+          refresh_strain: float = 0.02, load_steps: int | None = None, step_mm: float = 3.0,
+          intermediate_tol_mm: float = 1e-2, lift: bool = True,
+          progress: bool = False) -> SolveResult:
+    """ADMM solve of a Case (quasi-static equilibrium, or implicit-Euler dynamics).
+
+    pushes: actuator name -> push (mm), applied with ``case.with_pushes``.
+    initial: warm-start displacement (mm, (n_vertices, gdim)); its prescribed part is replaced by
+        the Case's boundary values (exact), its stress initializes the ADMM dual.
+    tol_mm: stopping tolerance (mm) on the primal and dual residuals (see module docstring).
+    rho: ADMM penalty stiffness (kPa), w_e^2 = rho V_e; default see module docstring.
+    polish: finish with Newton steps on the same P1 energy until the largest step is below
+        ``polish_tol_mm`` (default tol_mm / 100).
+    dynamics: ImplicitEuler(dt, steps) for dynamics; None for quasi-static equilibrium.
+    load_steps: quasi-static increments (default: the prescribed change from the start state
+        divided in steps of at most ``step_mm``, mm); intermediate steps stop at
+        ``intermediate_tol_mm`` (mm) (and, with ``polish``, are Newton-polished).
+    lift: carry the interior along with each boundary increment by one linear solve with the
+        tangent at the current state (K_ff du_f = -K_fc du_c), instead of the x-step matrix's
+        harmonic extension; counted in ``extra["lift_solves"]``.
+    callback(it, u): called after every iteration (ADMM, then polish) with u (mm, (n, gdim)).
+    Raises SolverDivergedError (iteration and element named) on NaN, inverted elements or
+    residual growth.
+    """
+    t0 = time.perf_counter()
+    if pushes:
+        case = case.with_pushes(pushes)
+    if not (np.isfinite(tol_mm) and tol_mm > 0):
+        raise CaseError(f"tol_mm must be > 0 mm, got {tol_mm!r}")
+    if int(max_iter) < 1:
+        raise CaseError(f"max_iter must be >= 1, got {max_iter!r}")
+    if polish_tol_mm is None:
+        polish_tol_mm = tol_mm / 100.0
+    dt = dynamics.dt if dynamics is not None else None
+    ops = prepare(case, rho=rho, dt=dt)
+    up = _particular(case, ops)
+    fext = case.external_forces(1.0)
+    n, d = ops.n, ops.d
+    if initial is None:
+        u = np.zeros(ops.N)
+    else:
+        u = _as_u(case, initial).copy()
+        _check_J(ops, _grad(ops.kin, u), 0, "the initial (warm-start) state")
+    hist = {"primal": [], "dual": [], "max_step_mm": [], "newton_step_mm": []}
+    globals()["_LAST"] = hist
+    admm_it = newton_it = 0
+    converged = True
+    if dynamics is None:
+        # load steps: the prescribed change from the start state split in increments of at
+        # most step_mm (mm); each step is an ADMM solve warm-started from the previous one
+        uc = u - ops.red.Z @ (ops.red.Z.T @ u)
+        jump = _vertex_norm_max(up - uc, d)
+        if load_steps is None:
+            load_steps = max(1, int(np.ceil(jump / step_mm)))
+        for j in range(1, int(load_steps) + 1):
+            s = j / load_steps
+            last = j == load_steps
+            tol_j = tol_mm if last else max(tol_mm, intermediate_tol_mm)
+            up_j = uc + s * (up - uc)
+            if lift:
+                u = _tangent_lift(ops, u, up_j, admm_it + newton_it)
+            u, k, converged = _admm(ops, up_j, s * fext, u, tol_mm=tol_j,
+                                    max_iter=int(max_iter), callback=callback,
+                                    refresh_strain=refresh_strain, it0=admm_it + newton_it,
+                                    progress=progress, hist=hist)
+            admm_it += k
+            if polish and not last:
+                u, kn = _newton(ops, u, s * fext, None, tol_mm=max(polish_tol_mm, tol_j),
+                                max_iter=polish_max_iter, it0=admm_it + newton_it, hist=hist,
+                                callback=callback)
+                newton_it += kn
+        if polish:
+            u, kn = _newton(ops, u, fext, None, tol_mm=polish_tol_mm,
+                            max_iter=polish_max_iter, it0=admm_it + newton_it, hist=hist,
+                            callback=callback)
+            newton_it += kn
+            converged = hist["newton_step_mm"][-1] < polish_tol_mm
+        inertia = None
+    else:
+        v = np.zeros(ops.N) if dynamics.velocity is None else _as_u(case, dynamics.velocity).copy()
+        mdt = ops.mass / dt ** 2
+        u = up + ops.red.Z @ (ops.red.Z.T @ (u - up))
+        traj = []
+        for step in range(int(dynamics.steps)):
+            ut = u + dt * v
+            inertia = (mdt, ut)
+            un, k, conv = _admm(ops, up, fext + mdt * ut, u, tol_mm=tol_mm,
+                                max_iter=int(max_iter), callback=callback,
+                                refresh_strain=refresh_strain, it0=admm_it + newton_it,
+                                progress=progress, hist=hist)
+            admm_it += k
+            if polish:
+                un, kn = _newton(ops, un, fext, inertia, tol_mm=polish_tol_mm,
+                                 max_iter=polish_max_iter, it0=admm_it + newton_it, hist=hist,
+                                 callback=callback)
+                newton_it += kn
+                conv = hist["newton_step_mm"][-1] < polish_tol_mm
+            converged = converged and conv
+            v = (un - u) / dt
+            u = un
+            traj.append({k_: np.asarray(val).tolist() for k_, val in case.probe_values(u).items()})
+        inertia = None
+    H = _grad(ops.kin, u)
+    _check_J(ops, H, admm_it + newton_it, "the final state")
+    r = _residual(ops, u, fext, None)
+    free_res = float(np.abs(ops.red.Z.T @ r).max(initial=0.0)) if dynamics is None else \
+        float(np.abs(ops.red.Z.T @ _residual(ops, u, fext, inertia)).max(initial=0.0))
+    reactions = _reactions(case, r)
+    psi, _ = ops.law.psi_J(H)
+    extra = {"admm_iterations": int(admm_it), "newton_iterations": int(newton_it),
+             "rho_kPa": ops.rho, "setup_s": ops.setup_s, "tol_mm": tol_mm,
+             "z_refreshes": None}
+    if dynamics is not None:
+        extra.update({"dt_s": dt, "steps": int(dynamics.steps), "probe_trajectory": traj,
+                      "velocity": v.reshape(n, d)})
+    u2 = u.reshape(n, d)
+    return SolveResult(u=u2, converged=bool(converged), iterations=int(admm_it + newton_it),
+                       residual=free_res, wall_time_s=time.perf_counter() - t0, solver="admm",
+                       probes=case.probe_values(u2), reactions=reactions,
+                       strain_energy=float(ops.kin.V @ psi), case_name=case.name, n_vertices=n,
+                       n_cells=ops.m, history=hist, extra=extra)
+
+
+def _reactions(case, r):
+    """Region -> (gdim,) sum of r = f_int - f_ext (mN) over the region's prescribed dofs
+    (oblique sliding regions: over all dofs of their vertices)."""
+    d = case.mesh.gdim
+    c = case.constraints
+    out = {reg: np.zeros(d) for reg in case.dirichlet_regions()}
+    for k, reg in zip(c.dofs.tolist(), c.owner):
+        out.setdefault(reg, np.zeros(d))[k % d] += r[k]
+    R = r.reshape(-1, d)
+    for b in case.boundaries:
+        if b.type == "sliding":
+            for verts, nrm, _ in c.sliding:
+                if np.array_equal(np.sort(verts), case.mesh.region_vertices(b.region)):
+                    out[b.region] = out[b.region] + R[verts].sum(axis=0)
+    return out

@@ -1,0 +1,221 @@
+"""ADMM solver (seed 000 eqs. 5-10): exact linearization, patch tests, boundary conditions,
+bad input, and agreement with the FEniCSx reference on the same P1 mesh."""
+import numpy as np
+import pytest
+import scipy.sparse.linalg as spla
+
+from meshes.builders import box, phantom
+from meshes.case import Boundary, Case, Material, load_case
+from meshes.errors import SolverDivergedError
+from meshes.mesh import cell_volumes
+from solvers import admm
+
+CASE_TOML = "meshes/cases/phantom.toml"
+
+
+@pytest.fixture(scope="module")
+def small_box():
+    return box(5.0)
+
+
+def _box_case(mesh, model="neo-hookean", boundaries=None, gravity=None):
+    b = boundaries or [Boundary("xmin", "fixed"),
+                       Boundary("xmax", "displacement", value=(1.0, 0.5, -0.3))]
+    return Case(mesh, Material(model=model, E=6.0, nu=0.45), boundaries=b, gravity=gravity)
+
+
+def _random_u(case, scale=0.3, seed=0):
+    rng = np.random.default_rng(seed)
+    return scale * rng.standard_normal((case.mesh.n_vertices, 3))
+
+
+@pytest.mark.parametrize("model", ["neo-hookean", "linear-elastic"])
+def test_internal_forces_are_central_difference_of_strain_energy(small_box, model):
+    case = _box_case(small_box, model)
+    u = _random_u(case).ravel()
+    f = admm.internal_forces(case, u)
+    rng = np.random.default_rng(1)
+    h = 1e-6
+    for k in rng.choice(u.size, 12, replace=False):
+        e = np.zeros_like(u)
+        e[k] = h
+        fd = (admm.strain_energy(case, u + e) - admm.strain_energy(case, u - e)) / (2 * h)
+        assert fd == pytest.approx(f[k], rel=1e-6, abs=1e-7)
+
+
+@pytest.mark.parametrize("model", ["neo-hookean", "linear-elastic"])
+def test_tangent_is_central_difference_of_internal_forces(small_box, model):
+    case = _box_case(small_box, model)
+    u = _random_u(case).ravel()
+    K = admm.tangent_stiffness(case, u)
+    rng = np.random.default_rng(2)
+    h = 1e-6
+    for k in rng.choice(u.size, 8, replace=False):
+        e = np.zeros_like(u)
+        e[k] = h
+        fd = (admm.internal_forces(case, u + e) - admm.internal_forces(case, u - e)) / (2 * h)
+        col = K[:, k].toarray().ravel()
+        assert np.abs(fd - col).max() <= 1e-6 * np.abs(col).max()
+    assert abs(K - K.T).max() <= 1e-12 * abs(K).max()
+
+
+@pytest.mark.parametrize("model", ["neo-hookean", "linear-elastic"])
+def test_affine_boundary_values_give_the_affine_field_exactly(small_box, model):
+    """Patch test: u = G X + c on the whole boundary -> the same affine field everywhere."""
+    G = np.array([[0.05, 0.02, 0.0], [-0.01, -0.04, 0.03], [0.0, 0.01, 0.06]])
+    c = np.array([0.1, -0.2, 0.3])
+    b = [Boundary(f, "affine", gradient=G.tolist(), offset=c.tolist())
+         for f in ("xmin", "xmax", "ymin", "ymax", "zmin", "zmax")]
+    case = _box_case(small_box, model, b)
+    res = admm.solve(case)
+    exact = case.mesh.points @ G.T + c
+    assert res.converged
+    assert np.abs(res.u - exact).max() < 1e-9
+
+
+def _independent_linear_K(mesh, E, nu):
+    """Textbook P1 stiffness with Voigt B matrices, written independently of solvers.admm."""
+    import scipy.sparse as sp
+    lam = E * nu / ((1 + nu) * (1 - 2 * nu))
+    mu = E / (2 * (1 + nu))
+    Dm = np.zeros((6, 6))
+    Dm[:3, :3] = lam
+    Dm[np.arange(3), np.arange(3)] += 2 * mu
+    Dm[np.arange(3, 6), np.arange(3, 6)] = mu
+    rows, cols, vals = [], [], []
+    for cell in mesh.cells:
+        X = mesh.points[cell]
+        M = np.hstack([np.ones((4, 1)), X])
+        grads = np.linalg.inv(M)[1:].T  # (4, 3)
+        V = abs(np.linalg.det(M)) / 6
+        B = np.zeros((6, 12))
+        for a in range(4):
+            gx, gy, gz = grads[a]
+            B[:, 3 * a:3 * a + 3] = [[gx, 0, 0], [0, gy, 0], [0, 0, gz],
+                                      [gy, gx, 0], [0, gz, gy], [gz, 0, gx]]
+        Ke = V * B.T @ Dm @ B
+        dofs = (3 * cell[:, None] + np.arange(3)).ravel()
+        rows.append(np.repeat(dofs, 12))
+        cols.append(np.tile(dofs, 12))
+        vals.append(Ke.ravel())
+    n = 3 * len(mesh.points)
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(n, n))
+
+
+def test_linear_elastic_solution_matches_direct_solve_of_independent_stiffness(small_box):
+    case = _box_case(small_box, "linear-elastic", gravity=(0.0, 0.0, -9810.0))
+    K = _independent_linear_K(case.mesh, 6.0, 0.45)
+    c = case.constraints
+    u = np.zeros(K.shape[0])
+    u[c.dofs] = c.values
+    free = case.free_dofs()
+    f = case.external_forces()
+    u[free] = spla.spsolve(K[free][:, free].tocsc(), f[free] - K[free][:, c.dofs] @ c.values)
+    res = admm.solve(case)
+    assert np.abs(res.u.ravel() - u).max() < 1e-8
+    assert admm.tangent_stiffness(case, u).toarray() == pytest.approx(K.toarray(), abs=1e-10)
+
+
+def test_plain_admm_without_polish_approaches_the_linear_solution(small_box):
+    """The ADMM fixed point is the equilibrium: error falls with the tolerance."""
+    case = _box_case(small_box, "linear-elastic")
+    exact = admm.solve(case).u
+    errs = [np.abs(admm.solve(case, polish=False, lift=False, tol_mm=t, max_iter=20000).u
+                   - exact).max()
+            for t in (1e-3, 1e-6)]
+    assert errs[1] < 1e-4
+    assert errs[1] < errs[0]
+
+
+def test_oblique_sliding_holds_exactly_and_its_reaction_is_normal(small_box):
+    n = np.array([1.0, 1.0, 0.0]) / np.sqrt(2)
+    b = [Boundary("zmin", "fixed"), Boundary("xmax", "sliding", normal=n.tolist(), value=0.0),
+         Boundary("zmax", "displacement", value=(0.0, 0.0, -1.0), components=(2,))]
+    case = _box_case(small_box, "neo-hookean", b)
+    res = admm.solve(case)
+    verts = case.mesh.region_vertices("xmax")
+    assert np.abs(res.u[verts] @ n).max() < 1e-12
+    assert np.abs(res.u[verts]).max() > 0.05  # it does slide
+    free_of_fixed = np.setdiff1d(verts, np.concatenate([case.mesh.region_vertices("zmin"),
+                                                        case.mesh.region_vertices("zmax")]))
+    r = admm.internal_forces(case, res.u) - case.external_forces()
+    R = r.reshape(-1, 3)[free_of_fixed]
+    tangential = R - np.outer(R @ n, n)
+    assert np.abs(tangential).max() < 1e-6 * max(1.0, np.abs(R).max())
+
+
+def test_reactions_balance_gravity(small_box):
+    """Sum of support reactions (r = f_int - f_ext) = minus the total body force, mN."""
+    case = _box_case(small_box, "neo-hookean", [Boundary("zmin", "fixed")],
+                     gravity=(0.0, 0.0, -9810.0))
+    res = admm.solve(case)
+    total = sum(res.reactions.values())
+    weight = 1e-6 * cell_volumes(case.mesh.points, case.mesh.cells).sum() * np.array([0, 0, -9810.0])
+    assert total == pytest.approx(-weight, abs=1e-8)  # r = f_int - f_ext: support pushes up
+
+
+def test_history_and_callback_cover_every_iteration(small_box):
+    case = _box_case(small_box)
+    seen = []
+    res = admm.solve(case, callback=lambda it, u: seen.append((it, u.shape)))
+    assert [s[0] for s in seen] == list(range(1, res.iterations + 1))
+    assert all(s[1] == res.u.shape for s in seen)
+    assert len(res.history["primal"]) == res.extra["admm_iterations"]
+    assert res.extra["newton_iterations"] >= 1
+
+
+def test_inverted_warm_start_raises_naming_iteration_and_element(small_box):
+    case = _box_case(small_box)
+    u = np.zeros((case.mesh.n_vertices, 3))
+    cells = case.mesh.cells
+    v = cells[0, 0]
+    # move vertex v through the opposite face of cell 0
+    X = case.mesh.points
+    centroid = X[cells[0, 1:]].mean(axis=0)
+    u[v] = 3.0 * (centroid - X[v])
+    with pytest.raises(SolverDivergedError, match=r"iteration 0.*element \d+"):
+        admm.solve(case, initial=u)
+
+
+def test_warm_start_from_the_solution_converges_at_once(small_box):
+    case = _box_case(small_box)
+    res = admm.solve(case)
+    again = admm.solve(case, initial=res.u)
+    assert again.extra["admm_iterations"] <= 2
+    assert np.abs(again.u - res.u).max() < 1e-8
+
+
+def test_implicit_euler_settles_to_the_static_solution(small_box):
+    case = _box_case(small_box).with_material(density=1e-6)
+    static = admm.solve(case)
+    dyn = admm.solve(case, dynamics=admm.ImplicitEuler(dt=0.05, steps=20))
+    assert np.abs(dyn.u - static.u).max() < 1e-3
+
+
+@pytest.fixture(scope="module")
+def phantom12():
+    return load_case(CASE_TOML, size=12.0)
+
+
+def test_admm_matches_fem_reference_on_phantom(phantom12):
+    from fem_reference import solve as fem_solve
+    pushes = {"A1": 5.0, "A2": 5.0, "A3": 5.0, "A4": 5.0}
+    ref = fem_solve(phantom12, degree=1, pushes=pushes)
+    res = admm.solve(phantom12, pushes=pushes, max_iter=300)
+    assert res.converged
+    assert np.abs(res.u - ref.u).max() < 1e-6
+    for k in ref.probes:
+        assert np.linalg.norm(res.probes[k] - ref.probes[k]) < 1e-6
+    for reg, r in ref.reactions.items():
+        assert np.asarray(res.reactions[reg]) == pytest.approx(np.asarray(r), abs=1e-5)
+    assert res.strain_energy == pytest.approx(ref.strain_energy, rel=1e-8)
+
+
+def test_tangent_matches_fem_reference_tangent(phantom12):
+    from fem_reference import tangent_stiffness as fem_tangent
+    pushes = {"A1": 3.0}
+    u = admm.solve(phantom12, pushes=pushes, max_iter=100).u
+    K = admm.tangent_stiffness(phantom12.with_pushes(pushes), u)
+    Kref = fem_tangent(phantom12, u, degree=1, pushes=pushes).K
+    assert abs(K - Kref).max() <= 1e-9 * abs(Kref).max()
