@@ -175,7 +175,10 @@ class ReferenceSolver:
         self.ksp.setOperators(self.A)
         self.ksp.setType("preonly")
         pc = self.ksp.getPC()
-        pc.setType("lu")
+        # The tangent is symmetric (Dirichlet rows and columns are both zeroed): MUMPS LDL^T,
+        # which also handles the indefinite tangents of buckling-like states.
+        self.A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+        pc.setType("cholesky")
         pc.setFactorSolverType("mumps")
         self._region_dofs = {}
         self.timings = _Timings(setup=time.perf_counter() - t0)

@@ -1,0 +1,156 @@
+"""``tissue demo --out out``: the main job. Builds the seed-000 phantom, solves the reference with
+actuator A1 pushed 5, 10 and 15 mm, verifies the fast solvers against it, and writes everything,
+with an index page, under ``out/``."""
+from __future__ import annotations
+
+import html
+import importlib.util
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from meshes.io import atomic_path, write_point_data
+from meshes.mesh import quality
+from meshes.results import write_json
+
+ROOT = Path(__file__).resolve().parents[1]
+CASE = ROOT / "meshes" / "cases" / "phantom.toml"
+
+
+def _say(msg):
+    print(f"tissue demo: {msg}", file=sys.stderr, flush=True)
+
+
+def reference_series(case, out: Path, pushes_mm=(5.0, 10.0, 15.0)) -> dict:
+    """A1 pushed 5, 10, 15 mm (each warm-started from the previous): fields + summary + plot."""
+    import fem_reference as fr
+
+    solver = fr.ReferenceSolver(case, degree=1)
+    rows, prev = [], None
+    for push in pushes_mm:
+        res = solver.solve({"A1": push}, initial=prev, progress=False)
+        prev = res.u
+        stem = f"A1_{push:g}mm"
+        write_point_data(case.mesh, out / "fem", stem,
+                         {"displacement": res.u,
+                          "displacement_magnitude": np.linalg.norm(res.u, axis=1)})
+        write_json(res.to_json_dict(case.with_pushes({"A1": push})), out / "fem" / f"{stem}.json")
+        rows.append({"push_mm": push, "converged": res.converged, "newton_iterations": res.iterations,
+                     "load_steps": res.load_steps, "wall_time_s": res.wall_time_s,
+                     "probes_mm": {k: np.asarray(v).tolist() for k, v in res.probes.items()},
+                     "reaction_A1_mN": np.asarray(res.reactions["act_px"]).tolist(),
+                     "strain_energy_uJ": res.strain_energy})
+        _say(f"reference A1={push:g} mm: {res.iterations} Newton iterations, "
+             f"{res.wall_time_s:.2f} s, T1 u_x = {res.probes['T1'][0]:+.3f} mm")
+    _plot_series(rows, out / "fem" / "probes_vs_push.png")
+    return {"case": case.name, "n_vertices": case.mesh.n_vertices, "n_cells": case.mesh.n_cells,
+            "series": rows}
+
+
+def _plot_series(rows, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 2, figsize=(10, 4))
+    pushes = [0.0] + [r["push_mm"] for r in rows]
+    for name in rows[0]["probes_mm"]:
+        ux = [0.0] + [r["probes_mm"][name][0] for r in rows]
+        ax[0].plot(pushes, ux, "o-", label=name)
+    ax[0].set_xlabel("A1 push (mm)")
+    ax[0].set_ylabel("target u_x (mm)")
+    ax[0].set_title("Targets follow actuator A1 (reference, P1)")
+    ax[0].legend()
+    ax[0].grid(alpha=0.3)
+    ax[1].plot(pushes, [0.0] + [-r["reaction_A1_mN"][0] for r in rows], "s-k")
+    ax[1].set_xlabel("A1 push (mm)")
+    ax[1].set_ylabel("actuator force along push (mN)")
+    ax[1].set_title("Force-displacement of actuator A1")
+    ax[1].grid(alpha=0.3)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+    plt.close(fig)
+
+
+def _have(module):
+    return importlib.util.find_spec(module) is not None
+
+
+def run(args) -> int:
+    from meshes.builders import phantom
+    from meshes.case import load_case
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    sections = []
+    _say(f"building the phantom (size {args.size} mm) with gmsh")
+    mesh = phantom(args.size, out=out / "phantom.msh")
+    q = quality(mesh)
+    case = load_case(CASE, mesh=mesh)
+    sections.append(("Phantom mesh", f"{q.n_vertices} vertices, {q.n_cells} tetrahedra, worst "
+                     f"scaled Jacobian {q.min_scaled_jacobian:.3f}, smallest dihedral angle "
+                     f"{q.min_dihedral_deg:.1f} deg: <a href='phantom.msh'>phantom.msh</a>"))
+    summary = {"mesh": {"size_mm": args.size, "n_vertices": q.n_vertices, "n_cells": q.n_cells,
+                        "min_scaled_jacobian": q.min_scaled_jacobian,
+                        "min_dihedral_deg": q.min_dihedral_deg}}
+    _say("reference solves: A1 pushed 5, 10, 15 mm")
+    summary["reference"] = reference_series(case, out)
+    rows = "".join(
+        f"<tr><td>{r['push_mm']:g}</td><td>{r['newton_iterations']}</td><td>{r['load_steps']}</td>"
+        f"<td>{r['wall_time_s']:.2f}</td><td>{r['probes_mm']['T1'][0]:+.3f}</td>"
+        f"<td>{-r['reaction_A1_mN'][0]:.1f}</td></tr>" for r in summary["reference"]["series"])
+    sections.append(("Reference (FEniCSx, Neo-Hookean, P1)",
+                     "<table border=1 cellpadding=4><tr><th>A1 push (mm)</th><th>Newton its</th>"
+                     "<th>load steps</th><th>time (s)</th><th>T1 u_x (mm)</th><th>A1 force (mN)</th>"
+                     f"</tr>{rows}</table><p>Fields (ParaView): <code>fem/A1_*mm.xdmf</code>, "
+                     "<code>.vtu</code></p><img src='fem/probes_vs_push.png' width=800>"))
+    if not args.skip_verify and _have("tissue.verify"):
+        from tissue.verify import verify
+
+        solvers = tuple(s for s, m in (("admm", "solvers.admm"), ("mass-tensor", "solvers.mass_tensor"))
+                        if _have(m))
+        pushes = {"A1": args.verify_push, "A2": args.verify_push, "A3": args.verify_push,
+                  "A4": args.verify_push}
+        _say(f"verification: {', '.join(solvers)} against the reference, all actuators "
+             f"{args.verify_push:g} mm (mesh size {args.verify_size} mm)")
+        vcase = load_case(CASE, size=args.verify_size)
+        v = verify(vcase, pushes, solvers=solvers, out_dir=out / "verify",
+                   json_file=out / "verify" / "verify.json")
+        summary["verify"] = v
+        vrows = "".join(
+            f"<tr><td>{html.escape(n)}</td><td>{d['max_vertex_error_mm']:.4f}</td>"
+            f"<td>{d['rms_vertex_error_mm']:.4f}</td><td>{d['iterations']}</td>"
+            f"<td>{d['wall_time_s']:.3f}</td><td>{d['speedup_vs_reference']:.1f}</td></tr>"
+            for n, d in v["solvers"].items())
+        sections.append(("Fast solvers against the reference",
+                         "<table border=1 cellpadding=4><tr><th>solver</th><th>max vertex error "
+                         "(mm)</th><th>RMS (mm)</th><th>iterations</th><th>time (s)</th>"
+                         f"<th>speed-up</th></tr>{vrows}</table>"
+                         "<p><a href='verify/report.html'>full verification report</a></p>"))
+    summary["wall_time_s"] = time.perf_counter() - t0
+    write_json(summary, out / "summary.json")
+    body = "".join(f"<h2>{html.escape(t)}</h2>{b}" for t, b in sections)
+    page = (f"<!doctype html><html><head><meta charset='utf-8'><title>tissue demo</title></head>"
+            f"<body><h1>Soft-tissue reference toolkit: demo</h1><p>Case: seed 000 breast phantom "
+            f"(<code>meshes/cases/phantom.toml</code>), total {summary['wall_time_s']:.1f} s.</p>"
+            f"{body}<p>Machine-readable: <a href='summary.json'>summary.json</a></p></body></html>")
+    with atomic_path(out / "report.html") as tmp:
+        tmp.write_text(page)
+    _say(f"done in {summary['wall_time_s']:.1f} s: open {out / 'report.html'}")
+    return 0
+
+
+def add_parser(sub):
+    p = sub.add_parser("demo", help="build the phantom, solve, verify, write a report")
+    p.add_argument("--out", default="out")
+    p.add_argument("--size", type=float, default=6.0, help="phantom mesh size for the reference (mm)")
+    p.add_argument("--verify-size", type=float, default=10.0,
+                   help="mesh size of the verification run (mm; 10 ~ the seed's 1.7k tets)")
+    p.add_argument("--verify-push", type=float, default=15.0, help="push of all four actuators (mm)")
+    p.add_argument("--skip-verify", action="store_true")
+    p.set_defaults(func=run)
