@@ -664,12 +664,17 @@ def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback):
             raise _diverged(f"singular tangent in the Newton polish ({exc})", it0 + k, -1) from None
         du = Z @ dq
         e0, _ = _energy(ops, u, fext, inertia)
+        r0 = float(np.linalg.norm(rr))
         alpha = 1.0
         for _ in range(40):
             e1, J1 = _energy(ops, u + alpha * du, fext, inertia)
-            if (J1 is None or np.all(J1 > 0)) and e1 <= e0 + 1e-4 * alpha * float(rr @ dq) + \
-                    1e-12 * abs(e0):
-                break
+            if J1 is None or np.all(J1 > 0):
+                # merit: energy decrease, or (tangent indefinite) free residual decrease
+                if e1 <= e0 + 1e-4 * alpha * float(rr @ dq) + 1e-12 * abs(e0):
+                    break
+                r1 = float(np.linalg.norm(Z.T @ _residual(ops, u + alpha * du, fext, inertia)))
+                if r1 < (1.0 - 1e-4 * alpha) * r0:
+                    break
             alpha *= 0.5
         else:
             H = _grad(ops.kin, u + du)
@@ -736,6 +741,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     hist = {"primal": [], "dual": [], "max_step_mm": [], "newton_step_mm": []}
     globals()["_LAST"] = hist
     admm_it = newton_it = 0
+    restarts = []
     converged = True
     if dynamics is None:
         # load steps: the prescribed change from the start state split in increments of at
@@ -751,22 +757,28 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
             up_j = uc + s * (up - uc)
             if lift:
                 u = _tangent_lift(ops, u, up_j, admm_it + newton_it)
+            u_start = u
             u, k, converged = _admm(ops, up_j, s * fext, u, tol_mm=tol_j,
                                     max_iter=int(max_iter), callback=callback,
                                     refresh_strain=refresh_strain, it0=admm_it + newton_it,
                                     progress=progress, hist=hist)
             admm_it += k
-            if polish and not last:
-                u, kn = _newton(ops, u, s * fext, None, tol_mm=max(polish_tol_mm, tol_j),
-                                max_iter=polish_max_iter, it0=admm_it + newton_it, hist=hist,
-                                callback=callback)
+            if polish:
+                ptol = polish_tol_mm if last else max(polish_tol_mm, tol_j)
+                try:
+                    u, kn = _newton(ops, u, s * fext, None, tol_mm=ptol,
+                                    max_iter=polish_max_iter, it0=admm_it + newton_it,
+                                    hist=hist, callback=callback)
+                except SolverDivergedError as exc:
+                    # the unconverged ADMM state left Newton's basin: restart the polish
+                    # from the step's start state (reported in extra["polish_restarts"])
+                    restarts.append(f"load step {j}: {exc}")
+                    u, kn = _newton(ops, u_start, s * fext, None, tol_mm=ptol,
+                                    max_iter=polish_max_iter, it0=admm_it + newton_it,
+                                    hist=hist, callback=callback)
                 newton_it += kn
-        if polish:
-            u, kn = _newton(ops, u, fext, None, tol_mm=polish_tol_mm,
-                            max_iter=polish_max_iter, it0=admm_it + newton_it, hist=hist,
-                            callback=callback)
-            newton_it += kn
-            converged = hist["newton_step_mm"][-1] < polish_tol_mm
+                if last:
+                    converged = hist["newton_step_mm"][-1] < polish_tol_mm
         inertia = None
     else:
         v = np.zeros(ops.N) if dynamics.velocity is None else _as_u(case, dynamics.velocity).copy()
@@ -801,7 +813,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     psi, _ = ops.law.psi_J(H)
     extra = {"admm_iterations": int(admm_it), "newton_iterations": int(newton_it),
              "rho_kPa": ops.rho, "setup_s": ops.setup_s, "tol_mm": tol_mm,
-             "z_refreshes": None}
+             "polish_restarts": restarts}
     if dynamics is not None:
         extra.update({"dt_s": dt, "steps": int(dynamics.steps), "probe_trajectory": traj,
                       "velocity": v.reshape(n, d)})
