@@ -496,8 +496,10 @@ class _ZStep:
         psi1, J1 = law.psi_J(znew)
         r1 = (znew - zhat).reshape(m, dd)
         phi1 = psi1 + 0.5 * rho * np.einsum("mi,mi->m", r1, r1)
-        fail = ~((J1 > 0) & (phi1 <= phi0 + 1e-4 * gd))
-        partial = fail | bad
+        # elements already at their minimizer to round-off take the (tiny) step as it is
+        tiny = np.einsum("mi,mi->m", g, g) < (1e-10 * rho) ** 2
+        fail = ~((J1 > 0) & ((phi1 <= phi0 + 1e-4 * gd) | tiny))
+        partial = (fail | bad) & ~tiny
         if fail.any():
             idx = np.flatnonzero(fail)
             alpha = 1.0
@@ -739,7 +741,6 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         u = _as_u(case, initial).copy()
         _check_J(ops, _grad(ops.kin, u), 0, "the initial (warm-start) state")
     hist = {"primal": [], "dual": [], "max_step_mm": [], "newton_step_mm": []}
-    globals()["_LAST"] = hist
     admm_it = newton_it = 0
     restarts = []
     converged = True

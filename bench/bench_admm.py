@@ -1,0 +1,106 @@
+"""ADMM benchmarks (issue 3): time per ADMM iteration at ~1.7k tets, warm-started re-solve after a
+0.5 mm actuator increment against the FEniCSx reference Newton from the same warm start, and
+scaling of time per iteration and peak memory with mesh size (log-log growth exponent).
+
+    .venv/bin/python bench/bench_admm.py [--sizes 10 5 2.8 1.8] [--iters 50]
+
+Units: mm, ms, MiB. Prints measured figures and ratios from this one run.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+import tracemalloc
+
+import numpy as np
+
+from meshes.builders import phantom
+from meshes.case import load_case
+from solvers import admm
+
+CASE = "meshes/cases/phantom.toml"
+
+
+def time_per_iteration(case, iters, pushes):
+    """ms per steady ADMM iteration (x-step + z-step + residuals): timed between the callbacks
+    of iterations 10 and iters, warm-started from the ADMM state after 30 iterations."""
+    u = admm.solve(case, pushes=pushes, polish=False, max_iter=30).u
+    stamps = {}
+
+    def cb(it, _u):
+        stamps[it] = time.perf_counter()
+
+    admm.solve(case, pushes=pushes, initial=u, polish=False, lift=False, load_steps=1,
+               max_iter=iters, tol_mm=1e-30, callback=cb)
+    k = sorted(stamps)
+    return 1e3 * (stamps[k[-1]] - stamps[k[9]]) / (k[-1] - k[9])
+
+
+def peak_memory_mib(case, pushes):
+    tracemalloc.start()
+    admm.solve(case, pushes=pushes, polish=False, lift=False, load_steps=1, max_iter=5,
+               tol_mm=1e-30)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return peak / 2 ** 20
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--sizes", type=float, nargs="*", default=[10.0, 5.0, 2.8, 1.8])
+    ap.add_argument("--iters", type=int, default=50)
+    ap.add_argument("--skip-fem", action="store_true")
+    a = ap.parse_args()
+    pushes = {"A1": 2.0, "A2": 2.0, "A3": 2.0, "A4": 2.0}
+
+    # 1. one ADMM iteration at ~1.7k tets (phantom size 10)
+    case10 = load_case(CASE, size=10.0)
+    for iters in (50, 200):
+        ms = time_per_iteration(case10, iters, pushes)
+        print(f"[iteration] phantom size 10: {case10.mesh.n_cells} tets, {ms:.3f} ms per ADMM "
+              f"iteration, mean over iterations 10..{iters} (target <= 0.5 ms; seed: 18.75 ms)",
+              flush=True)
+
+    # 2. warm re-solve after a 0.5 mm increment, to 0.05 mm, vs reference Newton
+    if not a.skip_fem:
+        from fem_reference import solve as fem_solve
+        base = {"A1": 5.0, "A2": 5.0, "A3": 5.0, "A4": 5.0}
+        inc = dict(base, A1=5.5)
+        u0 = admm.solve(case10, pushes=base, max_iter=300).u
+        admm.solve(case10, pushes=inc, initial=u0, tol_mm=0.05, polish=False, max_iter=2000)
+        fem_solve(case10, degree=1, pushes=inc, initial=u0)  # warm the reference's caches too
+        t = time.perf_counter()
+        ra = admm.solve(case10, pushes=inc, initial=u0, tol_mm=0.05, polish=False,
+                        max_iter=2000)  # tangent lift of the 0.5 mm boundary change + ADMM
+        ta = time.perf_counter() - t
+        t = time.perf_counter()
+        rf = fem_solve(case10, degree=1, pushes=inc, initial=u0)
+        tf = time.perf_counter() - t
+        err = np.abs(ra.u - rf.u).max()
+        print(f"[warm re-solve] +0.5 mm on A1 (5 mm base), {case10.mesh.n_cells} tets: ADMM "
+              f"{ra.extra['admm_iterations']} it + lift, {1e3 * ta:.1f} ms (max vertex diff to "
+              f"reference {err:.3f} mm); reference Newton {rf.iterations} it, {1e3 * tf:.1f} ms; "
+              f"speed-up {tf / ta:.2f}x (target >= 5x)", flush=True)
+
+    # 3. scaling
+    rows = []
+    for s in a.sizes:
+        t = time.perf_counter()
+        mesh = phantom(s)
+        case = load_case(CASE, mesh=mesh)
+        tm = time.perf_counter() - t
+        ms = time_per_iteration(case, a.iters, pushes)
+        mem = peak_memory_mib(case, pushes)
+        rows.append((case.mesh.n_cells, ms, mem))
+        print(f"[scaling] size {s}: {case.mesh.n_cells} tets, {ms:.3f} ms/iteration, peak "
+              f"{mem:.1f} MiB (mesh {tm:.1f} s)", flush=True)
+    if len(rows) >= 2:
+        n, t, m = map(np.array, zip(*rows))
+        kt = np.polyfit(np.log(n), np.log(t), 1)[0]
+        km = np.polyfit(np.log(n), np.log(m), 1)[0]
+        print(f"[scaling] growth exponent: time per iteration ~ n^{kt:.2f} (target <= 1.1), "
+              f"peak memory ~ n^{km:.2f}")
+
+
+if __name__ == "__main__":
+    main()
