@@ -96,20 +96,27 @@ def _scatter(kin: ElementKinematics, Pv: np.ndarray, n: int) -> np.ndarray:
 
 
 # =========================================================================== material laws
+def _det(F):
+    """det of (m, d, d), closed form."""
+    if F.shape[1] == 3:
+        return (F[:, 0, 0] * (F[:, 1, 1] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 1])
+                - F[:, 0, 1] * (F[:, 1, 0] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 0])
+                + F[:, 0, 2] * (F[:, 1, 0] * F[:, 2, 1] - F[:, 1, 1] * F[:, 2, 0]))
+    return F[:, 0, 0] * F[:, 1, 1] - F[:, 0, 1] * F[:, 1, 0]
+
+
 def _det_cof(F):
     """det and cofactor (J F^-T) of (m, d, d) with closed forms."""
-    if F.shape[1] == 3:
-        a, b, c = F[:, :, 0], F[:, :, 1], F[:, :, 2]  # columns
-        bc = np.stack([b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1], b[:, 2] * c[:, 0] - b[:, 0] * c[:, 2],
-                       b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]], axis=1)
-        ca = np.stack([c[:, 1] * a[:, 2] - c[:, 2] * a[:, 1], c[:, 2] * a[:, 0] - c[:, 0] * a[:, 2],
-                       c[:, 0] * a[:, 1] - c[:, 1] * a[:, 0]], axis=1)
-        ab = np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-                       a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
-        J = np.einsum("mi,mi->m", a, bc)
-        return J, np.stack([bc, ca, ab], axis=2)
-    J = F[:, 0, 0] * F[:, 1, 1] - F[:, 0, 1] * F[:, 1, 0]
     cof = np.empty_like(F)
+    if F.shape[1] == 3:
+        for i in range(3):
+            i1, i2 = (i + 1) % 3, (i + 2) % 3
+            for j in range(3):
+                j1, j2 = (j + 1) % 3, (j + 2) % 3
+                cof[:, i, j] = F[:, i1, j1] * F[:, i2, j2] - F[:, i1, j2] * F[:, i2, j1]
+        J = np.einsum("mj,mj->m", F[:, 0, :], cof[:, 0, :])
+        return J, cof
+    J = F[:, 0, 0] * F[:, 1, 1] - F[:, 0, 1] * F[:, 1, 0]
     cof[:, 0, 0], cof[:, 1, 1] = F[:, 1, 1], F[:, 0, 0]
     cof[:, 0, 1], cof[:, 1, 0] = -F[:, 1, 0], -F[:, 0, 1]
     return J, cof
@@ -415,8 +422,8 @@ class _ZStep:
         self.refresh_strain = refresh_strain
         self.Minv = None
         self.zref = None
-        self.psi_z = None
         self.refreshes = 0
+        self.small_step = 1e-2
         mat = self.law
         if mat.model == "linear-elastic":
             r = self.rho
@@ -460,28 +467,30 @@ class _ZStep:
     def _neo(self, zhat, z, it, rounds=4):
         """Newton-type steps with the frozen (A + rho I)^-1; elements that needed backtracking
         get their matrix refreshed at the new z and step again (up to ``rounds`` steps)."""
-        law = self.law
         self._refresh(z)
-        if self.psi_z is None:
-            self.psi_z, _ = law.psi_J(z)
-        znew, psi_new, partial = self._newton_step(zhat, z, self.psi_z, self.Minv)
+        znew, partial = self._newton_step(zhat, z, self.Minv)
         for _ in range(rounds - 1):
             idx = np.flatnonzero(partial)
             if not len(idx):
                 break
             self._refresh(znew, force=idx)
-            zs, ps, partial_s = self._newton_step(zhat[idx], znew[idx], psi_new[idx],
-                                                  self.Minv[idx])
-            znew[idx], psi_new[idx] = zs, ps
+            zs, partial_s = self._newton_step(zhat[idx], znew[idx], self.Minv[idx])
+            znew[idx] = zs
             partial = np.zeros(len(z), bool)
             partial[idx[partial_s]] = True
-        self.psi_z = psi_new
         return znew
 
-    def _newton_step(self, zhat, z, psi_z, Minv):
+    def _phi(self, z, zhat):
+        psi, J = self.law.psi_J(z)
+        r = (z - zhat).reshape(len(z), -1)
+        return psi + 0.5 * self.rho * np.einsum("mi,mi->m", r, r), J
+
+    def _newton_step(self, zhat, z, Minv):
+        """One safeguarded step. Small steps (|dz| <= small_step) that keep J > 0 are taken as
+        they are (the frozen Newton model is accurate there); larger ones are checked with an
+        Armijo backtracking on the local objective phi = psi + rho/2 |z - zhat|^2."""
         m, dd, rho, d = len(z), self.dd, self.rho, self.ops.d
-        law = self.law
-        P, _ = law.stress(z)
+        P, _ = self.law.stress(z)
         g = (P + rho * (z - zhat)).reshape(m, dd)
         dz = -np.einsum("mij,mj->mi", Minv, g)
         gd = np.einsum("mi,mi->m", g, dz)
@@ -489,36 +498,33 @@ class _ZStep:
         if bad.any():
             dz[bad] = -self.gstep * g[bad]
             gd[bad] = -self.gstep * np.einsum("mi,mi->m", g[bad], g[bad])
+        small = np.einsum("mi,mi->m", dz, dz) <= self.small_step ** 2
         dz = dz.reshape(m, d, d)
-        r0 = (z - zhat).reshape(m, dd)
-        phi0 = psi_z + 0.5 * rho * np.einsum("mi,mi->m", r0, r0)
         znew = z + dz
-        psi1, J1 = law.psi_J(znew)
-        r1 = (znew - zhat).reshape(m, dd)
-        phi1 = psi1 + 0.5 * rho * np.einsum("mi,mi->m", r1, r1)
-        # elements already at their minimizer to round-off take the (tiny) step as it is
-        tiny = np.einsum("mi,mi->m", g, g) < (1e-10 * rho) ** 2
-        fail = ~((J1 > 0) & ((phi1 <= phi0 + 1e-4 * gd) | tiny))
-        partial = (fail | bad) & ~tiny
-        if fail.any():
-            idx = np.flatnonzero(fail)
+        J1 = _det(znew + np.eye(d))
+        check = ~(small & (J1 > 0))
+        partial = bad & ~small
+        if check.any():
+            idx = np.flatnonzero(check)
+            phi0, _ = self._phi(z[idx], zhat[idx])
+            tolr = 1e-13 * np.abs(phi0)
             alpha = 1.0
             for _ in range(40):
-                alpha *= 0.5
                 zt = z[idx] + alpha * dz[idx]
-                pt, Jt = law.psi_J(zt)
-                rt = (zt - zhat[idx]).reshape(len(idx), dd)
-                ph = pt + 0.5 * rho * np.einsum("mi,mi->m", rt, rt)
-                ok = (Jt > 0) & (ph <= phi0[idx] + 1e-4 * alpha * gd[idx])
+                ph, Jt = self._phi(zt, zhat[idx])
+                ok = (Jt > 0) & (ph <= phi0 + 1e-4 * alpha * gd[idx] + tolr)
                 znew[idx[ok]] = zt[ok]
-                psi1[idx[ok]] = pt[ok]
-                idx = idx[~ok]
+                if alpha < 1.0:
+                    partial[idx[ok]] = True
+                keep = ~ok
+                idx, phi0, tolr = idx[keep], phi0[keep], tolr[keep]
                 if not len(idx):
                     break
+                alpha *= 0.5
             if len(idx):  # no decrease found: keep the old z of these elements
                 znew[idx] = z[idx]
-                psi1[idx] = psi_z[idx]
-        return znew, psi1, partial
+                partial[idx] = True
+        return znew, partial
 
 
 # =========================================================================== helpers
