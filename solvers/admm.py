@@ -371,6 +371,7 @@ class AdmmOperators:
         Ar = (Z.T @ self.Mx @ Z).tocsc()
         self.lu = spla.splu(Ar, permc_spec="MMD_AT_PLUS_A")
         self.nq = Z.shape[1]
+        self.zstep_cache = None  # (Minv, zref) of the last z-step, reused by warm starts
         self.setup_s = time.perf_counter() - t0
 
 
@@ -447,6 +448,10 @@ class _ZStep:
 
     def _refresh(self, z, force=None):
         m, dd = len(z), self.dd
+        if self.Minv is None and getattr(self.ops, "zstep_cache", None) is not None:
+            # element matrices of the previous solve on these operators (any matrix is valid,
+            # the stale ones are refreshed by the strain test below)
+            self.Minv, self.zref = self.ops.zstep_cache
         if self.Minv is None:
             idx = np.arange(m)
             self.Minv = np.empty((m, dd, dd))
@@ -463,6 +468,7 @@ class _ZStep:
             self.Minv[idx] = np.linalg.inv(A)
             self.zref[idx] = z[idx]
             self.refreshes += len(idx)
+        self.ops.zstep_cache = (self.Minv, self.zref)
 
     def _neo(self, zhat, z, it, rounds=4):
         """Newton-type steps with the frozen (A + rho I)^-1; elements that needed backtracking
@@ -705,7 +711,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
           rho: float | None = None, polish: bool = True, polish_tol_mm: float | None = None,
           polish_max_iter: int = 25, dynamics: ImplicitEuler | None = None, callback=None,
           refresh_strain: float = 0.02, load_steps: int | None = None, step_mm: float = 3.0,
-          intermediate_tol_mm: float = 1e-2, lift: bool = True,
+          intermediate_tol_mm: float = 1e-2, lift="auto",
           progress: bool = False) -> SolveResult:
     """ADMM solve of a Case (quasi-static equilibrium, or implicit-Euler dynamics).
 
@@ -720,9 +726,10 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     load_steps: quasi-static increments (default: the prescribed change from the start state
         divided in steps of at most ``step_mm``, mm); intermediate steps stop at
         ``intermediate_tol_mm`` (mm) (and, with ``polish``, are Newton-polished).
-    lift: carry the interior along with each boundary increment by one linear solve with the
-        tangent at the current state (K_ff du_f = -K_fc du_c), instead of the x-step matrix's
-        harmonic extension; counted in ``extra["lift_solves"]``.
+    lift: True: carry the interior along with each boundary increment by one linear solve with
+        the tangent at the current state (K_ff du_f = -K_fc du_c); False: the x-step matrix's
+        harmonic extension (free, already factorized); "auto" (default): the tangent lift when
+        a load step moves the boundary by more than 1 mm. Counted in ``extra["lift_solves"]``.
     callback(it, u): called after every iteration (ADMM, then polish) with u (mm, (n, gdim)).
     Raises SolverDivergedError (iteration and element named) on NaN, inverted elements or
     residual growth.
@@ -749,6 +756,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     hist = {"primal": [], "dual": [], "max_step_mm": [], "newton_step_mm": []}
     admm_it = newton_it = 0
     restarts = []
+    lifts = 0
     converged = True
     if dynamics is None:
         # load steps: the prescribed change from the start state split in increments of at
@@ -762,8 +770,9 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
             last = j == load_steps
             tol_j = tol_mm if last else max(tol_mm, intermediate_tol_mm)
             up_j = uc + s * (up - uc)
-            if lift:
+            if lift is True or (lift == "auto" and jump / load_steps > 1.0):
                 u = _tangent_lift(ops, u, up_j, admm_it + newton_it)
+                lifts += 1
             u_start = u
             u, k, converged = _admm(ops, up_j, s * fext, u, tol_mm=tol_j,
                                     max_iter=int(max_iter), callback=callback,
@@ -820,7 +829,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     psi, _ = ops.law.psi_J(H)
     extra = {"admm_iterations": int(admm_it), "newton_iterations": int(newton_it),
              "rho_kPa": ops.rho, "setup_s": ops.setup_s, "tol_mm": tol_mm,
-             "polish_restarts": restarts}
+             "polish_restarts": restarts, "lift_solves": lifts}
     if dynamics is not None:
         extra.update({"dt_s": dt, "steps": int(dynamics.steps), "probe_trajectory": traj,
                       "velocity": v.reshape(n, d)})
