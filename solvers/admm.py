@@ -158,10 +158,11 @@ class _Law:
         J, cof = _det_cof(F)
         I1 = np.einsum("mij,mij->m", F, F) + (3 - d)
         with np.errstate(invalid="ignore", divide="ignore"):
-            Jm = np.abs(J) ** (-2.0 / 3.0)
-            Fi = cof / J[:, None, None]
-            P = (self.mu * Jm)[:, None, None] * (F - (I1 / 3.0)[:, None, None] * Fi) \
-                + (self.kappa * (J - 1.0))[:, None, None] * cof
+            a = self.mu * np.abs(J) ** (-2.0 / 3.0)
+            # P = mu J^-2/3 (F - I1/3 F^-T) + kappa J (J - 1) F^-T,  J F^-T = cof
+            b = self.kappa * (J - 1.0) - a * I1 / (3.0 * J)
+            P = a[:, None, None] * F
+            P += b[:, None, None] * cof
         return P, J
 
     def tangent(self, H):
