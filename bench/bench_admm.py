@@ -120,7 +120,8 @@ def main():
         ms = time_per_iteration(case, a.iters, pushes)
         mem = peak_memory_mib(case, pushes)
         lu = admm.prepare(case.with_pushes(pushes)).lu
-        lu_mib = (lu.L.nnz + lu.U.nnz) * 12 / 2 ** 20  # SuperLU factors (not seen by tracemalloc)
+        nnz = lu.nnz if hasattr(lu, "nnz") else lu.L.nnz + lu.U.nnz
+        lu_mib = nnz * 12 / 2 ** 20  # SuperLU factors (not seen by tracemalloc)
         rows.append((case.mesh.n_cells, ms, mem + lu_mib))
         print(f"[scaling] size {s}: {case.mesh.n_cells} tets, {ms:.3f} ms/iteration, peak "
               f"{mem:.1f} MiB numpy (tracemalloc) + {lu_mib:.1f} MiB x-step LU factors "

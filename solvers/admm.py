@@ -252,10 +252,56 @@ def tangent_stiffness(case, u) -> sp.csr_matrix:
 # =========================================================================== constraints
 @dataclass(frozen=True)
 class _Reduction:
-    """u = up_unit * load + Z q; Z (N, nq) orthonormal columns, each on one vertex."""
+    """u = up + Z q; Z (N, nq) orthonormal columns, each on one vertex. separable: no oblique
+    sliding, Z selects the plain free dofs ``plain_dofs`` (in this order)."""
 
     Z: sp.csr_matrix
     up: np.ndarray
+    separable: bool = False
+    plain_dofs: np.ndarray | None = None
+
+
+def _scalar_laplacian(kin, rho, n):
+    """sum_e rho V_e G_e G_e^T (n, n): D^T W^2 D = this (x) I_d in node-major order."""
+    m, k = kin.G.shape[:2]
+    Ke = rho * kin.V[:, None, None] * np.einsum("maj,mbj->mab", kin.G, kin.G)
+    cells = kin.dofs[:, ::kin.d] // kin.d
+    rows = np.repeat(cells, k, axis=1).ravel()
+    cols = np.tile(cells, (1, k)).ravel()
+    return sp.csr_matrix((Ke.ravel(), (rows, cols)), shape=(n, n))
+
+
+def _spd_splu(A):
+    """SuperLU of a symmetric positive definite matrix: symmetric ordering, no pivoting (keeps
+    the fill of the minimum-degree ordering; ~4x faster solves than partial pivoting here)."""
+    return spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                     options=dict(SymmetricMode=True))
+
+
+class _ComponentSolver:
+    """Solves the reduced x-step system when it is block diagonal per displacement component:
+    one SuperLU factorization of the scalar matrix per distinct free-vertex set, the components
+    sharing a set solved together as a multi-column right-hand side."""
+
+    def __init__(self, Ls, plain_dofs, d):
+        comp = plain_dofs % d
+        groups = {}
+        for c in range(d):
+            pos = np.flatnonzero(comp == c)
+            verts = plain_dofs[pos] // d
+            groups.setdefault(verts.tobytes(), (verts, []))[1].append(pos)
+        self.groups = []
+        for verts, poss in groups.values():
+            lu = _spd_splu(Ls[verts][:, verts].tocsc())
+            self.groups.append((lu, np.stack(poss, axis=1)))
+        self.L = self.U = None
+        self.nnz = sum(lu.L.nnz + lu.U.nnz for lu, _ in self.groups)
+
+    def solve(self, rhs):
+        out = np.empty_like(rhs)
+        for lu, pos in self.groups:
+            out[pos] = lu.solve(np.ascontiguousarray(rhs[pos]))
+        return out
 
 
 def _reduction(case) -> _Reduction:
@@ -304,7 +350,7 @@ def _reduction(case) -> _Reduction:
             zv.append(b)
             col += 1
     Z = sp.csr_matrix((np.concatenate(zv), (np.concatenate(zr), np.concatenate(zc))), shape=(N, col))
-    return _Reduction(Z, up)
+    return _Reduction(Z, up, separable=not len(slide_v), plain_dofs=plain_dofs)
 
 
 # =========================================================================== operators
@@ -369,8 +415,15 @@ class AdmmOperators:
             self.mass = np.repeat(mv, d)
             Mx = L + sp.diags(self.mass / dt ** 2)
         self.Mx = Mx.tocsr()
-        Ar = (Z.T @ self.Mx @ Z).tocsc()
-        self.lu = spla.splu(Ar, permc_spec="MMD_AT_PLUS_A")
+        if self.red.separable:
+            # no oblique sliding: the x-step matrix is (rho scalar P1 Laplacian [+ M/dt^2]) x I_d;
+            # factorize the scalar matrix once per distinct set of free vertices
+            Ls = _scalar_laplacian(kin, self.rho, n)
+            if dt is not None:
+                Ls = Ls + sp.diags(mv / dt ** 2)
+            self.lu = _ComponentSolver(Ls.tocsr(), self.red.plain_dofs, d)
+        else:
+            self.lu = _spd_splu((Z.T @ self.Mx @ Z).tocsc())
         self.nq = Z.shape[1]
         self.zstep_cache = None  # (Minv, zref) of the last z-step, reused by warm starts
         self.setup_s = time.perf_counter() - t0
