@@ -36,7 +36,7 @@ demo: $(STAMP)
 	$(VENV)/bin/tissue demo --out out
 
 bench: $(STAMP)
-	$(PY) bench/bench_reference.py
+	for b in bench/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
