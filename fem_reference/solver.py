@@ -100,11 +100,13 @@ class ReferenceSolver:
         sliding_penalty: factor beta of the oblique-sliding penalty (beta * E / h_min per mm^2).
         body_force: optional callable x -> UFL vector (mN/mm^3) of the reference coordinates,
             added to gravity (used for manufactured solutions).
+        linear_solver: "direct" (MUMPS LDL^T), "iterative" (CG + GAMG with rigid-body near null
+            space, relative tolerance 1e-10) or "auto" (iterative above 40k dofs).
     """
 
     def __init__(self, case: Case, *, degree: int = 1, quadrature_degree: int | None = None,
                  settings: NewtonSettings | None = None, comm=MPI.COMM_WORLD,
-                 sliding_penalty: float = 1e4, body_force=None):
+                 sliding_penalty: float = 1e4, body_force=None, linear_solver: str = "auto"):
         if degree not in (1, 2):
             raise CaseError(f"degree must be 1 or 2, got {degree!r}")
         t0 = time.perf_counter()
@@ -173,15 +175,58 @@ class ReferenceSolver:
         self.b = dolfinx.fem.petsc.create_vector(self.R_form)
         self.ksp = PETSc.KSP().create(comm)
         self.ksp.setOperators(self.A)
-        self.ksp.setType("preonly")
+        n_dofs = self.V.dofmap.index_map.size_global * self.gdim
+        if linear_solver == "auto":
+            linear_solver = "direct"
+        if linear_solver not in ("direct", "iterative"):
+            raise CaseError(f"linear_solver must be 'auto', 'direct' or 'iterative', got "
+                            f"{linear_solver!r}")
+        self.linear_solver = linear_solver
         pc = self.ksp.getPC()
-        # The tangent is symmetric (Dirichlet rows and columns are both zeroed): MUMPS LDL^T,
-        # which also handles the indefinite tangents of buckling-like states.
+        # The tangent is symmetric (Dirichlet rows and columns are both zeroed).
         self.A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
-        pc.setType("cholesky")
-        pc.setFactorSolverType("mumps")
+        self.direct_ksp = self.ksp
+        if linear_solver == "iterative":
+            self.direct_ksp = PETSc.KSP().create(comm)
+            self.direct_ksp.setOperators(self.A)
+        for k in (self.direct_ksp,):
+            # MUMPS LDL^T, which also handles indefinite tangents
+            k.setType("preonly")
+            k.getPC().setType("cholesky")
+            k.getPC().setFactorSolverType("mumps")
+        if linear_solver == "iterative":
+            # CG + smoothed-aggregation AMG with the rigid-body modes as near null space;
+            # tight tolerance so Newton keeps its quadratic convergence
+            self.ksp.setType("cg")
+            self.ksp.setTolerances(rtol=1e-10, atol=1e-14, max_it=2000)
+            pc.setType("gamg")
+            self.A.setNearNullSpace(self._rigid_body_nullspace())
         self._region_dofs = {}
         self.timings = _Timings(setup=time.perf_counter() - t0)
+
+    def _rigid_body_nullspace(self):
+        x = self.V.tabulate_dof_coordinates()[:, :self.gdim]
+        n_own = self.V.dofmap.index_map.size_local
+        d = self.gdim
+        # keep the Functions alive: their vectors share the Functions' memory
+        self._ns_funcs = [dolfinx.fem.Function(self.V) for _ in range(6 if d == 3 else 3)]
+        vecs = [f.vector for f in self._ns_funcs]
+        arrs = [v.array.reshape(-1, d) for v in vecs]  # owned part, (n_own, d) views
+        xo = x[:n_own]
+        for k in range(d):
+            arrs[k][:, k] = 1.0
+        if d == 3:
+            arrs[3][:, 0], arrs[3][:, 1] = -xo[:, 1], xo[:, 0]
+            arrs[4][:, 1], arrs[4][:, 2] = -xo[:, 2], xo[:, 1]
+            arrs[5][:, 0], arrs[5][:, 2] = xo[:, 2], -xo[:, 0]
+        else:
+            arrs[2][:, 0], arrs[2][:, 1] = -xo[:, 1], xo[:, 0]
+        for v in vecs:
+            v.assemble()
+        from dolfinx.la import orthonormalize
+
+        orthonormalize(vecs)
+        return PETSc.NullSpace().create(vectors=vecs, comm=self.comm)
 
     # ------------------------------------------------------------------ numbering
     def _node_map(self):
@@ -329,12 +374,16 @@ class ReferenceSolver:
             self.b.scale(-1.0)
             try:
                 self.ksp.solve(self.b, du.vector)
+                ksp = self.ksp
+                if ksp.getConvergedReason() < 0 and ksp is not self.direct_ksp:
+                    ksp = self.direct_ksp
+                    ksp.solve(self.b, du.vector)
             except PETSc.Error as exc:  # MUMPS on NaN entries (error 76) and the like
                 log.debug("linear solve failed: %s", exc)
                 return False, it, float("nan")
             du.x.scatter_forward()
             self.timings.solve += time.perf_counter() - t0
-            reason = self.ksp.getConvergedReason()
+            reason = ksp.getConvergedReason()
             if reason < 0:
                 return False, it, rnorm
             step = du.vector.norm(PETSc.NormType.NORM_INFINITY)

@@ -165,3 +165,12 @@ def test_warm_start_gives_the_cold_answer():
     cold = fr.solve(case, pushes={"A1": 10.5})
     np.testing.assert_allclose(warm.u, cold.u, atol=1e-8)
     assert warm.iterations < cold.iterations
+
+
+def test_iterative_linear_solver_gives_the_direct_answer():
+    from meshes.case import load_case
+
+    case = load_case("meshes/cases/phantom.toml", size=16)
+    a = fr.ReferenceSolver(case, linear_solver="direct").solve({"A1": 6.0})
+    b = fr.ReferenceSolver(case, linear_solver="iterative").solve({"A1": 6.0})
+    np.testing.assert_allclose(b.u, a.u, atol=1e-8)
