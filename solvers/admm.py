@@ -279,6 +279,13 @@ def _spd_splu(A):
                      options=dict(SymmetricMode=True))
 
 
+def _sym_splu(A):
+    """SuperLU of a symmetric (possibly indefinite) tangent: symmetric minimum-degree ordering,
+    diagonal pivots preferred (threshold 0.01) so the ordering's fill is kept."""
+    return spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.01,
+                     options=dict(SymmetricMode=True))
+
+
 class _ComponentSolver:
     """Solves the reduced x-step system when it is block diagonal per displacement component:
     one SuperLU factorization of the scalar matrix per distinct free-vertex set, the components
@@ -682,7 +689,7 @@ def _tangent_lift(ops, u, up, it):
     K = _assemble(ops.kin, _element_K(ops.kin, ops.law.tangent(_grad(ops.kin, u))), ops.N)
     Kr = (Z.T @ K @ Z).tocsc()
     try:
-        s = spla.splu(Kr, permc_spec="MMD_AT_PLUS_A").solve(-(Z.T @ (K @ delta)))
+        s = _sym_splu(Kr).solve(-(Z.T @ (K @ delta)))
     except RuntimeError as exc:
         raise _diverged(f"singular tangent in the boundary lift ({exc})", it, -1) from None
     cand = up + Z @ (zu + s)
@@ -728,7 +735,7 @@ def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback):
             K = K + sp.diags(inertia[0])
         Kr = (Z.T @ K @ Z).tocsc()
         try:
-            dq = -spla.splu(Kr, permc_spec="MMD_AT_PLUS_A").solve(rr)
+            dq = -_sym_splu(Kr).solve(rr)
         except RuntimeError as exc:
             raise _diverged(f"singular tangent in the Newton polish ({exc})", it0 + k, -1) from None
         du = Z @ dq
