@@ -19,10 +19,10 @@ import numpy as np
 
 sys.path.insert(0, ".")
 
-from control.jacobian import dirichlet_jacobian, fd_jacobian, full_pushes, max_rel_error  # noqa
-from control.loop import LinearizedModel, LoopSettings, run_closed_loop  # noqa
-from meshes.case import load_case  # noqa
-from tissue.cmd_jacobian import plant_for, tangent_for  # noqa
+from control.jacobian import dirichlet_jacobian, fd_jacobian, full_pushes, max_rel_error
+from control.loop import LinearizedModel, LoopSettings, run_closed_loop
+from meshes.case import load_case
+from tissue.cmd_jacobian import plant_for, tangent_for
 
 CASE = "meshes/cases/phantom.toml"
 

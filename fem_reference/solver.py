@@ -14,7 +14,7 @@ import logging
 import math
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from mpi4py import MPI
@@ -175,7 +175,6 @@ class ReferenceSolver:
         self.b = dolfinx.fem.petsc.create_vector(self.R_form)
         self.ksp = PETSc.KSP().create(comm)
         self.ksp.setOperators(self.A)
-        n_dofs = self.V.dofmap.index_map.size_global * self.gdim
         if linear_solver == "auto":
             linear_solver = "direct"
         if linear_solver not in ("direct", "iterative"):
@@ -261,11 +260,11 @@ class ReferenceSolver:
             elif b.type == "displacement":
                 val = np.asarray(b.value, float)
                 cs = b.components if b.components is not None else range(self.gdim)
-                comps = {c: (lambda x, c=c: np.full(x.shape[1], scale * val[c])) for c in cs}
+                comps = {c: (lambda x, c=c, val=val: np.full(x.shape[1], scale * val[c])) for c in cs}
             elif b.type == "affine":
                 G = np.asarray(b.gradient if b.gradient is not None else np.zeros((self.gdim,) * 2))
                 c0 = np.asarray(b.offset if b.offset is not None else np.zeros(self.gdim))
-                comps = {c: (lambda x, c=c: scale * (G[c] @ x[:self.gdim] + c0[c]))
+                comps = {c: (lambda x, c=c, G=G, c0=c0: scale * (G[c] @ x[:self.gdim] + c0[c]))
                          for c in range(self.gdim)}
             elif b.type == "sliding":
                 n = np.asarray(b.normal, float)

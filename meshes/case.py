@@ -208,7 +208,7 @@ class Case:
                                 f"components, got {a.direction!r}")
         if self.gravity is not None:
             object.__setattr__(self, "gravity", tuple(_vec(self.gravity, gdim, f"{where}: gravity")))
-        self.constraints  # noqa: B018  -- conflicts are reported at construction
+        self.constraints
         self._check_rigid_body(where)
 
     # ----------------------------------------------------------------- validation

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from meshes.builders import box, phantom
-from meshes.case import Boundary, Case, Material, Probe, load_case
+from meshes.case import Boundary, Case, Material, load_case
 from meshes.errors import CaseError, ConvergenceError, MeshQualityError, ReadError
 from meshes.io import read_msh, write_mesh
 from meshes.mesh import MeshData

@@ -3,7 +3,7 @@ index (eq. 21-22) with its least-travel tie-break, independent of the solver."""
 import numpy as np
 import pytest
 
-from control.controllability import (basis_kind, inverse_push, is_positive_basis, manipulability,
+from control.controllability import (basis_kind, inverse_push, manipulability,
                                      manipulability_map, positively_independent, positively_spans,
                                      task_goal)
 from control.jacobian import dirichlet_jacobian
