@@ -35,6 +35,17 @@ Stopping rule (mm): primal = max_e h_e |D_e u - z_e|, dual = max_e h_e |z_e^k - 
 (``tangent_stiffness``) until the largest Newton step is below ``polish_tol_mm``. Both iteration
 counts are reported (``extra["admm_iterations"]``, ``extra["newton_iterations"]``).
 
+Large prescribed motions (e.g. 15 mm pushes) are applied in load steps of at most ``step_mm``;
+each step moves the boundary and carries the interior along (tangent or harmonic lift), runs
+ADMM (``max_iter`` per step) and, with ``polish``, Newton. When the ADMM state of a step is
+outside Newton's basin (inverted elements along the Newton path), the polish restarts from the
+step's lifted start state; such restarts are listed in ``extra["polish_restarts"]`` (then that
+step's equilibrium is Newton's, not ADMM's, work).
+
+x-step solver: without oblique sliding, D^T W^2 D (+ M/dt^2) is a scalar matrix times I_d in
+node-major order, so one scalar SuperLU factorization per distinct free-vertex set serves all
+components (multi-column solves); with oblique sliding the reduced coupled matrix is factorized.
+
 Boundary conditions: prescribed dofs (fixed, displacement, affine, axis-aligned sliding) are
 eliminated; oblique sliding u.n = g by a per-vertex change of basis (exact). Tractions and gravity
 enter as external forces (``case.external_forces``) in the x-step.
