@@ -29,8 +29,11 @@ strain moved by more than ``refresh_strain`` since their last refresh, with a ba
 search keeping J > 0 and decreasing the local objective. At a fixed point the z-step gradient
 vanishes, so the fixed point is exact whatever the frozen matrices.
 
-Stopping rule (mm): primal = max_e h_e |D_e u - z_e|, dual = max_e h_e |z_e^k - z_e^(k-1)|
-(h_e = V_e^(1/gdim), a length); both below ``tol_mm``. ADMM converges linearly, so by default a
+Stopping rule (mm): primal = max_e h_e |D_e u - z_e|, dual = (rho/rho0) max_e h_e
+|z_e^k - z_e^(k-1)| (h_e = V_e^(1/gdim), a length); both below ``tol_mm``. Quasi-static solves
+double rho (up to 64 rho0; free: the x-step matrix is rho times a fixed one) when the primal
+residual stagnates over 25 iterations (nonconvex elements can cycle between two local z-step
+minima); the changes are listed in ``history["rho_changes"]``. ADMM converges linearly, so by default a
 "Newton polish" follows: Newton steps on the same P1 energy with this module's exact tangent
 (``tangent_stiffness``) until the largest Newton step is below ``polish_tol_mm``. Both iteration
 counts are reported (``extra["admm_iterations"]``, ``extra["newton_iterations"]``).
@@ -498,13 +501,19 @@ class _ZStep:
         self.zref = None
         self.refreshes = 0
         self.small_step = 1e-2
-        mat = self.law
+        self.set_rho(self.rho)
+
+    def set_rho(self, rho):
+        """Penalty (kPa); the frozen element matrices (A + rho I)^-1 are rebuilt."""
+        mat, d = self.law, self.ops.d
+        if rho != self.rho:
+            self.Minv = None
+        self.rho = rho
         if mat.model == "linear-elastic":
-            r = self.rho
-            self.f_dev = r / (r + 2 * mat.mu)
-            self.f_vol = r / (r + 2 * mat.mu + d * mat.lmbda)
+            self.f_dev = rho / (rho + 2 * mat.mu)
+            self.f_vol = rho / (rho + 2 * mat.mu + d * mat.lmbda)
         # fallback gradient step length for a non-descent frozen direction
-        self.gstep = 1.0 / (self.rho + 2.0 * mat.mu + 3.0 * mat.kappa)
+        self.gstep = 1.0 / (rho + 2.0 * mat.mu + 3.0 * mat.kappa)
 
     def __call__(self, zhat, z, it):
         if self.law.model == "linear-elastic":
@@ -521,10 +530,11 @@ class _ZStep:
 
     def _refresh(self, z, force=None):
         m, dd = len(z), self.dd
-        if self.Minv is None and getattr(self.ops, "zstep_cache", None) is not None:
+        cache = getattr(self.ops, "zstep_cache", None)
+        if self.Minv is None and cache is not None and cache[2] == self.rho:
             # element matrices of the previous solve on these operators (any matrix is valid,
             # the stale ones are refreshed by the strain test below)
-            self.Minv, self.zref = self.ops.zstep_cache
+            self.Minv, self.zref = cache[0], cache[1]
         if self.Minv is None:
             idx = np.arange(m)
             self.Minv = np.empty((m, dd, dd))
@@ -541,7 +551,7 @@ class _ZStep:
             self.Minv[idx] = np.linalg.inv(A)
             self.zref[idx] = z[idx]
             self.refreshes += len(idx)
-        self.ops.zstep_cache = (self.Minv, self.zref)
+        self.ops.zstep_cache = (self.Minv, self.zref, self.rho)
 
     def _neo(self, zhat, z, it, rounds=4):
         """Newton-type steps with the frozen (A + rho I)^-1; elements that needed backtracking
@@ -649,15 +659,20 @@ def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, refresh_strain,
         z[~(J > 0.05)] = 0.0
     P, _ = ops.law.stress(z)
     lam = P / ops.rho
-    rhs_c = Z.T @ (rhs_extra - ops.Mx @ up)
+    rhs_f = Z.T @ rhs_extra
+    rhs_up = -(Z.T @ (ops.Mx @ up))
     zstep = _ZStep(ops, refresh_strain)
+    rho0 = rho = ops.rho
+    adapt = ops.dt is None  # without a mass term the x-step matrix is rho * (fixed matrix)
+    window_primal = np.inf
     h = ops.h
     big = 1e3 * float(np.ptp(ops.mesh.points, axis=0).max())
     converged = False
     k = 0
     for k in range(1, max_iter + 1):
         q_old = q
-        q = ops.lu.solve(ops.DZtW @ (z - lam).ravel() + rhs_c)
+        # x-step for the current rho: (rho/rho0) Mx0 u = rho D^T V (z - lam) + f, scaled
+        q = ops.lu.solve(ops.DZtW @ (z - lam).ravel() + (rho0 / rho) * rhs_f + rhs_up)
         Hx = (ops.DZ @ q + Dup).reshape(m, d, d)
         zhat = Hx + lam
         znew = zstep(zhat, z, it0 + k)
@@ -665,7 +680,8 @@ def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, refresh_strain,
         rp = (Hx - znew).reshape(m, -1)
         rd = (znew - z).reshape(m, -1)
         ep = h * np.sqrt(np.einsum("mi,mi->m", rp, rp))
-        ed = h * np.sqrt(np.einsum("mi,mi->m", rd, rd))
+        # dual residual rho D^T (z^k - z^(k-1)) (Boyd et al. 2011, 3.3), in mm at rho0
+        ed = (rho / rho0) * h * np.sqrt(np.einsum("mi,mi->m", rd, rd))
         z = znew
         primal, dual = float(ep.max()), float(ed.max())
         step = _vertex_norm_max(Z @ (q - q_old), d)
@@ -686,6 +702,15 @@ def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, refresh_strain,
         if primal < tol_mm and dual < tol_mm:
             converged = True
             break
+        if adapt and k % 25 == 0:
+            # stagnation (e.g. a nonconvex element cycling between two local z minima): double
+            # rho (more consensus, convex local problems); lam = P / rho is rescaled
+            if primal > 0.9 * window_primal and rho < 64 * rho0:
+                lam *= 0.5
+                rho *= 2.0
+                zstep.set_rho(rho)
+                hist.setdefault("rho_changes", []).append((it0 + k, rho))
+            window_primal = primal
     return up + Z @ q, k, converged
 
 
