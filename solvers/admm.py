@@ -927,6 +927,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     reactions = _reactions(case, r)
     psi, _ = ops.law.psi_J(H)
     extra = {"admm_iterations": int(admm_it), "newton_iterations": int(newton_it),
+             "load_steps": int(load_steps) if dynamics is None else 0,
              "rho_kPa": ops.rho, "setup_s": ops.setup_s, "tol_mm": tol_mm,
              "polish_restarts": restarts, "lift_solves": lifts}
     if dynamics is not None:
