@@ -938,6 +938,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
                        residual=free_res, wall_time_s=time.perf_counter() - t0, solver="admm",
                        probes=case0.probe_values(u2), reactions=reactions,
                        strain_energy=float(ops.kin.V @ psi), case_name=case.name, n_vertices=n,
+                       load_steps=int(load_steps) if dynamics is None else int(dynamics.steps),
                        n_cells=ops.m, history=hist, extra=extra)
 
 
