@@ -180,40 +180,36 @@ def phantom3(size: float = 6.0, *, out=None) -> MeshData:
     return _phantom(size, ACTUATORS_3, out)
 
 
+def _axis_block(kind: str, size: float, lengths, out) -> MeshData:
+    """Axis-aligned block (3D) or rectangle (2D) from the origin, with the cell group ``tissue``
+    and one facet group per side: xmin, xmax, ymin, ymax (, zmin, zmax)."""
+    d = len(lengths)
+    with _gmsh_session(kind, size) as gmsh:
+        occ = gmsh.model.occ
+        tag = occ.addBox(0, 0, 0, *lengths) if d == 3 else occ.addRectangle(0, 0, 0, *lengths)
+        occ.synchronize()
+        gmsh.model.addPhysicalGroup(d, [tag], 1)
+        gmsh.model.setPhysicalName(d, 1, "tissue")
+        sides = [(f"{'xyz'[k]}{end}", k, val) for k in range(d)
+                 for end, val in (("min", 0.0), ("max", lengths[k]))]
+        facets = gmsh.model.getBoundary([(d, tag)], oriented=False)
+        for i, (name, axis, val) in enumerate(sides):
+            for _, f in facets:
+                c = occ.getCenterOfMass(d - 1, f)
+                if abs(c[axis] - val) < 1e-9 * max(lengths):
+                    gmsh.model.addPhysicalGroup(d - 1, [f], 10 + i)
+                    gmsh.model.setPhysicalName(d - 1, 10 + i, name)
+        return _finish(gmsh, d, out)
+
+
 def box(size: float = 5.0, *, lengths=(10.0, 10.0, 10.0), out=None) -> MeshData:
     """Block [0, Lx] x [0, Ly] x [0, Lz] (mm) with faces xmin .. zmax."""
-    lx, ly, lz = lengths
-    with _gmsh_session("box", size) as gmsh:
-        b = gmsh.model.occ.addBox(0, 0, 0, lx, ly, lz)
-        gmsh.model.occ.synchronize()
-        gmsh.model.addPhysicalGroup(3, [b], 1)
-        gmsh.model.setPhysicalName(3, 1, "tissue")
-        for i, (name, axis, val) in enumerate([("xmin", 0, 0), ("xmax", 0, lx), ("ymin", 1, 0),
-                                               ("ymax", 1, ly), ("zmin", 2, 0), ("zmax", 2, lz)]):
-            for _, sf in gmsh.model.getBoundary([(3, b)], oriented=False):
-                c = gmsh.model.occ.getCenterOfMass(2, sf)
-                if abs(c[axis] - val) < 1e-9 * max(lengths):
-                    gmsh.model.addPhysicalGroup(2, [sf], 10 + i)
-                    gmsh.model.setPhysicalName(2, 10 + i, name)
-        return _finish(gmsh, 3, out)
+    return _axis_block("box", size, tuple(lengths), out)
 
 
 def rectangle(size: float = 2.0, *, lengths=(10.0, 10.0), out=None) -> MeshData:
     """2D plane-strain rectangle [0, Lx] x [0, Ly] (mm) with edges xmin, xmax, ymin, ymax."""
-    lx, ly = lengths
-    with _gmsh_session("rectangle", size) as gmsh:
-        r = gmsh.model.occ.addRectangle(0, 0, 0, lx, ly)
-        gmsh.model.occ.synchronize()
-        gmsh.model.addPhysicalGroup(2, [r], 1)
-        gmsh.model.setPhysicalName(2, 1, "tissue")
-        for i, (name, axis, val) in enumerate([("xmin", 0, 0), ("xmax", 0, lx), ("ymin", 1, 0),
-                                               ("ymax", 1, ly)]):
-            for _, cv in gmsh.model.getBoundary([(2, r)], oriented=False):
-                c = gmsh.model.occ.getCenterOfMass(1, cv)
-                if abs(c[axis] - val) < 1e-9 * max(lengths):
-                    gmsh.model.addPhysicalGroup(1, [cv], 10 + i)
-                    gmsh.model.setPhysicalName(1, 10 + i, name)
-        return _finish(gmsh, 2, out)
+    return _axis_block("rectangle", size, tuple(lengths), out)
 
 
 BUILDERS = {"phantom": phantom, "phantom-3": phantom3, "box": box, "rectangle": rectangle}
