@@ -42,7 +42,33 @@ def tangent_for(name: str):
     raise CaseError(f"unknown plant/model solver {name!r}; choose fem or admm")
 
 
-def compute(case, state_pushes, *, solver="fem", degree=1, fd_h=0.02):
+def reference_state(case, state_pushes, *, degree=1):
+    """Reference solve at ``state_pushes`` and the exact tangent at *its own* state.
+
+    Returns (SolveResult, Tangent, plant) where plant(case, pushes, initial) re-solves with the same
+    solver instance. The tangent is taken from the solver's current dof vector right after the
+    solve: for degree 2 that is the full P2 state (edge nodes included), whereas
+    ``fem_reference.tangent_stiffness(case, res.u, degree=2)`` rebuilds the state from the vertex
+    values only (edge nodes = mean of their end vertices) and is *not* the tangent at the solution
+    away from the rest state (17% off J_s on the phantom at A1 = 3 mm).
+    """
+    from fem_reference import ReferenceSolver
+
+    s = ReferenceSolver(case, degree=degree)
+    res = s.solve(state_pushes)
+    if not res.converged:
+        raise CaseError(f"the state solve at pushes {state_pushes} did not converge")
+    T = s.tangent(None, pushes=state_pushes)
+
+    def plant(c, pushes, initial):
+        return s.solve(pushes, case=c, initial=initial)
+    return res, T, plant
+
+
+def compute(case, state_pushes, *, solver="fem", degree=1, fd_h=0.02, actuators=None):
+    """J_s at ``state_pushes`` from the solver's exact tangent and, when fd_h > 0, its max relative
+    error against central finite differences (step fd_h mm) of the same solver's nonlinear solve.
+    actuators: the columns (default: every actuator of the Case; the others are held)."""
     from control.jacobian import (dirichlet_jacobian, fd_jacobian, full_pushes, max_rel_error,
                                   p2_interpolation, p2_region_nodes)
 
@@ -50,30 +76,30 @@ def compute(case, state_pushes, *, solver="fem", degree=1, fd_h=0.02):
         raise CaseError(f"--degree must be 1 or 2, got {degree}")
     if degree == 2 and solver != "fem":
         raise CaseError("--degree 2 needs --solver fem")
-    plant = plant_for(solver, degree=degree)
     st = full_pushes(case, state_pushes)
-    res = plant(case, st, None)
-    if not res.converged:
-        raise CaseError(f"the state solve at pushes {st} did not converge")
     pushed = case.with_pushes(st)
     if solver == "fem":
-        from fem_reference import tangent_stiffness
-
-        T = tangent_stiffness(pushed, res.u, degree=degree, pushes=st)
-        K = T.K
+        res, T, plant = reference_state(case, st, degree=degree)
         if degree == 2:
             P = p2_interpolation(case, T.node_points)
-            jac = dirichlet_jacobian(pushed, K, P=P, region_nodes=p2_region_nodes(case,
-                                                                                T.node_points))
+            jac = dirichlet_jacobian(pushed, T.K, actuators=actuators, P=P,
+                                     region_nodes=p2_region_nodes(case, T.node_points))
         else:
-            jac = dirichlet_jacobian(pushed, K)
+            jac = dirichlet_jacobian(pushed, T.K, actuators=actuators)
     else:
-        jac = dirichlet_jacobian(pushed, tangent_for(solver)(pushed, res.u))
+        plant = plant_for(solver, degree=degree)
+        res = plant(case, st, None)
+        if not res.converged:
+            raise CaseError(f"the state solve at pushes {st} did not converge")
+        jac = dirichlet_jacobian(pushed, tangent_for(solver)(pushed, res.u), actuators=actuators)
     out = {"actuators": list(jac.actuators), "targets": list(jac.targets),
            "rows": jac.rows, "J": jac.J.tolist(), "state_pushes": st, "solver": solver,
            "degree": degree}
     if fd_h and fd_h > 0:
-        fd = fd_jacobian(plant, case, st, h=fd_h, initial=res.u)
+        # degree 2 solves start cold: a warm start from vertex values (edge nodes interpolated)
+        # is not the P2 state and can leave Newton's basin on coarse meshes
+        fd = fd_jacobian(plant, case, st, h=fd_h, actuators=jac.actuators,
+                         initial=res.u if degree == 1 else None)
         out["fd_max_rel_error"] = max_rel_error(jac.J, fd.J)
         out["fd_h_mm"] = fd_h
     else:
