@@ -128,11 +128,21 @@ class LoopResult:
                 "steady_state_error_mm": float(self.steady_state_error_mm),
                 "max_retraction_mm": float(self.max_retraction_mm),
                 "mpc_step_median_ms": float(np.median(self.mpc_ms)) if len(self.mpc_ms) else 0.0,
-                "open_loop": {"itae": float(ol.get("itae", float("nan"))),
-                              "steady_state_error_mm": float(ol.get("steady_state_error_mm",
-                                                                    float("nan")))},
+                "open_loop": _open_loop_json(ol),
                 "time_s": self.time_s.tolist(), "target_error_mm": self.error_mm.tolist(),
                 "actuator_positions_mm": self.pushes.tolist()}
+
+
+def _open_loop_json(ol):
+    if not ol:
+        return {"itae": None, "steady_state_error_mm": None}
+    out = {"itae": float(ol["itae"]), "steady_state_error_mm": ol["steady_state_error_mm"],
+           "converged": bool(ol["converged"]), "u_open_mm": np.asarray(ol["u_open"]).tolist()}
+    if not ol["converged"]:
+        out.update({"itae_is_lower_bound": True, "failed_at_step": ol["failed_at_step"],
+                    "failed_pushes_mm": ol["failed_pushes_mm"],
+                    "last_error_mm": ol["last_error_mm"], "failure": ol["failure"]})
+    return out
 
 
 def _measure(r, target):
@@ -210,24 +220,46 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
     retract = float(max(0.0, -np.diff(S, axis=0).min())) if len(S) > 1 else 0.0
     ol = None
     if settings.open_loop:
-        total = S[-1].sum()
-        phi = np.clip(S.sum(axis=1) / total, 0.0, 1.0) if total > 0 else np.ones(len(S))
-        SO, XO = [], []
-        u_prev = None
-        for f in phi:
-            so = f * u_open
-            r = plant(plant_case, dict(zip(acts, so.tolist())), u_prev)
-            u_prev = r.u
-            SO.append(so)
-            XO.append(_measure(r, target))
-        SO, XO = np.array(SO), np.array(XO)
-        eo = np.linalg.norm((x_goal - XO)[:, mask], axis=1)
-        ol = {"itae": itae(t, eo, settings.dt_s), "steady_state_error_mm": float(eo[-1]),
-              "error_mm": eo, "pushes": SO, "target": XO, "u_open": u_open}
+        ol = _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, settings)
     return LoopResult(t, X, err, S, itae(t, err, settings.dt_s), float(err[-1]), retract,
                       np.array(mpc.solve_ms), x_goal, mask, acts, target, task, ol,
                       time.perf_counter() - t_start,
                       {"model_time_s": model.solve_time_s, "J0": J0})
+
+
+def _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, settings):
+    """The eq. 22 pushes from the initial J_s applied along the closed loop's time profile.
+
+    When the plant cannot be solved at some open-loop pushes (the baseline asks for pushes the
+    tissue model cannot take), the run stops there: ``converged`` False, ``failed_at_step`` and
+    ``failed_pushes_mm`` set, ``itae`` summed over the steps reached (a lower bound of the open
+    loop's ITAE), ``steady_state_error_mm`` None (never reached) and ``last_error_mm`` the error
+    at the last step solved."""
+    total = S[-1].sum()
+    phi = np.clip(S.sum(axis=1) / total, 0.0, 1.0) if total > 0 else np.ones(len(S))
+    SO, XO = [], []
+    u_prev = None
+    failed = None
+    for k, f in enumerate(phi):
+        so = f * u_open
+        try:
+            r = plant(plant_case, dict(zip(acts, so.tolist())), u_prev)
+            x = _measure(r, target)
+        except ConvergenceError as exc:
+            failed = {"failed_at_step": k, "failed_pushes_mm": so.tolist(), "failure": str(exc)}
+            break
+        u_prev = r.u
+        SO.append(so)
+        XO.append(x)
+    SO, XO = np.array(SO), np.array(XO)
+    eo = np.linalg.norm((x_goal - XO)[:, mask], axis=1)
+    ol = {"itae": itae(t[:len(eo)], eo, settings.dt_s), "error_mm": eo, "pushes": SO,
+          "target": XO, "u_open": u_open, "converged": failed is None,
+          "steady_state_error_mm": float(eo[-1]) if failed is None else None,
+          "last_error_mm": float(eo[-1]) if len(eo) else None}
+    if failed is not None:
+        ol.update(failed)
+    return ol
 
 
 def plot_response(result: LoopResult, path, *, title=None):
@@ -246,7 +278,9 @@ def plot_response(result: LoopResult, path, *, title=None):
         lab = "xyz"[c]
         ax[0].plot(t, result.target[:, c], "b-", label=f"closed loop {lab}")
         if result.open_loop is not None:
-            ax[0].plot(t, result.open_loop["target"][:, c], "r--", label=f"open loop {lab}")
+            xo = result.open_loop["target"]
+            ax[0].plot(t[:len(xo)], xo[:, c], "r--", label=f"open loop {lab}"
+                       + ("" if result.open_loop["converged"] else " (plant failed)"))
         ax[0].axhline(result.goal[c], color="g", lw=1, label=f"desired {lab}")
     ax[0].set_ylabel("target position (mm)")
     ax[0].legend(fontsize=8)

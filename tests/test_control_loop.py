@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from control.controllability import UnreachableGoalError
-from control.loop import LinearizedModel, LoopSettings, run_closed_loop, plot_response
+from control.loop import LinearizedModel, LoopSettings, itae, plot_response, run_closed_loop
 from control.mpc import MPCSettings
-from meshes.errors import CaseError
+from meshes.errors import CaseError, ConvergenceError
 from test_control_support import LinearPlant, linear_p1_stiffness, linear_tangent, phantom
 
 
@@ -85,3 +85,88 @@ def test_travel_limit_is_respected_in_loop(setup):
     s = LoopSettings(steps=30, open_loop=False, mpc=MPCSettings(max_travel=10.0))
     res = run_closed_loop(plant, case, model, "T1", 1, settings=s)
     assert res.pushes.max() <= 10.0 + 1e-9
+
+
+def test_unreachable_goal_closest_point_is_the_projection_on_the_push_cone(setup):
+    # A3 alone pushes T1 along ~+x: the goal (+5, +5) of task 3 is outside its (one-ray) cone;
+    # the closest reachable point is the projection of the goal on that ray
+    case, K, plant = setup
+    one = replace(case, actuators=case.actuators[2:3])
+    model = LinearizedModel(one, plant, linear_tangent(K), "T1")
+    with pytest.raises(UnreachableGoalError, match="outside the positive span") as exc:
+        run_closed_loop(plant, one, model, "T1", 3, settings=LoopSettings(steps=3))
+    assert not isinstance(exc.value, ConvergenceError)        # reported as such, not a failure
+    j = model.jacobian({"A3": 0.0})[:2, 0]
+    goal = np.array([5.0, 5.0])
+    t = goal @ j / (j @ j)
+    assert t > 0
+    np.testing.assert_allclose(exc.value.closest[:2], t * j, rtol=1e-6)
+    assert exc.value.closest[2] == 0.0                         # z is free in every task
+    np.testing.assert_allclose(exc.value.pushes, [t], rtol=1e-6)
+
+
+def test_model_and_plant_with_other_actuators_are_named(setup):
+    case, K, plant = setup
+    other = replace(case, actuators=case.actuators[:3])
+    model = LinearizedModel(other, plant, linear_tangent(K), "T1")
+    with pytest.raises(CaseError, match="A4"):
+        run_closed_loop(plant, case, model, "T1", 1, settings=LoopSettings(steps=2))
+
+
+class FailingAfter:
+    """The linear plant, raising ConvergenceError from call ``n`` on (a plant that cannot take the
+    open loop's pushes)."""
+
+    def __init__(self, plant, n):
+        self.plant, self.n, self.calls = plant, n, 0
+
+    def __call__(self, case, pushes, initial=None):
+        self.calls += 1
+        if self.calls > self.n:
+            raise ConvergenceError(f"test plant: no convergence at pushes {pushes}")
+        return self.plant(case, pushes, initial)
+
+
+def test_open_loop_plant_failure_is_reported_with_a_lower_bound_itae(setup, tmp_path):
+    case, K, plant = setup
+    steps = 10
+    model = LinearizedModel(case, plant, linear_tangent(K), "T1")
+    full = run_closed_loop(plant, case, model, "T1", 2, settings=LoopSettings(steps=steps))
+    # closed loop: 1 + steps solves; the open loop then solves steps 0..3 and fails at step 4
+    fp = FailingAfter(plant, 1 + steps + 4)
+    res = run_closed_loop(fp, case, model, "T1", 2, settings=LoopSettings(steps=steps))
+    ol = res.open_loop
+    assert not ol["converged"] and ol["failed_at_step"] == 4
+    assert ol["steady_state_error_mm"] is None and len(ol["error_mm"]) == 4
+    np.testing.assert_allclose(ol["error_mm"], full.open_loop["error_mm"][:4])
+    assert ol["itae"] <= full.open_loop["itae"]                # a lower bound
+    np.testing.assert_allclose(ol["itae"], itae(res.time_s[:4], ol["error_mm"], 1.0))
+    d = res.to_json_dict()["open_loop"]
+    assert d["itae_is_lower_bound"] and d["failed_at_step"] == 4 and "test plant" in d["failure"]
+    np.testing.assert_array_equal(res.pushes, full.pushes)    # the closed loop is unaffected
+    assert plot_response(res, tmp_path / "f.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_table1_files_and_summary(setup, tmp_path):
+    import json
+
+    from tissue.cmd_control import table1_row, write_table1
+
+    case, K, plant = setup
+    model = LinearizedModel(case, plant, linear_tangent(K), "T1")
+    ok = run_closed_loop(plant, case, model, "T1", 3, settings=LoopSettings(steps=100))
+    cut = run_closed_loop(FailingAfter(plant, 101 + 5), case, model, "T1", 3,
+                          settings=LoopSettings(steps=100))
+    rows = [table1_row("T1", 3, ok), table1_row("T1", 3, cut),
+            {"target": "T2", "task": 1, "status": "unreachable", "error": "goal outside"}]
+    summ = write_table1(tmp_path, {"case": "phantom"}, rows, 3)
+    assert summ["ran"] == 2 and summ["unreachable"] == 1 and not summ["all_met"]
+    assert summ["sse_le_0.05mm"] == 2 and summ["zero_retraction"] == 2
+    assert summ["open_loop_plant_failures"] == 1
+    data = json.loads((tmp_path / "table1.json").read_text())
+    assert data["summary"] == summ and len(data["rows"]) == 3
+    md = (tmp_path / "table1.md").read_text()
+    assert md.count("\n| T1 | 3 |") == 2 and ">= " in md and "plant failed at step 5" in md
+    assert "unreachable: goal outside" in md
+    html = (tmp_path / "table1.html").read_text()
+    assert html.count("<tr>") == 4 and "&gt;= " in html
