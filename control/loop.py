@@ -30,7 +30,8 @@ from .controllability import UnreachableGoalError, inverse_push, task_goal
 from .jacobian import dirichlet_jacobian
 from .mpc import MPCSettings, PushOnlyMPC
 
-__all__ = ["LoopSettings", "LinearizedModel", "LoopResult", "run_closed_loop", "itae"]
+__all__ = ["LoopSettings", "LinearizedModel", "LoopResult", "run_closed_loop", "itae",
+           "check_prescribed"]
 
 
 def itae(t, e, dt) -> float:
@@ -86,8 +87,7 @@ class LinearizedModel:
         t0 = time.perf_counter()
         if u is None:
             r = self.solve(self.case, pushes, self._u)
-            if not r.converged:
-                raise ConvergenceError(f"controller model did not converge at pushes {pushes}")
+            check_prescribed(self.case, pushes, r, "controller model")
             u = r.u
         self._u = np.asarray(u)
         pushed = self.case.with_pushes(pushes)
@@ -133,6 +133,24 @@ class LoopResult:
                 "actuator_positions_mm": self.pushes.tolist()}
 
 
+def check_prescribed(case, pushes, r, who: str, *, rtol=1e-9):
+    """Raise ConvergenceError unless solve result ``r`` is converged and meets the Case's
+    prescriptions at ``pushes`` (actuator patches at their pushes, fixed regions at 0): a solver
+    that reports success with the previous step's boundary values is caught here, not differentiated
+    or measured."""
+    if not r.converged:
+        raise ConvergenceError(f"{who} solve did not converge at pushes {pushes} "
+                               f"(residual {r.residual:g})")
+    c = case.with_pushes(pushes).constraints
+    if len(c.dofs):
+        u = np.asarray(r.u, float).reshape(-1)
+        gap = float(np.abs(u[c.dofs] - c.values).max())
+        if gap > rtol * max(1.0, float(np.abs(c.values).max())):
+            raise ConvergenceError(f"{who} solve reported success at pushes {pushes} but its state "
+                                   f"misses the prescribed displacements by {gap:.3g} mm "
+                                   f"({getattr(r, 'solver', '?')} solver)")
+
+
 def _open_loop_json(ol):
     if not ol:
         return {"itae": None, "steady_state_error_mm": None}
@@ -145,8 +163,10 @@ def _open_loop_json(ol):
     return out
 
 
-def _measure(r, target):
-    if not r.converged:
+def _measure(r, target, case=None, pushes=None):
+    if case is not None:
+        check_prescribed(case, pushes, r, "plant")
+    elif not r.converged:
         raise ConvergenceError(f"plant solve did not converge (residual {r.residual:g})")
     return np.asarray(r.probes[target], float)
 
@@ -182,7 +202,7 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
     s = np.zeros(na)
     pushes = dict(zip(acts, s.tolist()))
     r = plant(plant_case, pushes, None)
-    x0 = _measure(r, target)
+    x0 = _measure(r, target, plant_case, pushes)
     u_prev = r.u
     x_goal = x0 + dgoal
     J0 = model.jacobian(pushes, u=r.u if same else None)
@@ -209,7 +229,7 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
         s = s + st.du
         pushes = dict(zip(acts, s.tolist()))
         r = plant(plant_case, pushes, u_prev)
-        x = _measure(r, target)
+        x = _measure(r, target, plant_case, pushes)
         u_prev = r.u
         y = x + (rng.normal(0.0, settings.noise_mm, d) if settings.noise_mm > 0 else 0.0)
         S.append(s.copy())
@@ -243,8 +263,9 @@ def _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, sett
     for k, f in enumerate(phi):
         so = f * u_open
         try:
-            r = plant(plant_case, dict(zip(acts, so.tolist())), u_prev)
-            x = _measure(r, target)
+            po = dict(zip(acts, so.tolist()))
+            r = plant(plant_case, po, u_prev)
+            x = _measure(r, target, plant_case, po)
         except ConvergenceError as exc:
             failed = {"failed_at_step": k, "failed_pushes_mm": so.tolist(), "failure": str(exc)}
             break

@@ -170,3 +170,31 @@ def test_table1_files_and_summary(setup, tmp_path):
     assert "unreachable: goal outside" in md
     html = (tmp_path / "table1.html").read_text()
     assert html.count("<tr>") == 4 and "&gt;= " in html
+
+
+class StaleBoundary:
+    """A plant that reports success but returns the previous call's state from call ``n`` on (the
+    failure mode of a solver whose restart keeps the old boundary values)."""
+
+    def __init__(self, plant, n):
+        self.plant, self.n, self.calls, self.last = plant, n, 0, None
+
+    def __call__(self, case, pushes, initial=None):
+        self.calls += 1
+        r = self.plant(case, pushes, initial)
+        if self.calls >= self.n and self.last is not None:
+            r = self.last
+        self.last = r
+        return r
+
+
+def test_a_converged_state_that_misses_the_pushes_is_refused(setup):
+    case, K, plant = setup
+    model = LinearizedModel(case, plant, linear_tangent(K), "T1")
+    with pytest.raises(ConvergenceError, match="misses the prescribed displacements"):
+        run_closed_loop(StaleBoundary(plant, 3), case, model, "T1", 1,
+                        settings=LoopSettings(steps=5, open_loop=False))
+    bad_model = LinearizedModel(case, StaleBoundary(plant, 3), linear_tangent(K), "T1")
+    with pytest.raises(ConvergenceError, match="controller model solve reported success"):
+        run_closed_loop(plant, case, bad_model, "T1", 1,
+                        settings=LoopSettings(steps=5, open_loop=False))

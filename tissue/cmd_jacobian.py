@@ -14,8 +14,20 @@ from meshes.results import write_json
 from .common import add_case_args, case_from_args, parse_pushes
 
 
+# ADMM as a control plant/model: the ADMM stage to 0.01 mm (at most 1000 iterations per load step)
+# brings the state into Newton's basin and the Newton polish (part of solvers.admm.solve) finishes
+# to 1e-7 mm, the accuracy finite differences and J_s need. A tight ADMM tolerance alone costs up
+# to 20000 iterations (24 s) per step above ~21 mm pushes on the phantom without changing J_s
+# (same to 1e-14). lift=True: every load step starts from the tangent lift of the new boundary
+# values (with lift="auto" a sub-mm step whose polish restarts returned the previous step's
+# boundary values, flagged converged -- caught by control.loop.check_prescribed).
+ADMM_CONTROL_OPTIONS = {"tol_mm": 1e-2, "polish": True, "polish_tol_mm": 1e-7, "max_iter": 1000,
+                        "lift": True}
+
+
 def plant_for(name: str, *, degree: int = 1, tight: bool = True):
-    """plant(case, pushes, initial_u) -> SolveResult for solver ``name`` (fem | admm)."""
+    """plant(case, pushes, initial_u) -> SolveResult for solver ``name`` (fem | admm).
+    tight: ADMM with ``ADMM_CONTROL_OPTIONS`` (else the solver's defaults)."""
     if name == "fem":
         from fem_reference import solve
 
@@ -24,7 +36,7 @@ def plant_for(name: str, *, degree: int = 1, tight: bool = True):
     if name == "admm":
         from solvers.admm import solve
 
-        kw = {"tol_mm": 1e-6} if tight else {}
+        kw = dict(ADMM_CONTROL_OPTIONS) if tight else {}
         return lambda case, pushes, initial: solve(case, pushes=pushes, initial=initial, **kw)
     raise CaseError(f"unknown plant/model solver {name!r}; choose fem or admm")
 

@@ -1,0 +1,37 @@
+"""ADMM as the controller's model (tissue.cmd_jacobian.ADMM_CONTROL_OPTIONS): the states it returns
+along a push sequence with sub-mm steps meet the prescribed pushes, and J_s from its tangent matches
+central finite differences of its own solves."""
+import numpy as np
+import pytest
+
+from control.jacobian import dirichlet_jacobian, fd_jacobian, full_pushes, max_rel_error
+from control.loop import check_prescribed
+from solvers.admm import tangent_stiffness
+from test_control_support import column_case
+from tissue.cmd_jacobian import plant_for
+
+
+@pytest.fixture(scope="module")
+def case():
+    return column_case()
+
+
+def test_warm_started_sequence_meets_the_pushes(case):
+    admm = plant_for("admm")
+    u = None
+    for a in (0.0, 1.5, 3.0, 3.2, 3.3, 3.35):      # steps of 1.5 mm down to 0.05 mm
+        p = full_pushes(case, {"A1": a, "A2": a / 3})
+        r = admm(case, p, u)
+        check_prescribed(case, p, r, "admm")
+        u = r.u
+
+
+def test_admm_model_jacobian_matches_central_fd_of_its_solves(case):
+    admm = plant_for("admm")
+    st = full_pushes(case, {"A1": 3.0, "A2": 1.0})
+    r = admm(case, st, None)
+    pushed = case.with_pushes(st)
+    J = dirichlet_jacobian(pushed, tangent_stiffness(pushed, r.u))
+    fd = fd_jacobian(admm, case, st, h=0.01, initial=r.u)
+    assert max_rel_error(J.J, fd.J) < 1e-4
+    assert np.abs(J.J).max() > 0.1
