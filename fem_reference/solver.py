@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import sys
 import time
 from dataclasses import dataclass
@@ -42,28 +43,48 @@ for _name in ("UFL", "FFCx", "ffcx", "root"):
 # energy and the body-force term exactly. P2: F is linear; psi is not polynomial, degree 4 is
 # checked against degree 6 in tests (UFL would estimate ~ 146 points per cell for J**(-2/3)).
 DEFAULT_QUADRATURE = {1: 1, 2: 4}
+# linear_solver="auto": above this many dofs Newton reuses a MUMPS factorization as the GMRES
+# preconditioner of later tangents instead of refactorizing every iteration (measured faster from
+# 1.8k tets up: 0.97 vs 1.27 s; at 26.6k tets 9.7 vs 22 s, bench/bench_reference.py).
+LAGGED_ABOVE_DOFS = 1000
 
 
 @dataclass(frozen=True)
 class NewtonSettings:
-    """rtol: residual reduction per load step; atol_mm: Newton correction (inf-norm, mm) under which
-    a step is converged; max_step_mm: largest prescribed-displacement increment of the first try."""
+    """Newton and load-stepping controls.
+
+    rtol, atol: residual reduction within the final load step / absolute residual (mN);
+    atol_mm: Newton correction (inf-norm, mm) under which the final step is converged;
+    intermediate_rtol, intermediate_atol_mm: the same, for load steps before the last (their states
+        only start the next step, so they need not be converged to round-off);
+    max_step_mm: largest prescribed-displacement increment of the first try;
+    line_search: halvings of a Newton correction allowed when it inverts an element (non-finite
+        residual) before the step counts as failed;
+    lag_max_its: "lagged" linear solver: GMRES iterations above which the tangent is refactorized.
+    """
 
     rtol: float = 1e-10
     atol: float = 1e-10
     atol_mm: float = 1e-10
+    intermediate_rtol: float = 1e-6
+    intermediate_atol_mm: float = 1e-6
     max_iterations: int = 25
     max_step_mm: float = 5.0
     min_fraction: float = 1.0 / 1024
     grow: float = 1.5
+    line_search: int = 4
+    lag_max_its: int = 12
 
     def __post_init__(self):
-        for name in ("rtol", "atol", "atol_mm", "max_step_mm", "min_fraction"):
+        for name in ("rtol", "atol", "atol_mm", "intermediate_rtol", "intermediate_atol_mm",
+                     "max_step_mm", "min_fraction"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
                 raise ValueError(f"NewtonSettings.{name} must be a positive number, got {v!r}")
         if self.max_iterations < 1:
             raise ValueError(f"NewtonSettings.max_iterations must be >= 1, got {self.max_iterations}")
+        if self.line_search < 0 or self.lag_max_its < 1:
+            raise ValueError("NewtonSettings.line_search must be >= 0 and lag_max_its >= 1")
 
 
 @dataclass(frozen=True)
@@ -86,6 +107,8 @@ class _Timings:
     assemble: float = 0.0
     solve: float = 0.0
     setup: float = 0.0
+    factorizations: int = 0
+    krylov_iterations: int = 0
 
 
 class ReferenceSolver:
@@ -100,8 +123,11 @@ class ReferenceSolver:
         sliding_penalty: factor beta of the oblique-sliding penalty (beta * E / h_min per mm^2).
         body_force: optional callable x -> UFL vector (mN/mm^3) of the reference coordinates,
             added to gravity (used for manufactured solutions).
-        linear_solver: "direct" (MUMPS LDL^T), "iterative" (CG + GAMG with rigid-body near null
-            space, relative tolerance 1e-10) or "auto" (iterative above 40k dofs).
+        linear_solver: "direct" (MUMPS LDL^T of every Newton tangent), "lagged" (GMRES on the
+            exact tangent, preconditioned by the MUMPS factor of an earlier tangent, which is
+            refactorized only when GMRES needs more than ``settings.lag_max_its`` iterations),
+            "iterative" (CG + GAMG with rigid-body near null space, MUMPS fallback) or "auto"
+            ("lagged" above LAGGED_ABOVE_DOFS dofs, "direct" below).
     """
 
     def __init__(self, case: Case, *, degree: int = 1, quadrature_degree: int | None = None,
@@ -171,28 +197,43 @@ class ReferenceSolver:
         self.R_int_form = dolfinx.fem.form(self.R_int_ufl)
         self.K_form = dolfinx.fem.form(self.K_ufl)
         self.W_form = dolfinx.fem.form(internal)
-        self.A = dolfinx.fem.petsc.create_matrix(self.K_form)
-        self.b = dolfinx.fem.petsc.create_vector(self.R_form)
-        self.ksp = PETSc.KSP().create(comm)
-        self.ksp.setOperators(self.A)
+        n_dofs = self.V.dofmap.index_map.size_global * self.V.dofmap.index_map_bs
         if linear_solver == "auto":
-            linear_solver = "direct"
-        if linear_solver not in ("direct", "iterative"):
-            raise CaseError(f"linear_solver must be 'auto', 'direct' or 'iterative', got "
-                            f"{linear_solver!r}")
+            linear_solver = "lagged" if n_dofs > LAGGED_ABOVE_DOFS else "direct"
+        if linear_solver not in ("direct", "lagged", "iterative"):
+            raise CaseError(f"linear_solver must be 'auto', 'direct', 'lagged' or 'iterative', "
+                            f"got {linear_solver!r}")
         self.linear_solver = linear_solver
-        pc = self.ksp.getPC()
+        # The tangent A is assembled as BAIJ (node blocks: about 2x faster insertion than AIJ)
+        # and converted to SBAIJ, the upper half MUMPS's LDL^T reads, whenever it is factorized.
+        # GAMG ("iterative") needs AIJ.
+        self.A = dolfinx.fem.petsc.create_matrix(
+            self.K_form, "aij" if linear_solver == "iterative" else "baij")
+        self.b = dolfinx.fem.petsc.create_vector(self.R_form)
         # The tangent is symmetric (Dirichlet rows and columns are both zeroed).
         self.A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+        # P: the SBAIJ matrix MUMPS factorizes, made from A at each refresh ("direct": every
+        # Newton iteration; "lagged": on demand). PETSc refactorizes when P's values change and
+        # reuses the symbolic analysis (the pattern is fixed). Created at the first refresh.
+        self.P = None
+        self._refactor = True
+        self.ksp = PETSc.KSP().create(comm)
+        self.ksp.setOperators(self.A)
         self.direct_ksp = self.ksp
         if linear_solver == "iterative":
             self.direct_ksp = PETSc.KSP().create(comm)
             self.direct_ksp.setOperators(self.A)
-        for k in (self.direct_ksp,):
-            # MUMPS LDL^T, which also handles indefinite tangents
-            k.setType("preonly")
-            k.getPC().setType("cholesky")
-            k.getPC().setFactorSolverType("mumps")
+        pc = self.ksp.getPC()
+        # MUMPS LDL^T, which also handles indefinite tangents
+        k = self.direct_ksp
+        k.setType("preonly" if linear_solver != "lagged" else "gmres")
+        k.getPC().setType("cholesky")
+        k.getPC().setFactorSolverType("mumps")
+        if linear_solver == "lagged":
+            # right preconditioning: GMRES then tests the true residual of the current tangent
+            k.setPCSide(PETSc.PC.Side.RIGHT)
+            k.setGMRESRestart(max(30, self.settings.lag_max_its + 1))
+            k.setTolerances(rtol=1e-10, atol=1e-300, max_it=max(30, self.settings.lag_max_its + 1))
         if linear_solver == "iterative":
             # CG + smoothed-aggregation AMG with the rigid-body modes as near null space;
             # tight tolerance so Newton keeps its quadratic convergence
@@ -341,12 +382,10 @@ class ReferenceSolver:
         return self._region_dofs[region]
 
     # ------------------------------------------------------------------ Newton
-    def _assemble(self, bcs):
+    def _assemble_residual(self, bcs) -> float:
+        """b = R(u) with the Dirichlet rows set to u - g (lifting included); returns |b|."""
         t0 = time.perf_counter()
-        A, b = self.A, self.b
-        A.zeroEntries()
-        dolfinx.fem.petsc.assemble_matrix(A, self.K_form, bcs=bcs)
-        A.assemble()
+        b = self.b
         with b.localForm() as bl:
             bl.set(0.0)
         dolfinx.fem.petsc.assemble_vector(b, self.R_form)
@@ -354,48 +393,112 @@ class ReferenceSolver:
         b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         dolfinx.fem.petsc.set_bc(b, bcs, self.u.vector, -1.0)
         self.timings.assemble += time.perf_counter() - t0
+        return b.norm()
 
-    def _newton(self, bcs, progress, label):
-        """Newton iterations at fixed load; returns (converged, iterations, residual)."""
+    def _assemble_tangent(self, bcs):
+        t0 = time.perf_counter()
+        self.A.zeroEntries()
+        dolfinx.fem.petsc.assemble_matrix(self.A, self.K_form, bcs=bcs)
+        self.A.assemble()
+        self.timings.assemble += time.perf_counter() - t0
+
+    def _refresh_factor(self):
+        """Copy the current tangent into the SBAIJ matrix MUMPS factorizes (the factorization
+        itself happens at the next solve)."""
+        # (petsc4py's convert() without a target converts in place: always pass one)
+        if self.P is None:
+            self.P = PETSc.Mat()
+            self.A.convert("sbaij", self.P)
+            self.ksp.setOperators(self.A, self.P)
+        else:
+            self.A.convert("sbaij", self.P)
+        self._refactor = False
+        self.timings.factorizations += 1
+
+    def _linear_solve(self, eta: float) -> bool:
+        """du = -A^-1 b at relative tolerance ``eta`` (Krylov modes); False when it fails."""
+        lagged = self.linear_solver == "lagged"
+        self.b.scale(-1.0)
+        ksp = self.ksp
+        try:
+            if self.linear_solver == "direct" or (lagged and self._refactor):
+                self._refresh_factor()
+            if lagged:
+                ksp.setTolerances(rtol=eta)
+            ksp.solve(self.b, self.du.vector)
+            its = ksp.getIterationNumber()
+            if ksp.getConvergedReason() < 0 and lagged:
+                # the old factor is too far from this tangent: refactorize and solve again
+                self._refresh_factor()
+                ksp.solve(self.b, self.du.vector)
+                its += ksp.getIterationNumber()
+            elif ksp.getConvergedReason() < 0 and ksp is not self.direct_ksp:
+                ksp = self.direct_ksp
+                ksp.solve(self.b, self.du.vector)
+        except PETSc.Error as exc:  # MUMPS on NaN entries (error 76) and the like
+            log.debug("linear solve failed: %s", exc)
+            self._refactor = True
+            return False
+        finally:
+            self.b.scale(-1.0)
+        if ksp is not self.ksp:  # "iterative" fell back to MUMPS
+            self.timings.factorizations += 1
+        elif self.linear_solver != "direct":
+            self.timings.krylov_iterations += its
+            if lagged and its > self.settings.lag_max_its:
+                self._refactor = True
+        self.du.x.scatter_forward()
+        return ksp.getConvergedReason() > 0
+
+    def _newton(self, bcs, progress, label, rtol=None, atol_mm=None):
+        """Newton iterations at fixed load; returns (converged, iterations, residual).
+
+        Residual first, tangent only when another correction is needed. A correction that
+        inverts an element (non-finite residual) is halved up to ``settings.line_search`` times.
+        """
         s = self.settings
+        rtol = s.rtol if rtol is None else rtol
+        atol_mm = s.atol_mm if atol_mm is None else atol_mm
         u, du = self.u, self.du
-        r0 = None
+        r0 = rprev = None
+        rnorm = self._assemble_residual(bcs)
         for it in range(1, s.max_iterations + 1):
-            self._assemble(bcs)
-            rnorm = self.b.norm()
             if not math.isfinite(rnorm):
                 return False, it, rnorm
             if r0 is None:
                 r0 = max(rnorm, 1e-300)
-            elif rnorm <= s.atol or rnorm <= s.rtol * r0:
+            elif rnorm <= s.atol or rnorm <= rtol * r0:
                 return True, it - 1, rnorm
+            # forcing term of the inexact (Krylov) solves: no more accuracy than Newton can use
+            eta = 1e-3 if rprev is None else \
+                min(1e-3, max((rnorm / rprev) ** 2, 0.1 * rtol * r0 / rnorm, 1e-12))
+            self._assemble_tangent(bcs)
             t0 = time.perf_counter()
-            self.b.scale(-1.0)
-            try:
-                self.ksp.solve(self.b, du.vector)
-                ksp = self.ksp
-                if ksp.getConvergedReason() < 0 and ksp is not self.direct_ksp:
-                    ksp = self.direct_ksp
-                    ksp.solve(self.b, du.vector)
-            except PETSc.Error as exc:  # MUMPS on NaN entries (error 76) and the like
-                log.debug("linear solve failed: %s", exc)
-                return False, it, float("nan")
-            du.x.scatter_forward()
+            ok = self._linear_solve(eta)
             self.timings.solve += time.perf_counter() - t0
-            reason = ksp.getConvergedReason()
-            if reason < 0:
+            if not ok:
                 return False, it, rnorm
             step = du.vector.norm(PETSc.NormType.NORM_INFINITY)
             if not math.isfinite(step):
                 return False, it, float("nan")
-            u.vector.axpy(1.0, du.vector)
-            u.x.scatter_forward()
+            u_old = u.x.array.copy()
+            alpha = 1.0
+            for _ in range(s.line_search + 1):
+                u.x.array[:] = u_old + alpha * du.x.array
+                rnew = self._assemble_residual(bcs)
+                if math.isfinite(rnew):
+                    break
+                alpha *= 0.5
+            else:
+                u.x.array[:] = u_old
+                return False, it, float("nan")
             if progress and self.comm.rank == 0:
-                print(f"  {label} newton {it:2d}  |R| {rnorm:.3e}  |du|_max {step:.3e} mm",
+                ls = "" if alpha == 1.0 else f"  (step x{alpha:g}: inverted elements)"
+                print(f"  {label} newton {it:2d}  |R| {rnorm:.3e}  |du|_max {step:.3e} mm{ls}",
                       file=sys.stderr, flush=True)
-            if step <= s.atol_mm and it > 1:
-                self._assemble(bcs)
-                return True, it, self.b.norm()
+            rprev, rnorm = rnorm, rnew
+            if alpha == 1.0 and step <= atol_mm and it > 1:
+                return True, it, rnorm
         return False, s.max_iterations, rnorm
 
     def _max_prescribed(self, case, override):
@@ -421,6 +524,7 @@ class ReferenceSolver:
         when a load step still fails after the cut-backs.
         """
         t_start = time.perf_counter()
+        self.timings = _Timings(setup=self.timings.setup)  # per-solve counters
         case = (case or self.case).with_pushes(pushes or {})
         if case.mesh is not self.case.mesh:
             raise CaseError("ReferenceSolver.solve: the case mesh differs from the solver's mesh")
@@ -465,13 +569,15 @@ class ReferenceSolver:
                 # linear extrapolation of the load path (secant predictor)
                 self.u.x.array[:] += (trial - lam) / (lam - prev_lam) * (last_good - prev_good)
                 self.u.x.scatter_forward()
-            ok, it, res = self._newton(bcs, progress, f"load {trial:6.3f}")
+            final = trial >= 1.0 - 1e-14
+            tol = {} if final else {"rtol": s.intermediate_rtol, "atol_mm": s.intermediate_atol_mm}
+            ok, it, res = self._newton(bcs, progress, f"load {trial:6.3f}", **tol)
             iters += it
             if not ok and predict and prev_good is not None:
                 # retry the same step from the last converged state, without the predictor
                 self.u.x.array[:] = last_good
                 self.u.x.scatter_forward()
-                ok, it, res = self._newton(bcs, progress, f"load {trial:6.3f}")
+                ok, it, res = self._newton(bcs, progress, f"load {trial:6.3f}", **tol)
                 iters += it
             if ok:
                 prev_good, prev_lam = last_good.copy(), lam
@@ -619,7 +725,10 @@ class ReferenceSolver:
             degree=self.degree, case_name=case.name, n_vertices=case.mesh.n_vertices,
             n_cells=case.mesh.n_cells, history=history,
             extra={"load_fraction": lam, "n_dofs": int(self.V.dofmap.index_map.size_global * self.gdim),
-                   "assemble_s": self.timings.assemble, "linear_solve_s": self.timings.solve})
+                   "assemble_s": self.timings.assemble, "linear_solve_s": self.timings.solve,
+                   "linear_solver": self.linear_solver,
+                   "factorizations": self.timings.factorizations,
+                   "krylov_iterations": self.timings.krylov_iterations})
 
     # ------------------------------------------------------------------ residual / tangent
     def _out_permutation(self):

@@ -167,10 +167,35 @@ def test_warm_start_gives_the_cold_answer():
     assert warm.iterations < cold.iterations
 
 
-def test_iterative_linear_solver_gives_the_direct_answer():
+@pytest.mark.parametrize("mode", ["iterative", "lagged"])
+def test_krylov_linear_solvers_give_the_direct_answer(mode):
     from meshes.case import load_case
 
     case = load_case("meshes/cases/phantom.toml", size=16)
-    a = fr.ReferenceSolver(case, linear_solver="direct").solve({"A1": 6.0})
-    b = fr.ReferenceSolver(case, linear_solver="iterative").solve({"A1": 6.0})
+    a = fr.ReferenceSolver(case, linear_solver="direct").solve({"A1": 12.0, "A3": 6.0})
+    s = fr.ReferenceSolver(case, linear_solver=mode)
+    b = s.solve({"A1": 12.0, "A3": 6.0})
+    np.testing.assert_allclose(b.u, a.u, atol=1e-8)
+    np.testing.assert_allclose(b.reactions["base"], a.reactions["base"], rtol=1e-8)
+    if mode == "lagged":
+        # the point of the mode: fewer factorizations than Newton iterations
+        assert b.extra["factorizations"] < b.iterations
+        assert a.extra["factorizations"] == a.iterations
+
+
+def test_a_correction_that_inverts_elements_is_halved_not_fatal():
+    """All four actuators pushed 15 mm in one load step: the first Newton correction inverts
+    elements at the patch rims. Without the line search the step fails and is cut back; with it
+    the correction is halved and the single step converges to the same answer."""
+    from meshes.case import load_case
+
+    case = load_case("meshes/cases/phantom.toml", size=10)
+    push = {"A1": 15.0, "A2": 15.0, "A3": 15.0, "A4": 15.0}
+    one_step = dict(max_step_mm=100.0)
+    plain = fr.ReferenceSolver(case, settings=fr.NewtonSettings(line_search=0, **one_step))
+    a = plain.solve(push)
+    assert a.load_steps > 1  # the failure the line search exists for
+    searched = fr.ReferenceSolver(case, settings=fr.NewtonSettings(line_search=4, **one_step))
+    b = searched.solve(push)
+    assert b.load_steps == 1 and b.converged
     np.testing.assert_allclose(b.u, a.u, atol=1e-8)
