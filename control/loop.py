@@ -238,13 +238,15 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
     t = settings.dt_s * np.arange(settings.steps + 1)
     err = np.linalg.norm((x_goal - X)[:, mask], axis=1)
     retract = float(max(0.0, -np.diff(S, axis=0).min())) if len(S) > 1 else 0.0
+    closed_s = time.perf_counter() - t_start
     ol = None
     if settings.open_loop:
         ol = _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, settings)
+    wall = time.perf_counter() - t_start
     return LoopResult(t, X, err, S, itae(t, err, settings.dt_s), float(err[-1]), retract,
-                      np.array(mpc.solve_ms), x_goal, mask, acts, target, task, ol,
-                      time.perf_counter() - t_start,
-                      {"model_time_s": model.solve_time_s, "J0": J0})
+                      np.array(mpc.solve_ms), x_goal, mask, acts, target, task, ol, wall,
+                      {"model_time_s": model.solve_time_s, "J0": J0, "closed_loop_s": closed_s,
+                       "open_loop_s": wall - closed_s})
 
 
 def _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, settings):

@@ -118,7 +118,10 @@ def table1_row(t, task, res) -> dict:
             "u_open_mm": ol.get("u_open_mm"),
             "final_pushes_mm": d["actuator_positions_mm"][-1],
             "max_retraction_mm": d["max_retraction_mm"],
-            "mpc_step_median_ms": d["mpc_step_median_ms"], "wall_time_s": res.wall_time_s}
+            "mpc_step_median_ms": d["mpc_step_median_ms"], "wall_time_s": res.wall_time_s,
+            "closed_loop_s": res.extra.get("closed_loop_s"),
+            "model_time_s": res.extra.get("model_time_s"),
+            "open_loop_s": res.extra.get("open_loop_s")}
 
 
 def table1_summary(rows, n_expected) -> dict:
