@@ -15,19 +15,25 @@ z_e ~ H_e with the constraint W (D u - z) = 0, W_e = w_e I, and iterates (scaled
 Weights: w_e^2 = rho * V_e (V_e the reference volume, mm^3; rho in kPa), i.e. one penalty
 stiffness per unit volume for the whole mesh. D^T W^2 D is then rho times the P1 vector
 Laplacian, factorized once per Case (scipy splu on the free dofs) and reused by every iteration,
-every load value and every warm start. Default rho = sqrt(mu (kappa + 4 mu / 3)) for
-Neo-Hookean (between the shear and the bulk stiffness), lambda + 2 mu for linear elasticity;
-overridable (``rho=``).
+every load value and every warm start. Default rho = kappa + 4 mu / 3 = lambda + 2 mu (the
+P-wave modulus) for both materials; overridable (``rho=``).
 
 Material (seed eq. 14, ``case.material``): psi = mu/2 (J^(-2/3) I1 - 3) + kappa/2 (J - 1)^2,
 or linear elasticity psi = mu eps:eps + lambda/2 tr(eps)^2. 2D meshes are plane strain (F33 = 1).
 
 z-step: linear elasticity in closed form (skew / deviatoric / volumetric parts). Neo-Hookean:
-one Newton-type step per ADMM iteration for all elements at once (vectorized numpy), with the
-element matrices (A_e + rho I)^-1 (A = dP/dF) frozen and refreshed only for the elements whose
-strain moved by more than ``refresh_strain`` since their last refresh, with a backtracking line
-search keeping J > 0 and decreasing the local objective. At a fixed point the z-step gradient
-vanishes, so the fixed point is exact whatever the frozen matrices.
+one Newton-type step per ADMM iteration for all elements at once (vectorized numpy), warm-started
+from the previous z, with the model Hessian (rho + mu J^(-2/3)) I + max(kappa (2 - 1/J), 0)
+cof (x) cof (the penalty and volumetric parts of the exact one) inverted in closed form
+(Sherman-Morrison), so no per-element 9x9 matrices are formed, stored or inverted; steps that
+are not provably safe (large, or J near 0) get a backtracking line search keeping J > 0 and
+decreasing the local objective. At a fixed point the z-step gradient vanishes, so the fixed
+point is exact whatever the model. Layout: H, z and the scaled dual are kept as (d, d, m)
+structure-of-arrays blocks (entry (i, J) of all elements contiguous; D's rows are in that
+order) and the loop carries F = I + z (the identity folded into the constant x-step terms), in
+preallocated buffers. One iteration at ~1.8k tets: x-step (two sparse products with D, one
+multi-column SuperLU solve), z-step, dual update and residuals, about 0.5-0.7 ms on the 2-core
+development machine (``bench/bench_admm.py``).
 
 Stopping rule (mm): primal = max_e h_e |D_e u - z_e|, dual = (rho/rho0) max_e h_e
 |z_e^k - z_e^(k-1)| (h_e = V_e^(1/gdim), a length); both below ``tol_mm``. Quasi-static solves
@@ -47,7 +53,9 @@ step's equilibrium is Newton's, not ADMM's, work).
 
 x-step solver: without oblique sliding, D^T W^2 D (+ M/dt^2) is a scalar matrix times I_d in
 node-major order, so one scalar SuperLU factorization per distinct free-vertex set serves all
-components (multi-column solves); with oblique sliding the reduced coupled matrix is factorized.
+components (multi-column solves; the reduced unknowns are ordered component-major, so the
+right-hand side is a view, no gather); with oblique sliding the reduced coupled matrix is
+factorized.
 
 Boundary conditions: prescribed dofs (fixed, displacement, affine, axis-aligned sliding) are
 eliminated; oblique sliding u.n = g by a per-vertex change of basis (exact). Tractions and gravity
@@ -57,6 +65,7 @@ Units: mm, kPa, mN, kg, s; energy uJ = kPa mm^3 = mN mm.
 """
 from __future__ import annotations
 
+import math
 import time
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -319,10 +328,21 @@ class _ComponentSolver:
         self.L = self.U = None
         self.nnz = sum(lu.L.nnz + lu.U.nnz for lu, _ in self.groups)
 
+        # one group over all components in component-major order: no gather/scatter
+        self.whole = None
+        if len(self.groups) == 1:
+            pos = self.groups[0][1]
+            if pos.size == len(plain_dofs) and np.array_equal(
+                    pos, np.arange(pos.size).reshape(pos.shape[1], -1).T):
+                self.whole = pos.shape
+
     def solve(self, rhs):
+        if self.whole is not None:
+            nv, nc = self.whole
+            return self.groups[0][0].solve(rhs.reshape(nc, nv).T).T.reshape(-1)
         out = np.empty_like(rhs)
         for lu, pos in self.groups:
-            out[pos] = lu.solve(np.ascontiguousarray(rhs[pos]))
+            out[pos] = lu.solve(np.asfortranarray(rhs[pos]))
         return out
 
 
@@ -344,6 +364,9 @@ def _reduction(case) -> _Reduction:
     if len(slide_v):
         plain[(slide_v[:, None] * d + np.arange(d)).ravel()] = False
     plain_dofs = np.flatnonzero(plain)
+    # component-major (all x dofs, then y, ...): the x-step's multi-column right-hand side
+    # is then a view of the reduced vector
+    plain_dofs = plain_dofs[np.lexsort((plain_dofs // d, plain_dofs % d))]
     zr, zc, zv = [plain_dofs], [np.arange(len(plain_dofs))], [np.ones(len(plain_dofs))]
     col = len(plain_dofs)
     for v in slide_v.tolist():
@@ -415,16 +438,18 @@ class AdmmOperators:
         Z = self.red.Z
         # D: (m*d*d, N) with H_flat = D u
         m = self.m
-        rows = (np.arange(m)[:, None, None, None] * d * d + np.arange(d)[None, None, :, None] * d
-                + np.arange(d)[None, None, None, :])  # (m, a, i, J)
+        # rows in structure-of-arrays order (i, J, e): H_iJ of element e at (d i + J) m + e
+        rows = (np.arange(m)[:, None, None, None] + np.arange(d)[None, None, :, None] * d * m
+                + np.arange(d)[None, None, None, :] * m)  # (m, a, i, J)
         rows = np.broadcast_to(rows, (m, d + 1, d, d))
         cols = np.broadcast_to(kin.dofs.reshape(m, d + 1, d)[:, :, :, None], (m, d + 1, d, d))
         vals = np.broadcast_to(kin.G[:, :, None, :], (m, d + 1, d, d))
         D = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(m * d * d, self.N))
         self.D = D
-        w2 = self.rho * np.repeat(kin.V, d * d)
+        w2 = self.rho * np.tile(kin.V, d * d)
         self.w2 = w2
         self.DZ = (D @ Z).tocsr()
+        self.eye_soa = np.repeat(np.eye(d).ravel(), m)  # I of every element, (d, d, m) flat
         self.DZtW = (self.DZ.T.multiply(w2[None, :])).tocsr()
         L = (D.T.multiply(w2[None, :]) @ D).tocsr()
         self.L = L
@@ -447,8 +472,15 @@ class AdmmOperators:
         else:
             self.lu = _spd_splu((Z.T @ self.Mx @ Z).tocsc())
         self.nq = Z.shape[1]
-        self.zstep_cache = None  # (Minv, zref) of the last z-step, reused by warm starts
         self.setup_s = time.perf_counter() - t0
+
+    def step_norm(self, dq):
+        """Largest vertex displacement (mm) of the reduced increment dq."""
+        whole = getattr(self.lu, "whole", None)
+        if whole is not None:  # component-major plain dofs, every component on the same vertices
+            dq = dq.reshape(whole[1], whole[0])
+            return float(np.sqrt(np.einsum("ij,ij->j", dq, dq).max(initial=0.0)))
+        return _vertex_norm_max(self.red.Z @ dq, self.d)
 
 
 _CACHE: "OrderedDict[tuple, AdmmOperators]" = OrderedDict()
@@ -488,132 +520,198 @@ def _particular(case, ops: AdmmOperators) -> np.ndarray:
 
 # =========================================================================== z-step
 class _ZStep:
-    """Per-element proximal step z = argmin psi(I + z) + rho/2 |z - zhat|^2 for all elements."""
+    """Per-element proximal step F = argmin psi(F) + rho/2 |F - Fhat|^2 (F = I + z) for all
+    elements at once, on structure-of-arrays blocks (d, d, m): entry (i, J) of every element is
+    one contiguous row. The ADMM loop keeps F = I + z in "extended" buffers E (5, 5, m) in 3D,
+    F = E[:3, :3], whose last two rows/columns repeat the first two, so that every cofactor is a
+    product of two shifted views (cof_ij = F[i+1, j+1] F[i+2, j+2] - F[i+1, j+2] F[i+2, j+1]).
 
-    def __init__(self, ops: AdmmOperators, refresh_strain: float):
-        self.ops = ops
+    Neo-Hookean: one Newton-type step from the previous F (warm start) with the model Hessian
+    M = (rho + mu J^(-2/3)) I + max(kappa (2 - 1/J), 0) cof (x) cof (the rho part and the
+    volumetric part of the exact Hessian, which dominate it for rho of the order of the P-wave
+    modulus), applied in closed form (Sherman-Morrison): no per-element matrices are formed,
+    stored or inverted. Steps |D| <= s = ``small_step`` from states with
+    J > s I1/sqrt(3) + s^2 sqrt(I1) + s^3 keep J > 0 (det(F + D) >= J - |cof||D| - |F||D|^2 -
+    |D|^3, |cof| <= I1/sqrt(3)) and are taken as they are; the others get an Armijo backtracking
+    on the local objective and further steps (up to ``rounds``). At a fixed point the local
+    gradient vanishes, so the fixed point is exact whatever M."""
+
+    small_step = 1e-2  # |dF| below which a step from a safe state is taken unchecked
+
+    def __init__(self, ops: AdmmOperators, rho, rounds=4):
         self.law = ops.law
-        self.rho = ops.rho
-        d = ops.d
-        self.dd = d * d
-        self.refresh_strain = refresh_strain
-        self.Minv = None
-        self.zref = None
-        self.refreshes = 0
-        self.small_step = 1e-2
-        self.set_rho(self.rho)
+        self.d = ops.d
+        self.rounds = rounds
+        self._buf = {}
+        self.set_rho(rho)
 
     def set_rho(self, rho):
-        """Penalty (kPa); the frozen element matrices (A + rho I)^-1 are rebuilt."""
-        mat, d = self.law, self.ops.d
-        if rho != self.rho:
-            self.Minv = None
+        mat, d = self.law, self.d
         self.rho = rho
         if mat.model == "linear-elastic":
             self.f_dev = rho / (rho + 2 * mat.mu)
             self.f_vol = rho / (rho + 2 * mat.mu + d * mat.lmbda)
-        # fallback gradient step length for a non-descent frozen direction
-        self.gstep = 1.0 / (rho + 2.0 * mat.mu + 3.0 * mat.kappa)
 
-    def __call__(self, zhat, z, it):
-        if self.law.model == "linear-elastic":
-            d = self.ops.d
-            sym = 0.5 * (zhat + np.transpose(zhat, (0, 2, 1)))
-            skew = zhat - sym
-            t = np.einsum("mii->m", sym) / d
-            dev = sym.copy()
-            dev[:, np.arange(d), np.arange(d)] -= t[:, None]
-            out = skew + self.f_dev * dev
-            out[:, np.arange(d), np.arange(d)] += (self.f_vol * t)[:, None]
-            return out
-        return self._neo(zhat, z, it)
+    def new_state(self, k):
+        """An extended buffer for F (see the class docstring) and its F view."""
+        d = self.d
+        E = np.empty((5, 5, k)) if d == 3 else np.empty((d, d, k))
+        return E, E[:d, :d]
 
-    def _refresh(self, z, force=None):
-        m, dd = len(z), self.dd
-        cache = getattr(self.ops, "zstep_cache", None)
-        if self.Minv is None and cache is not None and cache[2] == self.rho:
-            # element matrices of the previous solve on these operators (any matrix is valid,
-            # the stale ones are refreshed by the strain test below)
-            self.Minv, self.zref = cache[0], cache[1]
-        if self.Minv is None:
-            idx = np.arange(m)
-            self.Minv = np.empty((m, dd, dd))
-            self.zref = z.copy()
+    def _scratch(self, k):
+        b = self._buf.get(k)
+        if b is None:
+            d = self.d
+            b = (np.empty((d, d, k)), np.empty((d, d, k)), None)
+            self._buf = {k: b}  # one size kept (the full element set)
+        return b
+
+    def _parts(self, E, cof, t):
+        """cof (into ``cof``), J, I1 (plane strain: + 1) of F = E[:d, :d]."""
+        d = self.d
+        F = E[:d, :d]
+        if d == 3:
+            E[3:, :3] = E[:2, :3]
+            E[:, 3:] = E[:, :2]
+            np.multiply(E[1:4, 1:4], E[2:5, 2:5], out=cof)
+            np.multiply(E[1:4, 2:5], E[2:5, 1:4], out=t)
+            cof -= t
+            J = np.einsum("jk,jk->k", F[0], cof[0])
+            I1 = np.einsum("ijk,ijk->k", F, F)
         else:
-            dz = (z - self.zref).reshape(m, -1)
-            moved = np.einsum("mi,mi->m", dz, dz) > self.refresh_strain ** 2
-            if force is not None:
-                moved[force] = True
-            idx = np.flatnonzero(moved)
-        if len(idx):
-            A = self.law.tangent(z[idx])
-            A[:, np.arange(dd), np.arange(dd)] += self.rho
-            self.Minv[idx] = np.linalg.inv(A)
-            self.zref[idx] = z[idx]
-            self.refreshes += len(idx)
-        self.ops.zstep_cache = (self.Minv, self.zref, self.rho)
+            cof[0, 0], cof[1, 1] = F[1, 1], F[0, 0]
+            np.negative(F[1, 0], out=cof[0, 1])
+            np.negative(F[0, 1], out=cof[1, 0])
+            J = F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]
+            I1 = np.einsum("ijk,ijk->k", F, F)
+            I1 += 1.0
+        return J, I1
 
-    def _neo(self, zhat, z, it, rounds=4):
-        """Newton-type steps with the frozen (A + rho I)^-1; elements that needed backtracking
-        get their matrix refreshed at the new z and step again (up to ``rounds`` steps)."""
-        self._refresh(z)
-        znew, partial = self._newton_step(zhat, z, self.Minv)
-        for _ in range(rounds - 1):
-            idx = np.flatnonzero(partial)
-            if not len(idx):
+    def _phi(self, F, Fhat):
+        """Local objective psi(F) + rho/2 |F - Fhat|^2 (inf where J <= 0) and J; F (d, d, k)."""
+        mu, kappa, d = self.law.mu, self.law.kappa, self.d
+        E, _ = self.new_state(F.shape[2])
+        E[:d, :d] = F
+        J, I1 = self._parts(E, np.empty_like(F), np.empty_like(F))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            psi = 0.5 * mu * (np.abs(J) ** (-2.0 / 3.0) * I1 - 3.0) + 0.5 * kappa * (J - 1.0) ** 2
+        psi[~(J > 0)] = np.inf
+        r = F - Fhat
+        return psi + 0.5 * self.rho * np.einsum("ijk,ijk->k", r, r), J
+
+    def __call__(self, Fhat, E, Enew):
+        """Writes the new F into Enew[:d, :d] (F = E[:d, :d] is the previous one) and returns
+        |F_new - F|^2 per element; Fhat (d, d, m) contiguous."""
+        d = self.d
+        F, Fn = E[:d, :d], Enew[:d, :d]
+        if self.law.model == "linear-elastic":
+            # closed form on H = F - I: skew + f_dev dev(sym H) + f_vol tr(H)/d I
+            np.add(Fhat, Fhat.transpose(1, 0, 2), out=Fn)
+            Fn *= 0.5  # sym F
+            skew = Fhat - Fn
+            t = np.einsum("iik->k", Fn) / d - 1.0  # tr(sym H) / d
+            Fn *= self.f_dev
+            Fn += skew
+            for i in range(d):
+                Fn[i, i] += (self.f_vol - self.f_dev) * t + (1.0 - self.f_dev)
+            dz = Fn - F
+            return np.einsum("ijk,ijk->k", dz, dz)
+        dsq, check, redo = self._step(Fhat, E, Fn, self._scratch(Fhat.shape[2]))
+        for _ in range(self.rounds - 1):
+            if not len(redo):
                 break
-            self._refresh(znew, force=idx)
-            zs, partial_s = self._newton_step(zhat[idx], znew[idx], self.Minv[idx])
-            znew[idx] = zs
-            partial = np.zeros(len(z), bool)
-            partial[idx[partial_s]] = True
-        return znew
+            Es, _ = self.new_state(len(redo))
+            Es[:d, :d] = Fn[:, :, redo]
+            out = np.empty((d, d, len(redo)))
+            _, _, r2 = self._step(Fhat[:, :, redo], Es, out,
+                                  tuple(np.empty_like(out) for _ in range(3)))
+            Fn[:, :, redo] = out
+            redo = redo[r2]
+        if len(check):
+            dz = Fn[:, :, check] - F[:, :, check]
+            dsq[check] = np.einsum("ijk,ijk->k", dz, dz)
+        return dsq
 
-    def _phi(self, z, zhat):
-        psi, J = self.law.psi_J(z)
-        r = (z - zhat).reshape(len(z), -1)
-        return psi + 0.5 * self.rho * np.einsum("mi,mi->m", r, r), J
+    def _step(self, Fhat, E, Fn, scratch):
+        """One safeguarded model-Newton step from F = E[:d, :d] into Fn; returns (|dF|^2 of the
+        full model step, indices (into this block) of the elements checked by the line search,
+        of those that backtracked and may step again).
 
-    def _newton_step(self, zhat, z, Minv):
-        """One safeguarded step. Small steps (|dz| <= small_step) that keep J > 0 are taken as
-        they are (the frozen Newton model is accurate there); larger ones are checked with an
-        Armijo backtracking on the local objective phi = psi + rho/2 |z - zhat|^2."""
-        m, dd, rho, d = len(z), self.dd, self.rho, self.ops.d
-        P, _ = self.law.stress(z)
-        g = (P + rho * (z - zhat)).reshape(m, dd)
-        dz = -np.einsum("mij,mj->mi", Minv, g)
-        gd = np.einsum("mi,mi->m", g, dz)
-        bad = ~(gd < 0)
-        if bad.any():
-            dz[bad] = -self.gstep * g[bad]
-            gd[bad] = -self.gstep * np.einsum("mi,mi->m", g[bad], g[bad])
-        small = np.einsum("mi,mi->m", dz, dz) <= self.small_step ** 2
-        dz = dz.reshape(m, d, d)
-        znew = z + dz
-        J1 = _det(znew + np.eye(d))
-        check = ~(small & (J1 > 0))
-        partial = bad & ~small
-        if check.any():
-            idx = np.flatnonzero(check)
-            phi0, _ = self._phi(z[idx], zhat[idx])
+        With P = a F + b cof (a = mu J^(-2/3), b = kappa (J - 1) - a I1 / (3 J)), the local
+        gradient over rho is g = (1 + a/rho) F - Fhat + (b/rho) cof, and the model step
+        F - M^-1 g / ... simplifies (the F terms cancel) to
+        F_new = (Fhat + (s - b/rho) cof) / (1 + a/rho), s = beta (cof:g) / (alpha + beta |cof|^2),
+        cof:g = alpha d J - cof:Fhat + (b/rho) |cof|^2 (cof:F = d J)."""
+        mu, kappa, rho, d = self.law.mu / self.rho, self.law.kappa / self.rho, self.rho, self.d
+        cof, t, _ = scratch
+        F = E[:d, :d]
+        J, I1 = self._parts(E, cof, t)
+        iJ = 1.0 / J
+        ar = np.cbrt(iJ)
+        ar *= ar
+        ar *= mu  # a / rho
+        b = I1 * ar
+        b *= iJ
+        b *= -1.0 / 3.0
+        b += kappa * J
+        b -= kappa  # b / rho
+        al = ar + 1.0  # alpha, the model's diagonal (over rho)
+        beta = 2.0 - iJ
+        beta *= kappa
+        np.maximum(beta, 0.0, out=beta)  # the model's volumetric stiffness (over rho)
+        cc = np.einsum("ijk,ijk->k", cof, cof)
+        cg = al * J
+        cg *= d
+        cg -= np.einsum("ijk,ijk->k", cof, Fhat)
+        cg += b * cc  # cof:g
+        cg *= beta
+        den = beta * cc
+        den += al
+        cg /= den
+        cg -= b  # s - b / rho
+        np.multiply(cof, cg, out=t)
+        t += Fhat
+        np.divide(t, al, out=Fn)
+        np.subtract(Fn, F, out=t)  # the model step dF
+        dz2 = np.einsum("ijk,ijk->k", t, t)
+        # small steps from states with J > 0.01 I1 + 1e-5 keep J > 0: taken; the others checked
+        ds = self.small_step
+        lim = np.sqrt(I1)
+        lim *= ds * ds
+        lim += (ds / np.sqrt(3.0)) * I1
+        lim += ds ** 3
+        bad = J <= lim
+        bad |= dz2 > ds * ds
+        check = np.flatnonzero(bad) if bad.any() else np.empty(0, np.int64)
+        redo = check
+        if len(check):
+            dz = t[:, :, check]
+            # g = -M dF, so g:dF = -(alpha |dF|^2 + beta (cof:dF)^2) (times rho: unscaled)
+            cd = np.einsum("ijk,ijk->k", cof[:, :, check], dz)
+            gd = -rho * (al[check] * dz2[check] + beta[check] * cd * cd)
+            Fc = F[:, :, check]
+            Fh = Fhat[:, :, check]
+            phi0, _ = self._phi(Fc, Fh)
             tolr = 1e-13 * np.abs(phi0)
-            alpha = 1.0
+            idx = np.arange(len(check))
+            alpha_ls = 1.0
+            partial = np.zeros(len(check), bool)
             for _ in range(40):
-                zt = z[idx] + alpha * dz[idx]
-                ph, Jt = self._phi(zt, zhat[idx])
-                ok = (Jt > 0) & (ph <= phi0 + 1e-4 * alpha * gd[idx] + tolr)
-                znew[idx[ok]] = zt[ok]
-                if alpha < 1.0:
+                Ft = Fc[:, :, idx] + alpha_ls * dz[:, :, idx]
+                ph, Jt = self._phi(Ft, Fh[:, :, idx])
+                ok = (Jt > 0) & (ph <= phi0[idx] + 1e-4 * alpha_ls * gd[idx] + tolr[idx])
+                Fn[:, :, check[idx[ok]]] = Ft[:, :, ok]
+                if alpha_ls < 1.0:
                     partial[idx[ok]] = True
-                keep = ~ok
-                idx, phi0, tolr = idx[keep], phi0[keep], tolr[keep]
+                idx = idx[~ok]
                 if not len(idx):
                     break
-                alpha *= 0.5
-            if len(idx):  # no decrease found: keep the old z of these elements
-                znew[idx] = z[idx]
+                alpha_ls *= 0.5
+            if len(idx):  # no decrease found: keep the old F of these elements
+                Fn[:, :, check[idx]] = Fc[:, :, idx]
                 partial[idx] = True
-        return znew, partial
+            redo = check[partial]
+        return dz2, check, redo
 
 
 # =========================================================================== helpers
@@ -636,64 +734,88 @@ def _check_J(ops, H, it, what):
 
 
 def _vertex_norm_max(du, d):
-    return float(np.sqrt((du.reshape(-1, d) ** 2).sum(axis=1)).max(initial=0.0))
+    du = du.reshape(-1, d)
+    return float(np.sqrt(np.einsum("ij,ij->i", du, du).max(initial=0.0)))
+
+
+def _aos(z):
+    """(d, d, m) structure-of-arrays block -> (m, d, d) view."""
+    return z.transpose(2, 0, 1)
+
+
+def _soa(H):
+    """(m, d, d) -> contiguous (d, d, m)."""
+    return np.ascontiguousarray(H.transpose(1, 2, 0))
 
 
 # =========================================================================== one static/step solve
-def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, refresh_strain, it0,
-          progress, hist):
+def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, hist):
     """ADMM iterations from u0. rhs_extra: f_ext (+ M u_tilde / dt^2), mN. Returns (u, iters,
-    converged)."""
+    converged). The loop works with F = I + z and Fhat = I + D u + lam, (d, d, m) blocks."""
     Z, m, d = ops.red.Z, ops.m, ops.d
     # move the boundary from u0's values to up's and carry the interior along with the
     # harmonic (x-step matrix) extension of that change
     zu0 = Z.T @ u0
     delta = up - (u0 - Z @ zu0)
     q = zu0 - ops.lu.solve(Z.T @ (ops.Mx @ delta)) if np.any(delta) else zu0
-    Dup = ops.D @ up
-    H = (ops.DZ @ q + Dup).reshape(m, d, d)
-    z = H.copy()
+    DupI = ops.D @ up + ops.eye_soa  # D u_p + I
+    zstep = _ZStep(ops, ops.rho)
+    E, F = zstep.new_state(m)
+    Enew, Fnew = zstep.new_state(m)
+    F[...] = (ops.DZ @ q + DupI).reshape(d, d, m)
     if ops.law.model != "linear-elastic":
         # elements the prescribed values invert in the start state start from F = I
-        J, _ = _det_cof(H + np.eye(d))
-        z[~(J > 0.05)] = 0.0
-    P, _ = ops.law.stress(z)
-    lam = P / ops.rho
+        J, _ = _det_cof(_aos(F))
+        F[:, :, ~(J > 0.05)] = np.eye(d)[:, :, None]
+    P, _ = ops.law.stress(_aos(F) - np.eye(d))
+    lam = _soa(P) / ops.rho
     rhs_f = Z.T @ rhs_extra
-    rhs_up = -(Z.T @ (ops.Mx @ up))
-    zstep = _ZStep(ops, refresh_strain)
+    # x-step right-hand side constant: boundary values, and D^T W I (F = I + z)
+    rhs_up = -(Z.T @ (ops.Mx @ up)) - ops.DZtW @ ops.eye_soa
     rho0 = rho = ops.rho
     adapt = ops.dt is None  # without a mass term the x-step matrix is rho * (fixed matrix)
     window_primal = np.inf
-    h = ops.h
+    h2 = ops.h ** 2
     big = 1e3 * float(np.ptp(ops.mesh.points, axis=0).max())
+    rhs_c = rhs_f + rhs_up
+    w = np.empty_like(lam)
+    Fhat = np.empty_like(lam)
+    lam_new = np.empty_like(lam)
+    r = np.empty(m)
     converged = False
     k = 0
     for k in range(1, max_iter + 1):
         q_old = q
         # x-step for the current rho: (rho/rho0) Mx0 u = rho D^T V (z - lam) + f, scaled
-        q = ops.lu.solve(ops.DZtW @ (z - lam).ravel() + (rho0 / rho) * rhs_f + rhs_up)
-        Hx = (ops.DZ @ q + Dup).reshape(m, d, d)
-        zhat = Hx + lam
-        znew = zstep(zhat, z, it0 + k)
-        lam = zhat - znew
-        rp = (Hx - znew).reshape(m, -1)
-        rd = (znew - z).reshape(m, -1)
-        ep = h * np.sqrt(np.einsum("mi,mi->m", rp, rp))
+        np.subtract(F, lam, out=w)
+        rhs = ops.DZtW @ w.reshape(-1)
+        rhs += rhs_c
+        q = ops.lu.solve(rhs)
+        Hx = ops.DZ @ q
+        Hx += DupI
+        np.add(Hx.reshape(d, d, m), lam, out=Fhat)
+        dsq = zstep(Fhat, E, Enew)
+        # dual update lam' = Fhat - F'; primal residual D u - z' = lam' - lam
+        np.subtract(Fhat, Fnew, out=lam_new)
+        np.subtract(lam_new, lam, out=w)
+        np.einsum("ijk,ijk->k", w, w, out=r)
+        r *= h2
+        primal = float(np.sqrt(r.max()))
         # dual residual rho D^T (z^k - z^(k-1)) (Boyd et al. 2011, 3.3), in mm at rho0
-        ed = (rho / rho0) * h * np.sqrt(np.einsum("mi,mi->m", rd, rd))
-        z = znew
-        primal, dual = float(ep.max()), float(ed.max())
-        step = _vertex_norm_max(Z @ (q - q_old), d)
+        dsq *= h2
+        dual = (rho / rho0) * float(np.sqrt(dsq.max()))
+        lam, lam_new = lam_new, lam
+        E, Enew, F, Fnew = Enew, E, Fnew, F
+        step = ops.step_norm(q - q_old)
         hist["primal"].append(primal)
         hist["dual"].append(dual)
         hist["max_step_mm"].append(step)
-        if not (np.isfinite(primal) and np.isfinite(dual) and np.isfinite(step)):
-            bad = ~(np.isfinite(ep) & np.isfinite(ed))
+        if not (math.isfinite(primal) and math.isfinite(dual) and math.isfinite(step)):
+            bad = ~(np.isfinite(r) & np.isfinite(dsq))
             raise _diverged("non-finite residual", it0 + k,
                             int(np.flatnonzero(bad)[0]) if bad.any() else -1)
         if primal > big or step > big:
-            raise _diverged(f"residual growth, primal {primal:.3g} mm", it0 + k, int(np.argmax(ep)))
+            raise _diverged(f"residual growth, primal {primal:.3g} mm", it0 + k, int(np.argmax(r)))
         if callback is not None:
             callback(it0 + k, (up + Z @ q).reshape(-1, d))
         if progress and k % 100 == 0:
@@ -709,6 +831,7 @@ def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, refresh_strain,
                 lam *= 0.5
                 rho *= 2.0
                 zstep.set_rho(rho)
+                rhs_c = (rho0 / rho) * rhs_f + rhs_up
                 hist.setdefault("rho_changes", []).append((it0 + k, rho))
             window_primal = primal
     return up + Z @ q, k, converged
@@ -808,7 +931,7 @@ def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback):
 def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: int = 20000,
           rho: float | None = None, polish: bool = True, polish_tol_mm: float | None = None,
           polish_max_iter: int = 25, dynamics: ImplicitEuler | None = None, callback=None,
-          refresh_strain: float = 0.02, load_steps: int | None = None, step_mm: float = 3.0,
+          load_steps: int | None = None, step_mm: float = 3.0,
           intermediate_tol_mm: float = 1e-2, lift="auto",
           progress: bool = False) -> SolveResult:
     """ADMM solve of a Case (quasi-static equilibrium, or implicit-Euler dynamics).
@@ -875,7 +998,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
             u_start = u
             u, k, converged = _admm(ops, up_j, s * fext, u, tol_mm=tol_j,
                                     max_iter=int(max_iter), callback=callback,
-                                    refresh_strain=refresh_strain, it0=admm_it + newton_it,
+                                    it0=admm_it + newton_it,
                                     progress=progress, hist=hist)
             admm_it += k
             if polish:
@@ -905,7 +1028,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
             inertia = (mdt, ut)
             un, k, conv = _admm(ops, up, fext + mdt * ut, u, tol_mm=tol_mm,
                                 max_iter=int(max_iter), callback=callback,
-                                refresh_strain=refresh_strain, it0=admm_it + newton_it,
+                                it0=admm_it + newton_it,
                                 progress=progress, hist=hist)
             admm_it += k
             if polish:
