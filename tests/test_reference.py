@@ -199,3 +199,27 @@ def test_a_correction_that_inverts_elements_is_halved_not_fatal():
     b = searched.solve(push)
     assert b.load_steps == 1 and b.converged
     np.testing.assert_allclose(b.u, a.u, atol=1e-8)
+
+
+def test_lagged_solver_switches_to_mumps_when_the_tangent_is_not_positive_definite():
+    """CHOLMOD (LL^T) cannot factorize an indefinite tangent; the lagged solver must switch to
+    MUMPS LDL^T and still solve the system exactly."""
+    from petsc4py import PETSc
+
+    from meshes.case import load_case
+
+    case = load_case("meshes/cases/phantom.toml", size=16).with_pushes({"A1": 3.0})
+    s = fr.ReferenceSolver(case, linear_solver="lagged")
+    if s.factor_package != "cholmod":
+        pytest.skip("this PETSc has no CHOLMOD")
+    bcs = [e[0] for e in s._bcs(case, 1.0)]
+    s._assemble_residual(bcs)
+    s._assemble_tangent(bcs)
+    s.A.scale(-1.0)  # negative definite: what CHOLMOD must refuse
+    assert s._linear_solve(1e-12)
+    assert s.factor_package == "mumps"
+    r = s.b.duplicate()
+    s.A.mult(s.du.vector, r)
+    r.axpy(1.0, s.b)  # A du = -b
+    assert r.norm() <= 1e-9 * s.b.norm()
+    assert isinstance(s.P, PETSc.Mat) and s.P.getType() == "seqsbaij"
