@@ -74,11 +74,15 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
+import logging
+
 import numpy as np
 import scipy.sparse as sp
 
 from meshes.errors import CaseError, SolverDivergedError
 from meshes.results import SolveResult
+
+log = logging.getLogger("tissue.mass_tensor")
 
 __all__ = [
     "MTSolution",
@@ -600,9 +604,15 @@ class _State:
             t.g[vs, 0] = np.einsum("kd,kd->k", u[vs], nrm)
         return t, moved
 
+    # surface sliding (pcg): rounds of (solve on fixed tangent planes, re-project) stop as
+    # stalled when the largest move of a round has not shrunk by 1% over this many rounds
+    # (a vertex at a crease of the surface can cycle between two triangles' planes)
+    STALL_ROUNDS = 20
+
     def run(self, types, u, method):
         nonlinear = bool(types.surface_of)
         lin, _ = self._planes(types, u)
+        best, since = np.inf, 0
         while True:
             start = u.copy()
             it0 = self.it
@@ -611,7 +621,18 @@ class _State:
             if not nonlinear or method == "descent" or self.it >= self.max_iter:
                 return u
             lin, _ = self._planes(types, u)
-            if np.max(np.linalg.norm(u - start, axis=1)) < self.stop or self.it == it0:
+            move = float(np.max(np.linalg.norm(u - start, axis=1)))
+            if move < self.stop or self.it == it0:
+                return u
+            if move < 0.99 * best:
+                best, since = move, 0
+            else:
+                since += 1
+            if since >= self.STALL_ROUNDS:
+                self.ok = False   # reported as not converged, with the state reached
+                log.warning("mass-tensor: surface sliding stalled after %d iterations: a round "
+                            "still moves a vertex %.3g mm (stopping rule %.3g mm)", self.it, move,
+                            self.stop)
                 return u
 
     def _operators(self, types, method, fold):

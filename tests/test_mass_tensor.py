@@ -380,3 +380,24 @@ def test_bad_options_rejected(cube):
         mt.solve(case, method="newton")
     with pytest.raises(CaseError, match="stop_mm"):
         mt.solve(case, stop_mm=0.0)
+
+
+def test_surface_sliding_that_cycles_between_planes_stops_as_not_converged():
+    """A vertex at a crease can bounce between two triangles' tangent planes forever (seen on
+    the implant plan with OpenBLAS); the rounds must stop once their move stops shrinking and
+    the result must say it did not converge, not loop to max_iter."""
+    state = mt._State.__new__(mt._State)
+    state.stop, state.max_iter, state.it, state.ok = 0.01, 200000, 0, True
+    rounds = []
+
+    def linear(types, u, method, refresh=None):
+        state.it += 4
+        rounds.append(1)
+        return u + 0.08 * (1 if len(rounds) % 2 else -1)   # moves 0.08 mm, then back
+
+    state._linear = linear
+    state._planes = lambda types, u: (types, 0.0)
+    types = type("T", (), {"surface_of": {0: object()}})()
+    state.run(types, np.zeros((3, 3)), "pcg")
+    assert state.ok is False
+    assert len(rounds) <= mt._State.STALL_ROUNDS + 2
