@@ -31,18 +31,29 @@ decreasing the local objective. At a fixed point the z-step gradient vanishes, s
 point is exact whatever the model. Layout: H, z and the scaled dual are kept as (d, d, m)
 structure-of-arrays blocks (entry (i, J) of all elements contiguous; D's rows are in that
 order) and the loop carries F = I + z (the identity folded into the constant x-step terms), in
-preallocated buffers. One iteration at ~1.8k tets: x-step (two sparse products with D, one
-multi-column SuperLU solve), z-step, dual update and residuals, about 0.5-0.7 ms on the 2-core
-development machine (``bench/bench_admm.py``).
+preallocated buffers; the element-local work (z-step, dual update, residuals) runs in blocks
+of CHUNK elements that stay in cache. Elements are ordered internally by the reverse
+Cuthill-McKee rank of their first vertex and the free vertices by that rank (locality of the
+sparse products on large meshes; element numbers in error messages are the mesh's). One
+iteration at ~1.8k tets: x-step (two sparse products with D, one multi-column SuperLU solve),
+z-step, dual update and residuals, about 0.55-0.9 ms CPU on the shared 2-core development
+machine, depending on its load (``bench/bench_admm.py``).
 
 Stopping rule (mm): primal = max_e h_e |D_e u - z_e|, dual = (rho/rho0) max_e h_e
-|z_e^k - z_e^(k-1)| (h_e = V_e^(1/gdim), a length); both below ``tol_mm``. Quasi-static solves
+|z_e^k - z_e^(k-1)| (h_e = V_e^(1/gdim), a length); both below ``tol_mm`` (and, with the
+iterative x-step of large meshes, its last CG update below ``tol_mm``). Quasi-static solves
 double rho (up to 64 rho0; free: the x-step matrix is rho times a fixed one) when the primal
 residual stagnates over 25 iterations (nonconvex elements can cycle between two local z-step
 minima); the changes are listed in ``history["rho_changes"]``. ADMM converges linearly, so by default a
 "Newton polish" follows: Newton steps on the same P1 energy with this module's exact tangent
-(``tangent_stiffness``) until the largest Newton step is below ``polish_tol_mm``. Both iteration
-counts are reported (``extra["admm_iterations"]``, ``extra["newton_iterations"]``).
+(``tangent_stiffness``, assembled straight into a cached CSR pattern of the reduced unknowns)
+until the largest Newton step is below ``polish_tol_mm``. With the polish, ADMM only has to bring
+each load step near Newton's basin: it hands over at ``handoff_mm`` (0.01 mm) or after
+``max_iter`` iterations (default 20 with the polish, 20000 without); on the phantom with all
+four actuators pushed 15 mm (1782 tets) this cut the solve from 6486 ADMM iterations + 10 Newton
+(about 12.6 s in ``make demo``) to about 90 ADMM + 14 Newton iterations (under 1 s), same answer
+(to 1e-14 mm). Both iteration counts are reported (``extra["admm_iterations"]``,
+``extra["newton_iterations"]``).
 
 Large prescribed motions (e.g. 15 mm pushes) are applied in load steps of at most ``step_mm``;
 each step moves the boundary and carries the interior along (tangent or harmonic lift), runs
@@ -55,7 +66,15 @@ x-step solver: without oblique sliding, D^T W^2 D (+ M/dt^2) is a scalar matrix 
 node-major order, so one scalar SuperLU factorization per distinct free-vertex set serves all
 components (multi-column solves; the reduced unknowns are ordered component-major, so the
 right-hand side is a view, no gather); with oblique sliding the reduced coupled matrix is
-factorized.
+factorized. From PCG_MIN (20000) free vertices on (about 100k tets) the scalar matrix is not
+factorized (a direct factor's fill and solve time grow like n^1.4-1.5 on these 3D meshes: 28M
+factor entries, 320 MiB and 130 ms per solve at 185k tets) but solved by conjugate gradients
+preconditioned with a smoothed-aggregation AMG V-cycle built here (scipy only; O(n) work and
+memory): the x-step is then inexact, warm-started from the previous iterate and stopped when its
+largest vertex update is below PCG_RTOL (0.1) times the first one or below XSTEP_TOL (0.1) times
+the ADMM tolerance; the ADMM stopping rule also requires the last CG update below ``tol_mm``.
+The x-step matrix is constant, so at an ADMM fixed point the warm start solves it exactly and
+the fixed point (the answer) is unchanged (``tests/test_admm.py`` compares both x-steps).
 
 Boundary conditions: prescribed dofs (fixed, displacement, affine, axis-aligned sliding) are
 eliminated; oblique sliding u.n = g by a per-vertex change of basis (exact). Tractions and gravity
@@ -77,8 +96,16 @@ import scipy.sparse.linalg as spla
 from meshes.errors import CaseError, SolverDivergedError
 from meshes.results import SolveResult
 
-__all__ = ["solve", "ImplicitEuler", "AdmmOperators", "prepare", "tangent_stiffness",
-           "internal_forces", "strain_energy", "element_kinematics"]
+__all__ = [
+    "AdmmOperators",
+    "ImplicitEuler",
+    "element_kinematics",
+    "internal_forces",
+    "prepare",
+    "solve",
+    "strain_energy",
+    "tangent_stiffness",
+]
 
 
 # =========================================================================== element kinematics
@@ -249,17 +276,18 @@ def internal_forces(case, u) -> np.ndarray:
 
 
 def _element_K(kin, A):
-    """Element stiffness (m, (d+1)d, (d+1)d): V B^T A B, B_(iJ),(a i') = delta_ii' G_aJ."""
+    """Element stiffness (m, (d+1)d, (d+1)d): V B^T A B, B_(iJ),(a i') = delta_ii' G_aJ, i.e.
+    Ke_(a i),(b k) = V sum_JL G_aJ A_iJkL G_bL, as two stacked matrix products."""
     m, d = len(kin.V), kin.d
-    A5 = A.reshape(m, d, d, d, d)
-    AG = np.einsum("mijkl,mbl->mijkb", A5, kin.G)
-    Ke = np.einsum("maj,mijkb->maibk", kin.G, AG) * kin.V[:, None, None, None, None]
-    nd = (d + 1) * d
-    return Ke.reshape(m, nd, nd)
+    k = d + 1
+    C = np.matmul(A.reshape(m, d * d * d, d), kin.G.transpose(0, 2, 1))  # (m, iJk, b)
+    Ke = np.matmul(kin.G[:, None], C.reshape(m, d, d, d * k))  # (m, i, a, kb)
+    Ke = Ke.reshape(m, d, k, d, k).transpose(0, 2, 1, 4, 3) * kin.V[:, None, None, None, None]
+    return Ke.reshape(m, k * d, k * d)
 
 
 def _assemble(kin, Ke, n):
-    m, nd = kin.dofs.shape
+    nd = kin.dofs.shape[1]
     rows = np.repeat(kin.dofs, nd, axis=1).ravel()
     cols = np.tile(kin.dofs, (1, nd)).ravel()
     return sp.csr_matrix((Ke.ravel(), (rows, cols)), shape=(n, n))
@@ -287,7 +315,7 @@ class _Reduction:
 
 def _scalar_laplacian(kin, rho, n):
     """sum_e rho V_e G_e G_e^T (n, n): D^T W^2 D = this (x) I_d in node-major order."""
-    m, k = kin.G.shape[:2]
+    k = kin.G.shape[1]
     Ke = rho * kin.V[:, None, None] * np.einsum("maj,mbj->mab", kin.G, kin.G)
     cells = kin.dofs[:, ::kin.d] // kin.d
     rows = np.repeat(cells, k, axis=1).ravel()
@@ -299,20 +327,170 @@ def _spd_splu(A):
     """SuperLU of a symmetric positive definite matrix: symmetric ordering, no pivoting (keeps
     the fill of the minimum-degree ordering; ~4x faster solves than partial pivoting here)."""
     return spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                     options=dict(SymmetricMode=True))
+                     options={"SymmetricMode": True})
 
 
 def _sym_splu(A):
     """SuperLU of a symmetric (possibly indefinite) tangent: symmetric minimum-degree ordering,
     diagonal pivots preferred (threshold 0.01) so the ordering's fill is kept."""
     return spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.01,
-                     options=dict(SymmetricMode=True))
+                     options={"SymmetricMode": True})
+
+
+class _Direct:
+    """SuperLU of an SPD matrix; ``step`` (the ADMM x-step) is the exact solve."""
+
+    def __init__(self, A):
+        self.lu = _spd_splu(A.tocsc())
+        self.nnz = self.lu.L.nnz + self.lu.U.nnz
+        self.bytes = 12 * self.nnz  # factor values + row indices
+        self.untracked_bytes = self.bytes  # SuperLU's own memory, not seen by tracemalloc
+
+    def solve(self, B):
+        return self.lu.solve(np.asfortranarray(B))
+
+    def step(self, B, X0, tol_mm=0.0):
+        return self.solve(B)
+
+
+def _aggregate(A):
+    """Smoothed-aggregation aggregates (Vanek, Mandel, Brezina 1996) on the graph of the
+    strength matrix A (CSR): roots whose neighbourhood is still free, then the leftovers joined
+    to a neighbouring aggregate, then isolated ones. Returns (agg (n,), number of aggregates)."""
+    n = A.shape[0]
+    ip, ind = A.indptr.tolist(), A.indices.tolist()
+    agg = [-1] * n
+    na = 0
+    for i in range(n):
+        if agg[i] >= 0:
+            continue
+        nb = ind[ip[i]:ip[i + 1]]
+        if all(agg[j] < 0 for j in nb):
+            for j in nb:
+                agg[j] = na
+            agg[i] = na
+            na += 1
+    first = list(agg)
+    for i in range(n):
+        if first[i] < 0:
+            for j in ind[ip[i]:ip[i + 1]]:
+                if first[j] >= 0:
+                    agg[i] = first[j]
+                    break
+    for i in range(n):
+        if agg[i] < 0:
+            agg[i] = na
+            na += 1
+    return np.asarray(agg, dtype=np.int64), na
+
+
+class _AmgPcg:
+    """Preconditioned conjugate gradients on an SPD scalar matrix (the x-step matrix of a large
+    mesh), multi-column, with a smoothed-aggregation AMG V-cycle (strength theta = 0.08, Jacobi
+    prolongator smoothing and one pre/post damped-Jacobi sweep, omega = 4 / (3 rho(D^-1 A)),
+    coarsest level <= 500 unknowns by SuperLU) as preconditioner. Work and memory are O(n) (a
+    direct factor's fill grows like n^(4/3) and more on 3D meshes). ``step`` is the ADMM
+    x-step: ``iters`` PCG iterations warm-started from the previous x (inexact; the x-step
+    matrix is constant and at an ADMM fixed point the warm start solves it, so the fixed point
+    is unchanged); ``solve`` iterates to a relative residual of 1e-12."""
+
+    theta = 0.08
+    coarse = 500
+
+    def __init__(self, A, iters=1):
+        self.iters = iters
+        self.count = [0, 0]  # PCG calls, PCG iterations (statistics)
+        self.last_update = 0.0  # largest vertex update (mm) of the last PCG iteration
+        A = A.tocsr()
+        self.A = A
+        self.levels = []
+        while A.shape[0] > self.coarse:
+            n = A.shape[0]
+            C = A.tocoo()
+            dg = np.sqrt(np.abs(A.diagonal()))
+            keep = (np.abs(C.data) >= self.theta * dg[C.row] * dg[C.col]) | (C.row == C.col)
+            S = sp.csr_matrix((C.data[keep], (C.row[keep], C.col[keep])), shape=A.shape)
+            agg, na = _aggregate(S)
+            if na > 0.6 * n:  # no real coarsening left
+                break
+            T = sp.csr_matrix((np.ones(n), (np.arange(n), agg)), shape=(n, na))
+            dinv = 1.0 / A.diagonal()
+            x = np.random.default_rng(0).random(n)
+            lam = 1.0
+            for _ in range(15):  # power iteration for rho(D^-1 A)
+                y = dinv * (A @ x)
+                lam = float(np.linalg.norm(y))
+                x = y / lam
+            P = (T - sp.diags((4.0 / 3.0 / lam) * dinv) @ (A @ T)).tocsr()
+            R = P.T.tocsr()
+            self.levels.append((A, ((4.0 / 3.0 / lam) * dinv)[:, None], P, R))
+            A = (R @ A @ P).tocsr()
+        self.lu = _spd_splu(A.tocsc())
+        mats = [lv[k] for lv in self.levels for k in (0, 2, 3)]
+        self.bytes = sum(12 * M.nnz + 4 * M.shape[0] for M in mats) + 12 * (
+            self.lu.L.nnz + self.lu.U.nnz)
+        self.nnz = sum(M.nnz for M in mats)
+        self.untracked_bytes = 12 * (self.lu.L.nnz + self.lu.U.nnz)  # coarsest-level SuperLU
+
+    def _vcycle(self, b, level=0):
+        if level == len(self.levels):
+            return self.lu.solve(np.asfortranarray(b))
+        A, dw, P, R = self.levels[level]
+        x = dw * b
+        r = b - A @ x
+        x += P @ self._vcycle(R @ r, level + 1)
+        r = b - A @ x
+        r *= dw
+        x += r
+        return x
+
+    def _pcg(self, B, X, maxit, rtol, step_tol=0.0):
+        A = self.A
+        r = B - A @ X
+        stop = rtol * np.sqrt(np.einsum("ij,ij->j", B, B))
+        z = self._vcycle(r)
+        p = z
+        rz = np.einsum("ij,ij->j", r, z)
+        for it in range(maxit):
+            Ap = A @ p
+            pAp = np.einsum("ij,ij->j", p, Ap)
+            alpha = np.divide(rz, pAp, out=np.zeros_like(rz), where=pAp > 0)
+            dx = alpha * p
+            X += dx
+            r -= alpha * Ap
+            if it == maxit - 1 or np.all(np.sqrt(np.einsum("ij,ij->j", r, r)) <= stop):
+                break
+            if step_tol > 0:
+                dmax = float(np.einsum("ij,ij->i", dx, dx).max(initial=0.0))
+                if it == 0:
+                    lim = max(step_tol ** 2, (PCG_RTOL ** 2) * dmax)
+                if it + 1 >= self.iters and dmax <= lim:
+                    break
+            z = self._vcycle(r)
+            rzn = np.einsum("ij,ij->j", r, z)
+            beta = np.divide(rzn, rz, out=np.zeros_like(rz), where=rz > 0)
+            p = z + beta * p
+            rz = rzn
+        self.count[0] += 1
+        self.count[1] += it + 1
+        self.last_update = float(np.sqrt(np.einsum("ij,ij->i", dx, dx).max(initial=0.0)))
+        return X
+
+    def solve(self, B):
+        B = np.ascontiguousarray(B)
+        return self._pcg(B, np.zeros_like(B), 500, 1e-12)
+
+    def step(self, B, X0, tol_mm):
+        """At least ``iters`` PCG iterations from X0, then until the largest vertex update is
+        below tol_mm (mm) or PCG_RTOL times the first one (at most 25)."""
+        return self._pcg(np.ascontiguousarray(B), np.array(X0, order="C"), 25, 0.0, tol_mm)
 
 
 class _ComponentSolver:
     """Solves the reduced x-step system when it is block diagonal per displacement component:
-    one SuperLU factorization of the scalar matrix per distinct free-vertex set, the components
-    sharing a set solved together as a multi-column right-hand side."""
+    one scalar solver per distinct free-vertex set (SuperLU, or AMG-preconditioned CG from
+    PCG_MIN free vertices on), the components sharing a set solved together as a multi-column
+    right-hand side. ``step(rhs, q0)`` is the x-step (warm-started from q0 for CG)."""
 
     def __init__(self, Ls, plain_dofs, d):
         comp = plain_dofs % d
@@ -323,11 +501,13 @@ class _ComponentSolver:
             groups.setdefault(verts.tobytes(), (verts, []))[1].append(pos)
         self.groups = []
         for verts, poss in groups.values():
-            lu = _spd_splu(Ls[verts][:, verts].tocsc())
-            self.groups.append((lu, np.stack(poss, axis=1)))
-        self.L = self.U = None
-        self.nnz = sum(lu.L.nnz + lu.U.nnz for lu, _ in self.groups)
-
+            A = Ls[verts][:, verts]
+            sol = _AmgPcg(A, PCG_ITERS) if len(verts) >= PCG_MIN else _Direct(A)
+            self.groups.append((sol, np.stack(poss, axis=1)))
+        self.nnz = sum(g.nnz for g, _ in self.groups)
+        self.bytes = sum(g.bytes for g, _ in self.groups)
+        self.untracked_bytes = sum(g.untracked_bytes for g, _ in self.groups)
+        self.kind = "+".join(sorted({type(g).__name__.strip("_") for g, _ in self.groups}))
         # one group over all components in component-major order: no gather/scatter
         self.whole = None
         if len(self.groups) == 1:
@@ -336,14 +516,62 @@ class _ComponentSolver:
                     pos, np.arange(pos.size).reshape(pos.shape[1], -1).T):
                 self.whole = pos.shape
 
-    def solve(self, rhs):
+    def solve(self, rhs, q0=None, tol_mm=0.0):
         if self.whole is not None:
             nv, nc = self.whole
-            return self.groups[0][0].solve(rhs.reshape(nc, nv).T).T.reshape(-1)
+            g = self.groups[0][0]
+            B = rhs.reshape(nc, nv).T
+            X = g.solve(B) if q0 is None else g.step(B, q0.reshape(nc, nv).T, tol_mm)
+            return np.ascontiguousarray(X.T).reshape(-1)
         out = np.empty_like(rhs)
-        for lu, pos in self.groups:
-            out[pos] = lu.solve(np.asfortranarray(rhs[pos]))
+        for g, pos in self.groups:
+            out[pos] = g.solve(rhs[pos]) if q0 is None else g.step(rhs[pos], q0[pos], tol_mm)
         return out
+
+    def step(self, rhs, q0, tol_mm):
+        """The ADMM x-step: exact (SuperLU) or warm-started from q0 to vertex updates below
+        tol_mm (mm) (CG)."""
+        return self.solve(rhs, q0, tol_mm)
+
+    @property
+    def inexactness(self):
+        """Error proxy (mm) of the last x-step: the largest vertex update of the last CG
+        iteration (0 for SuperLU)."""
+        return max((getattr(g, "last_update", 0.0) for g, _ in self.groups), default=0.0)
+
+
+class _CoupledSolver(_Direct):
+    """SuperLU of the coupled reduced x-step matrix (oblique sliding)."""
+
+    kind = "Direct"
+
+    def solve(self, rhs, q0=None):
+        return self.lu.solve(rhs)
+
+    inexactness = 0.0
+
+    def step(self, rhs, q0, tol_mm):
+        return self.lu.solve(rhs)
+
+
+def _vertex_rank(mesh):
+    """Rank of every vertex in a reverse Cuthill-McKee ordering of the mesh graph (cached)."""
+    rank = getattr(mesh, "_admm_rcm_rank", None)
+    if rank is None or len(rank) != mesh.n_vertices:
+        from scipy.sparse.csgraph import reverse_cuthill_mckee
+        c = mesh.cells
+        k = c.shape[1]
+        A = sp.csr_matrix((np.ones(c.size * k, np.int8), (np.repeat(c, k, axis=1).ravel(),
+                                                          np.tile(c, (1, k)).ravel())),
+                          shape=(mesh.n_vertices, mesh.n_vertices))
+        perm = reverse_cuthill_mckee(A, symmetric_mode=True)
+        rank = np.empty(mesh.n_vertices, np.int64)
+        rank[perm] = np.arange(mesh.n_vertices)
+        try:
+            object.__setattr__(mesh, "_admm_rcm_rank", rank)
+        except (AttributeError, TypeError):
+            pass
+    return rank
 
 
 def _reduction(case) -> _Reduction:
@@ -365,8 +593,8 @@ def _reduction(case) -> _Reduction:
         plain[(slide_v[:, None] * d + np.arange(d)).ravel()] = False
     plain_dofs = np.flatnonzero(plain)
     # component-major (all x dofs, then y, ...): the x-step's multi-column right-hand side
-    # is then a view of the reduced vector
-    plain_dofs = plain_dofs[np.lexsort((plain_dofs // d, plain_dofs % d))]
+    # is then a view of the reduced vector; vertices in reverse Cuthill-McKee order (locality)
+    plain_dofs = plain_dofs[np.lexsort((_vertex_rank(case.mesh)[plain_dofs // d], plain_dofs % d))]
     zr, zc, zv = [plain_dofs], [np.arange(len(plain_dofs))], [np.ones(len(plain_dofs))]
     col = len(plain_dofs)
     for v in slide_v.tolist():
@@ -381,7 +609,7 @@ def _reduction(case) -> _Reduction:
             R.append(nrm)
             g.append(val)
         R, g = np.array(R), np.array(g)
-        U_, s, Vt = np.linalg.svd(R)
+        _, s, Vt = np.linalg.svd(R)
         rank = int(np.sum(s > 1e-10 * s[0]))
         upv = np.linalg.lstsq(R, g, rcond=None)[0]
         if np.linalg.norm(R @ upv - g) > 1e-8 * max(1.0, np.abs(g).max()):
@@ -433,20 +661,26 @@ class AdmmOperators:
         if not (np.isfinite(rho) and rho > 0):
             raise CaseError(f"ADMM rho must be > 0 kPa, got {rho!r}")
         self.rho = float(rho)
-        self.h = kin.V ** (1.0 / d)
         self.red = _reduction(case)
         Z = self.red.Z
-        # D: (m*d*d, N) with H_flat = D u
         m = self.m
-        # rows in structure-of-arrays order (i, J, e): H_iJ of element e at (d i + J) m + e
+        # the ADMM loop's element order: by the reverse Cuthill-McKee rank of their first
+        # vertex (memory locality of the products with D on large meshes); internal element k
+        # is mesh element elem_order[k]
+        self.elem_order = eo = np.argsort(_vertex_rank(case.mesh)[case.mesh.cells].min(axis=1),
+                                          kind="stable")
+        self.h = kin.V[eo] ** (1.0 / d)
+        # D: (m*d*d, N) with H_flat = D u, rows in structure-of-arrays order (i, J, k): H_iJ of
+        # (internal) element k at (d i + J) m + k
         rows = (np.arange(m)[:, None, None, None] + np.arange(d)[None, None, :, None] * d * m
                 + np.arange(d)[None, None, None, :] * m)  # (m, a, i, J)
         rows = np.broadcast_to(rows, (m, d + 1, d, d))
-        cols = np.broadcast_to(kin.dofs.reshape(m, d + 1, d)[:, :, :, None], (m, d + 1, d, d))
-        vals = np.broadcast_to(kin.G[:, :, None, :], (m, d + 1, d, d))
+        cols = np.broadcast_to(kin.dofs[eo].reshape(m, d + 1, d)[:, :, :, None],
+                               (m, d + 1, d, d))
+        vals = np.broadcast_to(kin.G[eo][:, :, None, :], (m, d + 1, d, d))
         D = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(m * d * d, self.N))
         self.D = D
-        w2 = self.rho * np.tile(kin.V, d * d)
+        w2 = self.rho * np.tile(kin.V[eo], d * d)
         self.w2 = w2
         self.DZ = (D @ Z).tocsr()
         self.eye_soa = np.repeat(np.eye(d).ravel(), m)  # I of every element, (d, d, m) flat
@@ -470,9 +704,46 @@ class AdmmOperators:
                 Ls = Ls + sp.diags(mv / dt ** 2)
             self.lu = _ComponentSolver(Ls.tocsr(), self.red.plain_dofs, d)
         else:
-            self.lu = _spd_splu((Z.T @ self.Mx @ Z).tocsc())
+            self.lu = _CoupledSolver(Z.T @ self.Mx @ Z)
         self.nq = Z.shape[1]
+        self._kpat = None  # reduced tangent's CSR pattern (built on first use)
         self.setup_s = time.perf_counter() - t0
+
+    def reduced_tangent(self, u, diag=None):
+        """(Z^T (K(u) + diag(diag)) Z as CSC, element matrices Ke): the tangent of the P1 energy
+        on the reduced unknowns. Without oblique sliding it is assembled straight into a CSR
+        pattern computed once (the matrix is symmetric, so its CSR arrays are its CSC)."""
+        Ke = _element_K(self.kin, self.law.tangent(_grad(self.kin, u)))
+        Z = self.red.Z
+        if not self.red.separable:
+            K = _assemble(self.kin, Ke, self.N)
+            if diag is not None:
+                K = K + sp.diags(diag)
+            return (Z.T @ K @ Z).tocsc(), Ke
+        if self._kpat is None:
+            nq = self.nq
+            ridx = np.full(self.N, -1, np.int64)
+            ridx[self.red.plain_dofs] = np.arange(nq)
+            R = ridx[self.kin.dofs]
+            nd = R.shape[1]
+            rows = np.repeat(R, nd, axis=1).ravel()
+            cols = np.tile(R, (1, nd)).ravel()
+            valid = (rows >= 0) & (cols >= 0)
+            ukey, pos = np.unique(rows[valid] * nq + cols[valid], return_inverse=True)
+            indptr = np.concatenate([[0], np.cumsum(np.bincount(ukey // nq, minlength=nq))])
+            dpos = np.searchsorted(ukey, np.arange(nq) * (nq + 1))
+            self._kpat = (pos.astype(np.int32 if len(ukey) < 2 ** 31 else np.int64), valid,
+                          indptr, (ukey % nq).astype(np.int32), len(ukey), dpos)
+        pos, valid, indptr, indices, nnz, dpos = self._kpat
+        data = np.bincount(pos, weights=Ke.reshape(-1)[valid], minlength=nnz)
+        if diag is not None:
+            data[dpos] += diag[self.red.plain_dofs]
+        return sp.csc_matrix((data, indices, indptr), shape=(self.nq, self.nq)), Ke
+
+    def apply_elements(self, Ke, v):
+        """K v (full dofs, mN) from element matrices Ke, without assembling K."""
+        fe = np.einsum("mab,mb->ma", Ke, v[self.kin.dofs])
+        return np.bincount(self.kin.dofs.ravel(), weights=fe.ravel(), minlength=self.N)
 
     def step_norm(self, dq):
         """Largest vertex displacement (mm) of the reduced increment dq."""
@@ -483,7 +754,14 @@ class AdmmOperators:
         return _vertex_norm_max(self.red.Z @ dq, self.d)
 
 
-_CACHE: "OrderedDict[tuple, AdmmOperators]" = OrderedDict()
+PCG_MIN = 20000  # free vertices from which the x-step is solved by AMG-preconditioned CG
+PCG_ITERS = 1  # least warm-started PCG iterations per ADMM x-step
+PCG_RTOL = 0.1  # PCG x-step: ... or below PCG_RTOL times its first update
+XSTEP_TOL = 0.1  # PCG x-step: largest vertex update (mm) below XSTEP_TOL * tol_mm
+ROUNDS = 4
+CHUNK = 8192  # elements per cache block of the ADMM loop
+
+_CACHE: OrderedDict[tuple, AdmmOperators] = OrderedDict()
 
 
 def _structure_key(case, rho, dt):
@@ -538,7 +816,8 @@ class _ZStep:
 
     small_step = 1e-2  # |dF| below which a step from a safe state is taken unchecked
 
-    def __init__(self, ops: AdmmOperators, rho, rounds=4):
+    def __init__(self, ops: AdmmOperators, rho, rounds=None):
+        rounds = ROUNDS if rounds is None else rounds
         self.law = ops.law
         self.d = ops.d
         self.rounds = rounds
@@ -563,7 +842,9 @@ class _ZStep:
         if b is None:
             d = self.d
             b = (np.empty((d, d, k)), np.empty((d, d, k)), None)
-            self._buf = {k: b}  # one size kept (the full element set)
+            if len(self._buf) > 2:
+                self._buf.clear()
+            self._buf[k] = b  # the chunk sizes of the ADMM loop
         return b
 
     def _parts(self, E, cof, t):
@@ -674,7 +955,8 @@ class _ZStep:
         np.divide(t, al, out=Fn)
         np.subtract(Fn, F, out=t)  # the model step dF
         dz2 = np.einsum("ijk,ijk->k", t, t)
-        # small steps from states with J > 0.01 I1 + 1e-5 keep J > 0: taken; the others checked
+        # small steps from states with J > s I1/sqrt(3) + s^2 sqrt(I1) + s^3 keep J > 0: taken
+        # as they are; the others are checked
         ds = self.small_step
         lim = np.sqrt(I1)
         lim *= ds * ds
@@ -778,27 +1060,36 @@ def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, 
     h2 = ops.h ** 2
     big = 1e3 * float(np.ptp(ops.mesh.points, axis=0).max())
     rhs_c = rhs_f + rhs_up
-    w = np.empty_like(lam)
-    Fhat = np.empty_like(lam)
     lam_new = np.empty_like(lam)
+    w = F - lam  # x-step data z - lam (+ I)
     r = np.empty(m)
+    dsq = np.empty(m)
+    # element-local work in chunks of CHUNK elements, each kept in cache while it is processed
+    chunks = [(c, min(c + CHUNK, m)) for c in range(0, m, CHUNK)]
+    scratch = {}
     converged = False
     k = 0
     for k in range(1, max_iter + 1):
         q_old = q
         # x-step for the current rho: (rho/rho0) Mx0 u = rho D^T V (z - lam) + f, scaled
-        np.subtract(F, lam, out=w)
         rhs = ops.DZtW @ w.reshape(-1)
         rhs += rhs_c
-        q = ops.lu.solve(rhs)
+        q = ops.lu.step(rhs, q, XSTEP_TOL * tol_mm)
         Hx = ops.DZ @ q
         Hx += DupI
-        np.add(Hx.reshape(d, d, m), lam, out=Fhat)
-        dsq = zstep(Fhat, E, Enew)
-        # dual update lam' = Fhat - F'; primal residual D u - z' = lam' - lam
-        np.subtract(Fhat, Fnew, out=lam_new)
-        np.subtract(lam_new, lam, out=w)
-        np.einsum("ijk,ijk->k", w, w, out=r)
+        Hx = Hx.reshape(d, d, m)
+        for c0, c1 in chunks:
+            sl = slice(c0, c1)
+            Fhat, t = scratch.get(c1 - c0) or scratch.setdefault(
+                c1 - c0, (np.empty((d, d, c1 - c0)), np.empty((d, d, c1 - c0))))
+            np.add(Hx[:, :, sl], lam[:, :, sl], out=Fhat)
+            dsq[sl] = zstep(Fhat, E[:, :, sl], Enew[:, :, sl])
+            # dual update lam' = Fhat - F'; primal residual D u - z' = lam' - lam
+            ln = lam_new[:, :, sl]
+            np.subtract(Fhat, Fnew[:, :, sl], out=ln)
+            np.subtract(ln, lam[:, :, sl], out=t)
+            np.einsum("ijk,ijk->k", t, t, out=r[sl])
+            np.subtract(Fnew[:, :, sl], ln, out=w[:, :, sl])  # next x-step's data
         r *= h2
         primal = float(np.sqrt(r.max()))
         # dual residual rho D^T (z^k - z^(k-1)) (Boyd et al. 2011, 3.3), in mm at rho0
@@ -813,15 +1104,16 @@ def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, 
         if not (math.isfinite(primal) and math.isfinite(dual) and math.isfinite(step)):
             bad = ~(np.isfinite(r) & np.isfinite(dsq))
             raise _diverged("non-finite residual", it0 + k,
-                            int(np.flatnonzero(bad)[0]) if bad.any() else -1)
+                            int(ops.elem_order[np.flatnonzero(bad)[0]]) if bad.any() else -1)
         if primal > big or step > big:
-            raise _diverged(f"residual growth, primal {primal:.3g} mm", it0 + k, int(np.argmax(r)))
+            raise _diverged(f"residual growth, primal {primal:.3g} mm", it0 + k,
+                            int(ops.elem_order[np.argmax(r)]))
         if callback is not None:
             callback(it0 + k, (up + Z @ q).reshape(-1, d))
         if progress and k % 100 == 0:
             print(f"admm {it0 + k}: primal {primal:.3e} mm, dual {dual:.3e} mm, "
                   f"step {step:.3e} mm", flush=True)
-        if primal < tol_mm and dual < tol_mm:
+        if primal < tol_mm and dual < tol_mm and ops.lu.inexactness < tol_mm:
             converged = True
             break
         if adapt and k % 25 == 0:
@@ -829,6 +1121,7 @@ def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, 
             # rho (more consensus, convex local problems); lam = P / rho is rescaled
             if primal > 0.9 * window_primal and rho < 64 * rho0:
                 lam *= 0.5
+                np.subtract(F, lam, out=w)
                 rho *= 2.0
                 zstep.set_rho(rho)
                 rhs_c = (rho0 / rho) * rhs_f + rhs_up
@@ -845,10 +1138,9 @@ def _tangent_lift(ops, u, up, it):
     delta = up - (u - Z @ zu)
     if not np.any(delta):
         return u
-    K = _assemble(ops.kin, _element_K(ops.kin, ops.law.tangent(_grad(ops.kin, u))), ops.N)
-    Kr = (Z.T @ K @ Z).tocsc()
+    Kr, Ke = ops.reduced_tangent(u)
     try:
-        s = _sym_splu(Kr).solve(-(Z.T @ (K @ delta)))
+        s = _sym_splu(Kr).solve(-(Z.T @ ops.apply_elements(Ke, delta)))
     except RuntimeError as exc:
         raise _diverged(f"singular tangent in the boundary lift ({exc})", it, -1) from None
     cand = up + Z @ (zu + s)
@@ -889,10 +1181,7 @@ def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback):
     for k in range(1, max_iter + 1):
         r = _residual(ops, u, fext, inertia)
         rr = Z.T @ r
-        K = _assemble(ops.kin, _element_K(ops.kin, ops.law.tangent(_grad(ops.kin, u))), ops.N)
-        if inertia is not None:
-            K = K + sp.diags(inertia[0])
-        Kr = (Z.T @ K @ Z).tocsc()
+        Kr, _ = ops.reduced_tangent(u, None if inertia is None else inertia[0])
         try:
             dq = -_sym_splu(Kr).solve(rr)
         except RuntimeError as exc:
@@ -928,11 +1217,11 @@ def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback):
 
 
 # =========================================================================== public solve
-def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: int = 20000,
+def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: int | None = None,
           rho: float | None = None, polish: bool = True, polish_tol_mm: float | None = None,
           polish_max_iter: int = 25, dynamics: ImplicitEuler | None = None, callback=None,
           load_steps: int | None = None, step_mm: float = 3.0,
-          intermediate_tol_mm: float = 1e-2, lift="auto",
+          intermediate_tol_mm: float = 1e-2, lift="auto", handoff_mm: float = 1e-2,
           progress: bool = False) -> SolveResult:
     """ADMM solve of a Case (quasi-static equilibrium, or implicit-Euler dynamics).
 
@@ -941,8 +1230,12 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         the Case's boundary values (exact), its stress initializes the ADMM dual.
     tol_mm: stopping tolerance (mm) on the primal and dual residuals (see module docstring).
     rho: ADMM penalty stiffness (kPa), w_e^2 = rho V_e; default see module docstring.
+    max_iter: ADMM iterations per load step (per time step); default 20000 without polish, 20
+        with it.
     polish: finish with Newton steps on the same P1 energy until the largest step is below
-        ``polish_tol_mm`` (default tol_mm / 100).
+        ``polish_tol_mm`` (default tol_mm / 100). ADMM then only has to bring each step into
+        Newton's basin: it stops at max(tol, ``handoff_mm``) (mm) or after ``max_iter``
+        iterations, whichever comes first.
     dynamics: ImplicitEuler(dt, steps) for dynamics; None for quasi-static equilibrium.
     load_steps: quasi-static increments (default: the prescribed change from the start state
         divided in steps of at most ``step_mm``, mm); intermediate steps stop at
@@ -961,11 +1254,18 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         case = case.with_pushes(pushes)
     if not (np.isfinite(tol_mm) and tol_mm > 0):
         raise CaseError(f"tol_mm must be > 0 mm, got {tol_mm!r}")
+    if max_iter is None:
+        max_iter = 20 if polish else 20000
     if int(max_iter) < 1:
         raise CaseError(f"max_iter must be >= 1, got {max_iter!r}")
     if polish_tol_mm is None:
         polish_tol_mm = tol_mm / 100.0
     dt = dynamics.dt if dynamics is not None else None
+    admm_iter = int(max_iter)
+
+    def admm_tol(tol):
+        return max(tol, handoff_mm) if polish else tol
+
     ops = prepare(case, rho=rho, dt=dt)
     up = _particular(case, ops)
     fext = case.external_forces(1.0)
@@ -996,8 +1296,8 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
                 u = _tangent_lift(ops, u, up_j, admm_it + newton_it)
                 lifts += 1
             u_start = u
-            u, k, converged = _admm(ops, up_j, s * fext, u, tol_mm=tol_j,
-                                    max_iter=int(max_iter), callback=callback,
+            u, k, converged = _admm(ops, up_j, s * fext, u, tol_mm=admm_tol(tol_j),
+                                    max_iter=admm_iter, callback=callback,
                                     it0=admm_it + newton_it,
                                     progress=progress, hist=hist)
             admm_it += k
@@ -1026,8 +1326,8 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         for step in range(int(dynamics.steps)):
             ut = u + dt * v
             inertia = (mdt, ut)
-            un, k, conv = _admm(ops, up, fext + mdt * ut, u, tol_mm=tol_mm,
-                                max_iter=int(max_iter), callback=callback,
+            un, k, conv = _admm(ops, up, fext + mdt * ut, u, tol_mm=admm_tol(tol_mm),
+                                max_iter=admm_iter, callback=callback,
                                 it0=admm_it + newton_it,
                                 progress=progress, hist=hist)
             admm_it += k

@@ -231,3 +231,54 @@ def test_plain_admm_without_polish_meets_the_issue_tolerances_on_phantom(phantom
     assert np.abs(res.u - ref.u).max() < 0.1
     for k in ref.probes:
         assert np.linalg.norm(res.probes[k] - ref.probes[k]) < 0.05
+
+
+def test_iterative_x_step_of_large_meshes_gives_the_same_answer(phantom12, monkeypatch):
+    """The AMG-preconditioned CG x-step (used from admm.PCG_MIN free vertices on) converges to
+    the same ADMM fixed point as the SuperLU one."""
+    pushes = {"A1": 3.0, "A3": 3.0}
+    kw = {"pushes": pushes, "polish": False, "tol_mm": 1e-6, "max_iter": 5000}
+    direct = admm.solve(phantom12, **kw)
+    assert admm.prepare(phantom12.with_pushes(pushes)).lu.kind == "Direct"
+    monkeypatch.setattr(admm, "PCG_MIN", 0)
+    monkeypatch.setattr(admm._AmgPcg, "coarse", 50)  # several AMG levels on this small mesh
+    admm._CACHE.clear()
+    try:
+        ops = admm.prepare(phantom12.with_pushes(pushes))
+        assert ops.lu.kind == "AmgPcg" and len(ops.lu.groups[0][0].levels) >= 1
+        cg = admm.solve(phantom12, **kw)
+    finally:
+        admm._CACHE.clear()
+    assert cg.converged and direct.converged
+    assert np.abs(cg.u - direct.u).max() < 1e-4
+
+
+def test_amg_pcg_solves_a_poisson_matrix_to_the_requested_accuracy(monkeypatch):
+    import scipy.sparse as sp
+    monkeypatch.setattr(admm._AmgPcg, "coarse", 100)
+    k = 14
+    T = sp.diags([-np.ones(k - 1), 2.0 * np.ones(k), -np.ones(k - 1)], [-1, 0, 1])
+    I = sp.identity(k)
+    A = (sp.kron(sp.kron(T, I), I) + sp.kron(sp.kron(I, T), I) + sp.kron(sp.kron(I, I), T)).tocsr()
+    M = admm._AmgPcg(A)
+    assert len(M.levels) >= 1
+    B = np.random.default_rng(0).standard_normal((A.shape[0], 3))
+    X = M.solve(B)
+    assert np.linalg.norm(B - A @ X) <= 1e-10 * np.linalg.norm(B)
+    assert M.count[1] / M.count[0] < 40  # a working preconditioner, not plain CG
+    # the inexact ADMM x-step from a warm start: stops on the size of its updates
+    X0 = X + 1e-3 * np.random.default_rng(1).standard_normal(X.shape)
+    Xs = M.step(B, X0, 1e-12)
+    assert np.abs(Xs - X).max() < np.abs(X0 - X).max()
+
+
+def test_reduced_tangent_from_the_cached_pattern_equals_the_assembled_one(phantom12):
+    case = phantom12.with_pushes({"A2": 2.0})
+    ops = admm.prepare(case)
+    u = admm.solve(case, polish=False, max_iter=30).u.ravel()
+    Kr, Ke = ops.reduced_tangent(u)
+    Z = ops.red.Z
+    ref = (Z.T @ admm.tangent_stiffness(case, u) @ Z)
+    assert abs(Kr - ref).max() <= 1e-12 * abs(ref).max()
+    v = np.random.default_rng(0).standard_normal(u.size)
+    assert np.allclose(ops.apply_elements(Ke, v), admm.tangent_stiffness(case, u) @ v)
