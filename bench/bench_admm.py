@@ -2,13 +2,16 @@
 0.5 mm actuator increment against the FEniCSx reference Newton from the same warm start, and
 scaling of time per iteration and peak memory with mesh size (log-log growth exponent).
 
-    .venv/bin/python bench/bench_admm.py [--sizes 10 5 2.8 1.8] [--iters 50]
+    .venv/bin/python bench/bench_admm.py [--sizes 10 5 2.8 1.8] [--skip-fem] [--accuracy]
 
-Units: mm, ms, MiB. Prints measured figures and ratios from this one run.
+Units: mm, ms, MiB. Prints measured figures and ratios from this one run, with the machine's
+load average: on a shared machine wall-clock times are noisy, so every time is given as wall
+and as process CPU time (time.process_time), the minimum and median of repeats.
 """
 from __future__ import annotations
 
 import argparse
+import os
 import time
 import tracemalloc
 
@@ -20,30 +23,63 @@ from solvers import admm
 
 CASE = "meshes/cases/phantom.toml"
 TOL = 0.01  # mm, ADMM stopping tolerance of the warm re-solve; its error to the reference printed
+SCALING_TOL = 1e-4  # mm, ADMM tolerance of the scaling solves (the solver's default)
 
 
-def time_per_iteration(case, iters, pushes):
-    """ms per steady ADMM iteration (x-step + z-step + residuals): timed between the callbacks
-    of iterations 10 and iters, warm-started from the ADMM state after 30 iterations."""
+def _load():
+    return "load average {:.2f} {:.2f} {:.2f} on {} CPUs".format(*os.getloadavg(), os.cpu_count())
+
+
+def time_per_iteration(case, pushes, n1=20, n2=220, repeats=5):
+    """ms per steady ADMM iteration (x-step + z-step + dual update + residuals), no callback:
+    (T(n2 iterations) - T(n1 iterations)) / (n2 - n1) for solves warm-started from the ADMM
+    state after 30 iterations (setup, start-up and the final checks cancel). Returns
+    {"wall": (min, median), "cpu": (min, median)}."""
     u = admm.solve(case, pushes=pushes, polish=False, lift=False, max_iter=30).u
-    stamps = {}
+
+    def run(n):
+        w, c = time.perf_counter(), time.process_time()
+        admm.solve(case, pushes=pushes, initial=u, polish=False, lift=False, load_steps=1,
+                   max_iter=n, tol_mm=1e-30)
+        return time.perf_counter() - w, time.process_time() - c
+
+    wall, cpu = [], []
+    for _ in range(repeats):
+        w1, c1 = run(n1)
+        w2, c2 = run(n2)
+        wall.append(1e3 * (w2 - w1) / (n2 - n1))
+        cpu.append(1e3 * (c2 - c1) / (n2 - n1))
+    return {"wall": (min(wall), float(np.median(wall))), "cpu": (min(cpu), float(np.median(cpu)))}
+
+
+def time_per_iteration_of_solve(case, pushes, tol=SCALING_TOL):
+    """(ms per iteration wall, cpu, iterations) of a solve from rest to ``tol`` (no lift, no
+    polish), timed between the callbacks of its second and last iterations: the x-step of
+    large meshes is iterative, so its cost per ADMM iteration depends on the tolerance."""
+    wall, cpu = {}, {}
 
     def cb(it, _u):
-        stamps[it] = time.perf_counter()
+        wall[it], cpu[it] = time.perf_counter(), time.process_time()
 
-    admm.solve(case, pushes=pushes, initial=u, polish=False, lift=False, load_steps=1,
-               max_iter=iters, tol_mm=1e-30, callback=cb)
-    k = sorted(stamps)
-    return 1e3 * (stamps[k[-1]] - stamps[k[9]]) / (k[-1] - k[9])
+    r = admm.solve(case, pushes=pushes, polish=False, lift=False, tol_mm=tol, max_iter=5000,
+                   callback=cb)
+    k = sorted(wall)
+    n = k[-1] - k[1]
+    return (1e3 * (wall[k[-1]] - wall[k[1]]) / n, 1e3 * (cpu[k[-1]] - cpu[k[1]]) / n,
+            r.extra["admm_iterations"], r.converged)
 
 
 def peak_memory_mib(case, pushes):
+    """Peak memory (MiB) of building the operators (fresh) and 5 ADMM iterations: numpy/scipy
+    arrays traced by tracemalloc plus SuperLU's own factor storage (not traced)."""
+    admm._CACHE.clear()
     tracemalloc.start()
     admm.solve(case, pushes=pushes, polish=False, lift=False, load_steps=1, max_iter=5,
                tol_mm=1e-30)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
-    return peak / 2 ** 20
+    ops = admm.prepare(case.with_pushes(pushes))
+    return peak / 2 ** 20, ops.lu.untracked_bytes / 2 ** 20
 
 
 def accuracy():
@@ -93,20 +129,22 @@ def _print_polished(case, ra, rf, ta, tf):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--sizes", type=float, nargs="*", default=[10.0, 5.0, 2.8, 1.8])
-    ap.add_argument("--iters", type=int, default=50)
     ap.add_argument("--skip-fem", action="store_true")
     ap.add_argument("--skip-iteration", action="store_true")
     ap.add_argument("--accuracy", action="store_true",
                     help="phantom.toml (size 6), all four actuators 15 mm: ADMM vs reference")
     a = ap.parse_args()
     pushes = {"A1": 2.0, "A2": 2.0, "A3": 2.0, "A4": 2.0}
+    print(f"[machine] {_load()}", flush=True)
 
     # 1. one ADMM iteration at ~1.7k tets (phantom size 10)
     case10 = load_case(CASE, size=10.0)
-    for iters in (() if a.skip_iteration else (50, 200)):
-        ms = time_per_iteration(case10, iters, pushes)
-        print(f"[iteration] phantom size 10: {case10.mesh.n_cells} tets, {ms:.3f} ms per ADMM "
-              f"iteration, mean over iterations 10..{iters} (target <= 0.5 ms; seed: 18.75 ms)",
+    if not a.skip_iteration:
+        t = time_per_iteration(case10, pushes)
+        print(f"[iteration] phantom size 10: {case10.mesh.n_cells} tets, "
+              f"{t['cpu'][0]:.3f} ms per ADMM iteration CPU (median {t['cpu'][1]:.3f}), wall "
+              f"{t['wall'][0]:.3f} (median {t['wall'][1]:.3f}); min/median of 5 repeats of "
+              f"(220 - 20 iterations) (target <= 0.5 ms; seed: 18.75 ms); {_load()}",
               flush=True)
 
     # 2. warm re-solve after a 0.5 mm increment, to 0.05 mm, vs reference Newton
@@ -133,28 +171,37 @@ def main():
     if a.accuracy:
         accuracy()
 
-    # 3. scaling
+    # 3. scaling: per-iteration time of real solves (2 mm pushes from rest to SCALING_TOL),
+    # peak memory of a fresh setup + 5 iterations
     rows = []
     for s in a.sizes:
         t = time.perf_counter()
         mesh = phantom(s)
         case = load_case(CASE, mesh=mesh)
         tm = time.perf_counter() - t
-        ms = time_per_iteration(case, a.iters, pushes)
-        mem = peak_memory_mib(case, pushes)
-        lu = admm.prepare(case.with_pushes(pushes)).lu
-        nnz = lu.nnz if hasattr(lu, "nnz") else lu.L.nnz + lu.U.nnz
-        lu_mib = nnz * 12 / 2 ** 20  # SuperLU factors (not seen by tracemalloc)
-        rows.append((case.mesh.n_cells, ms, mem + lu_mib))
-        print(f"[scaling] size {s}: {case.mesh.n_cells} tets, {ms:.3f} ms/iteration, peak "
-              f"{mem:.1f} MiB numpy (tracemalloc) + {lu_mib:.1f} MiB x-step LU factors "
-              f"(mesh {tm:.1f} s)", flush=True)
+        admm._CACHE.clear()
+        t = time.process_time()
+        ops = admm.prepare(case.with_pushes(pushes))
+        ts = time.process_time() - t
+        stats = getattr(ops.lu.groups[0][0], "count", None) if hasattr(ops.lu, "groups") else None
+        if stats is not None:
+            stats[:] = [0, 0]
+        w, c, its, conv = time_per_iteration_of_solve(case, pushes)
+        pcg = f", {stats[1] / max(stats[0], 1):.1f} CG iterations per x-step" if stats else ""
+        mem, lu_mib = peak_memory_mib(case, pushes)
+        rows.append((case.mesh.n_cells, c, w, mem + lu_mib))
+        print(f"[scaling] size {s}: {case.mesh.n_cells} tets, {case.mesh.n_vertices} vertices, "
+              f"x-step {ops.lu.kind}{pcg}: {c:.3f} ms/iteration CPU ({w:.3f} wall), {its} "
+              f"iterations to {SCALING_TOL} mm (converged {conv}); peak {mem:.1f} MiB numpy "
+              f"(tracemalloc) + {lu_mib:.1f} MiB SuperLU factors; setup {ts:.2f} s CPU "
+              f"(mesh {tm:.1f} s); {_load()}", flush=True)
     if len(rows) >= 2:
-        n, t, m = map(np.array, zip(*rows))
-        kt = np.polyfit(np.log(n), np.log(t), 1)[0]
+        n, c, w, m = map(np.array, zip(*rows))
+        kc = np.polyfit(np.log(n), np.log(c), 1)[0]
+        kw = np.polyfit(np.log(n), np.log(w), 1)[0]
         km = np.polyfit(np.log(n), np.log(m), 1)[0]
-        print(f"[scaling] growth exponent: time per iteration ~ n^{kt:.2f} (target <= 1.1), "
-              f"peak memory (numpy + LU) ~ n^{km:.2f}")
+        print(f"[scaling] growth exponent (least squares on log-log): time per iteration ~ "
+              f"n^{kc:.2f} CPU, n^{kw:.2f} wall (target <= 1.1), peak memory ~ n^{km:.2f}")
 
 
 if __name__ == "__main__":
