@@ -146,3 +146,17 @@ def test_cli_reports_bad_case_without_traceback(tmp_path):
     p = subprocess.run([tissue, "solve", str(tmp_path / "c.toml")], capture_output=True, text=True)
     assert p.returncode == 2
     assert "unknown region 'floor'" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_written_files_get_the_umask_mode_not_the_private_temporary_mode(tmp_path):
+    """Outputs are written to a temporary and renamed; the temporary's 0600 must not leak into
+    the result (ParaView on another account could not open it)."""
+    import os
+
+    old = os.umask(0o022)
+    try:
+        out = tmp_path / "m.vtu"
+        write_mesh(box(size=1.0, lengths=(1.0, 1.0, 1.0)), out)
+    finally:
+        os.umask(old)
+    assert out.stat().st_mode & 0o777 == 0o644
