@@ -1,0 +1,33 @@
+"""Fast solvers of issue 3, by name: ``get_solver("admm")`` -> ``solvers.admm.solve``.
+
+Every registered ``solve(case, *, pushes=None, initial=None, callback=None, progress=False, ...)``
+returns a ``meshes.results.SolveResult``. Modules are imported on first use (importing this
+package stays cheap); a module that cannot be imported raises ImportError from ``get_solver``.
+"""
+from __future__ import annotations
+
+import importlib
+
+__all__ = ["SOLVERS", "get_solver", "solver_module"]
+
+# name -> module whose ``solve`` it is
+SOLVERS = {
+    "admm": "solvers.admm",
+    "mass-tensor": "solvers.mass_tensor",
+}
+
+
+def solver_module(name: str):
+    """The module of the fast solver ``name`` (ImportError if it cannot be imported)."""
+    try:
+        modname = SOLVERS[name]
+    except KeyError:
+        from meshes.errors import CaseError
+
+        raise CaseError(f"unknown fast solver {name!r}; solvers: {sorted(SOLVERS)}") from None
+    return importlib.import_module(modname)
+
+
+def get_solver(name: str):
+    """``solve`` function of the fast solver ``name`` ("admm", "mass-tensor")."""
+    return solver_module(name).solve

@@ -40,6 +40,30 @@ def test_json_has_the_issue_3_keys_for_every_solver(run, small_case):
     assert "mass-tensor" in on_disk["solvers"]
 
 
+def test_json_has_admm_and_reference_iteration_counts(run):
+    _, out = run
+    on_disk = json.loads((out / "verify.json").read_text())
+    for r in on_disk["reference"]["runs"].values():
+        assert r["newton_iterations"] >= 1 and r["first_call_wall_time_s"] > 0
+    e = on_disk["solvers"]["admm"]
+    assert e["admm_iterations"] >= 1 and e["newton_iterations"] >= 0
+    assert e["iterations"] == e["admm_iterations"] + e["newton_iterations"]
+    assert e["reference_newton_iterations"] == on_disk["reference"]["runs"]["neo-hookean"][
+        "newton_iterations"]
+    html = (out / "report" / "report.html").read_text()
+    assert "ADMM its" in html and "Newton its" in html
+
+
+def test_solver_registry_resolves_names_and_rejects_unknown_ones():
+    import solvers
+    from solvers import admm, mass_tensor
+
+    assert solvers.get_solver("admm") is admm.solve
+    assert solvers.get_solver("mass-tensor") is mass_tensor.solve
+    with pytest.raises(CaseError, match="newton"):
+        solvers.get_solver("newton")
+
+
 def test_mass_tensor_compared_with_the_linear_reference_of_the_same_E_nu(run, small_case):
     res, _ = run
     e = res["solvers"]["mass-tensor"]

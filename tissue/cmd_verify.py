@@ -19,10 +19,13 @@ def run(args) -> int:
     print(f"{case.name}: {case.mesh.n_vertices} vertices, {case.mesh.n_cells} cells, "
           f"pushes {pushes or '{}'} (mm)")
     for model, r in res["reference"]["runs"].items():
-        print(f"  reference {model}: {r['iterations']} Newton its, {r['wall_time_s']:.3f} s")
+        print(f"  reference {model}: {r['newton_iterations']} Newton its, {r['wall_time_s']:.3f} s "
+              f"(first call {r['first_call_wall_time_s']:.3f} s)")
     for name, e in res["solvers"].items():
+        its = (f"its {e['iterations']} (ADMM {e['admm_iterations']} + Newton "
+               f"{e['newton_iterations']})" if "admm_iterations" in e else f"its {e['iterations']}")
         print(f"  {name:20s} max {e['max_vertex_error_mm']:.4g} mm  rms {e['rms_vertex_error_mm']:.4g} mm"
-              f"  its {e['iterations']}  {e['wall_time_s']:.3f} s  "
+              f"  {its}  {e['wall_time_s']:.3f} s  "
               f"x{e['speedup_vs_reference']:.2f} vs reference ({e['reference_model']})")
         print("    probes: " + ", ".join(f"{k} {v:.4g}" for k, v in e["probe_error_mm"].items()))
     if "report" in res:
