@@ -288,6 +288,7 @@ class Case:
         val: dict[int, float] = {}
         own: dict[int, str] = {}
         sliding = []
+        oblique_names = []
 
         def put(verts, comp, values, region):
             for v, x in zip(verts.tolist(), np.broadcast_to(values, len(verts)).tolist()):
@@ -324,6 +325,18 @@ class Case:
                     put(verts, k, g * np.sign(n[k]), b.region)
                 else:
                     sliding.append((verts, n, g))
+                    oblique_names.append(b.region)
+        # an oblique sliding vertex whose every component is also prescribed elsewhere must agree
+        for (verts, n, g), region in zip(sliding, oblique_names):
+            for v in verts.tolist():
+                ks = [d * v + c for c in range(d)]
+                if all(k in val for k in ks):
+                    un = sum(val[k] * n[c] for c, k in enumerate(ks))
+                    if abs(un - g) > 1e-9 * max(1.0, abs(g)):
+                        raise CaseError(
+                            f"{self.source or self.name}: conflicting prescriptions on vertex {v}: "
+                            f"region {own[ks[0]]!r} fixes its displacement, so u.n = {un:g} mm, "
+                            f"but sliding region {region!r} sets u.n = {g:g} mm")
         dofs = np.array(sorted(val), dtype=np.int64)
         return VertexConstraints(dofs, np.array([val[k] for k in dofs.tolist()]), tuple(sliding),
                                  tuple(own[k] for k in dofs.tolist()))

@@ -116,6 +116,19 @@ def test_conflicting_prescriptions_on_one_vertex_are_rejected():
                                  Boundary("xmin", "displacement", value=[1.0, 0, 0])])
 
 
+def test_oblique_sliding_that_contradicts_a_fixed_edge_is_rejected_when_built():
+    m = box(5.0)
+    n = [1.0, 1.0, 0.0]
+    # the edge shared by zmin (fixed) and the oblique sliding face xmin: u = 0 there, so u.n = 0
+    ok = Case(mesh=m, boundaries=[Boundary("zmin", "fixed"),
+                                  Boundary("xmin", "sliding", normal=n, value=0.0)])
+    assert len(ok.constraints.sliding) == 1
+    with pytest.raises(CaseError, match="conflicting prescriptions on vertex .* sliding region "
+                                        "'xmin' sets u.n = 0.5 mm"):
+        Case(mesh=m, boundaries=[Boundary("zmin", "fixed"),
+                                 Boundary("xmin", "sliding", normal=n, value=0.5)])
+
+
 def test_unknown_actuator_push_is_named():
     c = load_case(ROOT / "meshes/cases/phantom.toml", size=14)
     with pytest.raises(CaseError, match="unknown actuator 'A9'"):
