@@ -23,8 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from implant.pipeline import PlanSettings, plan_implant, synthetic_patient
-from implant.registration import (RigidTransform, icp, rotation_angle_deg,
-                                  surface_distances)
+from implant.registration import RigidTransform, icp, rotation_angle_deg, surface_distances
 from implant.surface import vertex_normals
 
 

@@ -25,8 +25,8 @@ PUSH = {"A1": 15.0, "A2": 15.0, "A3": 15.0, "A4": 15.0}
 
 def one(size: float, degree: int) -> dict:
     sys.path.insert(0, str(ROOT))
-    from meshes.case import load_case
     import fem_reference as fr
+    from meshes.case import load_case
 
     t0 = time.perf_counter()
     case = load_case(ROOT / "meshes/cases/phantom.toml", size=size)
@@ -63,7 +63,7 @@ def main():
                               str(args.degree)], capture_output=True, text=True, check=True)
         r = json.loads(out.stdout.strip().splitlines()[-1])
         rows.append(r)
-        print(f"{r['size']:6.2f} {r['tets']:8d} {r['dofs']:8d} {str(r['converged']):>5} "
+        print(f"{r['size']:6.2f} {r['tets']:8d} {r['dofs']:8d} {r['converged']!s:>5} "
               f"{r['load_steps']:5d} {r['newton']:6d} {r['linear']:>7} {r['factorizations']:6d} "
               f"{r['krylov']:6d} {r['solve_s']:8.2f} {r['assemble_s']:6.1f} {r['linear_s']:6.1f} "
               f"{r['setup_s']:8.2f} "

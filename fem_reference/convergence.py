@@ -13,7 +13,7 @@ from meshes.case import Case
 
 from .solver import ReferenceSolver
 
-__all__ = ["ConvergenceStudy", "refinement_study", "observed_order"]
+__all__ = ["ConvergenceStudy", "observed_order", "refinement_study"]
 
 
 @dataclass(frozen=True)

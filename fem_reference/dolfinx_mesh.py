@@ -8,13 +8,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-from mpi4py import MPI
-
 import dolfinx
 import dolfinx.cpp
+import numpy as np
 import ufl
 from dolfinx.mesh import meshtags_from_entities
+from mpi4py import MPI
+
 from meshes.mesh import MeshData
 
 __all__ = ["DolfinxMesh", "to_dolfinx"]

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import ufl
 
-__all__ = ["neo_hookean_psi", "linear_elastic_psi", "strain_energy_density", "first_piola"]
+__all__ = ["first_piola", "linear_elastic_psi", "neo_hookean_psi", "strain_energy_density"]
 
 
 def neo_hookean_psi(F, mu, kappa):

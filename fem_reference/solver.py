@@ -17,14 +17,14 @@ import sys
 import time
 from dataclasses import dataclass
 
-import numpy as np
-from mpi4py import MPI
-from petsc4py import PETSc
-
 import dolfinx
 import dolfinx.fem
 import dolfinx.fem.petsc
+import numpy as np
 import ufl
+from mpi4py import MPI
+from petsc4py import PETSc
+
 from meshes.case import Case
 from meshes.errors import CaseError, ConvergenceError
 from meshes.results import SolveResult
@@ -32,8 +32,14 @@ from meshes.results import SolveResult
 from .dolfinx_mesh import DolfinxMesh, to_dolfinx
 from .forms import strain_energy_density
 
-__all__ = ["ReferenceSolver", "NewtonSettings", "Tangent", "solve", "tangent_stiffness",
-           "DEFAULT_QUADRATURE"]
+__all__ = [
+    "DEFAULT_QUADRATURE",
+    "NewtonSettings",
+    "ReferenceSolver",
+    "Tangent",
+    "solve",
+    "tangent_stiffness",
+]
 
 log = logging.getLogger("tissue.fem")
 for _name in ("UFL", "FFCx", "ffcx", "root"):
@@ -49,7 +55,7 @@ DEFAULT_QUADRATURE = {1: 1, 2: 4}
 LAGGED_ABOVE_DOFS = 1000
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _has_cholmod() -> bool:
     """Whether this PETSc build has SuiteSparse's CHOLMOD (Debian's has)."""
     try:

@@ -22,8 +22,16 @@ import numpy as np
 from meshes.errors import CaseError
 from meshes.mesh import MeshData, boundary_facets, cell_volumes
 
-__all__ = ["ImplantSpec", "implant_mesh", "SHAPES", "ANATOMICAL_ALPHA", "default_spec", "mesh_volume",
-           "shell_triangles", "CC"]
+__all__ = [
+    "ANATOMICAL_ALPHA",
+    "CC",
+    "SHAPES",
+    "ImplantSpec",
+    "default_spec",
+    "implant_mesh",
+    "mesh_volume",
+    "shell_triangles",
+]
 
 SHAPES = ("round", "anatomical")
 ANATOMICAL_ALPHA = 0.35

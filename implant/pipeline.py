@@ -22,14 +22,28 @@ from meshes.errors import CaseError
 from meshes.mesh import MeshData
 
 from .library import ImplantSpec, implant_mesh
-from .placement import (ImplantBC, Placement, TissueBC, implant_ground_targets, place_implant,
-                        tissue_boundary_conditions)
+from .placement import (
+    ImplantBC,
+    Placement,
+    TissueBC,
+    implant_ground_targets,
+    place_implant,
+    tissue_boundary_conditions,
+)
 from .rbf import MuscleFit, Thickness, muscle_surface
 from .surface import TriSurface, check_single_sheet, read_surface
 from .torso import SyntheticTorso, tissue_mesh
 
-__all__ = ["Patient", "PlanSettings", "ImplantPlan", "synthetic_patient", "patient_from_file",
-           "build_tissue", "plan_implant", "decimate"]
+__all__ = [
+    "ImplantPlan",
+    "Patient",
+    "PlanSettings",
+    "build_tissue",
+    "decimate",
+    "patient_from_file",
+    "plan_implant",
+    "synthetic_patient",
+]
 
 
 @dataclass(frozen=True)

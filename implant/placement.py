@@ -22,8 +22,15 @@ from meshes.mesh import MeshData, boundary_facets
 from .library import ImplantSpec
 from .surface import boundary_edges, closest_points, ray_hits, triangle_normals
 
-__all__ = ["Placement", "place_implant", "ImplantBC", "TissueBC", "implant_ground_targets",
-           "tissue_boundary_conditions", "SIDES"]
+__all__ = [
+    "SIDES",
+    "ImplantBC",
+    "Placement",
+    "TissueBC",
+    "implant_ground_targets",
+    "place_implant",
+    "tissue_boundary_conditions",
+]
 
 SIDES = ("left", "right")
 

@@ -23,7 +23,7 @@ from meshes.errors import CaseError
 
 from .surface import TriSurface, triangle_normals, vertex_normals
 
-__all__ = ["ImplicitRBF", "Thickness", "breast_mask", "muscle_surface", "MuscleFit"]
+__all__ = ["ImplicitRBF", "MuscleFit", "Thickness", "breast_mask", "muscle_surface"]
 
 
 @dataclass(frozen=True)
@@ -35,7 +35,7 @@ class ImplicitRBF:
     poly: np.ndarray  # (4,): c0, cx, cy, cz
 
     @classmethod
-    def fit(cls, centres, values) -> "ImplicitRBF":
+    def fit(cls, centres, values) -> ImplicitRBF:
         """Solve [[A, P], [P^T, 0]] [lambda; c] = [f; 0] with A_ij = |x_i - x_j|."""
         x = np.asarray(centres, float)
         f = np.asarray(values, float)

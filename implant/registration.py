@@ -17,8 +17,15 @@ from meshes.errors import CaseError
 
 from .surface import closest_points
 
-__all__ = ["RigidTransform", "ICPResult", "kabsch", "icp", "surface_distances", "DistanceStats",
-           "rotation_angle_deg"]
+__all__ = [
+    "DistanceStats",
+    "ICPResult",
+    "RigidTransform",
+    "icp",
+    "kabsch",
+    "rotation_angle_deg",
+    "surface_distances",
+]
 
 
 @dataclass(frozen=True)
@@ -44,11 +51,11 @@ class RigidTransform:
     def apply(self, x) -> np.ndarray:
         return np.asarray(x, float) @ self.R.T + self.t
 
-    def compose(self, other: "RigidTransform") -> "RigidTransform":
+    def compose(self, other: RigidTransform) -> RigidTransform:
         """self after other."""
         return RigidTransform(self.R @ other.R, self.R @ other.t + self.t)
 
-    def inverse(self) -> "RigidTransform":
+    def inverse(self) -> RigidTransform:
         return RigidTransform(self.R.T, -self.R.T @ self.t)
 
 

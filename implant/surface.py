@@ -16,8 +16,17 @@ from scipy.spatial import cKDTree
 
 from meshes.errors import CaseError, ReadError
 
-__all__ = ["TriSurface", "read_surface", "check_single_sheet", "boundary_edges", "vertex_normals",
-           "triangle_normals", "ray_hits", "closest_points", "SURFACE_SUFFIXES"]
+__all__ = [
+    "SURFACE_SUFFIXES",
+    "TriSurface",
+    "boundary_edges",
+    "check_single_sheet",
+    "closest_points",
+    "ray_hits",
+    "read_surface",
+    "triangle_normals",
+    "vertex_normals",
+]
 
 SURFACE_SUFFIXES = (".stl", ".ply", ".obj", ".vtk", ".vtu", ".off")
 
@@ -47,7 +56,7 @@ class TriSurface:
     def n_points(self) -> int:
         return len(self.points)
 
-    def compact(self) -> "TriSurface":
+    def compact(self) -> TriSurface:
         """Drop vertices used by no triangle (renumbering the triangles)."""
         used = np.unique(self.triangles)
         remap = -np.ones(len(self.points), dtype=np.int64)

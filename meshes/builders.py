@@ -28,8 +28,16 @@ from .errors import CaseError
 from .io import atomic_path, read_msh
 from .mesh import MeshData
 
-__all__ = ["phantom", "phantom3", "box", "rectangle", "BUILDERS", "build", "PhantomGeometry",
-           "PHANTOM"]
+__all__ = [
+    "BUILDERS",
+    "PHANTOM",
+    "PhantomGeometry",
+    "box",
+    "build",
+    "phantom",
+    "phantom3",
+    "rectangle",
+]
 
 
 @dataclass(frozen=True)

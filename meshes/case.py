@@ -20,8 +20,18 @@ import numpy as np
 from .errors import CaseError, ReadError
 from .mesh import MeshData, cell_volumes, check_cells
 
-__all__ = ["Material", "Boundary", "Probe", "Actuator", "Case", "load_case", "VertexConstraints",
-           "ProbeLocation", "BOUNDARY_TYPES", "MATERIAL_MODELS"]
+__all__ = [
+    "BOUNDARY_TYPES",
+    "MATERIAL_MODELS",
+    "Actuator",
+    "Boundary",
+    "Case",
+    "Material",
+    "Probe",
+    "ProbeLocation",
+    "VertexConstraints",
+    "load_case",
+]
 
 BOUNDARY_TYPES = ("fixed", "displacement", "affine", "sliding", "traction")
 MATERIAL_MODELS = ("neo-hookean", "linear-elastic")
@@ -208,7 +218,7 @@ class Case:
                                 f"components, got {a.direction!r}")
         if self.gravity is not None:
             object.__setattr__(self, "gravity", tuple(_vec(self.gravity, gdim, f"{where}: gravity")))
-        self.constraints
+        _ = self.constraints  # validates the prescriptions (raises on conflicts)
         self._check_rigid_body(where)
 
     # ----------------------------------------------------------------- validation
@@ -416,7 +426,7 @@ class Case:
         raise CaseError(f"{self.source or self.name}: unknown probe/target {name!r}; probes: "
                         f"{[p.name for p in self.probes]}")
 
-    def with_pushes(self, pushes: dict) -> "Case":
+    def with_pushes(self, pushes: dict) -> Case:
         """A new Case where each named actuator's region is displaced rigidly by
         ``push * direction`` (mm). Pushes replace any condition already on that region."""
         if not pushes:
@@ -429,10 +439,10 @@ class Case:
                  for n, a in acts.items()]
         return replace(self, boundaries=tuple(kept + added))
 
-    def with_material(self, **changes) -> "Case":
+    def with_material(self, **changes) -> Case:
         return replace(self, material=replace(self.material, **changes))
 
-    def with_mesh(self, mesh: MeshData) -> "Case":
+    def with_mesh(self, mesh: MeshData) -> Case:
         return replace(self, mesh=mesh)
 
     def dirichlet_regions(self) -> list[str]:

@@ -1,7 +1,14 @@
 """Exception hierarchy of the toolkit. Every message names the file, region or value at fault."""
 
-__all__ = ["TissueError", "ReadError", "WriteError", "CaseError", "MeshQualityError",
-           "ConvergenceError", "SolverDivergedError"]
+__all__ = [
+    "CaseError",
+    "ConvergenceError",
+    "MeshQualityError",
+    "ReadError",
+    "SolverDivergedError",
+    "TissueError",
+    "WriteError",
+]
 
 
 class TissueError(Exception):

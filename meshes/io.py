@@ -14,7 +14,7 @@ import numpy as np
 from .errors import ReadError, WriteError
 from .mesh import MeshData, orient_cells
 
-__all__ = ["read_msh", "read_mesh", "write_mesh", "write_point_data", "atomic_path", "WRITERS"]
+__all__ = ["WRITERS", "atomic_path", "read_mesh", "read_msh", "write_mesh", "write_point_data"]
 
 _CELL = {3: "tetra", 2: "triangle"}
 _FACET = {3: "triangle", 2: "line"}

@@ -10,7 +10,7 @@ import numpy as np
 
 from .errors import CaseError, MeshQualityError
 
-__all__ = ["MeshData", "cell_volumes", "quality", "boundary_facets", "MeshQuality"]
+__all__ = ["MeshData", "MeshQuality", "boundary_facets", "cell_volumes", "quality"]
 
 
 @dataclass(frozen=True)

@@ -71,10 +71,9 @@ iteration and the vertex.
 """
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field
-
-import logging
 
 import numpy as np
 import scipy.sparse as sp

@@ -7,14 +7,13 @@ import json
 import numpy as np
 import pytest
 
-from meshes.errors import CaseError
 from implant.library import ImplantSpec
 from implant.pipeline import PlanSettings, patient_from_file, plan_implant, synthetic_patient
 from implant.placement import place_implant
-from implant.registration import (RigidTransform, icp, kabsch, rotation_angle_deg,
-                                  surface_distances)
+from implant.registration import RigidTransform, icp, kabsch, rotation_angle_deg, surface_distances
 from implant.surface import closest_points
 from implant.torso import SyntheticTorso, grid_triangles
+from meshes.errors import CaseError
 
 
 @pytest.fixture(scope="module")
@@ -147,6 +146,7 @@ def test_target_to_sliding_switch_keeps_the_points_on_the_implant(sliding_plan):
 def test_mass_tensor_plan_matches_the_direct_linear_solve_with_the_same_bcs(plan):
     """The seed's 'exact FEM solution': the same linear system solved directly (scipy)."""
     import scipy.sparse.linalg as spla
+
     from solvers.mass_tensor import MassTensorModel
 
     model = MassTensorModel(plan.tissue.points, plan.tissue.cells,

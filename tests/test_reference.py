@@ -7,10 +7,9 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
+import fem_reference as fr
 from meshes.builders import box
 from meshes.case import Boundary, Case, Material
-
-import fem_reference as fr
 
 MAT = Material("neo-hookean", E=6.0, nu=0.45)
 L = 10.0  # box edge, mm

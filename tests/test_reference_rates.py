@@ -1,14 +1,13 @@
 """Tier 2: a manufactured Neo-Hookean solution in 2D plane strain converges at the textbook rates
 (L2 error order 2 for P1, 3 for P2) under gmsh mesh refinement (size halved)."""
+import dolfinx.fem
 import numpy as np
 import pytest
 import ufl
 
-import dolfinx.fem
+import fem_reference as fr
 from meshes.builders import rectangle
 from meshes.case import Boundary, Case, Material
-
-import fem_reference as fr
 
 MAT = Material("neo-hookean", E=6.0, nu=0.3)
 L = 10.0

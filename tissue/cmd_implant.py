@@ -82,11 +82,11 @@ def reference_solve(plan, *, model: str = "linear-elastic"):
 
 
 def run(args) -> int:
-    from meshes.errors import CaseError
-    from meshes.results import write_json
     from implant.pipeline import PlanSettings, patient_from_file, plan_implant, synthetic_patient
     from implant.registration import icp, surface_distances
     from implant.surface import check_single_sheet, read_surface
+    from meshes.errors import CaseError
+    from meshes.results import write_json
 
     if args.skin is not None:
         if args.thickness is None:
@@ -115,7 +115,7 @@ def run(args) -> int:
                        "skin surface, same mesh and boundary conditions, breast surface",
            "converged": plan.converged, "implant_iterations": plan.implant_iterations,
            "n_cells": plan.tissue.n_cells, "n_vertices": plan.tissue.n_vertices,
-           "points": {k: int(len(v)) for k, v in (("target", plan.bc.target),
+           "points": {k: len(v) for k, v in (("target", plan.bc.target),
                                                   ("border", plan.bc.border),
                                                   ("free_ring", plan.bc.free_ring))},
            "sliding": settings.sliding, "free_ring_mm": settings.free_ring,
@@ -156,8 +156,8 @@ def run(args) -> int:
                          "icp_rms_mm": reg.rms_mm, "icp_iterations": reg.iterations}
         dist = st.distance
     if args.out is not None:
-        from meshes.io import write_mesh
         from implant.render import render_distance_png, write_surface_vtu
+        from meshes.io import write_mesh
 
         args.out.mkdir(parents=True, exist_ok=True)
         labels = np.zeros(plan.tissue.n_vertices)

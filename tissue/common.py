@@ -7,7 +7,7 @@ from pathlib import Path
 from meshes.case import Case, load_case
 from meshes.errors import CaseError
 
-__all__ = ["parse_pushes", "add_case_args", "case_from_args", "run_solver", "SOLVER_NAMES"]
+__all__ = ["SOLVER_NAMES", "add_case_args", "case_from_args", "parse_pushes", "run_solver"]
 
 SOLVER_NAMES = ("fem", "admm", "mass-tensor")
 
