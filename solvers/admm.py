@@ -51,8 +51,8 @@ until the largest Newton step is below ``polish_tol_mm``. With the polish, ADMM 
 each load step near Newton's basin: it hands over at ``handoff_mm`` (0.01 mm) or after
 ``max_iter`` iterations (default 20 with the polish, 20000 without); on the phantom with all
 four actuators pushed 15 mm (1782 tets) this cut the solve from 6486 ADMM iterations + 10 Newton
-(about 12.6 s in ``make demo``) to about 90 ADMM + 14 Newton iterations (under 1 s), same answer
-(to 1e-14 mm). Both iteration counts are reported (``extra["admm_iterations"]``,
+(about 12.6 s in ``make demo``) to 86 ADMM + 14 Newton iterations (about 1 s on the loaded
+development machine; the warm reference: 0.3-0.7 s), same answer (to 1e-11 mm). Both iteration counts are reported (``extra["admm_iterations"]``,
 ``extra["newton_iterations"]``).
 
 Large prescribed motions (e.g. 15 mm pushes) are applied in load steps of at most ``step_mm``;
@@ -71,7 +71,7 @@ factorized (a direct factor's fill and solve time grow like n^1.4-1.5 on these 3
 factor entries, 320 MiB and 130 ms per solve at 185k tets) but solved by conjugate gradients
 preconditioned with a smoothed-aggregation AMG V-cycle built here (scipy only; O(n) work and
 memory): the x-step is then inexact, warm-started from the previous iterate and stopped when its
-largest vertex update is below PCG_RTOL (0.1) times the first one or below XSTEP_TOL (0.1) times
+largest vertex update is below PCG_RTOL (0.3) times the first one or below XSTEP_TOL (0.1) times
 the ADMM tolerance; the ADMM stopping rule also requires the last CG update below ``tol_mm``.
 The x-step matrix is constant, so at an ADMM fixed point the warm start solves it exactly and
 the fixed point (the answer) is unchanged (``tests/test_admm.py`` compares both x-steps).
@@ -756,7 +756,7 @@ class AdmmOperators:
 
 PCG_MIN = 20000  # free vertices from which the x-step is solved by AMG-preconditioned CG
 PCG_ITERS = 1  # least warm-started PCG iterations per ADMM x-step
-PCG_RTOL = 0.1  # PCG x-step: ... or below PCG_RTOL times its first update
+PCG_RTOL = 0.3  # PCG x-step: ... or below PCG_RTOL times its first update
 XSTEP_TOL = 0.1  # PCG x-step: largest vertex update (mm) below XSTEP_TOL * tol_mm
 ROUNDS = 4
 CHUNK = 8192  # elements per cache block of the ADMM loop
