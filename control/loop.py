@@ -81,13 +81,14 @@ class LinearizedModel:
         self.case, self.solve, self.tangent, self.target = case, solve, tangent, target
         self._u = None
         self.solve_time_s = 0.0
+        self.retries: list[str] = []
 
     def jacobian(self, pushes: dict, u=None) -> np.ndarray:
         """u: the model's displacement at these pushes when already known (model = plant)."""
         t0 = time.perf_counter()
         if u is None:
-            r = self.solve(self.case, pushes, self._u)
-            check_prescribed(self.case, pushes, r, "controller model")
+            r = solve_checked(self.solve, self.case, pushes, self._u, "controller model",
+                              self.retries)
             u = r.u
         self._u = np.asarray(u)
         pushed = self.case.with_pushes(pushes)
@@ -131,6 +132,27 @@ class LoopResult:
                 "open_loop": _open_loop_json(ol),
                 "time_s": self.time_s.tolist(), "target_error_mm": self.error_mm.tolist(),
                 "actuator_positions_mm": self.pushes.tolist()}
+
+
+def solve_checked(solve, case, pushes, initial, who: str, retries: list | None = None):
+    """solve(case, pushes, initial) checked by :func:`check_prescribed`; when a warm-started solve
+    fails (ConvergenceError or a state that misses the pushes) it is retried once cold
+    (initial=None: the solver's own load path from the rest state) -- a warm start from a state far
+    from the new pushes can leave the solver's basin where the cold load path does not (reference,
+    phantom size 8: A2 = 52 mm converges cold, not warm-started from the previous open-loop step).
+    ``retries`` collects the warm failures' messages."""
+    try:
+        r = solve(case, pushes, initial)
+        check_prescribed(case, pushes, r, who)
+        return r
+    except ConvergenceError as exc:
+        if initial is None:
+            raise
+        if retries is not None:
+            retries.append(f"{who} at pushes {pushes}: {exc}")
+    r = solve(case, pushes, None)
+    check_prescribed(case, pushes, r, who + " (cold retry)")
+    return r
 
 
 def check_prescribed(case, pushes, r, who: str, *, rtol=1e-9):
@@ -218,6 +240,7 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
             closest=closest, pushes=u_open)
     rng = np.random.default_rng(settings.seed)
     mpc = PushOnlyMPC(na, mask, settings.mpc)
+    plant_retries: list[str] = []
     S = [s.copy()]
     X = [x0.copy()]
     y = x0 + (rng.normal(0.0, settings.noise_mm, d) if settings.noise_mm > 0 else 0.0)
@@ -228,8 +251,8 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
         st = mpc.step(J, y, x_goal, s)
         s = s + st.du
         pushes = dict(zip(acts, s.tolist()))
-        r = plant(plant_case, pushes, u_prev)
-        x = _measure(r, target, plant_case, pushes)
+        r = solve_checked(plant, plant_case, pushes, u_prev, "plant", plant_retries)
+        x = _measure(r, target)
         u_prev = r.u
         y = x + (rng.normal(0.0, settings.noise_mm, d) if settings.noise_mm > 0 else 0.0)
         S.append(s.copy())
@@ -246,7 +269,8 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
     return LoopResult(t, X, err, S, itae(t, err, settings.dt_s), float(err[-1]), retract,
                       np.array(mpc.solve_ms), x_goal, mask, acts, target, task, ol, wall,
                       {"model_time_s": model.solve_time_s, "J0": J0, "closed_loop_s": closed_s,
-                       "open_loop_s": wall - closed_s})
+                       "open_loop_s": wall - closed_s, "plant_retries": plant_retries,
+                       "model_retries": list(model.retries)})
 
 
 def _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, settings):
@@ -262,12 +286,13 @@ def _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, sett
     SO, XO = [], []
     u_prev = None
     failed = None
+    retries: list[str] = []
     for k, f in enumerate(phi):
         so = f * u_open
         try:
             po = dict(zip(acts, so.tolist()))
-            r = plant(plant_case, po, u_prev)
-            x = _measure(r, target, plant_case, po)
+            r = solve_checked(plant, plant_case, po, u_prev, "open-loop plant", retries)
+            x = _measure(r, target)
         except ConvergenceError as exc:
             failed = {"failed_at_step": k, "failed_pushes_mm": so.tolist(), "failure": str(exc)}
             break
@@ -277,7 +302,7 @@ def _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, sett
     SO, XO = np.array(SO), np.array(XO)
     eo = np.linalg.norm((x_goal - XO)[:, mask], axis=1)
     ol = {"itae": itae(t[:len(eo)], eo, settings.dt_s), "error_mm": eo, "pushes": SO,
-          "target": XO, "u_open": u_open, "converged": failed is None,
+          "target": XO, "u_open": u_open, "converged": failed is None, "retries": retries,
           "steady_state_error_mm": float(eo[-1]) if failed is None else None,
           "last_error_mm": float(eo[-1]) if len(eo) else None}
     if failed is not None:

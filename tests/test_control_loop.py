@@ -195,6 +195,31 @@ def test_a_converged_state_that_misses_the_pushes_is_refused(setup):
         run_closed_loop(StaleBoundary(plant, 3), case, model, "T1", 1,
                         settings=LoopSettings(steps=5, open_loop=False))
     bad_model = LinearizedModel(case, StaleBoundary(plant, 3), linear_tangent(K), "T1")
-    with pytest.raises(ConvergenceError, match="controller model solve reported success"):
+    with pytest.raises(ConvergenceError, match="controller model.* solve reported success"):
         run_closed_loop(plant, case, bad_model, "T1", 1,
                         settings=LoopSettings(steps=5, open_loop=False))
+
+
+class WarmFails:
+    """The linear plant, raising ConvergenceError on warm-started calls from call ``n`` on."""
+
+    def __init__(self, plant, n):
+        self.plant, self.n, self.calls = plant, n, 0
+
+    def __call__(self, case, pushes, initial=None):
+        self.calls += 1
+        if self.calls >= self.n and initial is not None:
+            raise ConvergenceError("test plant: warm start left the basin")
+        return self.plant(case, pushes, initial)
+
+
+def test_a_failed_warm_start_is_retried_cold_and_recorded(setup):
+    case, K, plant = setup
+    model = LinearizedModel(case, plant, linear_tangent(K), "T1")
+    ref = run_closed_loop(plant, case, model, "T1", 1, settings=LoopSettings(steps=6))
+    res = run_closed_loop(WarmFails(plant, 4), case, model, "T1", 1, settings=LoopSettings(steps=6))
+    np.testing.assert_allclose(res.pushes, ref.pushes, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(res.open_loop["error_mm"], ref.open_loop["error_mm"], atol=1e-12)
+    assert len(res.extra["plant_retries"]) == 6 - 2         # closed-loop calls 4..7 (1-based)
+    assert all("warm start left the basin" in m for m in res.extra["plant_retries"])
+    assert len(res.open_loop["retries"]) == 6               # open-loop steps 1..6 (step 0 cold)

@@ -121,7 +121,10 @@ def table1_row(t, task, res) -> dict:
             "mpc_step_median_ms": d["mpc_step_median_ms"], "wall_time_s": res.wall_time_s,
             "closed_loop_s": res.extra.get("closed_loop_s"),
             "model_time_s": res.extra.get("model_time_s"),
-            "open_loop_s": res.extra.get("open_loop_s")}
+            "open_loop_s": res.extra.get("open_loop_s"),
+            "cold_retries": {"plant": len(res.extra.get("plant_retries", [])),
+                             "model": len(res.extra.get("model_retries", [])),
+                             "open_loop_plant": len((res.open_loop or {}).get("retries", []))}}
 
 
 def table1_summary(rows, n_expected) -> dict:
