@@ -139,7 +139,8 @@ def inverse_push(Js, p, *, solver="highs", tol=1e-7):
         u = _travel_lp_casadi(Js, p_star, solver.split(":", 1)[1])
     else:
         if solver not in ("highs", "highs-ds", "highs-ipm"):
-            raise CaseError(f"unknown solver {solver!r}: highs, highs-ds, highs-ipm, casadi:<plugin>")
+            raise CaseError(f"unknown solver {solver!r}: highs, highs-ds, highs-ipm, "
+                            f"casadi:<plugin>")
         out = linprog(np.ones(r), A_eq=Js, b_eq=p_star, bounds=[(0, None)] * r, method=solver,
                       options={"primal_feasibility_tolerance": 1e-10,
                                "dual_feasibility_tolerance": 1e-10})
@@ -159,7 +160,8 @@ def _travel_lp_casadi(Js, p_star, plugin):
     sol = S(h=ca.DM(r, r), g=np.ones(r), a=Js, lba=p_star, uba=p_star, lbx=np.zeros(r),
             ubx=np.full(r, np.inf))
     if not S.stats()["success"]:
-        raise RuntimeError(f"least-travel LP failed (casadi {plugin}): {S.stats()['return_status']}")
+        raise RuntimeError(f"least-travel LP failed (casadi {plugin}): "
+                           f"{S.stats()['return_status']}")
     return np.maximum(np.asarray(sol["x"]).ravel(), 0.0)
 
 

@@ -45,7 +45,8 @@ __all__ = ["ControlJacobian", "probe_matrix", "point_matrix", "dirichlet_jacobia
 class ControlJacobian:
     """J (3 * n_targets, n_actuators), mm per mm (Dirichlet) or mm per mN (forces).
 
-    rows: names "T1.x", "T1.y", ...; ``block(target)`` is the (gdim, n_actuators) block of one target.
+    rows: names "T1.x", "T1.y", ...; ``block(target)`` is the (gdim, n_actuators) block of one
+    target.
     """
 
     J: np.ndarray
@@ -62,7 +63,8 @@ class ControlJacobian:
 
     def block(self, target: str) -> np.ndarray:
         if target not in self.targets:
-            raise CaseError(f"target {target!r} is not in this Jacobian; targets: {list(self.targets)}")
+            raise CaseError(f"target {target!r} is not in this Jacobian; targets: "
+                            f"{list(self.targets)}")
         i = self.targets.index(target)
         return self.J[self.gdim * i: self.gdim * (i + 1)]
 
@@ -107,7 +109,8 @@ def probe_matrix(case, targets=None, *, n_dofs=None) -> sp.csr_matrix:
 
 def point_matrix(mesh, points, *, n_dofs=None):
     """P1 interpolation (gdim * n_points, n_dofs) at arbitrary points (mm) and a mask of the
-    points that lie inside the mesh (to 1e-9 in barycentric weights). Outside points get zero rows."""
+    points that lie inside the mesh (to 1e-9 in barycentric weights). Outside points get zero
+    rows."""
     from scipy.spatial import cKDTree
 
     X, cells = mesh.points, mesh.cells
@@ -277,7 +280,8 @@ def fd_jacobian(plant, case, state_pushes=None, *, h=0.05, actuators=None, targe
     """Central finite differences (mm/mm) of the nonlinear solve with respect to each push:
     (x(s + h e_i) - x(s - h e_i)) / (2 h), every actuator held (pushes of 0 included).
 
-    plant(case, pushes, initial_u) -> SolveResult with ``probes`` (name -> displacement, mm) and ``u``.
+    plant(case, pushes, initial_u) -> SolveResult with ``probes`` (name -> displacement, mm) and
+    ``u``.
     h in mm. Raises ConvergenceError when a solve does not converge.
     """
     t0 = time.perf_counter()

@@ -10,8 +10,9 @@ One step (quasi-static, ``dt_s`` seconds of the time axis each):
      seeded, mm).
 
 Open loop: pushes u_open from the *initial* J_s by eq. 22 (least travel, push only), applied with
-the closed loop's time profile u_open(t_k) = u_open * phi_k, phi_k = sum_i s_i(t_k) / sum_i s_i(t_end)
-(non-decreasing, so the open loop never retracts either), no feedback.
+the closed loop's time profile u_open(t_k) = u_open * phi_k,
+phi_k = sum_i s_i(t_k) / sum_i s_i(t_end) (non-decreasing, so the open loop never retracts
+either), no feedback.
 
 Metrics on the controlled coordinates of the task (free ones excluded), with the noise-free plant
 position: error e_k = ||mask * (x_goal - x_k)||_2 (mm); ITAE (eq. 26) = sum_k t_k e_k dt (mm s^2,
@@ -63,9 +64,11 @@ class LoopSettings:
                 raise CaseError(f"loop setting {name} must be > 0, got {name}={v!r}")
         if not (isinstance(self.noise_mm, (int, float)) and np.isfinite(self.noise_mm)
                 and self.noise_mm >= 0):
-            raise CaseError(f"loop setting noise_mm must be >= 0 mm, got noise_mm={self.noise_mm!r}")
+            raise CaseError(f"loop setting noise_mm must be >= 0 mm, "
+                            f"got noise_mm={self.noise_mm!r}")
         if not isinstance(self.mpc, MPCSettings):
-            raise CaseError(f"loop setting mpc must be an MPCSettings, got {type(self.mpc).__name__}")
+            raise CaseError(f"loop setting mpc must be an MPCSettings, "
+                            f"got {type(self.mpc).__name__}")
 
 
 class LinearizedModel:

@@ -12,11 +12,11 @@ QP solved every step (eq. 25, condensed over the horizon, decision variables du_
          du_h <= max_step                   (optional, mm per step)
          s + sum_h du_h <= max_travel       (optional, mm; s = current pushes)
 
-Decision on "u_i . d_i >= 0": the seed's u is the per-step displacement variation delta x_c (eq. 23),
-so the constraint is imposed on every increment; cumulative pushes are then non-decreasing and
-non-negative from the rest state -- zero retraction by construction. Q = q diag(mask): a free
-coordinate of the task (and z) is not weighted. Units: Q in 1/mm^2, R in 1/mm^2 (only their ratio
-matters).
+Decision on "u_i . d_i >= 0": the seed's u is the per-step displacement variation delta x_c
+(eq. 23), so the constraint is imposed on every increment; cumulative pushes are then
+non-decreasing and non-negative from the rest state -- zero retraction by construction.
+Q = q diag(mask): a free coordinate of the task (and z) is not weighted. Units: Q in 1/mm^2, R in
+1/mm^2 (only their ratio matters).
 
 Built once with ``casadi.qpsol`` (parameters J_s, x, x_ref, s); the default conic plugin is
 qpOASES (active set: exact to round-off at its solution), checked against HiGHS and a bounded
@@ -54,7 +54,8 @@ def _positive(name, value, *, allow_none=False, integer=False):
     if integer:
         ok = ok and float(value) == int(value)
     if not ok:
-        raise CaseError(f"MPC setting {name} must be a positive {'integer' if integer else 'number'}"
+        kind = "integer" if integer else "number"
+        raise CaseError(f"MPC setting {name} must be a positive {kind}"
                         f"{' or None' if allow_none else ''}, got {name}={value!r}")
 
 
@@ -88,7 +89,8 @@ class MPCSettings:
 @dataclass(frozen=True)
 class MPCStep:
     """du: first increment applied (mm, >= 0); plan: (Np, n_act) planned increments (mm);
-    predicted: (Np, gdim) predicted target positions (mm); cost; solve_ms: wall time of the QP call."""
+    predicted: (Np, gdim) predicted target positions (mm); cost; solve_ms: wall time of the QP
+    call."""
 
     du: np.ndarray
     plan: np.ndarray
@@ -157,7 +159,8 @@ class PushOnlyMPC:
         the QP solver fails."""
         J_s = np.asarray(J_s, float)
         if J_s.shape != (self.ny, self.na):
-            raise CaseError(f"J_s of shape {J_s.shape} does not match the MPC ({self.ny}, {self.na})")
+            raise CaseError(f"J_s of shape {J_s.shape} does not match the MPC "
+                            f"({self.ny}, {self.na})")
         x = np.asarray(x, float).reshape(self.ny)
         x_ref = np.asarray(x_ref, float).reshape(self.ny)
         s0 = np.zeros(self.na) if pushes is None else np.asarray(pushes, float).reshape(self.na)

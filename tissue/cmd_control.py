@@ -268,8 +268,9 @@ def run_manipulability(args) -> int:
         fig.savefig(tmp, format="png", dpi=100)
     plt.close(fig)
     for name, mp in maps:
-        print(name + ": " + ", ".join(f"task {t} median index {np.nanmedian(mp[f'task{t}']['index']):.4f}"
-                                      for t in (1, 2, 3)))
+        med = [np.nanmedian(mp[f"task{t}"]["index"]) for t in (1, 2, 3)]
+        print(name + ": " + ", ".join(f"task {t} median index {m:.4f}"
+                                      for t, m in zip((1, 2, 3), med)))
     return 0
 
 
