@@ -246,11 +246,7 @@ class ReferenceSolver:
             self.ksp.setTolerances(rtol=1e-10, atol=1e-14, max_it=2000)
             self.ksp.getPC().setType("gamg")
             self.A.setNearNullSpace(self._rigid_body_nullspace())
-            self.direct_ksp = PETSc.KSP().create(comm)
-            self.direct_ksp.setOperators(self.A)
-            self.direct_ksp.setType("preonly")
-            self.direct_ksp.getPC().setType("cholesky")
-            self.direct_ksp.getPC().setFactorSolverType("mumps")
+            self.direct_ksp = self._factor_ksp("mumps")
         else:
             # serial "lagged": CHOLMOD's supernodal LL^T (METIS ordering) factorizes ~1.6x and
             # solves ~3x faster than MUMPS here; a tangent that is not positive definite switches
@@ -420,13 +416,9 @@ class ReferenceSolver:
         self.A.assemble()
         self.timings.assemble += time.perf_counter() - t0
 
-    def _use_factor(self, pkg: str):
-        """(Re)build the factorizing KSP with ``pkg`` ("mumps" or "cholmod"); P is made at the
-        next refresh."""
-        self.factor_package = pkg
-        self.P = None
-        self._T = None
-        self._refactor = True
+    def _factor_ksp(self, pkg: str):
+        """KSP whose preconditioner is a Cholesky factorization by ``pkg`` ("mumps" or
+        "cholmod"): GMRES around it for "lagged", the factorization alone otherwise."""
         k = PETSc.KSP().create(self.comm)
         k.setOperators(self.A)
         k.getPC().setType("cholesky")
@@ -440,31 +432,39 @@ class ReferenceSolver:
             k.setTolerances(rtol=1e-10, atol=1e-300, max_it=m)
         else:
             k.setType("preonly")
-        self.ksp = self.direct_ksp = k
+        return k
+
+    def _use_factor(self, pkg: str):
+        """(Re)build the factorizing KSP with ``pkg``; P is made at the next refresh."""
+        self.factor_package = pkg
+        self.P = None
+        self._T = None
+        self._refactor = True
+        self.ksp = self.direct_ksp = self._factor_ksp(pkg)
 
     def _refresh_factor(self):
         """Copy the current tangent into the matrix that is factorized (the factorization itself
         happens at the next solve; PETSc reuses the symbolic analysis, the pattern being fixed).
         MUMPS reads SBAIJ (the upper half); CHOLMOD reads a point-block (bs 1) AIJ."""
         # (petsc4py's convert() without a target converts in place: always pass one)
+        first = self.P is None
         if self.factor_package == "cholmod":
             if self._T is None:
                 self._T = PETSc.Mat()
             self.A.convert("aij", self._T)
             ai, aj, av = self._T.getValuesCSR()
-            if self.P is None:
+            if first:
                 self.P = PETSc.Mat().createAIJ(self.A.getSize(), csr=(ai, aj, av), comm=self.comm)
                 self.P.setOption(PETSc.Mat.Option.SYMMETRIC, True)
-                self.ksp.setOperators(self.A, self.P)
             else:
                 self.P.setValuesCSR(ai, aj, av)
                 self.P.assemble()
-        elif self.P is None:
-            self.P = PETSc.Mat()
-            self.A.convert("sbaij", self.P)
-            self.ksp.setOperators(self.A, self.P)
         else:
+            if first:
+                self.P = PETSc.Mat()
             self.A.convert("sbaij", self.P)
+        if first:
+            self.ksp.setOperators(self.A, self.P)
         self._refactor = False
         self.timings.factorizations += 1
 
