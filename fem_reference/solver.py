@@ -585,8 +585,10 @@ class ReferenceSolver:
         """Solve ``case`` (default: the one given at construction) with ``pushes`` applied.
 
         pushes: actuator name -> push (mm) along its direction.
-        initial: (n_vertices, gdim) warm start in the Case numbering (degree 1), or a previous
-            SolveResult of this solver (any degree); the load path starts from the case's
+        initial: warm start: (n_vertices, gdim) in the Case numbering (at degree 2 the edge
+            nodes start at the mean of their end vertices), the full (n_nodes, gdim) degree-2
+            nodal state in Tangent node order, or a previous SolveResult of a reference solve on
+            this mesh (degree 2: its full nodal state); the load path starts from the case's
             prescribed values at fraction 0 scaled from there.
         dirichlet_override: (dofs, values): extra per-vertex prescriptions (node-major Case dofs,
             mm at full load), degree 1.
@@ -682,20 +684,87 @@ class ReferenceSolver:
         return self._result(case, True, iters, residual, wall, max(steps, 1), history, 1.0)
 
     # ------------------------------------------------------------------ state I/O
-    def _set_state(self, initial):
-        if isinstance(initial, SolveResult) and "dof_state" in initial.extra:
-            raise CaseError("warm start from a serialized state is not supported")
-        u0 = np.asarray(initial.u if isinstance(initial, SolveResult) else initial, float)
+    def _set_state(self, initial, *, exact: bool = False):
+        """Load a displacement state into the solver's field.
+
+        initial: a SolveResult of a reference solve (at degree 2 it carries the full nodal state,
+            ``extra["node_u"]`` with ``extra["node_points"]``), a (n_nodes, gdim) nodal array in
+            the ``Tangent`` node order (Case vertices first, then the edge nodes of
+            ``Tangent.node_points``), or (n_vertices, gdim) vertex values.
+        exact: the state itself is needed (tangent, internal forces), not a warm start. At degree
+            2 vertex values do not determine the edge nodes: a warm start fills them with the mean
+            of their end vertices (the P1 field), which is not the degree-2 solution away from
+            rest, so ``exact`` refuses vertex values unless they are all zero.
+        """
         n = self.case.mesh.n_vertices
-        if u0.shape != (n, self.gdim):
-            raise CaseError(f"initial displacement must have shape {(n, self.gdim)}, got {u0.shape}")
-        arr = self.u.x.array.reshape(-1, self.gdim)
+        d = self.gdim
+        arr = self.u.x.array.reshape(-1, d)
+        if isinstance(initial, SolveResult):
+            node_u = initial.extra.get("node_u") if self.degree == 2 else None
+            if node_u is not None:
+                self._set_nodes(self._nodes_in_own_order(np.asarray(node_u, float),
+                                                         initial.extra.get("node_points")))
+                return
+            u0 = np.asarray(initial.u, float)
+            source = f"a degree-{initial.degree} {initial.solver} SolveResult without the nodal " \
+                     f"state (extra['node_u'])"
+        else:
+            u0 = np.asarray(initial, float)
+            source = "vertex values"
+            if self.degree == 2 and u0.shape == (len(self.node_vertex), d) and u0.shape[0] != n:
+                if self.comm.size > 1:
+                    raise CaseError("a degree-2 nodal state array is accepted in serial only")
+                self._set_nodes(u0)
+                return
+        if u0.shape != (n, d):
+            shapes = f"{(n, d)}" if self.degree == 1 else \
+                f"{(len(self.node_vertex), d)} (all degree-2 nodes) or {(n, d)}"
+            raise CaseError(f"displacement state must have shape {shapes}, got {u0.shape}")
+        if exact and self.degree == 2 and np.any(u0):
+            raise CaseError(
+                f"degree-2 state from {source}: the edge nodes are not determined by the vertex "
+                f"values (their midpoint means are not the solver's state away from rest); pass "
+                f"the SolveResult of a degree-2 reference solve, the full nodal array "
+                f"({len(self.node_vertex)}, {d}) in Tangent node order (vertices, then edge "
+                f"nodes), or None for the solver's current state")
         vmask = self.node_vertex >= 0
         arr[vmask] = u0[self.node_vertex[vmask]]
         if self.degree == 2:
             # edge nodes: mean of the two end vertices (P1 field interpolated into P2)
             self._p1_into_p2(u0, arr)
         self.u.x.scatter_forward()
+
+    def _set_nodes(self, nodes):
+        """Set every node from a (n_nodes, gdim) array in the Tangent node order (serial)."""
+        self.u.x.array.reshape(-1, self.gdim)[:] = nodes[self._out_permutation()[0]]
+        self.u.x.scatter_forward()
+
+    def _output_node_points(self) -> np.ndarray:
+        """Coordinates of the nodes in the Tangent node order (vertices first, then edge nodes)."""
+        out_node = self._out_permutation()[0]
+        pts = np.empty((len(out_node), self.gdim))
+        pts[out_node] = self.V.tabulate_dof_coordinates()[:, :self.gdim]
+        return pts
+
+    def _nodes_in_own_order(self, node_u, node_points):
+        """A nodal state of some degree-2 reference solve on this mesh, reordered to this solver's
+        node order by the node coordinates."""
+        if self.comm.size > 1:
+            raise CaseError("a degree-2 nodal state is accepted in serial only")
+        own = self._output_node_points()
+        if node_u.shape != own.shape or node_points is None or \
+                np.shape(node_points) != own.shape:
+            raise CaseError(f"nodal state of shape {node_u.shape} does not fit this degree-2 "
+                            f"solver's {own.shape[0]} nodes")
+        node_points = np.asarray(node_points, float)
+        if np.array_equal(node_points, own):
+            return node_u
+        from scipy.spatial import cKDTree
+
+        dist, idx = cKDTree(node_points).query(own)
+        if np.any(dist > 1e-9 * max(1.0, np.abs(own).max())):
+            raise CaseError("nodal state: its node points are not this solver's degree-2 nodes")
+        return node_u[idx]
 
     def _p1_into_p2(self, u0, arr):
         V = self.V
@@ -788,6 +857,13 @@ class ReferenceSolver:
     def _result(self, case, converged, iters, residual, wall, steps, history, lam) -> SolveResult:
         u_v = self._vertex_field()
         energy = self.comm.allreduce(dolfinx.fem.assemble_scalar(self.W_form))
+        state = {}
+        if self.degree == 2 and self.comm.size == 1:
+            # the full P2 state (u holds the vertices only): tangent / internal_forces / warm
+            # starts from this result use it; arrays, so the JSON form leaves them out
+            nodes = np.empty((len(self.node_vertex), self.gdim))
+            nodes[self._out_permutation()[0]] = self.u.x.array.reshape(-1, self.gdim)
+            state = {"node_u": nodes, "node_points": self._output_node_points()}
         return SolveResult(
             u=u_v, converged=converged, iterations=iters, residual=float(residual),
             wall_time_s=wall, solver="fem", probes=self._probes(case, u_v),
@@ -798,7 +874,7 @@ class ReferenceSolver:
                    "assemble_s": self.timings.assemble, "linear_solve_s": self.timings.solve,
                    "linear_solver": self.linear_solver,
                    "factorizations": self.timings.factorizations,
-                   "krylov_iterations": self.timings.krylov_iterations})
+                   "krylov_iterations": self.timings.krylov_iterations, **state})
 
     # ------------------------------------------------------------------ residual / tangent
     def _out_permutation(self):
@@ -810,11 +886,13 @@ class ReferenceSolver:
         return out_node, (out_node[:, None] * self.gdim + np.arange(self.gdim)).ravel()
 
     def internal_forces(self, u=None) -> np.ndarray:
-        """Node-major residual f_int - f_ext (mN) at state ``u`` in the Case numbering (serial)."""
+        """Node-major residual f_int - f_ext (mN) at state ``u`` in the Case numbering (serial).
+
+        u: as for :meth:`tangent`."""
         if self.comm.size > 1:
             raise CaseError("internal_forces export runs in serial")
         if u is not None:
-            self._set_state(u)
+            self._set_state(u, exact=True)
         r = dolfinx.fem.petsc.assemble_vector(self.R_int_form)
         out = np.empty(len(r.array))
         out[self._out_permutation()[1]] = r.array
@@ -822,13 +900,19 @@ class ReferenceSolver:
         return out
 
     def tangent(self, u=None, *, pushes=None) -> Tangent:
-        """Exact tangent K at state ``u`` ((n_vertices, gdim) or SolveResult; default: current)."""
+        """Exact tangent K at state ``u`` (default: the solver's current state).
+
+        u: a SolveResult of a reference solve on this mesh, or an array: (n_vertices, gdim)
+        vertex values at degree 1; at degree 2 the full (n_nodes, gdim) nodal state in the
+        Tangent node order (vertices, then the edge nodes of ``Tangent.node_points``) -- degree-2
+        vertex values alone raise CaseError unless all zero (see :meth:`_set_state`).
+        """
         if self.comm.size > 1:
             raise CaseError("tangent export runs in serial (it returns one scipy matrix)")
         import scipy.sparse as sp
 
         if u is not None:
-            self._set_state(u)
+            self._set_state(u, exact=True)
         case = self.case.with_pushes(pushes or {})
         self.load.value = 1.0
         A = dolfinx.fem.petsc.assemble_matrix(self.K_form)
@@ -839,14 +923,10 @@ class ReferenceSolver:
         A.destroy()
         # permutation: local node -> output node (vertices first in Case order, then edge nodes)
         nv = self.case.mesh.n_vertices
-        nn = len(self.node_vertex)
-        d = self.gdim
-        out_node, perm = self._out_permutation()  # local dof -> output dof
+        perm = self._out_permutation()[1]  # local dof -> output dof
         P = sp.csr_matrix((np.ones(len(perm)), (perm, np.arange(len(perm)))), shape=(n, n))
         K = (P @ K @ P.T).tocsr()
-        x = self.V.tabulate_dof_coordinates()[:, :d]
-        node_points = np.empty((nn, d))
-        node_points[out_node] = x
+        node_points = self._output_node_points()
         bc_dofs = [perm[e[2]] for e in self._bcs(case, 1.0)]
         dd = np.unique(np.concatenate(bc_dofs)) if bc_dofs else np.zeros(0, np.int64)
         return Tangent(K, dd, node_points, nv, self.degree)
@@ -882,7 +962,9 @@ def solve(case: Case, *, degree: int = 1, pushes=None, initial=None, dirichlet_o
 
 
 def tangent_stiffness(case: Case, u=None, *, degree: int = 1, pushes=None) -> Tangent:
-    """Exact tangent K (scipy CSR, node-major, Case vertex numbering) at displacement ``u``."""
+    """Exact tangent K (scipy CSR, node-major, Case vertex numbering) at displacement ``u``
+    (default: rest). Degree 2: pass the SolveResult of a degree-2 reference solve (or its full
+    nodal state ``res.extra["node_u"]``); vertex values alone raise CaseError unless all zero."""
     s = _solver_for(case, degree)
     if u is None:
         u = np.zeros((case.mesh.n_vertices, case.mesh.gdim))

@@ -62,10 +62,10 @@ def reference_state(case, state_pushes, *, degree=1):
 
     Returns (SolveResult, Tangent, plant) where plant(case, pushes, initial) re-solves with the same
     solver instance. The tangent is taken from the solver's current dof vector right after the
-    solve: for degree 2 that is the full P2 state (edge nodes included), whereas
-    ``fem_reference.tangent_stiffness(case, res.u, degree=2)`` rebuilds the state from the vertex
-    values only (edge nodes = mean of their end vertices) and is *not* the tangent at the solution
-    away from the rest state (17% off J_s on the phantom at A1 = 3 mm).
+    solve: for degree 2 that is the full P2 state (edge nodes included), the state the SolveResult
+    carries too (``fem_reference.tangent_stiffness(case, res, degree=2)`` gives the same K). The
+    vertex values ``res.u`` alone do not determine it (edge nodes = mean of their end vertices is
+    *not* the solution away from rest: 17% off J_s on the phantom at A1 = 3 mm) and are refused.
     """
     from fem_reference import ReferenceSolver
 
