@@ -153,12 +153,15 @@ def inverse_push(Js, p, *, solver="highs", tol=1e-7):
 def _travel_lp_casadi(Js, p_star, plugin):
     import casadi as ca
 
+    from .mpc import quiet_qpoases
+
     m, r = Js.shape
     qp = {"h": ca.DM(r, r).sparsity(), "a": ca.DM(Js).sparsity()}
     opts = {"qpoases": {"printLevel": "none"}, "highs": {"highs": {"output_flag": False}}}
-    S = ca.conic("travel", plugin, qp, opts.get(plugin, {}))
-    sol = S(h=ca.DM(r, r), g=np.ones(r), a=Js, lba=p_star, uba=p_star, lbx=np.zeros(r),
-            ubx=np.full(r, np.inf))
+    with quiet_qpoases():
+        S = ca.conic("travel", plugin, qp, opts.get(plugin, {}))
+        sol = S(h=ca.DM(r, r), g=np.ones(r), a=Js, lba=p_star, uba=p_star, lbx=np.zeros(r),
+                ubx=np.full(r, np.inf))
     if not S.stats()["success"]:
         raise RuntimeError(f"least-travel LP failed (casadi {plugin}): "
                            f"{S.stats()['return_status']}")

@@ -24,7 +24,11 @@ least-squares solve in the tests.
 """
 from __future__ import annotations
 
+import contextlib
+import io
 import math
+import re
+import sys
 import time
 from dataclasses import dataclass
 
@@ -44,6 +48,28 @@ _PLUGIN_OPTS = {
     "proxqp": {"proxqp": {"eps_abs": 1e-10}},
     "qrqp": {"print_iter": False, "print_header": False},
 }
+
+# qpOASES prints its copyright banner from every QProblem constructor, printLevel "none" or not
+# (casadi builds one when the solver is built and another on its first call); casadi's Python
+# module writes it through sys.stdout. Only this block is dropped: anything else printed passes.
+_QPOASES_BANNER = re.compile(
+    r"^\n*qpOASES -- An Implementation of the Online Active Set Strategy\.\n"
+    r".*?See the GNU Lesser General Public License for more details\.\n\n*",
+    re.DOTALL | re.MULTILINE)
+
+
+@contextlib.contextmanager
+def quiet_qpoases():
+    """Drop qpOASES's copyright banner from what casadi prints to sys.stdout inside the block;
+    every other line (and every exception, and stderr) goes through unchanged."""
+    buf = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(buf):
+            yield
+    finally:
+        rest = _QPOASES_BANNER.sub("", buf.getvalue())
+        if rest:
+            sys.stdout.write(rest)
 
 
 def _positive(name, value, *, allow_none=False, integer=False):
@@ -141,7 +167,8 @@ class PushOnlyMPC:
             qp["g"] = s0 + cum
         opts = {"error_on_fail": False, "print_problem": False, "print_time": False}
         opts.update(_PLUGIN_OPTS.get(s.solver, {}))
-        self._solver = ca.qpsol("mpc", s.solver, qp, opts)
+        with quiet_qpoases():
+            self._solver = ca.qpsol("mpc", s.solver, qp, opts)
         self._ubx = np.full(na * Np, np.inf if s.max_step is None else s.max_step)
         self._warm = np.zeros(na * Np)
         self._pred = ca.Function("pred", [du, J, x0], [ca.horzcat(*[
@@ -172,7 +199,8 @@ class PushOnlyMPC:
                                 f"{self.settings.max_travel} mm")
             args.update(lbg=-np.inf, ubg=self.settings.max_travel)
         t0 = time.perf_counter()
-        sol = self._solver(**args)
+        with quiet_qpoases():
+            sol = self._solver(**args)
         ms = 1e3 * (time.perf_counter() - t0)
         st = self._solver.stats()
         if not st.get("success", False):

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
 
-from control.mpc import MPCSettings, PushOnlyMPC
+from control.controllability import inverse_push
+from control.mpc import MPCSettings, PushOnlyMPC, quiet_qpoases
 from meshes.errors import CaseError
 
 RNG = np.random.default_rng(7)
@@ -87,3 +88,22 @@ def test_bad_settings_are_named(kw, name):
 def test_wrong_jacobian_shape_is_refused():
     with pytest.raises(CaseError, match="J_s"):
         PushOnlyMPC(4, [True, False, False]).step(J[:, :3], np.zeros(3), np.ones(3))
+
+
+def test_qpoases_banner_is_not_printed(capsys):
+    x = np.array([0.0, 0.0, 15.0])
+    PushOnlyMPC(4, [True, False, False]).step(J, x, x + [-1.0, 0, 0])
+    inverse_push(J[:2], np.array([-1.0, -1.0]), solver="casadi:qpoases")
+    out = capsys.readouterr()
+    assert "qpOASES" not in out.out + out.err
+
+
+def test_quiet_qpoases_passes_everything_but_the_banner(capsys):
+    banner = ("\nqpOASES -- An Implementation of the Online Active Set Strategy.\nCopyright (C) "
+              "2007-2015 by ...\n\nSee the GNU Lesser General Public License for more details.\n\n")
+    with pytest.raises(RuntimeError, match="boom"), quiet_qpoases():
+        print("before")
+        print(banner, end="")
+        print("after")
+        raise RuntimeError("boom")
+    assert capsys.readouterr().out == "before\nafter\n"
