@@ -3,6 +3,7 @@ bad input, and agreement with the FEniCSx reference on the same P1 mesh."""
 import numpy as np
 import pytest
 import scipy.sparse.linalg as spla
+from fem_checks import central_differences, linear_p1_stiffness
 
 from meshes.builders import box
 from meshes.case import Boundary, Case, Material, load_case
@@ -34,12 +35,7 @@ def test_internal_forces_are_central_difference_of_strain_energy(small_box, mode
     case = _box_case(small_box, model)
     u = _random_u(case).ravel()
     f = admm.internal_forces(case, u)
-    rng = np.random.default_rng(1)
-    h = 1e-6
-    for k in rng.choice(u.size, 12, replace=False):
-        e = np.zeros_like(u)
-        e[k] = h
-        fd = (admm.strain_energy(case, u + e) - admm.strain_energy(case, u - e)) / (2 * h)
+    for k, fd in central_differences(lambda v: admm.strain_energy(case, v), u, 12, seed=1):
         assert fd == pytest.approx(f[k], rel=1e-6, abs=1e-7)
 
 
@@ -48,12 +44,7 @@ def test_tangent_is_central_difference_of_internal_forces(small_box, model):
     case = _box_case(small_box, model)
     u = _random_u(case).ravel()
     K = admm.tangent_stiffness(case, u)
-    rng = np.random.default_rng(2)
-    h = 1e-6
-    for k in rng.choice(u.size, 8, replace=False):
-        e = np.zeros_like(u)
-        e[k] = h
-        fd = (admm.internal_forces(case, u + e) - admm.internal_forces(case, u - e)) / (2 * h)
+    for k, fd in central_differences(lambda v: admm.internal_forces(case, v), u, 8, seed=2):
         col = K[:, k].toarray().ravel()
         assert np.abs(fd - col).max() <= 1e-6 * np.abs(col).max()
     assert abs(K - K.T).max() <= 1e-12 * abs(K).max()
@@ -73,39 +64,9 @@ def test_affine_boundary_values_give_the_affine_field_exactly(small_box, model):
     assert np.abs(res.u - exact).max() < 1e-9
 
 
-def _independent_linear_K(mesh, E, nu):
-    """Textbook P1 stiffness with Voigt B matrices, written independently of solvers.admm."""
-    import scipy.sparse as sp
-    lam = E * nu / ((1 + nu) * (1 - 2 * nu))
-    mu = E / (2 * (1 + nu))
-    Dm = np.zeros((6, 6))
-    Dm[:3, :3] = lam
-    Dm[np.arange(3), np.arange(3)] += 2 * mu
-    Dm[np.arange(3, 6), np.arange(3, 6)] = mu
-    rows, cols, vals = [], [], []
-    for cell in mesh.cells:
-        X = mesh.points[cell]
-        M = np.hstack([np.ones((4, 1)), X])
-        grads = np.linalg.inv(M)[1:].T  # (4, 3)
-        V = abs(np.linalg.det(M)) / 6
-        B = np.zeros((6, 12))
-        for a in range(4):
-            gx, gy, gz = grads[a]
-            B[:, 3 * a:3 * a + 3] = [[gx, 0, 0], [0, gy, 0], [0, 0, gz],
-                                      [gy, gx, 0], [0, gz, gy], [gz, 0, gx]]
-        Ke = V * B.T @ Dm @ B
-        dofs = (3 * cell[:, None] + np.arange(3)).ravel()
-        rows.append(np.repeat(dofs, 12))
-        cols.append(np.tile(dofs, 12))
-        vals.append(Ke.ravel())
-    n = 3 * len(mesh.points)
-    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                         shape=(n, n))
-
-
 def test_linear_elastic_solution_matches_direct_solve_of_independent_stiffness(small_box):
     case = _box_case(small_box, "linear-elastic", gravity=(0.0, 0.0, -9810.0))
-    K = _independent_linear_K(case.mesh, 6.0, 0.45)
+    K = linear_p1_stiffness(case.mesh, 6.0, 0.45)
     c = case.constraints
     u = np.zeros(K.shape[0])
     u[c.dofs] = c.values

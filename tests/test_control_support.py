@@ -6,8 +6,8 @@ import time
 from functools import lru_cache
 
 import numpy as np
-import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from fem_checks import linear_p1_stiffness as _p1_stiffness
 
 from meshes.case import Actuator, Boundary, Case, Material, Probe, load_case
 from meshes.mesh import MeshData
@@ -23,37 +23,11 @@ def phantom(path=PHANTOM, size=12.0):
 
 
 def linear_p1_stiffness(case, E=None, nu=None):
-    """Linear-elastic P1 stiffness (mN/mm), node-major, full size: sum_e V_e B_e^T D B_e."""
-    X, cells = case.mesh.points, case.mesh.cells
+    """Linear-elastic P1 stiffness (mN/mm), node-major, full size: sum_e V_e B_e^T D B_e
+    (fem_checks.linear_p1_stiffness) with the Case's material unless E / nu are given."""
     E = case.material.E if E is None else E
     nu = case.material.nu if nu is None else nu
-    lam = E * nu / ((1 + nu) * (1 - 2 * nu))
-    mu = E / (2 * (1 + nu))
-    D = np.zeros((6, 6))
-    D[:3, :3] = lam
-    D[np.arange(3), np.arange(3)] += 2 * mu
-    D[np.arange(3, 6), np.arange(3, 6)] = mu
-    rows, cols, vals = [], [], []
-    for cell in cells:
-        A = np.ones((4, 4))
-        A[:, 1:] = X[cell]
-        V = abs(np.linalg.det(A)) / 6.0
-        grads = np.linalg.inv(A)[1:].T          # (4, 3): gradient of each barycentric function
-        B = np.zeros((6, 12))
-        for a in range(4):
-            gx, gy, gz = grads[a]
-            B[0, 3 * a], B[1, 3 * a + 1], B[2, 3 * a + 2] = gx, gy, gz
-            B[3, 3 * a + 1], B[3, 3 * a + 2] = gz, gy      # yz
-            B[4, 3 * a], B[4, 3 * a + 2] = gz, gx          # xz
-            B[5, 3 * a], B[5, 3 * a + 1] = gy, gx          # xy
-        Ke = V * B.T @ D @ B
-        dofs = (3 * cell[:, None] + np.arange(3)).ravel()
-        rows.append(np.repeat(dofs, 12))
-        cols.append(np.tile(dofs, 12))
-        vals.append(Ke.ravel())
-    n = 3 * len(X)
-    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                         shape=(n, n))
+    return _p1_stiffness(case.mesh, E, nu)
 
 
 class LinearPlant:

@@ -1,0 +1,49 @@
+"""Shared helpers of the tests (no tests here): an independent linear-elastic P1 stiffness and
+central finite differences along coordinate directions."""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+
+def linear_p1_stiffness(mesh, E, nu) -> sp.csr_matrix:
+    """Textbook linear-elastic P1 stiffness (mN/mm), node-major, full size: sum_e V_e B_e^T D B_e
+    with Voigt B matrices, written independently of the project's solvers."""
+    X, cells = mesh.points, mesh.cells
+    lam = E * nu / ((1 + nu) * (1 - 2 * nu))
+    mu = E / (2 * (1 + nu))
+    D = np.zeros((6, 6))
+    D[:3, :3] = lam
+    D[np.arange(3), np.arange(3)] += 2 * mu
+    D[np.arange(3, 6), np.arange(3, 6)] = mu
+    rows, cols, vals = [], [], []
+    for cell in cells:
+        A = np.ones((4, 4))
+        A[:, 1:] = X[cell]
+        V = abs(np.linalg.det(A)) / 6.0
+        grads = np.linalg.inv(A)[1:].T          # (4, 3): gradient of each barycentric function
+        B = np.zeros((6, 12))
+        for a in range(4):
+            gx, gy, gz = grads[a]
+            B[0, 3 * a], B[1, 3 * a + 1], B[2, 3 * a + 2] = gx, gy, gz
+            B[3, 3 * a + 1], B[3, 3 * a + 2] = gz, gy      # yz
+            B[4, 3 * a], B[4, 3 * a + 2] = gz, gx          # xz
+            B[5, 3 * a], B[5, 3 * a + 1] = gy, gx          # xy
+        Ke = V * B.T @ D @ B
+        dofs = (3 * cell[:, None] + np.arange(3)).ravel()
+        rows.append(np.repeat(dofs, 12))
+        cols.append(np.tile(dofs, 12))
+        vals.append(Ke.ravel())
+    n = 3 * len(X)
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(n, n))
+
+
+def central_differences(fun, u, count, seed, h=1e-6):
+    """Yield (k, (fun(u + h e_k) - fun(u - h e_k)) / (2 h)) for ``count`` distinct coordinates k
+    of the flat array ``u``, drawn by ``np.random.default_rng(seed)``."""
+    rng = np.random.default_rng(seed)
+    for k in rng.choice(u.size, count, replace=False):
+        e = np.zeros_like(u)
+        e[k] = h
+        yield k, (fun(u + e) - fun(u - e)) / (2 * h)
