@@ -449,6 +449,25 @@ class Case:
         """Regions with a Dirichlet-type condition (fixed, displacement, affine, sliding)."""
         return [b.region for b in self.boundaries if b.type != "traction"]
 
+    @cached_property
+    def _owner_index(self):
+        names = list(dict.fromkeys(self.constraints.owner))
+        pos = {n: k for k, n in enumerate(names)}
+        return names, np.array([pos[o] for o in self.constraints.owner], dtype=np.int64)
+
+    def prescribed_reactions(self, r) -> dict:
+        """Region -> (gdim,) sum of r (mN, node-major (n*gdim,) or (n, gdim)) over the dofs that
+        region prescribes; every Dirichlet region is present (zeros where it prescribes no
+        dof, e.g. an oblique sliding one, whose share the solver adds)."""
+        d = self.mesh.gdim
+        c = self.constraints
+        names, idx = self._owner_index
+        sums = np.zeros((len(names), d))
+        np.add.at(sums, (idx, c.dofs % d), np.asarray(r, float).reshape(-1)[c.dofs])
+        out = {reg: np.zeros(d) for reg in self.dirichlet_regions()}
+        out.update(zip(names, sums))
+        return out
+
 
 # --------------------------------------------------------------------------- TOML
 def _case_from_dict(data: dict, base: Path, where: str, mesh: MeshData | None = None) -> Case:

@@ -131,7 +131,12 @@ def quality(mesh: MeshData) -> MeshQuality:
 
 
 def check_cells(mesh: MeshData, *, source: str = "mesh", rtol: float = 1e-12) -> None:
-    """Raise MeshQualityError naming the count and first ids of inverted or zero-volume cells."""
+    """Raise MeshQualityError naming the count and first ids of inverted or zero-volume cells.
+    A mesh that passed is remembered (MeshData is frozen): every Case built on it, e.g. by
+    ``Case.with_pushes`` in a control loop, skips the volume computation."""
+    key = (id(mesh.points), id(mesh.cells), rtol)
+    if getattr(mesh, "_cells_checked", None) == key:
+        return
     vol = cell_volumes(mesh.points, mesh.cells)
     scale = np.ptp(mesh.points, axis=0).max() ** mesh.gdim if mesh.n_vertices else 1.0
     bad = np.flatnonzero(vol <= rtol * scale)
@@ -140,6 +145,10 @@ def check_cells(mesh: MeshData, *, source: str = "mesh", rtol: float = 1e-12) ->
         raise MeshQualityError(
             f"{source}: {bad.size} inverted or zero-volume cells ({kinds}); first ids "
             f"{bad[:10].tolist()}, volumes {np.round(vol[bad[:3]], 6).tolist()}")
+    try:
+        object.__setattr__(mesh, "_cells_checked", key)
+    except (AttributeError, TypeError):  # a mesh-like object without a __dict__
+        pass
 
 
 def boundary_facets(cells: np.ndarray) -> np.ndarray:
@@ -147,7 +156,7 @@ def boundary_facets(cells: np.ndarray) -> np.ndarray:
     n = cells.shape[1]
     faces = np.concatenate([np.delete(cells, k, axis=1) for k in range(n)])
     s = np.sort(faces, axis=1)
-    uniq, inv, counts = np.unique(s, axis=0, return_inverse=True, return_counts=True)
+    uniq, counts = np.unique(s, axis=0, return_counts=True)
     return uniq[counts == 1]
 
 

@@ -820,10 +820,7 @@ def _reactions(case, r):
     """Region -> (d,) reaction (mN): r summed over the region's prescribed dofs / normals."""
     d = case.mesh.gdim
     c = case.constraints
-    out = {name: np.zeros(d) for name in case.dirichlet_regions()}
-    flat = r.reshape(-1)
-    for dof, owner in zip(c.dofs.tolist(), c.owner):
-        out.setdefault(owner, np.zeros(d))[dof % d] += flat[dof]
+    out = case.prescribed_reactions(r)
     oblique = [b for b in case.boundaries if b.type == "sliding"
                and _axis_of(np.asarray(b.normal, float) / np.linalg.norm(b.normal)) is None]
     taken = np.zeros((case.mesh.n_vertices, d), bool)
