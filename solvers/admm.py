@@ -95,6 +95,7 @@ import scipy.sparse.linalg as spla
 
 from meshes.errors import CaseError, SolverDivergedError
 from meshes.results import SolveResult
+from solvers import _ckernel
 
 __all__ = [
     "AdmmOperators",
@@ -311,6 +312,7 @@ class _Reduction:
     up: np.ndarray
     separable: bool = False
     plain_dofs: np.ndarray | None = None
+    ZT: sp.csr_matrix | None = None  # Z^T (scipy's .T builds a new matrix at every use)
 
 
 def _scalar_laplacian(kin, rho, n):
@@ -623,7 +625,8 @@ def _reduction(case) -> _Reduction:
             zv.append(b)
             col += 1
     Z = sp.csr_matrix((np.concatenate(zv), (np.concatenate(zr), np.concatenate(zc))), shape=(N, col))
-    return _Reduction(Z, up, separable=not len(slide_v), plain_dofs=plain_dofs)
+    return _Reduction(Z, up, separable=not len(slide_v), plain_dofs=plain_dofs,
+                      ZT=Z.T.tocsr())
 
 
 # =========================================================================== operators
@@ -685,6 +688,7 @@ class AdmmOperators:
         self.DZ = (D @ Z).tocsr()
         self.eye_soa = np.repeat(np.eye(d).ravel(), m)  # I of every element, (d, d, m) flat
         self.DZtW = (self.DZ.T.multiply(w2[None, :])).tocsr()
+        self.DZtW_I = self.DZtW @ self.eye_soa  # the identity's share of the x-step data
         L = (D.T.multiply(w2[None, :]) @ D).tocsr()
         self.L = L
         self.dt = dt
@@ -704,22 +708,23 @@ class AdmmOperators:
                 Ls = Ls + sp.diags(mv / dt ** 2)
             self.lu = _ComponentSolver(Ls.tocsr(), self.red.plain_dofs, d)
         else:
-            self.lu = _CoupledSolver(Z.T @ self.Mx @ Z)
+            self.lu = _CoupledSolver(self.red.ZT @ self.Mx @ Z)
         self.nq = Z.shape[1]
         self._kpat = None  # reduced tangent's CSR pattern (built on first use)
+        self._Dm = None  # gradient operator in mesh element order (built on first use)
         self.setup_s = time.perf_counter() - t0
 
     def reduced_tangent(self, u, diag=None):
         """(Z^T (K(u) + diag(diag)) Z as CSC, element matrices Ke): the tangent of the P1 energy
         on the reduced unknowns. Without oblique sliding it is assembled straight into a CSR
         pattern computed once (the matrix is symmetric, so its CSR arrays are its CSC)."""
-        Ke = _element_K(self.kin, self.law.tangent(_grad(self.kin, u)))
+        Ke = _element_K(self.kin, self.law.tangent(self.grad(u)))
         Z = self.red.Z
         if not self.red.separable:
             K = _assemble(self.kin, Ke, self.N)
             if diag is not None:
                 K = K + sp.diags(diag)
-            return (Z.T @ K @ Z).tocsc(), Ke
+            return (self.red.ZT @ K @ Z).tocsc(), Ke
         if self._kpat is None:
             nq = self.nq
             ridx = np.full(self.N, -1, np.int64)
@@ -740,6 +745,30 @@ class AdmmOperators:
             data[dpos] += diag[self.red.plain_dofs]
         return sp.csc_matrix((data, indices, indptr), shape=(self.nq, self.nq)), Ke
 
+    def _mesh_gradient(self):
+        """(D_m, D_m^T): the gradient operator in mesh element order with rows (k, i, J) (H of
+        element k at k d^2 + d i + J), CSR; built on first use."""
+        if self._Dm is None:
+            kin, m, d = self.kin, self.m, self.d
+            rows = np.broadcast_to((np.arange(m)[:, None, None, None] * d * d
+                                    + np.arange(d)[None, None, :, None] * d
+                                    + np.arange(d)[None, None, None, :]), (m, d + 1, d, d))
+            cols = np.broadcast_to(kin.dofs.reshape(m, d + 1, d)[:, :, :, None], (m, d + 1, d, d))
+            vals = np.broadcast_to(kin.G[:, :, None, :], (m, d + 1, d, d))
+            Dm = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())),
+                               shape=(m * d * d, self.N))
+            self._Dm = (Dm, Dm.T.tocsr())
+        return self._Dm
+
+    def grad(self, u):
+        """H_e = grad u (m, d, d), mesh element order (as ``_grad``, one sparse product)."""
+        return (self._mesh_gradient()[0] @ u.reshape(-1)).reshape(self.m, self.d, self.d)
+
+    def scatter(self, Pv):
+        """Nodal forces sum_e Pv_e : grad N_a (node-major, (N,)) of Pv (m, d, d) (as
+        ``_scatter``, one sparse product)."""
+        return self._mesh_gradient()[1] @ Pv.reshape(-1)
+
     def apply_elements(self, Ke, v):
         """K v (full dofs, mN) from element matrices Ke, without assembling K."""
         fe = np.einsum("mab,mb->ma", Ke, v[self.kin.dofs])
@@ -759,7 +788,8 @@ PCG_ITERS = 1  # least warm-started PCG iterations per ADMM x-step
 PCG_RTOL = 0.3  # PCG x-step: ... or below PCG_RTOL times its first update
 XSTEP_TOL = 0.1  # PCG x-step: largest vertex update (mm) below XSTEP_TOL * tol_mm
 ROUNDS = 4
-CHUNK = 8192  # elements per cache block of the ADMM loop
+CHUNK = 8192  # elements per cache block of the numpy ADMM loop
+USE_CKERNEL = True  # compiled element loop when a C compiler is usable (see use_kernel)
 
 _CACHE: OrderedDict[tuple, AdmmOperators] = OrderedDict()
 
@@ -1030,6 +1060,135 @@ def _soa(H):
     return np.ascontiguousarray(H.transpose(1, 2, 0))
 
 
+# =========================================================================== compiled element loop
+def use_kernel() -> bool:
+    """Whether the ADMM loop runs its element-local work (z-step, dual update, residuals) in the
+    compiled kernel (``admm_kernel.c``, built on first use; see ``solvers._ckernel``). False
+    (the numpy loop, same arithmetic) when no C compiler is usable, when USE_CKERNEL is False
+    or with the environment variable TISSUE_NO_CKERNEL=1."""
+    return USE_CKERNEL and _ckernel.load() is not None
+
+
+class _NumpyElements:
+    """The element work of one ADMM iteration (gather D u, z-step, dual update, residuals and the
+    x-step data D^T W (z - lam)) in numpy, on (d, d, m) blocks in chunks of CHUNK elements.
+    ``F``, ``lam``: the start state (F = I + z, scaled dual), (d, d, m)."""
+
+    def __init__(self, ops, zstep, up, F, lam):
+        d, m = ops.d, ops.m
+        self.ops, self.zstep, self.d, self.m = ops, zstep, d, m
+        self.DupI = ops.D @ up + ops.eye_soa  # D u_p + I
+        self.E, self.F = zstep.new_state(m)
+        self.Enew, self.Fnew = zstep.new_state(m)
+        self.F[...] = F
+        self.lam, self.lam_new = lam, np.empty_like(lam)
+        self.w = F - lam  # x-step data z - lam (+ I)
+        self.r, self.dsq = np.empty(m), np.empty(m)
+        self.h2 = ops.h ** 2
+        self.chunks = [(c, min(c + CHUNK, m)) for c in range(0, m, CHUNK)]
+        self.scratch = {}
+
+    def xdata(self):
+        """Z^T D^T W (z - lam + I) (mN), the x-step's data term."""
+        return self.ops.DZtW @ self.w.reshape(-1)
+
+    def halve_dual(self):
+        """lam *= 1/2 (rho doubled: lam = P / rho)."""
+        self.lam *= 0.5
+        np.subtract(self.F, self.lam, out=self.w)
+
+    def update(self, q):
+        """Element work after the x-step q (at the z-step's current rho); returns (r, dsq):
+        h^2 |D u - z'|^2 and h^2 |z' - z|^2 per element (mm^2)."""
+        d, m, zstep = self.d, self.m, self.zstep
+        Hx = self.ops.DZ @ q
+        Hx += self.DupI
+        Hx = Hx.reshape(d, d, m)
+        lam, lam_new, w, r, dsq = self.lam, self.lam_new, self.w, self.r, self.dsq
+        for c0, c1 in self.chunks:
+            sl = slice(c0, c1)
+            Fhat, t = self.scratch.get(c1 - c0) or self.scratch.setdefault(
+                c1 - c0, (np.empty((d, d, c1 - c0)), np.empty((d, d, c1 - c0))))
+            np.add(Hx[:, :, sl], lam[:, :, sl], out=Fhat)
+            dsq[sl] = zstep(Fhat, self.E[:, :, sl], self.Enew[:, :, sl])
+            # dual update lam' = Fhat - F'; primal residual D u - z' = lam' - lam
+            ln = lam_new[:, :, sl]
+            np.subtract(Fhat, self.Fnew[:, :, sl], out=ln)
+            np.subtract(ln, lam[:, :, sl], out=t)
+            np.einsum("ijk,ijk->k", t, t, out=r[sl])
+            np.subtract(self.Fnew[:, :, sl], ln, out=w[:, :, sl])  # next x-step's data
+        r *= self.h2
+        dsq *= self.h2
+        self.lam, self.lam_new = lam_new, lam
+        self.E, self.Enew, self.F, self.Fnew = self.Enew, self.E, self.Fnew, self.F
+        return r, dsq
+
+
+class _KernelElements:
+    """The same element work in one call of the compiled ``admm_iteration`` (admm_kernel.c):
+    gather of D u from the full displacement, z-step, dual update, residuals and the scatter of
+    D^T W (z - lam + I) into a node vector, in one pass over the element arrays."""
+
+    def __init__(self, ops, zstep, up, F, lam):
+        self.ffi, self.lib = _ckernel.load()
+        d, m = ops.d, ops.m
+        self.ops, self.zstep, self.d, self.m, self.up = ops, zstep, d, m, up
+        kd = getattr(ops, "_kernel_data", None)
+        if kd is None:
+            eo = ops.elem_order
+            kd = ops._kernel_data = (
+                np.ascontiguousarray(ops.mesh.cells[eo], dtype=np.int64),
+                np.ascontiguousarray(ops.kin.G[eo]), np.ascontiguousarray(ops.rho * ops.kin.V[eo]),
+                np.ascontiguousarray(ops.h ** 2))
+        self.cells, self.G, self.wv, self.h2 = kd
+        self.F = np.ascontiguousarray(F)
+        self.Fnew = np.empty_like(self.F)
+        self.lam, self.lam_new = np.ascontiguousarray(lam), np.empty_like(lam)
+        self.r, self.dsq = np.empty(m), np.empty(m)
+        self.u = up.copy()
+        self.f = np.zeros(ops.N)
+        self.model = 0 if ops.law.model == "linear-elastic" else 1
+        self.plain = ops.red.plain_dofs if ops.red.separable else None
+        self._data = None
+        p = self._ptr
+        self._fixed = (p(self.cells, "long *"), p(self.G), p(self.wv), p(self.h2), p(self.u),
+                       p(self.r), p(self.dsq), p(self.f))
+        self._ptrs = {id(a): p(a) for a in (self.F, self.Fnew, self.lam, self.lam_new)}
+
+    def _ptr(self, a, kind="double *"):
+        if not a.flags.c_contiguous:
+            raise TypeError("ADMM kernel: arrays must be C-contiguous")
+        return self.ffi.cast(kind, a.ctypes.data)
+
+    def xdata(self):
+        if self._data is None:  # first iteration, or after a rho change
+            self._data = self.ops.DZtW @ (self.F - self.lam).reshape(-1)
+        return self._data
+
+    def halve_dual(self):
+        self.lam *= 0.5
+        self._data = None
+
+    def update(self, q):
+        ops, zs = self.ops, self.zstep
+        if self.plain is not None:  # u = up + Z q, Z a selection of plain dofs
+            self.u[self.plain] = q
+        else:
+            self.u[...] = self.up + ops.red.Z @ q
+        self.f[...] = 0.0
+        cells, G, wv, h2, u, r, dsq, f = self._fixed
+        P = self._ptrs
+        self.lib.admm_iteration(
+            self.model, self.d, self.m, ops.law.mu, ops.law.kappa, zs.rho,
+            getattr(zs, "f_dev", 0.0), getattr(zs, "f_vol", 0.0), zs.rounds, zs.small_step,
+            cells, G, wv, h2, u, P[id(self.lam)], P[id(self.F)], P[id(self.Fnew)],
+            P[id(self.lam_new)], r, dsq, f)
+        self._data = self.f[self.plain] if self.plain is not None else ops.red.ZT @ self.f
+        self.lam, self.lam_new = self.lam_new, self.lam
+        self.F, self.Fnew = self.Fnew, self.F
+        return self.r, self.dsq
+
+
 # =========================================================================== one static/step solve
 def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, hist):
     """ADMM iterations from u0. rhs_extra: f_ext (+ M u_tilde / dt^2), mN. Returns (u, iters,
@@ -1037,66 +1196,37 @@ def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, 
     Z, m, d = ops.red.Z, ops.m, ops.d
     # move the boundary from u0's values to up's and carry the interior along with the
     # harmonic (x-step matrix) extension of that change
-    zu0 = Z.T @ u0
+    zu0 = ops.red.ZT @ u0
     delta = up - (u0 - Z @ zu0)
-    q = zu0 - ops.lu.solve(Z.T @ (ops.Mx @ delta)) if np.any(delta) else zu0
-    DupI = ops.D @ up + ops.eye_soa  # D u_p + I
+    q = zu0 - ops.lu.solve(ops.red.ZT @ (ops.Mx @ delta)) if np.any(delta) else zu0
     zstep = _ZStep(ops, ops.rho)
-    E, F = zstep.new_state(m)
-    Enew, Fnew = zstep.new_state(m)
-    F[...] = (ops.DZ @ q + DupI).reshape(d, d, m)
+    F = (ops.DZ @ q + ops.D @ up + ops.eye_soa).reshape(d, d, m)  # I + D u
     if ops.law.model != "linear-elastic":
         # elements the prescribed values invert in the start state start from F = I
         J, _ = _det_cof(_aos(F))
         F[:, :, ~(J > 0.05)] = np.eye(d)[:, :, None]
     P, _ = ops.law.stress(_aos(F) - np.eye(d))
     lam = _soa(P) / ops.rho
-    rhs_f = Z.T @ rhs_extra
+    rhs_f = ops.red.ZT @ rhs_extra
     # x-step right-hand side constant: boundary values, and D^T W I (F = I + z)
-    rhs_up = -(Z.T @ (ops.Mx @ up)) - ops.DZtW @ ops.eye_soa
+    rhs_up = -(ops.red.ZT @ (ops.Mx @ up)) - ops.DZtW_I
     rho0 = rho = ops.rho
     adapt = ops.dt is None  # without a mass term the x-step matrix is rho * (fixed matrix)
     window_primal = np.inf
-    h2 = ops.h ** 2
     big = 1e3 * float(np.ptp(ops.mesh.points, axis=0).max())
     rhs_c = rhs_f + rhs_up
-    lam_new = np.empty_like(lam)
-    w = F - lam  # x-step data z - lam (+ I)
-    r = np.empty(m)
-    dsq = np.empty(m)
-    # element-local work in chunks of CHUNK elements, each kept in cache while it is processed
-    chunks = [(c, min(c + CHUNK, m)) for c in range(0, m, CHUNK)]
-    scratch = {}
+    elements = (_KernelElements if use_kernel() else _NumpyElements)(ops, zstep, up, F, lam)
     converged = False
     k = 0
     for k in range(1, max_iter + 1):
         q_old = q
         # x-step for the current rho: (rho/rho0) Mx0 u = rho D^T V (z - lam) + f, scaled
-        rhs = ops.DZtW @ w.reshape(-1)
-        rhs += rhs_c
+        rhs = elements.xdata() + rhs_c
         q = ops.lu.step(rhs, q, XSTEP_TOL * tol_mm)
-        Hx = ops.DZ @ q
-        Hx += DupI
-        Hx = Hx.reshape(d, d, m)
-        for c0, c1 in chunks:
-            sl = slice(c0, c1)
-            Fhat, t = scratch.get(c1 - c0) or scratch.setdefault(
-                c1 - c0, (np.empty((d, d, c1 - c0)), np.empty((d, d, c1 - c0))))
-            np.add(Hx[:, :, sl], lam[:, :, sl], out=Fhat)
-            dsq[sl] = zstep(Fhat, E[:, :, sl], Enew[:, :, sl])
-            # dual update lam' = Fhat - F'; primal residual D u - z' = lam' - lam
-            ln = lam_new[:, :, sl]
-            np.subtract(Fhat, Fnew[:, :, sl], out=ln)
-            np.subtract(ln, lam[:, :, sl], out=t)
-            np.einsum("ijk,ijk->k", t, t, out=r[sl])
-            np.subtract(Fnew[:, :, sl], ln, out=w[:, :, sl])  # next x-step's data
-        r *= h2
+        r, dsq = elements.update(q)
         primal = float(np.sqrt(r.max()))
         # dual residual rho D^T (z^k - z^(k-1)) (Boyd et al. 2011, 3.3), in mm at rho0
-        dsq *= h2
         dual = (rho / rho0) * float(np.sqrt(dsq.max()))
-        lam, lam_new = lam_new, lam
-        E, Enew, F, Fnew = Enew, E, Fnew, F
         step = ops.step_norm(q - q_old)
         hist["primal"].append(primal)
         hist["dual"].append(dual)
@@ -1120,8 +1250,7 @@ def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, 
             # stagnation (e.g. a nonconvex element cycling between two local z minima): double
             # rho (more consensus, convex local problems); lam = P / rho is rescaled
             if primal > 0.9 * window_primal and rho < 64 * rho0:
-                lam *= 0.5
-                np.subtract(F, lam, out=w)
+                elements.halve_dual()
                 rho *= 2.0
                 zstep.set_rho(rho)
                 rhs_c = (rho0 / rho) * rhs_f + rhs_up
@@ -1134,13 +1263,13 @@ def _tangent_lift(ops, u, up, it):
     """u with its prescribed part moved to up's values and the interior moved by the linearized
     (tangent at u) response to that boundary change."""
     Z = ops.red.Z
-    zu = Z.T @ u
+    zu = ops.red.ZT @ u
     delta = up - (u - Z @ zu)
     if not np.any(delta):
         return u
     Kr, Ke = ops.reduced_tangent(u)
     try:
-        s = _sym_splu(Kr).solve(-(Z.T @ ops.apply_elements(Ke, delta)))
+        s = _sym_splu(Kr).solve(-(ops.red.ZT @ ops.apply_elements(Ke, delta)))
     except RuntimeError as exc:
         raise _diverged(f"singular tangent in the boundary lift ({exc})", it, -1) from None
     cand = up + Z @ (zu + s)
@@ -1148,7 +1277,7 @@ def _tangent_lift(ops, u, up, it):
     for _ in range(20):
         if ops.law.model == "linear-elastic":
             return cand
-        J, _ = _det_cof(_grad(ops.kin, cand) + np.eye(ops.d))
+        J, _ = _det_cof(ops.grad(cand) + np.eye(ops.d))
         if np.all(J > 0):
             return cand
         s = 0.5 * s
@@ -1157,7 +1286,7 @@ def _tangent_lift(ops, u, up, it):
 
 
 def _energy(ops, u, fext, inertia):
-    psi, J = ops.law.psi_J(_grad(ops.kin, u))
+    psi, J = ops.law.psi_J(ops.grad(u))
     e = float(ops.kin.V @ psi) - float(fext @ u)
     if inertia is not None:
         mdt, ut = inertia
@@ -1166,8 +1295,8 @@ def _energy(ops, u, fext, inertia):
 
 
 def _residual(ops, u, fext, inertia):
-    P, _ = ops.law.stress(_grad(ops.kin, u))
-    r = _scatter(ops.kin, ops.kin.V[:, None, None] * P, ops.N) - fext
+    P, _ = ops.law.stress(ops.grad(u))
+    r = ops.scatter(ops.kin.V[:, None, None] * P) - fext
     if inertia is not None:
         mdt, ut = inertia
         r = r + mdt * (u - ut)
@@ -1180,7 +1309,7 @@ def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback):
     k = 0
     for k in range(1, max_iter + 1):
         r = _residual(ops, u, fext, inertia)
-        rr = Z.T @ r
+        rr = ops.red.ZT @ r
         Kr, _ = ops.reduced_tangent(u, None if inertia is None else inertia[0])
         try:
             dq = -_sym_splu(Kr).solve(rr)
@@ -1196,12 +1325,13 @@ def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback):
                 # merit: energy decrease, or (tangent indefinite) free residual decrease
                 if e1 <= e0 + 1e-4 * alpha * float(rr @ dq) + 1e-12 * abs(e0):
                     break
-                r1 = float(np.linalg.norm(Z.T @ _residual(ops, u + alpha * du, fext, inertia)))
+                r1 = float(np.linalg.norm(
+                    ops.red.ZT @ _residual(ops, u + alpha * du, fext, inertia)))
                 if r1 < (1.0 - 1e-4 * alpha) * r0:
                     break
             alpha *= 0.5
         else:
-            H = _grad(ops.kin, u + du)
+            H = ops.grad(u + du)
             _check_J(ops, H, it0 + k, "the Newton polish")
             raise _diverged("Newton polish line search found no energy decrease", it0 + k,
                             int(np.argmax(np.abs(rr))) // d)
@@ -1274,7 +1404,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         u = np.zeros(ops.N)
     else:
         u = _as_u(case, initial).copy()
-        _check_J(ops, _grad(ops.kin, u), 0, "the initial (warm-start) state")
+        _check_J(ops, ops.grad(u), 0, "the initial (warm-start) state")
     hist = {"primal": [], "dual": [], "max_step_mm": [], "newton_step_mm": []}
     admm_it = newton_it = 0
     restarts = []
@@ -1283,7 +1413,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     if dynamics is None:
         # load steps: the prescribed change from the start state split in increments of at
         # most step_mm (mm); each step is an ADMM solve warm-started from the previous one
-        uc = u - ops.red.Z @ (ops.red.Z.T @ u)
+        uc = u - ops.red.Z @ (ops.red.ZT @ u)
         jump = _vertex_norm_max(up - uc, d)
         if load_steps is None:
             load_steps = max(1, int(np.ceil(jump / step_mm)))
@@ -1321,7 +1451,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     else:
         v = np.zeros(ops.N) if dynamics.velocity is None else _as_u(case, dynamics.velocity).copy()
         mdt = ops.mass / dt ** 2
-        u = up + ops.red.Z @ (ops.red.Z.T @ (u - up))
+        u = up + ops.red.Z @ (ops.red.ZT @ (u - up))
         traj = []
         for step in range(int(dynamics.steps)):
             ut = u + dt * v
@@ -1342,11 +1472,11 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
             u = un
             traj.append({k_: np.asarray(val).tolist() for k_, val in case.probe_values(u).items()})
         inertia = None
-    H = _grad(ops.kin, u)
+    H = ops.grad(u)
     _check_J(ops, H, admm_it + newton_it, "the final state")
     r = _residual(ops, u, fext, None)
-    free_res = float(np.abs(ops.red.Z.T @ r).max(initial=0.0)) if dynamics is None else \
-        float(np.abs(ops.red.Z.T @ _residual(ops, u, fext, inertia)).max(initial=0.0))
+    free_res = float(np.abs(ops.red.ZT @ r).max(initial=0.0)) if dynamics is None else \
+        float(np.abs(ops.red.ZT @ _residual(ops, u, fext, inertia)).max(initial=0.0))
     reactions = _reactions(case, r)
     psi, _ = ops.law.psi_J(H)
     extra = {"admm_iterations": int(admm_it), "newton_iterations": int(newton_it),
@@ -1370,9 +1500,7 @@ def _reactions(case, r):
     (oblique sliding regions: over all dofs of their vertices)."""
     d = case.mesh.gdim
     c = case.constraints
-    out = {reg: np.zeros(d) for reg in case.dirichlet_regions()}
-    for k, reg in zip(c.dofs.tolist(), c.owner):
-        out.setdefault(reg, np.zeros(d))[k % d] += r[k]
+    out = case.prescribed_reactions(r)
     R = r.reshape(-1, d)
     for b in case.boundaries:
         if b.type == "sliding":
