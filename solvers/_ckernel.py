@@ -24,10 +24,24 @@ from pathlib import Path
 SOURCE = Path(__file__).with_name("admm_kernel.c")
 CDEF = """
 void admm_iteration(int model, int d, long m, double mu, double kappa, double rho,
-                    double f_dev, double f_vol, int rounds, double small_step, const long *cells,
+                    double f_dev, double f_vol, int rounds, double small_step, const int *cells,
                     const double *G, const double *wv, const double *h2, const double *u,
-                    const double *lam, const double *F, double *Fn, double *lam_new, double *r,
-                    double *dsq, double *f);
+                    double *F, double *lam, double *r, double *dsq, double *f);
+int admm_block_size(void);
+typedef struct {
+    long n;
+    const int *Ap, *Ai;
+    const double *Ax;
+    const int *Pp, *Pi;
+    const double *Px;
+    const int *Rp, *Ri;
+    const double *Rx;
+    const double *dw;
+    double *x, *r, *b;
+} amg_level;
+int amg_pcg(int nlev, const amg_level *lv, long nc, const double *Lc, int k, const double *B,
+            double *X, int maxit, double rtol, double step_tol, double step_rtol, int min_it,
+            double *work, double *cwork, double *last_update);
 """
 # -march=native: the element update vectorizes over elements (the build is keyed by this CPU's
 # model and flags, so a cache shared by different machines never loads a foreign build);

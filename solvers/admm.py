@@ -53,7 +53,8 @@ each load step near Newton's basin: it hands over at ``handoff_mm`` (0.01 mm) or
 four actuators pushed 15 mm (1782 tets) this cut the solve from 6486 ADMM iterations + 10 Newton
 (about 12.6 s in ``make demo``) to 86 ADMM + 14 Newton iterations (about 1 s on the loaded
 development machine; the warm reference: 0.3-0.7 s), same answer (to 1e-11 mm). Both iteration counts are reported (``extra["admm_iterations"]``,
-``extra["newton_iterations"]``).
+``extra["newton_iterations"]``); ``history["admm_clock_s"]`` holds the wall-clock time (s, from
+the start of the solve) at the end of every ADMM iteration.
 
 Large prescribed motions (e.g. 15 mm pushes) are applied in load steps of at most ``step_mm``;
 each step moves the boundary and carries the interior along (tangent or harmonic lift), runs
@@ -388,16 +389,22 @@ def _aggregate(A):
 
 class _AmgPcg:
     """Preconditioned conjugate gradients on an SPD scalar matrix (the x-step matrix of a large
-    mesh), multi-column, with a smoothed-aggregation AMG V-cycle (strength theta = 0.08, Jacobi
-    prolongator smoothing and one pre/post damped-Jacobi sweep, omega = 4 / (3 rho(D^-1 A)),
-    coarsest level <= 500 unknowns by SuperLU) as preconditioner. Work and memory are O(n) (a
-    direct factor's fill grows like n^(4/3) and more on 3D meshes). ``step`` is the ADMM
-    x-step: ``iters`` PCG iterations warm-started from the previous x (inexact; the x-step
-    matrix is constant and at an ADMM fixed point the warm start solves it, so the fixed point
-    is unchanged); ``solve`` iterates to a relative residual of 1e-12."""
+    mesh), multi-column, with an aggregation AMG V-cycle (strength theta = 0.08; Jacobi-smoothed
+    prolongator on the finest level, plain aggregation below: smoothed coarse operators densify,
+    at 185k tets the third level had 456 nonzeros per row and cost 40% of a V-cycle, 1.5x
+    slower per warm-started x-step for the same PCG iterations; one pre/post damped-Jacobi
+    sweep, omega = 4 / (3 rho(D^-1 A)); coarsest level <= 500 unknowns, solved directly) as
+    preconditioner. Work and memory are O(n) (a direct factor's fill grows like n^(4/3) and more
+    on 3D meshes). With the compiled kernel the PCG and V-cycle run in C (``amg_pcg``, all
+    right-hand sides at once, the coarsest level by its dense inverse), otherwise in numpy
+    (coarsest level by SuperLU); same arithmetic. ``step`` is the ADMM x-step: ``iters`` PCG
+    iterations warm-started from the previous x (inexact; the x-step matrix is constant and at
+    an ADMM fixed point the warm start solves it, so the fixed point is unchanged); ``solve``
+    iterates to a relative residual of 1e-12."""
 
     theta = 0.08
     coarse = 500
+    smooth_levels = 1  # levels with a smoothed prolongator (below: plain aggregation)
 
     def __init__(self, A, iters=1):
         self.iters = iters
@@ -423,7 +430,8 @@ class _AmgPcg:
                 y = dinv * (A @ x)
                 lam = float(np.linalg.norm(y))
                 x = y / lam
-            P = (T - sp.diags((4.0 / 3.0 / lam) * dinv) @ (A @ T)).tocsr()
+            P = (T - sp.diags((4.0 / 3.0 / lam) * dinv) @ (A @ T)).tocsr() \
+                if len(self.levels) < self.smooth_levels else T.tocsr()
             R = P.T.tocsr()
             self.levels.append((A, ((4.0 / 3.0 / lam) * dinv)[:, None], P, R))
             A = (R @ A @ P).tocsr()
@@ -433,6 +441,59 @@ class _AmgPcg:
             self.lu.L.nnz + self.lu.U.nnz)
         self.nnz = sum(M.nnz for M in mats)
         self.untracked_bytes = 12 * (self.lu.L.nnz + self.lu.U.nnz)  # coarsest-level SuperLU
+        self._c = self._compiled(A) if use_kernel() and A.shape[0] <= 2000 else None
+
+    def _compiled(self, Ac):
+        """The hierarchy as the compiled amg_pcg's level structs (int32 CSR arrays kept alive
+        here) and the dense inverse of the coarsest matrix (<= 2000 unknowns; its direct solve
+        by SuperLU in the numpy V-cycle: the two agree to round-off)."""
+        ffi, lib = _ckernel.load()
+        keep = []
+
+        def arr(a, dtype=np.float64, kind="double *"):
+            a = np.ascontiguousarray(a, dtype=dtype)
+            keep.append(a)
+            return ffi.cast(kind, a.ctypes.data)
+
+        def csr(M):
+            return (arr(M.indptr, np.int32, "int *"), arr(M.indices, np.int32, "int *"),
+                    arr(M.data))
+
+        lv = ffi.new("amg_level[]", max(len(self.levels), 1))
+        for s, (A, dw, P, R) in zip(lv, self.levels):
+            s.n = A.shape[0]
+            s.Ap, s.Ai, s.Ax = csr(A)
+            s.Pp, s.Pi, s.Px = csr(P)
+            s.Rp, s.Ri, s.Rx = csr(R)
+            s.dw = arr(dw.ravel())
+        Lc = np.linalg.inv(Ac.toarray())
+        return {"ffi": ffi, "lib": lib, "lv": lv, "keep": keep, "nc": Ac.shape[0],
+                "Lc": arr(Lc), "scratch": {}}
+
+    def _pcg_compiled(self, B, X, maxit, rtol, step_tol):
+        c = self._c
+        ffi, k = c["ffi"], B.shape[1]
+        if k > 8:
+            raise ValueError("compiled PCG: at most 8 right-hand sides")
+        sc = c["scratch"].get(k)
+        if sc is None:  # per-level scratch (x, r, b), PCG work and coarsest-level work
+            bufs = [np.empty((3, lvl[0].shape[0] * k)) for lvl in self.levels]
+            sc = c["scratch"][k] = (bufs, np.empty(4 * self.A.shape[0] * k),
+                                    np.empty(2 * c["nc"] * k), ffi.new("double *"))
+            for s, b in zip(c["lv"], bufs):
+                s.x, s.r, s.b = (ffi.cast("double *", b[j].ctypes.data) for j in range(3))
+        bufs, work, cwork, last = sc
+        B = np.ascontiguousarray(B, dtype=np.float64)
+        X = np.array(X, dtype=np.float64, order="C")
+        n_it = c["lib"].amg_pcg(
+            len(self.levels), c["lv"], c["nc"], c["Lc"], k,
+            ffi.cast("double *", B.ctypes.data), ffi.cast("double *", X.ctypes.data),
+            maxit, rtol, step_tol, PCG_RTOL, self.iters,
+            ffi.cast("double *", work.ctypes.data), ffi.cast("double *", cwork.ctypes.data), last)
+        self.count[0] += 1
+        self.count[1] += n_it
+        self.last_update = float(last[0])
+        return X
 
     def _vcycle(self, b, level=0):
         if level == len(self.levels):
@@ -447,6 +508,8 @@ class _AmgPcg:
         return x
 
     def _pcg(self, B, X, maxit, rtol, step_tol=0.0):
+        if self._c is not None and self.levels:
+            return self._pcg_compiled(B, X, maxit, rtol, step_tol)
         A = self.A
         r = B - A @ X
         stop = rtol * np.sqrt(np.einsum("ij,ij->j", B, B))
@@ -783,7 +846,7 @@ class AdmmOperators:
         return _vertex_norm_max(self.red.Z @ dq, self.d)
 
 
-PCG_MIN = 20000  # free vertices from which the x-step is solved by AMG-preconditioned CG
+PCG_MIN = 4000  # free vertices from which the x-step is solved by AMG-preconditioned CG
 PCG_ITERS = 1  # least warm-started PCG iterations per ADMM x-step
 PCG_RTOL = 0.3  # PCG x-step: ... or below PCG_RTOL times its first update
 XSTEP_TOL = 0.1  # PCG x-step: largest vertex update (mm) below XSTEP_TOL * tol_mm
@@ -1127,33 +1190,56 @@ class _NumpyElements:
 class _KernelElements:
     """The same element work in one call of the compiled ``admm_iteration`` (admm_kernel.c):
     gather of D u from the full displacement, z-step, dual update, residuals and the scatter of
-    D^T W (z - lam + I) into a node vector, in one pass over the element arrays."""
+    D^T W (z - lam + I) into a node vector, in one pass over the element arrays. F and lam live
+    in the kernel's blocked layout (``_to_blocks``) and are updated in place; the ``F`` and
+    ``lam`` properties give them back as (d, d, m)."""
 
     def __init__(self, ops, zstep, up, F, lam):
         self.ffi, self.lib = _ckernel.load()
         d, m = ops.d, ops.m
         self.ops, self.zstep, self.d, self.m, self.up = ops, zstep, d, m, up
+        self.blk = int(self.lib.admm_block_size())
         kd = getattr(ops, "_kernel_data", None)
         if kd is None:
-            eo = ops.elem_order
+            # vertices renumbered by their reverse Cuthill-McKee rank (the elements are sorted by
+            # it too), so that the gather of u and the scatter of f stay local in memory
+            eo, rank = ops.elem_order, _vertex_rank(ops.mesh)
+            plain = ops.red.plain_dofs
             kd = ops._kernel_data = (
-                np.ascontiguousarray(ops.mesh.cells[eo], dtype=np.int64),
+                np.ascontiguousarray(rank[ops.mesh.cells[eo]], dtype=np.int32),
                 np.ascontiguousarray(ops.kin.G[eo]), np.ascontiguousarray(ops.rho * ops.kin.V[eo]),
-                np.ascontiguousarray(ops.h ** 2))
-        self.cells, self.G, self.wv, self.h2 = kd
-        self.F = np.ascontiguousarray(F)
-        self.Fnew = np.empty_like(self.F)
-        self.lam, self.lam_new = np.ascontiguousarray(lam), np.empty_like(lam)
+                np.ascontiguousarray(ops.h ** 2), rank, np.argsort(rank),
+                d * rank[plain // d] + plain % d if ops.red.separable else None)
+        self.cells, self.G, self.wv, self.h2, self.rank, self.order, self.idx = kd
+        self.Fb, self.lamb = self._to_blocks(F), self._to_blocks(lam)
         self.r, self.dsq = np.empty(m), np.empty(m)
-        self.u = up.copy()
+        self.u = np.ascontiguousarray(up.reshape(-1, d)[self.order]).reshape(-1)  # internal order
         self.f = np.zeros(ops.N)
         self.model = 0 if ops.law.model == "linear-elastic" else 1
-        self.plain = ops.red.plain_dofs if ops.red.separable else None
         self._data = None
         p = self._ptr
-        self._fixed = (p(self.cells, "long *"), p(self.G), p(self.wv), p(self.h2), p(self.u),
-                       p(self.r), p(self.dsq), p(self.f))
-        self._ptrs = {id(a): p(a) for a in (self.F, self.Fnew, self.lam, self.lam_new)}
+        self._args = (p(self.cells, "int *"), p(self.G), p(self.wv), p(self.h2), p(self.u),
+                      p(self.Fb), p(self.lamb), p(self.r), p(self.dsq), p(self.f))
+
+    def _to_blocks(self, A):
+        """(d, d, m) -> the kernel's (ceil(m / blk), d*d, blk) layout (the padding is never read)."""
+        dd, m, blk = self.d * self.d, self.m, self.blk
+        nb = -(-m // blk)
+        out = np.zeros((dd, nb * blk))
+        out[:, :m] = A.reshape(dd, m)
+        return np.ascontiguousarray(out.reshape(dd, nb, blk).transpose(1, 0, 2))
+
+    def _from_blocks(self, B):
+        d, m = self.d, self.m
+        return np.ascontiguousarray(B.transpose(1, 0, 2).reshape(d * d, -1)[:, :m]).reshape(d, d, m)
+
+    @property
+    def F(self):
+        return self._from_blocks(self.Fb)
+
+    @property
+    def lam(self):
+        return self._from_blocks(self.lamb)
 
     def _ptr(self, a, kind="double *"):
         if not a.flags.c_contiguous:
@@ -1166,26 +1252,25 @@ class _KernelElements:
         return self._data
 
     def halve_dual(self):
-        self.lam *= 0.5
+        self.lamb *= 0.5
         self._data = None
 
     def update(self, q):
         ops, zs = self.ops, self.zstep
-        if self.plain is not None:  # u = up + Z q, Z a selection of plain dofs
-            self.u[self.plain] = q
+        d = self.d
+        if self.idx is not None:  # u = up + Z q, Z a selection of plain dofs
+            self.u[self.idx] = q
         else:
-            self.u[...] = self.up + ops.red.Z @ q
+            self.u.reshape(-1, d)[...] = (self.up + ops.red.Z @ q).reshape(-1, d)[self.order]
         self.f[...] = 0.0
-        cells, G, wv, h2, u, r, dsq, f = self._fixed
-        P = self._ptrs
         self.lib.admm_iteration(
             self.model, self.d, self.m, ops.law.mu, ops.law.kappa, zs.rho,
             getattr(zs, "f_dev", 0.0), getattr(zs, "f_vol", 0.0), zs.rounds, zs.small_step,
-            cells, G, wv, h2, u, P[id(self.lam)], P[id(self.F)], P[id(self.Fnew)],
-            P[id(self.lam_new)], r, dsq, f)
-        self._data = self.f[self.plain] if self.plain is not None else ops.red.ZT @ self.f
-        self.lam, self.lam_new = self.lam_new, self.lam
-        self.F, self.Fnew = self.Fnew, self.F
+            *self._args)
+        if self.idx is not None:
+            self._data = self.f[self.idx]
+        else:
+            self._data = ops.red.ZT @ self.f.reshape(-1, d)[self.rank].reshape(-1)
         return self.r, self.dsq
 
 
@@ -1231,6 +1316,7 @@ def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, 
         hist["primal"].append(primal)
         hist["dual"].append(dual)
         hist["max_step_mm"].append(step)
+        hist["admm_clock_s"].append(time.perf_counter())
         if not (math.isfinite(primal) and math.isfinite(dual) and math.isfinite(step)):
             bad = ~(np.isfinite(r) & np.isfinite(dsq))
             raise _diverged("non-finite residual", it0 + k,
@@ -1405,7 +1491,8 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     else:
         u = _as_u(case, initial).copy()
         _check_J(ops, ops.grad(u), 0, "the initial (warm-start) state")
-    hist = {"primal": [], "dual": [], "max_step_mm": [], "newton_step_mm": []}
+    hist = {"primal": [], "dual": [], "max_step_mm": [], "newton_step_mm": [],
+            "admm_clock_s": []}
     admm_it = newton_it = 0
     restarts = []
     lifts = 0
@@ -1486,6 +1573,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     if dynamics is not None:
         extra.update({"dt_s": dt, "steps": int(dynamics.steps), "probe_trajectory": traj,
                       "velocity": v.reshape(n, d)})
+    hist["admm_clock_s"] = [c - t0 for c in hist["admm_clock_s"]]
     u2 = u.reshape(n, d)
     return SolveResult(u=u2, converged=bool(converged), iterations=int(admm_it + newton_it),
                        residual=free_res, wall_time_s=time.perf_counter() - t0, solver="admm",

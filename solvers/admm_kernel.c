@@ -5,14 +5,18 @@
  * The same arithmetic as the numpy loop of admm._admm / admm._ZStep: F = I + z,
  * Fhat = I + D u + lam; the Neo-Hookean z-step is the safeguarded model-Newton step of
  * _ZStep._step (up to `rounds` rounds for the elements whose step the line search shortened),
- * the linear-elastic one its closed form. Element arrays are structure-of-arrays blocks (d, d, m):
- * entry (i, J) of element k at (d i + J) m + k; cells (m, d+1) and G (m, d+1, d) (shape-function
- * gradients, 1/mm) in the same (internal) element order; u and f node-major (d v + i).
+ * the linear-elastic one its closed form. Element states F and lam are stored in blocks of BLK
+ * elements ("array of structures of arrays", shape (ceil(m / BLK), d*d, BLK)): entry q = d i + J
+ * of element k at ((k / BLK) d^2 + q) BLK + k % BLK, so that each block is one contiguous piece of
+ * memory (a plain (d, d, m) layout makes 2 d^2 concurrent memory streams, more than the hardware
+ * prefetchers follow: 4x slower per element on large meshes). cells (m, d+1) and G (m, d+1, d)
+ * (shape-function gradients, 1/mm) in the same (internal) element order; u and f node-major
+ * (d v + i).
  *
- * Outputs per element k: Fn (new F), lam_new = Fhat - Fn, r[k] = h2[k] |lam_new - lam|^2
- * (primal residual squared, mm^2), dsq[k] = h2[k] |Fn - F|^2 (dual residual squared at rho0,
- * mm^2), and f += W_e D_e^T (Fn - lam_new) with W_e = wv[k] (rho0 V_e): f is D^T W (z - lam),
- * the x-step's data term (f is accumulated, the caller zeroes it).
+ * F and lam are updated in place: F <- F' (the new F), lam <- lam' = Fhat - F'; per element,
+ * r[k] = h2[k] |lam' - lam|^2 (primal residual squared, mm^2), dsq[k] = h2[k] |F' - F|^2 (dual
+ * residual squared at rho0, mm^2), and f += W_e D_e^T (F' - lam') with W_e = wv[k] (rho0 V_e):
+ * f is D^T W (z - lam), the x-step's data term (accumulated: the caller zeroes it).
  *
  * model: 0 linear elasticity (closed form, f_dev, f_vol), 1 Neo-Hookean (seed eq. 14), plane
  * strain in 2D. Units: mu, kappa, rho in kPa.
@@ -271,16 +275,17 @@ static void generic_block(int model, int d, long nb, double mu, double kappa, do
  * the gather and scatter loops are fully unrolled */
 static inline __attribute__((always_inline)) void iteration_block(
     const int d, int model, long m, long b, long nb, double mu, double kappa, double rho,
-    double f_dev, double f_vol, int rounds, double small_step, const long *cells,
-    const double *G, const double *wv, const double *h2, const double *u, const double *lam,
-    const double *F, double *Fn, double *lam_new, double *r, double *dsq, double *f)
+    double f_dev, double f_vol, int rounds, double small_step, const int *cells,
+    const double *G, const double *wv, const double *h2, const double *u,
+    double *F, double *lam, double *r, double *dsq, double *f)
 {
     const int dd = d * d, nv = d + 1;
+    const long base = b * dd; /* b is a multiple of BLK: the block starts at (b / BLK) dd BLK */
     double fh[9][BLK], f0[9][BLK], fn[9][BLK], l0[9][BLK];
     /* gather: Fhat = I + D_e u + lam */
     for (long i = 0; i < nb; ++i) {
         const long k = b + i;
-        const long *cv = cells + k * nv;
+        const int *cv = cells + k * nv;
         const double *g = G + k * nv * d;
         double H[MAXD * MAXD];
         for (int q = 0; q < dd; ++q)
@@ -298,16 +303,16 @@ static inline __attribute__((always_inline)) void iteration_block(
     }
     for (int q = 0; q < dd; ++q)
         for (long i = 0; i < nb; ++i) {
-            l0[q][i] = lam[q * m + b + i];
+            l0[q][i] = lam[base + q * BLK + i];
             fh[q][i] += l0[q][i];
-            f0[q][i] = F[q * m + b + i];
+            f0[q][i] = F[base + q * BLK + i];
         }
     /* z-step */
     if (model == 1 && d == 3)
         nh3_block(nb, mu, kappa, rho, rounds, small_step, fh, f0, fn);
     else
         generic_block(model, d, nb, mu, kappa, rho, f_dev, f_vol, rounds, small_step, fh, f0, fn);
-    /* dual update, residuals; fh becomes w = Fn - lam_new (the x-step data) */
+    /* dual update, residuals; fh becomes w = F' - lam' (the x-step data) */
     double rr[BLK], zz[BLK];
     for (long i = 0; i < nb; ++i) {
         rr[i] = 0.0;
@@ -320,8 +325,8 @@ static inline __attribute__((always_inline)) void iteration_block(
             double dz = fn[q][i] - f0[q][i];
             rr[i] += t * t;
             zz[i] += dz * dz;
-            Fn[q * m + b + i] = fn[q][i];
-            lam_new[q * m + b + i] = ln;
+            F[base + q * BLK + i] = fn[q][i];
+            lam[base + q * BLK + i] = ln;
             fh[q][i] = fn[q][i] - ln;
         }
     for (long i = 0; i < nb; ++i) {
@@ -331,7 +336,7 @@ static inline __attribute__((always_inline)) void iteration_block(
     /* scatter: f_(v_a, p) += W_e sum_q w_pq G_aq */
     for (long i = 0; i < nb; ++i) {
         const long k = b + i;
-        const long *cv = cells + k * nv;
+        const int *cv = cells + k * nv;
         const double *g = G + k * nv * d;
         const double we = wv[k];
         for (int a = 0; a < nv; ++a) {
@@ -347,18 +352,212 @@ static inline __attribute__((always_inline)) void iteration_block(
 }
 
 void admm_iteration(int model, int d, long m, double mu, double kappa, double rho,
-                    double f_dev, double f_vol, int rounds, double small_step, const long *cells,
+                    double f_dev, double f_vol, int rounds, double small_step, const int *cells,
                     const double *G, const double *wv, const double *h2, const double *u,
-                    const double *lam, const double *F, double *Fn, double *lam_new, double *r,
-                    double *dsq, double *f)
+                    double *F, double *lam, double *r, double *dsq, double *f)
 {
     for (long b = 0; b < m; b += BLK) {
         const long nb = m - b < BLK ? m - b : BLK;
         if (d == 3)
             iteration_block(3, model, m, b, nb, mu, kappa, rho, f_dev, f_vol, rounds, small_step,
-                            cells, G, wv, h2, u, lam, F, Fn, lam_new, r, dsq, f);
+                            cells, G, wv, h2, u, F, lam, r, dsq, f);
         else
             iteration_block(2, model, m, b, nb, mu, kappa, rho, f_dev, f_vol, rounds, small_step,
-                            cells, G, wv, h2, u, lam, F, Fn, lam_new, r, dsq, f);
+                            cells, G, wv, h2, u, F, lam, r, dsq, f);
     }
+}
+
+/* elements per block of the F and lam layout */
+int admm_block_size(void) { return BLK; }
+
+/* ------------------------------------------------------------------------------------------ */
+/* The large-mesh x-step: conjugate gradients with a smoothed-aggregation AMG V-cycle on the
+ * scalar x-step matrix, k right-hand sides at once (row-major (n, k) arrays: the matrix entries
+ * are read once for all k columns). The hierarchy (A, P, R, Jacobi weights per level and the
+ * dense inverse of the coarsest matrix, Lc below) is built in Python (admm._AmgPcg); this is the
+ * arithmetic of admm._AmgPcg._vcycle / _pcg, in C. */
+typedef struct {
+    long n;
+    const int *Ap, *Ai;
+    const double *Ax;
+    const int *Pp, *Pi; /* n x (next level's n) */
+    const double *Px;
+    const int *Rp, *Ri; /* (next level's n) x n */
+    const double *Rx;
+    const double *dw; /* damped-Jacobi weights (n) */
+    double *x, *r, *b; /* scratch, n * k each */
+} amg_level;
+
+/* Y = beta Y + alpha M X, M CSR (rows x ?), X and Y row-major with k columns; k is a
+ * compile-time constant for k = 2, 3 (unrolled), a loop otherwise */
+static inline __attribute__((always_inline)) void csr_mm_k(
+    long rows, const int *Mp, const int *Mi, const double *Mx, const int k, const double *X,
+    double *Y, double alpha, double beta)
+{
+    for (long i = 0; i < rows; ++i) {
+        double acc[8] = {0.0};
+        for (int e = Mp[i]; e < Mp[i + 1]; ++e) {
+            const double v = Mx[e];
+            const double *xr = X + (long)Mi[e] * k;
+            for (int j = 0; j < k; ++j)
+                acc[j] += v * xr[j];
+        }
+        double *y = Y + i * k;
+        for (int j = 0; j < k; ++j)
+            y[j] = (beta == 0.0 ? 0.0 : beta * y[j]) + alpha * acc[j];
+    }
+}
+
+/* coarsest level: x = Ainv b with the dense inverse (nc x nc, row-major) of its matrix */
+static inline __attribute__((always_inline)) void coarse_solve(long nc, const double *Ainv,
+                                                                const int k, const double *b,
+                                                                double *x)
+{
+    for (long i = 0; i < nc; ++i) {
+        const double *a = Ainv + i * nc;
+        double acc[8] = {0.0};
+        for (long c = 0; c < nc; ++c)
+            for (int j = 0; j < k; ++j)
+                acc[j] += a[c] * b[c * k + j];
+        for (int j = 0; j < k; ++j)
+            x[i * k + j] = acc[j];
+    }
+}
+
+/* x = V(b): one pre- and one post-smoothing damped-Jacobi sweep per level (down: x_l = dw b_l,
+ * r_l = b_l - A_l x_l, b_(l+1) = R_l r_l; coarsest: x = Ainv b; up: x_l += P_l x_(l+1),
+ * x_l += dw (b_l - A_l x_l)) */
+static inline __attribute__((always_inline)) void vcycle(
+    int nlev, const amg_level *lv, long nc, const double *Ainv, const int k, const double *b0,
+    double *x0, double *cwork)
+{
+    for (int l = 0; l < nlev; ++l) {
+        const amg_level *L = lv + l;
+        const double *b = l ? L->b : b0;
+        double *x = l ? L->x : x0, *r = L->r;
+        const long n = L->n;
+        double *bn = (l + 1 < nlev) ? lv[l + 1].b : cwork;
+        const long nn = (l + 1 < nlev) ? lv[l + 1].n : nc;
+        for (long i = 0; i < n; ++i)
+            for (int j = 0; j < k; ++j) {
+                x[i * k + j] = L->dw[i] * b[i * k + j];
+                r[i * k + j] = b[i * k + j];
+            }
+        csr_mm_k(n, L->Ap, L->Ai, L->Ax, k, x, r, -1.0, 1.0);
+        csr_mm_k(nn, L->Rp, L->Ri, L->Rx, k, r, bn, 1.0, 0.0);
+    }
+    coarse_solve(nc, Ainv, k, cwork, cwork + nc * k);
+    for (int l = nlev - 1; l >= 0; --l) {
+        const amg_level *L = lv + l;
+        const double *b = l ? L->b : b0;
+        double *x = l ? L->x : x0, *r = L->r;
+        const long n = L->n;
+        const double *xn = (l + 1 < nlev) ? lv[l + 1].x : cwork + nc * k;
+        csr_mm_k(n, L->Pp, L->Pi, L->Px, k, xn, x, 1.0, 1.0);
+        for (long t = 0; t < n * k; ++t)
+            r[t] = b[t];
+        csr_mm_k(n, L->Ap, L->Ai, L->Ax, k, x, r, -1.0, 1.0);
+        for (long i = 0; i < n; ++i)
+            for (int j = 0; j < k; ++j)
+                x[i * k + j] += L->dw[i] * r[i * k + j];
+    }
+}
+
+/* PCG from X (in place) on A X = B (level 0's A), k <= 8 columns; stops after maxit iterations,
+ * when every column's residual is below rtol |B_j|, or (step_tol > 0) after at least min_it
+ * iterations once the largest row update is below max(step_tol, step_rtol x the first one).
+ * work: 4 n k doubles; cwork: 2 nc k. Returns the iterations done; *last_update = the largest
+ * row update (2-norm over the k columns) of the last iteration. */
+static inline __attribute__((always_inline)) int pcg_k(
+    int nlev, const amg_level *lv, long nc, const double *Lc, const int k, const double *B,
+    double *X, int maxit, double rtol, double step_tol, double step_rtol, int min_it,
+    double *work, double *cwork, double *last_update)
+{
+    const long n = lv[0].n, nk = n * k;
+    double *r = work, *z = work + nk, *p = work + 2 * nk, *Ap = work + 3 * nk;
+    double rz[8], stop[8], alpha[8], lim = 0.0, dmax = 0.0;
+    for (int j = 0; j < k; ++j) {
+        double s = 0.0;
+        for (long i = 0; i < n; ++i)
+            s += B[i * k + j] * B[i * k + j];
+        stop[j] = rtol * sqrt(s);
+    }
+    for (long t = 0; t < nk; ++t)
+        r[t] = B[t];
+    csr_mm_k(n, lv[0].Ap, lv[0].Ai, lv[0].Ax, k, X, r, -1.0, 1.0);
+    vcycle(nlev, lv, nc, Lc, k, r, z, cwork);
+    for (long t = 0; t < nk; ++t)
+        p[t] = z[t];
+    for (int j = 0; j < k; ++j) {
+        double s = 0.0;
+        for (long i = 0; i < n; ++i)
+            s += r[i * k + j] * z[i * k + j];
+        rz[j] = s;
+    }
+    int it;
+    for (it = 0; it < maxit; ++it) {
+        csr_mm_k(n, lv[0].Ap, lv[0].Ai, lv[0].Ax, k, p, Ap, 1.0, 0.0);
+        for (int j = 0; j < k; ++j) {
+            double s = 0.0;
+            for (long i = 0; i < n; ++i)
+                s += p[i * k + j] * Ap[i * k + j];
+            alpha[j] = s > 0.0 ? rz[j] / s : 0.0;
+        }
+        dmax = 0.0;
+        for (long i = 0; i < n; ++i) {
+            double d2 = 0.0;
+            for (int j = 0; j < k; ++j) {
+                double dx = alpha[j] * p[i * k + j];
+                X[i * k + j] += dx;
+                r[i * k + j] -= alpha[j] * Ap[i * k + j];
+                d2 += dx * dx;
+            }
+            if (d2 > dmax)
+                dmax = d2;
+        }
+        if (it == maxit - 1)
+            break;
+        int done = 1;
+        for (int j = 0; j < k; ++j) {
+            double s = 0.0;
+            for (long i = 0; i < n; ++i)
+                s += r[i * k + j] * r[i * k + j];
+            if (!(sqrt(s) <= stop[j]))
+                done = 0;
+        }
+        if (done)
+            break;
+        if (step_tol > 0.0) {
+            if (it == 0)
+                lim = fmax(step_tol * step_tol, step_rtol * step_rtol * dmax);
+            if (it + 1 >= min_it && dmax <= lim)
+                break;
+        }
+        vcycle(nlev, lv, nc, Lc, k, r, z, cwork);
+        for (int j = 0; j < k; ++j) {
+            double s = 0.0;
+            for (long i = 0; i < n; ++i)
+                s += r[i * k + j] * z[i * k + j];
+            double beta = rz[j] > 0.0 ? s / rz[j] : 0.0;
+            rz[j] = s;
+            for (long i = 0; i < n; ++i)
+                p[i * k + j] = z[i * k + j] + beta * p[i * k + j];
+        }
+    }
+    *last_update = sqrt(dmax);
+    return it + 1;
+}
+
+int amg_pcg(int nlev, const amg_level *lv, long nc, const double *Lc, int k, const double *B,
+            double *X, int maxit, double rtol, double step_tol, double step_rtol, int min_it,
+            double *work, double *cwork, double *last_update)
+{
+    if (k == 3)
+        return pcg_k(nlev, lv, nc, Lc, 3, B, X, maxit, rtol, step_tol, step_rtol, min_it, work,
+                     cwork, last_update);
+    if (k == 2)
+        return pcg_k(nlev, lv, nc, Lc, 2, B, X, maxit, rtol, step_tol, step_rtol, min_it, work,
+                     cwork, last_update);
+    return pcg_k(nlev, lv, nc, Lc, k, B, X, maxit, rtol, step_tol, step_rtol, min_it, work,
+                 cwork, last_update);
 }
