@@ -5,13 +5,19 @@ scaling of time per iteration and peak memory with mesh size (log-log growth exp
     .venv/bin/python bench/bench_admm.py [--sizes 10 5 2.8 1.8] [--skip-fem] [--accuracy]
 
 Units: mm, ms, MiB. Prints measured figures and ratios from this one run, with the machine's
-load average: on a shared machine wall-clock times are noisy, so every time is given as wall
-and as process CPU time (time.process_time), the minimum and median of repeats.
+load average. Times are wall clock on one thread (OPENBLAS_NUM_THREADS=1 unless set); on a
+shared machine they are noisy, so each is the minimum (and median) of repeats, and the scaling
+study interleaves its sizes in rounds.
 """
 from __future__ import annotations
 
 import argparse
 import os
+
+# one thread: ADMM is single-threaded, and OpenBLAS's idle threads (woken by SuperLU, numpy.linalg)
+# spin on the second core; the reference's MUMPS/CHOLMOD get the same setting (ratios are
+# single-core against single-core). Override by setting the variable.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import time
 import tracemalloc
 
@@ -30,26 +36,19 @@ def _load():
     return "load average {:.2f} {:.2f} {:.2f} on {} CPUs".format(*os.getloadavg(), os.cpu_count())
 
 
-def time_per_iteration(case, pushes, n1=20, n2=220, repeats=5):
-    """ms per steady ADMM iteration (x-step + z-step + dual update + residuals), no callback:
-    (T(n2 iterations) - T(n1 iterations)) / (n2 - n1) for solves warm-started from the ADMM
-    state after 30 iterations (setup, start-up and the final checks cancel). Returns
-    {"wall": (min, median), "cpu": (min, median)}."""
+def time_per_iteration(case, pushes, n=200, repeats=5, skip=5):
+    """ms per steady ADMM iteration (x-step + element work + residuals), wall clock: from the
+    solver's own per-iteration clock (history["admm_clock_s"]) over iterations skip..n of
+    solves warm-started from the ADMM state after 30 iterations (no setup, start-up or final
+    checks in the interval). Returns (min, median) over ``repeats`` solves."""
     u = admm.solve(case, pushes=pushes, polish=False, lift=False, max_iter=30).u
-
-    def run(n):
-        w, c = time.perf_counter(), time.process_time()
-        admm.solve(case, pushes=pushes, initial=u, polish=False, lift=False, load_steps=1,
-                   max_iter=n, tol_mm=1e-30)
-        return time.perf_counter() - w, time.process_time() - c
-
-    wall, cpu = [], []
+    per = []
     for _ in range(repeats):
-        w1, c1 = run(n1)
-        w2, c2 = run(n2)
-        wall.append(1e3 * (w2 - w1) / (n2 - n1))
-        cpu.append(1e3 * (c2 - c1) / (n2 - n1))
-    return {"wall": (min(wall), float(np.median(wall))), "cpu": (min(cpu), float(np.median(cpu)))}
+        r = admm.solve(case, pushes=pushes, initial=u, polish=False, lift=False, load_steps=1,
+                       max_iter=n, tol_mm=1e-30)
+        c = r.history["admm_clock_s"]
+        per.append(1e3 * (c[-1] - c[skip]) / (len(c) - 1 - skip))
+    return min(per), float(np.median(per))
 
 
 def time_per_iteration_of_solve(case, pushes, tol=SCALING_TOL):
@@ -131,6 +130,8 @@ def main():
     ap.add_argument("--sizes", type=float, nargs="*", default=[10.0, 5.0, 2.8, 1.8])
     ap.add_argument("--skip-fem", action="store_true")
     ap.add_argument("--skip-iteration", action="store_true")
+    ap.add_argument("--rounds", type=int, default=5,
+                    help="interleaved timing rounds of the scaling study (minimum kept)")
     ap.add_argument("--accuracy", action="store_true",
                     help="phantom.toml (size 6), all four actuators 15 mm: ADMM vs reference")
     a = ap.parse_args()
@@ -141,11 +142,9 @@ def main():
     case10 = load_case(CASE, size=10.0)
     if not a.skip_iteration:
         t = time_per_iteration(case10, pushes)
-        print(f"[iteration] phantom size 10: {case10.mesh.n_cells} tets, "
-              f"{t['cpu'][0]:.3f} ms per ADMM iteration CPU (median {t['cpu'][1]:.3f}), wall "
-              f"{t['wall'][0]:.3f} (median {t['wall'][1]:.3f}); min/median of 5 repeats of "
-              f"(220 - 20 iterations) (target <= 0.5 ms; seed: 18.75 ms); {_load()}",
-              flush=True)
+        print(f"[iteration] phantom size 10: {case10.mesh.n_cells} tets, {t[0]:.3f} ms per "
+              f"ADMM iteration (median {t[1]:.3f}), wall clock, min/median of 5 solves of 200 "
+              f"iterations (target <= 0.5 ms; seed: 18.75 ms); {_load()}", flush=True)
 
     # 2. warm re-solve after a 0.5 mm increment, to 0.05 mm, vs reference Newton
     if not a.skip_fem:
@@ -171,13 +170,20 @@ def main():
     if a.accuracy:
         accuracy()
 
-    # 3. scaling: per-iteration time of real solves (2 mm pushes from rest to SCALING_TOL),
-    # peak memory of a fresh setup + 5 iterations
-    rows = []
-    for s in a.sizes:
+    # 3. scaling: per-iteration time and peak memory against mesh size
+    if a.sizes:
+        scaling(a.sizes, pushes, a.rounds)
+
+
+def scaling(sizes, pushes, rounds):
+    """Time per steady ADMM iteration at each size, measured in ``rounds`` interleaved rounds
+    (every size once per round; the minimum per size is kept, so that a slow spell of the shared
+    machine does not bias one size against another), iterations and time per iteration of a
+    solve from rest to SCALING_TOL, and peak memory; then the log-log growth exponents."""
+    cases = []
+    for s in sizes:
         t = time.perf_counter()
-        mesh = phantom(s)
-        case = load_case(CASE, mesh=mesh)
+        case = load_case(CASE, mesh=phantom(s))
         tm = time.perf_counter() - t
         admm._CACHE.clear()
         t = time.process_time()
@@ -188,27 +194,34 @@ def main():
             stats[:] = [0, 0]
         w, c, its, conv = time_per_iteration_of_solve(case, pushes)
         pcg = f", {stats[1] / max(stats[0], 1):.1f} CG iterations per x-step" if stats else ""
-        big = case.mesh.n_cells > 20000
-        st = time_per_iteration(case, pushes, *((10, 40, 1) if big else (20, 220, 3)))
         mem, lu_mib = peak_memory_mib(case, pushes)
-        rows.append((case.mesh.n_cells, st["cpu"][0], st["wall"][0], mem + lu_mib))
         print(f"[scaling] size {s}: {case.mesh.n_cells} tets, {case.mesh.n_vertices} vertices, "
-              f"x-step {ops.lu.kind}{pcg}: steady {st['cpu'][0]:.3f} ms/iteration CPU "
-              f"({st['wall'][0]:.3f} wall); solve from rest: {its} iterations to {SCALING_TOL} mm "
+              f"x-step {ops.lu.kind}{pcg}; solve from rest: {its} iterations to {SCALING_TOL} mm "
               f"(converged {conv}), {c:.3f} ms/iteration CPU ({w:.3f} wall) with its start-up; "
               f"peak {mem:.1f} MiB numpy (tracemalloc) + {lu_mib:.1f} MiB SuperLU factors; setup "
               f"{ts:.2f} s CPU (mesh {tm:.1f} s); {_load()}", flush=True)
+        cases.append((case, mem + lu_mib))
+    steady = [[] for _ in cases]
+    for r in range(rounds):
+        for k, (case, _) in enumerate(cases):
+            big = case.mesh.n_cells > 20000
+            steady[k].append(time_per_iteration(case, pushes, 30 if big else 200, 1)[0])
+        print(f"[scaling] round {r + 1}/{rounds}: ms/iteration "
+              f"{[round(st[-1], 3) for st in steady]}; {_load()}", flush=True)
+    rows = [(case.mesh.n_cells, min(st), float(np.median(st)), m)
+            for (case, m), st in zip(cases, steady)]
+    for row in rows:
+        print("[scaling] table: tets {:7d}  ms/iteration {:9.3f} (median {:9.3f})  peak "
+              "MiB {:8.1f}".format(*row))
     if len(rows) >= 2:
-        n, c, w, m = map(np.array, zip(*rows))
-        kc = np.polyfit(np.log(n), np.log(c), 1)[0]
+        n, w, wm, m = map(np.array, zip(*rows))
         kw = np.polyfit(np.log(n), np.log(w), 1)[0]
+        kwm = np.polyfit(np.log(n), np.log(wm), 1)[0]
         km = np.polyfit(np.log(n), np.log(m), 1)[0]
-        for row in rows:
-            print("[scaling] table: tets {:7d}  ms/iteration CPU {:9.3f}  wall {:9.3f}  peak "
-                  "MiB {:8.1f}".format(*row))
-        print(f"[scaling] growth exponent (least squares on log-log, steady iterations): time per "
-              f"iteration ~ "
-              f"n^{kc:.2f} CPU, n^{kw:.2f} wall (target <= 1.1), peak memory ~ n^{km:.2f}")
+        print(f"[scaling] growth exponent (least squares on log-log, steady iterations, wall "
+              f"clock, one thread): time per iteration ~ n^{kw:.2f} from the minima of {rounds} "
+              f"interleaved rounds (n^{kwm:.2f} from the medians) (target <= 1.1), peak memory "
+              f"~ n^{km:.2f}")
 
 
 if __name__ == "__main__":
