@@ -111,7 +111,13 @@ def load():
         suffix = importlib.machinery.EXTENSION_SUFFIXES[0]
         path = d / (name + suffix)
         if not path.exists():
-            path = _build(name, src, d)
+            try:
+                path = _build(name, src, d)
+            except OSError:  # cache directory not writable: a per-user temporary one
+                d = Path(tempfile.gettempdir()) / f"tissue-reference-{os.getuid()}"
+                path = d / (name + suffix)
+                if not path.exists():
+                    path = _build(name, src, d)
         mod = _import(name, path)
         result = (mod.ffi, mod.lib)
     except Exception as exc:  # noqa: BLE001  (no compiler, no headers, read-only cache: numpy)

@@ -333,11 +333,108 @@ def _spd_splu(A):
                      options={"SymmetricMode": True})
 
 
-def _sym_splu(A):
-    """SuperLU of a symmetric (possibly indefinite) tangent: symmetric minimum-degree ordering,
-    diagonal pivots preferred (threshold 0.01) so the ordering's fill is kept."""
+def _sym_splu(A, cache=None):
+    """Factorization of a symmetric tangent (CSC/CSR, mN/mm) with a ``solve(b)`` method:
+    CHOLMOD's supernodal Cholesky with METIS ordering (through petsc4py, when this PETSc has it)
+    while the tangent is positive definite, else SuperLU with a symmetric minimum-degree ordering
+    and diagonal pivots preferred (threshold 0.01) so the ordering's fill is kept. ``cache``: a
+    dict (per operator set) where the CHOLMOD matrix and its symbolic analysis are kept for the
+    next tangent with the same pattern (numeric refactorization only). On the 4k-dof phantom
+    tangent: SuperLU 0.1 s, CHOLMOD 0.036 s, its numeric refactorization less. RuntimeError when
+    the matrix is singular."""
+    chol = _cholmod_factor(A, {} if cache is None else cache)
+    if chol is not None:
+        return chol
     return spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.01,
                      options={"SymmetricMode": True})
+
+
+def _cholmod_factor(A, cache):
+    """CHOLMOD factorization of A (symmetric) through petsc4py, or None (no petsc4py/CHOLMOD,
+    matrix not positive definite, or too small to be worth it)."""
+    if A.shape[0] < 500:
+        return None
+    try:
+        from petsc4py import PETSc
+
+        from fem_reference.solver import _has_cholmod
+    except ImportError:
+        return None
+    if not _has_cholmod():
+        return None
+    A = sp.csr_matrix(A)
+    f = cache.get("cholmod")
+    if f is not None and f.same_pattern(A):
+        f.M.setValuesCSR(*f.keep[:2], np.array(A.data, dtype=PETSc.ScalarType))
+        f.M.assemble()
+    else:
+        f = cache["cholmod"] = _PetscFactor(A)
+    try:
+        # the numeric factorization runs at the first solve: one here, so that a matrix that is
+        # not positive definite is caught now (CHOLMOD prints a warning for it: silenced)
+        with _quiet_c_output():
+            f.ksp.setUp()
+            f.solve(np.ones(A.shape[0]))
+    except (PETSc.Error, RuntimeError):  # not positive definite: the caller's SuperLU fallback
+        cache.pop("cholmod", None)
+        return None
+    return f
+
+
+class _PetscFactor:
+    """A CHOLMOD-factorizing PETSc KSP of a CSR matrix as a ``solve(b)`` object (petsc4py uses
+    the CSR arrays by reference: they live here as long as the matrix)."""
+
+    def __init__(self, A):
+        from petsc4py import PETSc
+        self.keep = (A.indptr.astype(PETSc.IntType), A.indices.astype(PETSc.IntType),
+                     np.array(A.data, dtype=PETSc.ScalarType))
+        self.M = PETSc.Mat().createAIJ(A.shape, csr=self.keep, comm=PETSc.COMM_SELF)
+        self.M.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+        self.ksp = PETSc.KSP().create(PETSc.COMM_SELF)
+        self.ksp.setOperators(self.M)
+        self.ksp.setType("preonly")
+        self.ksp.getPC().setType("cholesky")
+        self.ksp.getPC().setFactorSolverType("cholmod")
+        self.b, self.x = self.M.createVecLeft(), self.M.createVecRight()
+
+    def same_pattern(self, A):
+        ip, ind, _ = self.keep
+        return (A.shape[0] == len(ip) - 1 and A.nnz == len(ind) and np.array_equal(A.indptr, ip)
+                and np.array_equal(A.indices, ind))
+
+    def solve(self, rhs):
+        rhs = np.asarray(rhs, dtype=float)
+        if rhs.ndim == 2:
+            return np.stack([self.solve(c) for c in rhs.T], axis=1)
+        self.b.array[:] = rhs
+        self.ksp.solve(self.b, self.x)
+        if self.ksp.getConvergedReason() < 0:
+            raise RuntimeError(f"CHOLMOD solve failed (reason {self.ksp.getConvergedReason()})")
+        return self.x.array.copy()
+
+
+class _quiet_c_output:
+    """Silences C-level stdout and stderr (file descriptors 1 and 2) inside the block (CHOLMOD
+    prints its warnings with printf)."""
+
+    def __enter__(self):
+        import os
+        import sys
+        sys.stdout.flush()
+        sys.stderr.flush()
+        self._saved = [(fd, os.dup(fd)) for fd in (1, 2)]
+        null = os.open(os.devnull, os.O_WRONLY)
+        for fd, _ in self._saved:
+            os.dup2(null, fd)
+        os.close(null)
+
+    def __exit__(self, *exc):
+        import os
+        for fd, saved in self._saved:
+            os.dup2(saved, fd)
+            os.close(saved)
+        return False
 
 
 class _Direct:
@@ -775,6 +872,7 @@ class AdmmOperators:
         self.nq = Z.shape[1]
         self._kpat = None  # reduced tangent's CSR pattern (built on first use)
         self._Dm = None  # gradient operator in mesh element order (built on first use)
+        self.factor_cache = {}  # the polish's CHOLMOD matrix and symbolic analysis
         self.setup_s = time.perf_counter() - t0
 
     def reduced_tangent(self, u, diag=None):
@@ -1355,7 +1453,7 @@ def _tangent_lift(ops, u, up, it):
         return u
     Kr, Ke = ops.reduced_tangent(u)
     try:
-        s = _sym_splu(Kr).solve(-(ops.red.ZT @ ops.apply_elements(Ke, delta)))
+        s = _sym_splu(Kr, ops.factor_cache).solve(-(ops.red.ZT @ ops.apply_elements(Ke, delta)))
     except RuntimeError as exc:
         raise _diverged(f"singular tangent in the boundary lift ({exc})", it, -1) from None
     cand = up + Z @ (zu + s)
@@ -1398,7 +1496,7 @@ def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback):
         rr = ops.red.ZT @ r
         Kr, _ = ops.reduced_tangent(u, None if inertia is None else inertia[0])
         try:
-            dq = -_sym_splu(Kr).solve(rr)
+            dq = -_sym_splu(Kr, ops.factor_cache).solve(rr)
         except RuntimeError as exc:
             raise _diverged(f"singular tangent in the Newton polish ({exc})", it0 + k, -1) from None
         du = Z @ dq

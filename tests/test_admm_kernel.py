@@ -118,3 +118,36 @@ def test_compiled_amg_pcg_matches_the_numpy_one(mode, monkeypatch):
     assert lc == pytest.approx(ln, rel=1e-6)
     if mode == "solve":
         assert np.linalg.norm(B - A @ Xc) <= 1e-10 * np.linalg.norm(B)
+
+
+def test_polish_factorization_is_cholmod_while_definite_and_superlu_otherwise():
+    """The Newton polish's tangent factorization: CHOLMOD (symbolic analysis kept for the next
+    tangent of the same pattern) while positive definite, SuperLU otherwise; same solutions."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    from fem_reference.solver import _has_cholmod
+    case = _case(box(1.5), "neo-hookean")
+    ops = admm.prepare(case)
+    u = admm.solve(case, polish=False, max_iter=50).u.ravel()
+    K, _ = ops.reduced_tangent(u)
+    assert K.shape[0] >= 500
+    b = np.random.default_rng(5).standard_normal(K.shape[0])
+    cache = {}
+    f1 = admm._sym_splu(K, cache)
+    assert isinstance(f1, admm._PetscFactor) == _has_cholmod()
+    ref = spla.spsolve(K.tocsc(), b)
+    assert np.abs(f1.solve(b) - ref).max() <= 1e-9 * np.abs(ref).max()
+    K2 = K * 1.5 + sp.diags(np.full(K.shape[0], 0.1 * abs(K.diagonal()).max()))
+    f2 = admm._sym_splu(K2.tocsc(), cache)
+    if _has_cholmod():
+        assert f2 is f1  # same pattern: the same CHOLMOD matrix, refactorized
+    ref2 = spla.spsolve(K2.tocsc(), b)
+    assert np.abs(f2.solve(b) - ref2).max() <= 1e-9 * np.abs(ref2).max()
+    # indefinite: shifted below its smallest eigenvalue's magnitude -> SuperLU, still solved
+    K3 = (K - sp.diags(np.full(K.shape[0], 0.5 * abs(K.diagonal()).min()))).tocsc()
+    assert np.linalg.eigvalsh(K3.toarray()).min() < 0
+    f3 = admm._sym_splu(K3, cache)
+    assert not isinstance(f3, admm._PetscFactor)
+    ref3 = spla.spsolve(K3, b)
+    assert np.abs(f3.solve(b) - ref3).max() <= 1e-8 * np.abs(ref3).max()
