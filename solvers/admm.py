@@ -67,11 +67,11 @@ x-step solver: without oblique sliding, D^T W^2 D (+ M/dt^2) is a scalar matrix 
 node-major order, so one scalar SuperLU factorization per distinct free-vertex set serves all
 components (multi-column solves; the reduced unknowns are ordered component-major, so the
 right-hand side is a view, no gather); with oblique sliding the reduced coupled matrix is
-factorized. From PCG_MIN (20000) free vertices on (about 100k tets) the scalar matrix is not
+factorized. From PCG_MIN (4000) free vertices on (about 20k tets) the scalar matrix is not
 factorized (a direct factor's fill and solve time grow like n^1.4-1.5 on these 3D meshes: 28M
-factor entries, 320 MiB and 130 ms per solve at 185k tets) but solved by conjugate gradients
-preconditioned with a smoothed-aggregation AMG V-cycle built here (scipy only; O(n) work and
-memory): the x-step is then inexact, warm-started from the previous iterate and stopped when its
+factor entries, 320 MiB and 130 ms per solve at 185k tets; at 50k tets SuperLU's solve took
+12 ms, CG 6 ms) but solved by conjugate gradients preconditioned with an aggregation AMG
+V-cycle built here (scipy, the iteration in C; O(n) work and memory): the x-step is then inexact, warm-started from the previous iterate and stopped when its
 largest vertex update is below PCG_RTOL (0.3) times the first one or below XSTEP_TOL (0.1) times
 the ADMM tolerance; the ADMM stopping rule also requires the last CG update below ``tol_mm``.
 The x-step matrix is constant, so at an ADMM fixed point the warm start solves it exactly and
@@ -333,108 +333,20 @@ def _spd_splu(A):
                      options={"SymmetricMode": True})
 
 
-def _sym_splu(A, cache=None):
-    """Factorization of a symmetric tangent (CSC/CSR, mN/mm) with a ``solve(b)`` method:
-    CHOLMOD's supernodal Cholesky with METIS ordering (through petsc4py, when this PETSc has it)
-    while the tangent is positive definite, else SuperLU with a symmetric minimum-degree ordering
-    and diagonal pivots preferred (threshold 0.01) so the ordering's fill is kept. ``cache``: a
-    dict (per operator set) where the CHOLMOD matrix and its symbolic analysis are kept for the
-    next tangent with the same pattern (numeric refactorization only). On the 4k-dof phantom
-    tangent: SuperLU 0.1 s, CHOLMOD 0.036 s, its numeric refactorization less. RuntimeError when
-    the matrix is singular."""
-    chol = _cholmod_factor(A, {} if cache is None else cache)
-    if chol is not None:
-        return chol
+def _sym_splu(A, cache=None, factorize=None):
+    """Factorization of a symmetric tangent (CSC/CSR, mN/mm) with a ``solve(b)`` method.
+    ``factorize(A, cache)`` (optional, e.g. ``fem_reference.cholmod_factor``: CHOLMOD through
+    PETSc, which this package does not import) is tried first; when it is absent or returns None
+    (e.g. the tangent is not positive definite), SuperLU with a symmetric minimum-degree
+    ordering and diagonal pivots preferred (threshold 0.01) so the ordering's fill is kept.
+    ``cache``: a dict per operator set that ``factorize`` may keep its symbolic analysis in.
+    RuntimeError when the matrix is singular."""
+    if factorize is not None:
+        f = factorize(A, {} if cache is None else cache)
+        if f is not None:
+            return f
     return spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.01,
                      options={"SymmetricMode": True})
-
-
-def _cholmod_factor(A, cache):
-    """CHOLMOD factorization of A (symmetric) through petsc4py, or None (no petsc4py/CHOLMOD,
-    matrix not positive definite, or too small to be worth it)."""
-    if A.shape[0] < 500:
-        return None
-    try:
-        from petsc4py import PETSc
-
-        from fem_reference.solver import _has_cholmod
-    except ImportError:
-        return None
-    if not _has_cholmod():
-        return None
-    A = sp.csr_matrix(A)
-    f = cache.get("cholmod")
-    if f is not None and f.same_pattern(A):
-        f.M.setValuesCSR(*f.keep[:2], np.array(A.data, dtype=PETSc.ScalarType))
-        f.M.assemble()
-    else:
-        f = cache["cholmod"] = _PetscFactor(A)
-    try:
-        # the numeric factorization runs at the first solve: one here, so that a matrix that is
-        # not positive definite is caught now (CHOLMOD prints a warning for it: silenced)
-        with _quiet_c_output():
-            f.ksp.setUp()
-            f.solve(np.ones(A.shape[0]))
-    except (PETSc.Error, RuntimeError):  # not positive definite: the caller's SuperLU fallback
-        cache.pop("cholmod", None)
-        return None
-    return f
-
-
-class _PetscFactor:
-    """A CHOLMOD-factorizing PETSc KSP of a CSR matrix as a ``solve(b)`` object (petsc4py uses
-    the CSR arrays by reference: they live here as long as the matrix)."""
-
-    def __init__(self, A):
-        from petsc4py import PETSc
-        self.keep = (A.indptr.astype(PETSc.IntType), A.indices.astype(PETSc.IntType),
-                     np.array(A.data, dtype=PETSc.ScalarType))
-        self.M = PETSc.Mat().createAIJ(A.shape, csr=self.keep, comm=PETSc.COMM_SELF)
-        self.M.setOption(PETSc.Mat.Option.SYMMETRIC, True)
-        self.ksp = PETSc.KSP().create(PETSc.COMM_SELF)
-        self.ksp.setOperators(self.M)
-        self.ksp.setType("preonly")
-        self.ksp.getPC().setType("cholesky")
-        self.ksp.getPC().setFactorSolverType("cholmod")
-        self.b, self.x = self.M.createVecLeft(), self.M.createVecRight()
-
-    def same_pattern(self, A):
-        ip, ind, _ = self.keep
-        return (A.shape[0] == len(ip) - 1 and A.nnz == len(ind) and np.array_equal(A.indptr, ip)
-                and np.array_equal(A.indices, ind))
-
-    def solve(self, rhs):
-        rhs = np.asarray(rhs, dtype=float)
-        if rhs.ndim == 2:
-            return np.stack([self.solve(c) for c in rhs.T], axis=1)
-        self.b.array[:] = rhs
-        self.ksp.solve(self.b, self.x)
-        if self.ksp.getConvergedReason() < 0:
-            raise RuntimeError(f"CHOLMOD solve failed (reason {self.ksp.getConvergedReason()})")
-        return self.x.array.copy()
-
-
-class _quiet_c_output:
-    """Silences C-level stdout and stderr (file descriptors 1 and 2) inside the block (CHOLMOD
-    prints its warnings with printf)."""
-
-    def __enter__(self):
-        import os
-        import sys
-        sys.stdout.flush()
-        sys.stderr.flush()
-        self._saved = [(fd, os.dup(fd)) for fd in (1, 2)]
-        null = os.open(os.devnull, os.O_WRONLY)
-        for fd, _ in self._saved:
-            os.dup2(null, fd)
-        os.close(null)
-
-    def __exit__(self, *exc):
-        import os
-        for fd, saved in self._saved:
-            os.dup2(saved, fd)
-            os.close(saved)
-        return False
 
 
 class _Direct:
@@ -872,7 +784,7 @@ class AdmmOperators:
         self.nq = Z.shape[1]
         self._kpat = None  # reduced tangent's CSR pattern (built on first use)
         self._Dm = None  # gradient operator in mesh element order (built on first use)
-        self.factor_cache = {}  # the polish's CHOLMOD matrix and symbolic analysis
+        self.factor_cache = {}  # kept by ``factorize`` (e.g. a symbolic analysis)
         self.setup_s = time.perf_counter() - t0
 
     def reduced_tangent(self, u, diag=None):
@@ -1443,7 +1355,7 @@ def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, 
     return up + Z @ q, k, converged
 
 
-def _tangent_lift(ops, u, up, it):
+def _tangent_lift(ops, u, up, it, factorize=None):
     """u with its prescribed part moved to up's values and the interior moved by the linearized
     (tangent at u) response to that boundary change."""
     Z = ops.red.Z
@@ -1453,7 +1365,8 @@ def _tangent_lift(ops, u, up, it):
         return u
     Kr, Ke = ops.reduced_tangent(u)
     try:
-        s = _sym_splu(Kr, ops.factor_cache).solve(-(ops.red.ZT @ ops.apply_elements(Ke, delta)))
+        rhs = -(ops.red.ZT @ ops.apply_elements(Ke, delta))
+        s = _sym_splu(Kr, ops.factor_cache, factorize).solve(rhs)
     except RuntimeError as exc:
         raise _diverged(f"singular tangent in the boundary lift ({exc})", it, -1) from None
     cand = up + Z @ (zu + s)
@@ -1487,7 +1400,7 @@ def _residual(ops, u, fext, inertia):
     return r
 
 
-def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback):
+def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback, factorize=None):
     """Newton on the same P1 energy (exact tangent, backtracking on the energy, J > 0)."""
     Z, d = ops.red.Z, ops.d
     k = 0
@@ -1496,7 +1409,7 @@ def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback):
         rr = ops.red.ZT @ r
         Kr, _ = ops.reduced_tangent(u, None if inertia is None else inertia[0])
         try:
-            dq = -_sym_splu(Kr, ops.factor_cache).solve(rr)
+            dq = -_sym_splu(Kr, ops.factor_cache, factorize).solve(rr)
         except RuntimeError as exc:
             raise _diverged(f"singular tangent in the Newton polish ({exc})", it0 + k, -1) from None
         du = Z @ dq
@@ -1536,7 +1449,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
           polish_max_iter: int = 25, dynamics: ImplicitEuler | None = None, callback=None,
           load_steps: int | None = None, step_mm: float = 3.0,
           intermediate_tol_mm: float = 1e-2, lift="auto", handoff_mm: float = 1e-2,
-          progress: bool = False) -> SolveResult:
+          progress: bool = False, factorize=None) -> SolveResult:
     """ADMM solve of a Case (quasi-static equilibrium, or implicit-Euler dynamics).
 
     pushes: actuator name -> push (mm), applied with ``case.with_pushes``.
@@ -1559,6 +1472,10 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         harmonic extension (free, already factorized); "auto" (default): the tangent lift when
         a load step moves the boundary by more than 1 mm. Counted in ``extra["lift_solves"]``.
     callback(it, u): called after every iteration (ADMM, then polish) with u (mm, (n, gdim)).
+    factorize(A, cache): factorization of the polish's and lift's symmetric tangents with a
+        ``solve(b)`` method, or None for SuperLU (the default); ``fem_reference.cholmod_factor``
+        (CHOLMOD through PETSc, which this module does not import) is ~3x faster on the phantom
+        and is what ``tissue solve`` / ``tissue verify`` pass.
     Raises SolverDivergedError (iteration and element named) on NaN, inverted elements or
     residual growth.
     """
@@ -1608,7 +1525,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
             tol_j = tol_mm if last else max(tol_mm, intermediate_tol_mm)
             up_j = uc + s * (up - uc)
             if lift is True or (lift == "auto" and jump / load_steps > 1.0):
-                u = _tangent_lift(ops, u, up_j, admm_it + newton_it)
+                u = _tangent_lift(ops, u, up_j, admm_it + newton_it, factorize)
                 lifts += 1
             u_start = u
             u, k, converged = _admm(ops, up_j, s * fext, u, tol_mm=admm_tol(tol_j),
@@ -1621,14 +1538,14 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
                 try:
                     u, kn = _newton(ops, u, s * fext, None, tol_mm=ptol,
                                     max_iter=polish_max_iter, it0=admm_it + newton_it,
-                                    hist=hist, callback=callback)
+                                    hist=hist, callback=callback, factorize=factorize)
                 except SolverDivergedError as exc:
                     # the unconverged ADMM state left Newton's basin: restart the polish
                     # from the step's start state (reported in extra["polish_restarts"])
                     restarts.append(f"load step {j}: {exc}")
                     u, kn = _newton(ops, u_start, s * fext, None, tol_mm=ptol,
                                     max_iter=polish_max_iter, it0=admm_it + newton_it,
-                                    hist=hist, callback=callback)
+                                    hist=hist, callback=callback, factorize=factorize)
                 newton_it += kn
                 if last:
                     converged = hist["newton_step_mm"][-1] < polish_tol_mm
@@ -1649,7 +1566,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
             if polish:
                 un, kn = _newton(ops, un, fext, inertia, tol_mm=polish_tol_mm,
                                  max_iter=polish_max_iter, it0=admm_it + newton_it, hist=hist,
-                                 callback=callback)
+                                 callback=callback, factorize=factorize)
                 newton_it += kn
                 conv = hist["newton_step_mm"][-1] < polish_tol_mm
             converged = converged and conv

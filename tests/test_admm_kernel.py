@@ -121,11 +121,15 @@ def test_compiled_amg_pcg_matches_the_numpy_one(mode, monkeypatch):
 
 
 def test_polish_factorization_is_cholmod_while_definite_and_superlu_otherwise():
-    """The Newton polish's tangent factorization: CHOLMOD (symbolic analysis kept for the next
-    tangent of the same pattern) while positive definite, SuperLU otherwise; same solutions."""
+    """The Newton polish's tangent factorization with the ``factorize`` hook that ``tissue``
+    passes (fem_reference.cholmod_factor): CHOLMOD while positive definite (symbolic analysis
+    kept for the next tangent of the same pattern), SuperLU otherwise; same solutions. Without
+    the hook: SuperLU."""
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
+    from fem_reference import cholmod_factor
+    from fem_reference.factor import _PetscFactor
     from fem_reference.solver import _has_cholmod
     case = _case(box(1.5), "neo-hookean")
     ops = admm.prepare(case)
@@ -133,21 +137,31 @@ def test_polish_factorization_is_cholmod_while_definite_and_superlu_otherwise():
     K, _ = ops.reduced_tangent(u)
     assert K.shape[0] >= 500
     b = np.random.default_rng(5).standard_normal(K.shape[0])
+    assert not isinstance(admm._sym_splu(K), _PetscFactor)
     cache = {}
-    f1 = admm._sym_splu(K, cache)
-    assert isinstance(f1, admm._PetscFactor) == _has_cholmod()
+    f1 = admm._sym_splu(K, cache, cholmod_factor)
+    assert isinstance(f1, _PetscFactor) == _has_cholmod()
     ref = spla.spsolve(K.tocsc(), b)
     assert np.abs(f1.solve(b) - ref).max() <= 1e-9 * np.abs(ref).max()
     K2 = K * 1.5 + sp.diags(np.full(K.shape[0], 0.1 * abs(K.diagonal()).max()))
-    f2 = admm._sym_splu(K2.tocsc(), cache)
+    f2 = admm._sym_splu(K2.tocsc(), cache, cholmod_factor)
     if _has_cholmod():
         assert f2 is f1  # same pattern: the same CHOLMOD matrix, refactorized
     ref2 = spla.spsolve(K2.tocsc(), b)
     assert np.abs(f2.solve(b) - ref2).max() <= 1e-9 * np.abs(ref2).max()
-    # indefinite: shifted below its smallest eigenvalue's magnitude -> SuperLU, still solved
+    # indefinite (shifted): SuperLU, still solved
     K3 = (K - sp.diags(np.full(K.shape[0], 0.5 * abs(K.diagonal()).min()))).tocsc()
     assert np.linalg.eigvalsh(K3.toarray()).min() < 0
-    f3 = admm._sym_splu(K3, cache)
-    assert not isinstance(f3, admm._PetscFactor)
+    f3 = admm._sym_splu(K3, cache, cholmod_factor)
+    assert not isinstance(f3, _PetscFactor)
     ref3 = spla.spsolve(K3, b)
     assert np.abs(f3.solve(b) - ref3).max() <= 1e-8 * np.abs(ref3).max()
+
+
+def test_polished_solve_is_the_same_with_cholmod_and_superlu():
+    from fem_reference import cholmod_factor
+    case = _case(box(1.5), "neo-hookean")
+    a = admm.solve(case)
+    b = admm.solve(case, factorize=cholmod_factor)
+    assert a.converged and b.converged
+    assert np.abs(a.u - b.u).max() <= 1e-8

@@ -45,6 +45,10 @@ def run_solver(name: str, case: Case, *, degree: int = 1, pushes=None, initial=N
         return solve(case, degree=degree, pushes=pushes, initial=initial, progress=progress, **kw)
     if name == "admm":
         from solvers.admm import solve
+        if "factorize" not in kw:
+            from fem_reference import cholmod_factor
+
+            kw["factorize"] = cholmod_factor  # the polish's tangents by CHOLMOD (PETSc)
     elif name == "mass-tensor":
         from solvers.mass_tensor import solve
     else:

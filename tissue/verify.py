@@ -118,6 +118,10 @@ def verify(case, pushes=None, solvers=("admm", "mass-tensor"), out_dir=None, *, 
                 "first_call_wall_time_s": float(first.wall_time_s)}
         rcase, res_ref = refs[model]
         kw = {**defaults, **options.get(name, {})}
+        if key == "admm" and "factorize" not in kw:
+            from fem_reference import cholmod_factor
+
+            kw["factorize"] = cholmod_factor  # the polish's tangents by CHOLMOD (PETSc)
         # run 1 (traced): error to the reference and largest displacement at every iteration
         trace = {"iteration": [], "max_error_mm": [], "max_step_mm": []}
         state = {"prev": None}

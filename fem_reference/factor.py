@@ -1,0 +1,97 @@
+"""CHOLMOD factorizations of scipy sparse matrices through PETSc, for callers outside this
+package that must not import PETSc themselves (``solvers.admm.solve(..., factorize=
+cholmod_factor)``: the Newton polish of the ADMM solver). Units are the caller's."""
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+import scipy.sparse as sp
+from petsc4py import PETSc
+
+from .solver import _has_cholmod
+
+__all__ = ["cholmod_factor"]
+
+
+def cholmod_factor(A, cache: dict | None = None):
+    """CHOLMOD factorization (supernodal Cholesky, METIS ordering) of a symmetric scipy sparse
+    matrix A through PETSc, as an object with ``solve(b)`` (b of shape (n,) or (n, k)); None
+    when this PETSc has no CHOLMOD, when A is not positive definite or smaller than 500 rows (not
+    worth it). ``cache`` (a dict): the CHOLMOD matrix is kept there and the next call with the
+    same sparsity pattern only refactorizes numerically. This is the ``factorize`` hook of
+    ``solvers.admm.solve`` (the fast solvers import no PETSc): on the 4k-dof phantom tangent it
+    factorizes in 0.036 s against SuperLU's 0.1 s."""
+    if A.shape[0] < 500 or not _has_cholmod():
+        return None
+    cache = {} if cache is None else cache
+    A = sp.csr_matrix(A)
+    f = cache.get("cholmod")
+    if f is not None and f.same_pattern(A):
+        f.M.setValuesCSR(*f.keep[:2], np.array(A.data, dtype=PETSc.ScalarType))
+        f.M.assemble()
+    else:
+        f = cache["cholmod"] = _PetscFactor(A)
+    try:
+        # the numeric factorization runs at the first solve: one here, so that a matrix that is
+        # not positive definite is caught now (CHOLMOD prints a warning for it: silenced)
+        with _quiet_c_output():
+            f.ksp.setUp()
+            f.solve(np.ones(A.shape[0]))
+    except (PETSc.Error, RuntimeError):  # not positive definite: the caller falls back
+        cache.pop("cholmod", None)
+        return None
+    return f
+
+
+class _PetscFactor:
+    """A CHOLMOD-factorizing PETSc KSP of a CSR matrix as a ``solve(b)`` object (petsc4py uses
+    the CSR arrays by reference: they live here as long as the matrix)."""
+
+    def __init__(self, A):
+        self.keep = (A.indptr.astype(PETSc.IntType), A.indices.astype(PETSc.IntType),
+                     np.array(A.data, dtype=PETSc.ScalarType))
+        self.M = PETSc.Mat().createAIJ(A.shape, csr=self.keep, comm=PETSc.COMM_SELF)
+        self.M.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+        self.ksp = PETSc.KSP().create(PETSc.COMM_SELF)
+        self.ksp.setOperators(self.M)
+        self.ksp.setType("preonly")
+        self.ksp.getPC().setType("cholesky")
+        self.ksp.getPC().setFactorSolverType("cholmod")
+        self.b, self.x = self.M.createVecLeft(), self.M.createVecRight()
+
+    def same_pattern(self, A):
+        ip, ind, _ = self.keep
+        return (A.shape[0] == len(ip) - 1 and A.nnz == len(ind) and np.array_equal(A.indptr, ip)
+                and np.array_equal(A.indices, ind))
+
+    def solve(self, rhs):
+        rhs = np.asarray(rhs, dtype=float)
+        if rhs.ndim == 2:
+            return np.stack([self.solve(c) for c in rhs.T], axis=1)
+        self.b.array[:] = rhs
+        self.ksp.solve(self.b, self.x)
+        if self.ksp.getConvergedReason() < 0:
+            raise RuntimeError(f"CHOLMOD solve failed (reason {self.ksp.getConvergedReason()})")
+        return self.x.array.copy()
+
+
+class _quiet_c_output:
+    """Silences C-level stdout and stderr (file descriptors 1 and 2) inside the block (CHOLMOD
+    prints its warnings with printf)."""
+
+    def __enter__(self):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        self._saved = [(fd, os.dup(fd)) for fd in (1, 2)]
+        null = os.open(os.devnull, os.O_WRONLY)
+        for fd, _ in self._saved:
+            os.dup2(null, fd)
+        os.close(null)
+
+    def __exit__(self, *exc):
+        for fd, saved in self._saved:
+            os.dup2(saved, fd)
+            os.close(saved)
+        return False
