@@ -3,14 +3,11 @@ package that must not import PETSc themselves (``solvers.admm.solve(..., factori
 cholmod_factor)``: the Newton polish of the ADMM solver). Units are the caller's."""
 from __future__ import annotations
 
-import os
-import sys
-
 import numpy as np
 import scipy.sparse as sp
 from petsc4py import PETSc
 
-from .solver import _has_cholmod
+from .solver import _has_cholmod, _quiet_c_output
 
 __all__ = ["cholmod_factor"]
 
@@ -75,23 +72,3 @@ class _PetscFactor:
         if self.ksp.getConvergedReason() < 0:
             raise RuntimeError(f"CHOLMOD solve failed (reason {self.ksp.getConvergedReason()})")
         return self.x.array.copy()
-
-
-class _quiet_c_output:
-    """Silences C-level stdout and stderr (file descriptors 1 and 2) inside the block (CHOLMOD
-    prints its warnings with printf)."""
-
-    def __enter__(self):
-        sys.stdout.flush()
-        sys.stderr.flush()
-        self._saved = [(fd, os.dup(fd)) for fd in (1, 2)]
-        null = os.open(os.devnull, os.O_WRONLY)
-        for fd, _ in self._saved:
-            os.dup2(null, fd)
-        os.close(null)
-
-    def __exit__(self, *exc):
-        for fd, saved in self._saved:
-            os.dup2(saved, fd)
-            os.close(saved)
-        return False

@@ -13,6 +13,7 @@ from __future__ import annotations
 import functools
 import logging
 import math
+import os
 import sys
 import time
 from dataclasses import dataclass
@@ -70,6 +71,26 @@ def _has_cholmod() -> bool:
         k.setUp()
         return True
     except PETSc.Error:
+        return False
+
+
+class _quiet_c_output:
+    """Silences C-level stdout and stderr (file descriptors 1 and 2) inside the block (CHOLMOD
+    prints its warnings with printf)."""
+
+    def __enter__(self):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        self._saved = [(fd, os.dup(fd)) for fd in (1, 2)]
+        null = os.open(os.devnull, os.O_WRONLY)
+        for fd, _ in self._saved:
+            os.dup2(null, fd)
+        os.close(null)
+
+    def __exit__(self, *exc):
+        for fd, saved in self._saved:
+            os.dup2(saved, fd)
+            os.close(saved)
         return False
 
 
@@ -476,7 +497,11 @@ class ReferenceSolver:
         if self.linear_solver == "lagged":
             self.ksp.setTolerances(rtol=eta)
         try:
-            self.ksp.solve(self.b, self.du.vector)
+            if self.factor_package == "cholmod":
+                with _quiet_c_output():  # CHOLMOD printf's a warning on an indefinite tangent
+                    self.ksp.solve(self.b, self.du.vector)
+            else:
+                self.ksp.solve(self.b, self.du.vector)
         except PETSc.Error:
             if self.factor_package != "cholmod":
                 raise
