@@ -1541,8 +1541,11 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
                                     hist=hist, callback=callback, factorize=factorize)
                 except SolverDivergedError as exc:
                     # the unconverged ADMM state left Newton's basin: restart the polish
-                    # from the step's start state (reported in extra["polish_restarts"])
+                    # from the step's start state (reported in extra["polish_restarts"]),
+                    # carried to this step's boundary values first (without a lift it still
+                    # has the previous step's, which Newton would keep: it moves free dofs only)
                     restarts.append(f"load step {j}: {exc}")
+                    u_start = _tangent_lift(ops, u_start, up_j, admm_it + newton_it, factorize)
                     u, kn = _newton(ops, u_start, s * fext, None, tol_mm=ptol,
                                     max_iter=polish_max_iter, it0=admm_it + newton_it,
                                     hist=hist, callback=callback, factorize=factorize)

@@ -243,3 +243,25 @@ def test_reduced_tangent_from_the_cached_pattern_equals_the_assembled_one(phanto
     assert abs(Kr - ref).max() <= 1e-12 * abs(ref).max()
     v = np.random.default_rng(0).standard_normal(u.size)
     assert np.allclose(ops.apply_elements(Ke, v), admm.tangent_stiffness(case, u) @ v)
+
+
+def test_polish_restart_starts_from_this_steps_boundary_values(small_box, monkeypatch):
+    """A polish that leaves Newton's basin restarts from the load step's start state; without a
+    lift that state still has the previous step's boundary values, which Newton (free dofs only)
+    would keep: the restart must carry it to this step's values first."""
+    case = _box_case(small_box)
+    real = admm._newton
+    calls = {"n": 0}
+
+    def newton_failing_once(*a, **kw):
+        calls["n"] += 1
+        if calls["n"] == 1:
+            raise SolverDivergedError("forced: left Newton's basin")
+        return real(*a, **kw)
+
+    monkeypatch.setattr(admm, "_newton", newton_failing_once)
+    res = admm.solve(case, lift=False, load_steps=1, max_iter=5)
+    assert len(res.extra["polish_restarts"]) == 1 and res.converged
+    c = case.constraints
+    assert np.abs(res.u.ravel()[c.dofs] - c.values).max() < 1e-12
+    assert np.abs(admm.internal_forces(case, res.u)[case.free_dofs()]).max() < 1e-6
