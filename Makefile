@@ -3,7 +3,8 @@
 #   make test   runs the test suite
 # Each installs what is missing (apt-get as root, the venv, pip with constraints.txt), quickly when not.
 # libopenblas0-pthread replaces Debian's reference BLAS (the default libblas3), which made every
-# MUMPS factorization about 5x slower.
+# MUMPS factorization about 5x slower. gcc + python3-dev compile dolfinx's forms and the ADMM
+# kernel (solvers/admm_kernel.c, built on first use).
 SHELL := /bin/bash
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -19,7 +20,8 @@ venv: $(STAMP)
 
 system-deps:
 	@if ! /usr/bin/python3 -c "import dolfinx, gmsh, scipy, matplotlib, meshio, h5py, ensurepip" >/dev/null 2>&1 \
-	   || ! command -v mpirun >/dev/null || ! dpkg -s libopenblas0-pthread >/dev/null 2>&1; then \
+	   || ! command -v mpirun >/dev/null || ! command -v gcc >/dev/null \
+	   || ! dpkg -s libopenblas0-pthread >/dev/null 2>&1; then \
 	  echo "== installing Debian packages: $(APT_PKGS)"; \
 	  $(SUDO) apt-get update -q && \
 	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -q --no-install-recommends $(APT_PKGS); \
