@@ -39,7 +39,7 @@ typedef struct {
     const double *dw;
     double *x, *r, *b;
 } amg_level;
-int amg_pcg(int nlev, const amg_level *lv, long nc, const double *Lc, int k, const double *B,
+int amg_pcg(int nlev, const amg_level *lv, long nc, const double *Ainv, int k, const double *B,
             double *X, int maxit, double rtol, double step_tol, double step_rtol, int min_it,
             double *work, double *cwork, double *last_update);
 """

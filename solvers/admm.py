@@ -22,39 +22,37 @@ Material (seed eq. 14, ``case.material``): psi = mu/2 (J^(-2/3) I1 - 3) + kappa/
 or linear elasticity psi = mu eps:eps + lambda/2 tr(eps)^2. 2D meshes are plane strain (F33 = 1).
 
 z-step: linear elasticity in closed form (skew / deviatoric / volumetric parts). Neo-Hookean:
-one Newton-type step per ADMM iteration for all elements at once (vectorized numpy), warm-started
-from the previous z, with the model Hessian (rho + mu J^(-2/3)) I + max(kappa (2 - 1/J), 0)
-cof (x) cof (the penalty and volumetric parts of the exact one) inverted in closed form
-(Sherman-Morrison), so no per-element 9x9 matrices are formed, stored or inverted; steps that
-are not provably safe (large, or J near 0) get a backtracking line search keeping J > 0 and
-decreasing the local objective. At a fixed point the z-step gradient vanishes, so the fixed
-point is exact whatever the model. Layout: H, z and the scaled dual are kept as (d, d, m)
-structure-of-arrays blocks (entry (i, J) of all elements contiguous; D's rows are in that
-order) and the loop carries F = I + z (the identity folded into the constant x-step terms), in
-preallocated buffers; the element-local work (z-step, dual update, residuals) runs in blocks
-of CHUNK elements that stay in cache. Elements are ordered internally by the reverse
-Cuthill-McKee rank of their first vertex and the free vertices by that rank (locality of the
-sparse products on large meshes; element numbers in error messages are the mesh's). One
-iteration at ~1.8k tets: x-step (two sparse products with D, one multi-column SuperLU solve),
-z-step, dual update and residuals, about 0.55-0.9 ms CPU on the shared 2-core development
-machine, depending on its load (``bench/bench_admm.py``).
+one Newton-type step per ADMM iteration for every element, warm-started from the previous z,
+with the model Hessian (rho + mu J^(-2/3)) I + max(kappa (2 - 1/J), 0) cof (x) cof (the penalty
+and volumetric parts of the exact one) inverted in closed form (Sherman-Morrison), so no
+per-element 9x9 matrices are formed, stored or inverted; steps that are not provably safe
+(large, or J near 0) get a backtracking line search keeping J > 0 and decreasing the local
+objective. At a fixed point the z-step gradient vanishes, so the fixed point is exact whatever
+the model. The loop carries F = I + z (the identity folded into the constant x-step terms).
+The element work of an iteration (gather of D u, z-step, dual update, residuals, scatter of the
+next x-step data) runs in one compiled pass (``admm_kernel.c``, built on first use, see
+``use_kernel``; ``_KernelElements``), or, without a C compiler, in numpy on (d, d, m)
+structure-of-arrays blocks of CHUNK elements (``_NumpyElements``, the same arithmetic; the
+tests compare the two). Elements and vertices are ordered internally by reverse Cuthill-McKee
+rank (locality on large meshes; element numbers in error messages are the mesh's). One
+iteration at ~1.8k tets takes about 0.17-0.32 ms on the shared 2-core development machine,
+depending on its load (``bench/bench_admm.py``).
 
-Stopping rule (mm): primal = max_e h_e |D_e u - z_e|, dual = (rho/rho0) max_e h_e
-|z_e^k - z_e^(k-1)| (h_e = V_e^(1/gdim), a length); both below ``tol_mm`` (and, with the
-iterative x-step of large meshes, its last CG update below ``tol_mm``). Quasi-static solves
-double rho (up to 64 rho0; free: the x-step matrix is rho times a fixed one) when the primal
-residual stagnates over 25 iterations (nonconvex elements can cycle between two local z-step
-minima); the changes are listed in ``history["rho_changes"]``. ADMM converges linearly, so by default a
-"Newton polish" follows: Newton steps on the same P1 energy with this module's exact tangent
-(``tangent_stiffness``, assembled straight into a cached CSR pattern of the reduced unknowns)
-until the largest Newton step is below ``polish_tol_mm``. With the polish, ADMM only has to bring
-each load step near Newton's basin: it hands over at ``handoff_mm`` (0.01 mm) or after
-``max_iter`` iterations (default 20 with the polish, 20000 without); on the phantom with all
-four actuators pushed 15 mm (1782 tets) this cut the solve from 6486 ADMM iterations + 10 Newton
-(about 12.6 s in ``make demo``) to 86 ADMM + 14 Newton iterations (about 1 s on the loaded
-development machine; the warm reference: 0.3-0.7 s), same answer (to 1e-11 mm). Both iteration counts are reported (``extra["admm_iterations"]``,
-``extra["newton_iterations"]``); ``history["admm_clock_s"]`` holds the wall-clock time (s, from
-the start of the solve) at the end of every ADMM iteration.
+Stopping rule (mm): primal = max_e h_e |D_e u - z_e|, dual = (rho/rho0) max_e h_e |z_e^k -
+z_e^(k-1)| (h_e = V_e^(1/gdim), a length); both below ``tol_mm`` (and, with the iterative x-step of
+large meshes, its last CG update below ``tol_mm``). Quasi-static solves double rho (up to 64 rho0;
+free: the x-step matrix is rho times a fixed one) when the primal residual stagnates over 25
+iterations (nonconvex elements can cycle between two local z-step minima); the changes are listed
+in ``history["rho_changes"]``. ADMM converges linearly, so by default a "Newton polish" follows:
+Newton steps on the same P1 energy with this module's exact tangent (``tangent_stiffness``,
+assembled straight into a cached CSR pattern of the reduced unknowns) until the largest Newton step
+is below ``polish_tol_mm``. With the polish, ADMM only has to bring each load step near Newton's
+basin: it hands over at ``handoff_mm`` (0.01 mm) or after ``max_iter`` iterations (default 20 with
+the polish, 20000 without); on the phantom with all four actuators pushed 15 mm (1782 tets) this
+cut the solve from 6486 ADMM iterations + 10 Newton (about 12.6 s in ``make demo``) to 86 ADMM + 14
+Newton iterations, same answer (to 1e-11 mm). Both iteration counts are reported
+(``extra["admm_iterations"]``, ``extra["newton_iterations"]``); ``history["admm_clock_s"]`` holds
+the wall-clock time (s, from the start of the solve) at the end of every ADMM iteration.
 
 Large prescribed motions (e.g. 15 mm pushes) are applied in load steps of at most ``step_mm``;
 each step moves the boundary and carries the interior along (tangent or harmonic lift), runs
@@ -69,13 +67,14 @@ components (multi-column solves; the reduced unknowns are ordered component-majo
 right-hand side is a view, no gather); with oblique sliding the reduced coupled matrix is
 factorized. From PCG_MIN (4000) free vertices on (about 20k tets) the scalar matrix is not
 factorized (a direct factor's fill and solve time grow like n^1.4-1.5 on these 3D meshes: 28M
-factor entries, 320 MiB and 130 ms per solve at 185k tets; at 50k tets SuperLU's solve took
-12 ms, CG 6 ms) but solved by conjugate gradients preconditioned with an aggregation AMG
-V-cycle built here (scipy, the iteration in C; O(n) work and memory): the x-step is then inexact, warm-started from the previous iterate and stopped when its
-largest vertex update is below PCG_RTOL (0.3) times the first one or below XSTEP_TOL (0.1) times
-the ADMM tolerance; the ADMM stopping rule also requires the last CG update below ``tol_mm``.
-The x-step matrix is constant, so at an ADMM fixed point the warm start solves it exactly and
-the fixed point (the answer) is unchanged (``tests/test_admm.py`` compares both x-steps).
+factor entries, 320 MiB and 130 ms per solve at 185k tets; at 50k tets SuperLU's solve took 12 ms,
+CG 6 ms) but solved by conjugate gradients preconditioned with an aggregation AMG V-cycle built
+here (scipy, the iteration in C; O(n) work and memory): the x-step is then inexact, warm-started
+from the previous iterate and stopped when its largest vertex update is below PCG_RTOL (0.3) times
+the first one or below XSTEP_TOL (0.1) times the ADMM tolerance; the ADMM stopping rule also
+requires the last CG update below ``tol_mm``. The x-step matrix is constant, so at an ADMM fixed
+point the warm start solves it exactly and the fixed point (the answer) is unchanged
+(``tests/test_admm.py`` compares both x-steps).
 
 Boundary conditions: prescribed dofs (fixed, displacement, affine, axis-aligned sliding) are
 eliminated; oblique sliding u.n = g by a per-vertex change of basis (exact). Tractions and gravity
@@ -450,7 +449,10 @@ class _AmgPcg:
             self.lu.L.nnz + self.lu.U.nnz)
         self.nnz = sum(M.nnz for M in mats)
         self.untracked_bytes = 12 * (self.lu.L.nnz + self.lu.U.nnz)  # coarsest-level SuperLU
-        self._c = self._compiled(A) if use_kernel() and A.shape[0] <= 2000 else None
+        # the compiled iteration: a hierarchy with levels and a coarsest matrix small enough for
+        # its dense inverse
+        self._c = self._compiled(A) if (self.levels and A.shape[0] <= 2000
+                                        and use_kernel()) else None
 
     def _compiled(self, Ac):
         """The hierarchy as the compiled amg_pcg's level structs (int32 CSR arrays kept alive
@@ -468,16 +470,15 @@ class _AmgPcg:
             return (arr(M.indptr, np.int32, "int *"), arr(M.indices, np.int32, "int *"),
                     arr(M.data))
 
-        lv = ffi.new("amg_level[]", max(len(self.levels), 1))
+        lv = ffi.new("amg_level[]", len(self.levels))
         for s, (A, dw, P, R) in zip(lv, self.levels):
             s.n = A.shape[0]
             s.Ap, s.Ai, s.Ax = csr(A)
             s.Pp, s.Pi, s.Px = csr(P)
             s.Rp, s.Ri, s.Rx = csr(R)
             s.dw = arr(dw.ravel())
-        Lc = np.linalg.inv(Ac.toarray())
         return {"ffi": ffi, "lib": lib, "lv": lv, "keep": keep, "nc": Ac.shape[0],
-                "Lc": arr(Lc), "scratch": {}}
+                "Ainv": arr(np.linalg.inv(Ac.toarray())), "scratch": {}}
 
     def _pcg_compiled(self, B, X, maxit, rtol, step_tol):
         c = self._c
@@ -495,7 +496,7 @@ class _AmgPcg:
         B = np.ascontiguousarray(B, dtype=np.float64)
         X = np.array(X, dtype=np.float64, order="C")
         n_it = c["lib"].amg_pcg(
-            len(self.levels), c["lv"], c["nc"], c["Lc"], k,
+            len(self.levels), c["lv"], c["nc"], c["Ainv"], k,
             ffi.cast("double *", B.ctypes.data), ffi.cast("double *", X.ctypes.data),
             maxit, rtol, step_tol, PCG_RTOL, self.iters,
             ffi.cast("double *", work.ctypes.data), ffi.cast("double *", cwork.ctypes.data), last)
@@ -517,7 +518,7 @@ class _AmgPcg:
         return x
 
     def _pcg(self, B, X, maxit, rtol, step_tol=0.0):
-        if self._c is not None and self.levels:
+        if self._c is not None:
             return self._pcg_compiled(B, X, maxit, rtol, step_tol)
         A = self.A
         r = B - A @ X
@@ -1232,7 +1233,7 @@ class _KernelElements:
                       p(self.Fb), p(self.lamb), p(self.r), p(self.dsq), p(self.f))
 
     def _to_blocks(self, A):
-        """(d, d, m) -> the kernel's (ceil(m / blk), d*d, blk) layout (the padding is never read)."""
+        """(d, d, m) -> the kernel's (ceil(m / blk), d*d, blk) layout (padding never read)."""
         dd, m, blk = self.d * self.d, self.m, self.blk
         nb = -(-m // blk)
         out = np.zeros((dd, nb * blk))

@@ -274,7 +274,7 @@ static void generic_block(int model, int d, long nb, double mu, double kappa, do
 /* one block of elements; d is a compile-time constant at each call site (always inlined), so
  * the gather and scatter loops are fully unrolled */
 static inline __attribute__((always_inline)) void iteration_block(
-    const int d, int model, long m, long b, long nb, double mu, double kappa, double rho,
+    const int d, int model, long b, long nb, double mu, double kappa, double rho,
     double f_dev, double f_vol, int rounds, double small_step, const int *cells,
     const double *G, const double *wv, const double *h2, const double *u,
     double *F, double *lam, double *r, double *dsq, double *f)
@@ -359,10 +359,10 @@ void admm_iteration(int model, int d, long m, double mu, double kappa, double rh
     for (long b = 0; b < m; b += BLK) {
         const long nb = m - b < BLK ? m - b : BLK;
         if (d == 3)
-            iteration_block(3, model, m, b, nb, mu, kappa, rho, f_dev, f_vol, rounds, small_step,
+            iteration_block(3, model, b, nb, mu, kappa, rho, f_dev, f_vol, rounds, small_step,
                             cells, G, wv, h2, u, F, lam, r, dsq, f);
         else
-            iteration_block(2, model, m, b, nb, mu, kappa, rho, f_dev, f_vol, rounds, small_step,
+            iteration_block(2, model, b, nb, mu, kappa, rho, f_dev, f_vol, rounds, small_step,
                             cells, G, wv, h2, u, F, lam, r, dsq, f);
     }
 }
@@ -374,7 +374,7 @@ int admm_block_size(void) { return BLK; }
 /* The large-mesh x-step: conjugate gradients with a smoothed-aggregation AMG V-cycle on the
  * scalar x-step matrix, k right-hand sides at once (row-major (n, k) arrays: the matrix entries
  * are read once for all k columns). The hierarchy (A, P, R, Jacobi weights per level and the
- * dense inverse of the coarsest matrix, Lc below) is built in Python (admm._AmgPcg); this is the
+ * dense inverse of the coarsest matrix, Ainv) is built in Python (admm._AmgPcg); this is the
  * arithmetic of admm._AmgPcg._vcycle / _pcg, in C. */
 typedef struct {
     long n;
@@ -469,7 +469,7 @@ static inline __attribute__((always_inline)) void vcycle(
  * work: 4 n k doubles; cwork: 2 nc k. Returns the iterations done; *last_update = the largest
  * row update (2-norm over the k columns) of the last iteration. */
 static inline __attribute__((always_inline)) int pcg_k(
-    int nlev, const amg_level *lv, long nc, const double *Lc, const int k, const double *B,
+    int nlev, const amg_level *lv, long nc, const double *Ainv, const int k, const double *B,
     double *X, int maxit, double rtol, double step_tol, double step_rtol, int min_it,
     double *work, double *cwork, double *last_update)
 {
@@ -485,7 +485,7 @@ static inline __attribute__((always_inline)) int pcg_k(
     for (long t = 0; t < nk; ++t)
         r[t] = B[t];
     csr_mm_k(n, lv[0].Ap, lv[0].Ai, lv[0].Ax, k, X, r, -1.0, 1.0);
-    vcycle(nlev, lv, nc, Lc, k, r, z, cwork);
+    vcycle(nlev, lv, nc, Ainv, k, r, z, cwork);
     for (long t = 0; t < nk; ++t)
         p[t] = z[t];
     for (int j = 0; j < k; ++j) {
@@ -533,7 +533,7 @@ static inline __attribute__((always_inline)) int pcg_k(
             if (it + 1 >= min_it && dmax <= lim)
                 break;
         }
-        vcycle(nlev, lv, nc, Lc, k, r, z, cwork);
+        vcycle(nlev, lv, nc, Ainv, k, r, z, cwork);
         for (int j = 0; j < k; ++j) {
             double s = 0.0;
             for (long i = 0; i < n; ++i)
@@ -548,16 +548,16 @@ static inline __attribute__((always_inline)) int pcg_k(
     return it + 1;
 }
 
-int amg_pcg(int nlev, const amg_level *lv, long nc, const double *Lc, int k, const double *B,
+int amg_pcg(int nlev, const amg_level *lv, long nc, const double *Ainv, int k, const double *B,
             double *X, int maxit, double rtol, double step_tol, double step_rtol, int min_it,
             double *work, double *cwork, double *last_update)
 {
     if (k == 3)
-        return pcg_k(nlev, lv, nc, Lc, 3, B, X, maxit, rtol, step_tol, step_rtol, min_it, work,
+        return pcg_k(nlev, lv, nc, Ainv, 3, B, X, maxit, rtol, step_tol, step_rtol, min_it, work,
                      cwork, last_update);
     if (k == 2)
-        return pcg_k(nlev, lv, nc, Lc, 2, B, X, maxit, rtol, step_tol, step_rtol, min_it, work,
+        return pcg_k(nlev, lv, nc, Ainv, 2, B, X, maxit, rtol, step_tol, step_rtol, min_it, work,
                      cwork, last_update);
-    return pcg_k(nlev, lv, nc, Lc, k, B, X, maxit, rtol, step_tol, step_rtol, min_it, work,
+    return pcg_k(nlev, lv, nc, Ainv, k, B, X, maxit, rtol, step_tol, step_rtol, min_it, work,
                  cwork, last_update);
 }
