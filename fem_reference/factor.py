@@ -7,7 +7,7 @@ import numpy as np
 import scipy.sparse as sp
 from petsc4py import PETSc
 
-from .solver import _has_cholmod, _quiet_c_output
+from .linalg import _has_cholmod, _quiet_c_output
 
 __all__ = ["cholmod_factor"]
 

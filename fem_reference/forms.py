@@ -4,19 +4,39 @@ Neo-Hookean, seed 000 eq. 14:  psi = mu/2 (Ibar1 - 3) + kappa/2 (J - 1)^2,
 Ibar1 = J^(-2/3) tr C,  C = F^T F,  J = det F,  mu = E / (2 (1 + nu)),  kappa = E / (3 (1 - 2 nu)).
 Linear elasticity:  psi = mu eps:eps + lambda/2 (tr eps)^2,  eps = sym(grad u).
 In 2D (plane strain) F is the 2x2 in-plane block and F33 = 1, so tr C gains + 1.
+
+Mixed (u-p, perturbed Lagrangian) form of the same energies, with p the pressure (kPa, positive
+in compression):
+    Neo-Hookean:    psi(u, p) = mu/2 (Ibar1 - 3) - p (J - 1) - p^2 / (2 kappa)
+    linear-elastic: psi(u, p) = mu dev(eps):dev(eps) - p tr(eps) - p^2 / (2 kappa)
+Stationarity in p gives p = -kappa (J - 1) (resp. -kappa tr eps), and substituting it back gives
+the displacement energy exactly: the mixed form changes the discretization, not the model. With
+1/kappa = 0 (nu = 0.5) p is the Lagrange multiplier of J = 1 (tr eps = 0): the incompressible
+limit. dev is taken in 3D (plane strain keeps eps33 = 0).
 """
 from __future__ import annotations
 
 import ufl
 
-__all__ = ["first_piola", "linear_elastic_psi", "neo_hookean_psi", "strain_energy_density"]
+__all__ = [
+    "first_piola",
+    "linear_elastic_psi",
+    "mixed_energy_density",
+    "neo_hookean_psi",
+    "strain_energy_density",
+]
 
 
-def neo_hookean_psi(F, mu, kappa):
+def _isochoric_neo_hookean(F, mu):
     gdim = F.ufl_shape[0]
     J = ufl.det(F)
     I1 = ufl.tr(F.T * F) + (3 - gdim)
-    return mu / 2 * (J ** (-2.0 / 3.0) * I1 - 3) + kappa / 2 * (J - 1) ** 2
+    return mu / 2 * (J ** (-2.0 / 3.0) * I1 - 3), J
+
+
+def neo_hookean_psi(F, mu, kappa):
+    iso, J = _isochoric_neo_hookean(F, mu)
+    return iso + kappa / 2 * (J - 1) ** 2
 
 
 def linear_elastic_psi(F, mu, lmbda):
@@ -32,6 +52,21 @@ def strain_energy_density(u, model: str, mu, kappa, lmbda):
     if model == "neo-hookean":
         return neo_hookean_psi(F, mu, kappa), F
     return linear_elastic_psi(F, mu, lmbda), F
+
+
+def mixed_energy_density(u, p, model: str, mu, inv_kappa):
+    """psi(u, p) of the mixed formulation (module docstring); ``inv_kappa`` = 1/kappa (1/kPa),
+    0 for an incompressible material. Returns (psi, the volume-change measure J - 1 or tr eps)."""
+    gdim = u.ufl_shape[0]
+    F = ufl.Identity(gdim) + ufl.grad(u)
+    if model == "neo-hookean":
+        iso, J = _isochoric_neo_hookean(F, mu)
+        vol = J - 1
+    else:
+        eps = ufl.sym(ufl.grad(u))
+        vol = ufl.tr(eps)
+        iso = mu * (ufl.inner(eps, eps) - vol ** 2 / 3)
+    return iso - p * vol - inv_kappa / 2 * p ** 2, vol
 
 
 def first_piola(u, model: str, mu, kappa, lmbda):

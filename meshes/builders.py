@@ -220,7 +220,41 @@ def rectangle(size: float = 2.0, *, lengths=(10.0, 10.0), out=None) -> MeshData:
     return _axis_block("rectangle", size, tuple(lengths), out)
 
 
-BUILDERS = {"phantom": phantom, "phantom-3": phantom3, "box": box, "rectangle": rectangle}
+def shell_octant(size: float = 2.5, *, inner: float = 10.0, outer: float = 20.0,
+                 out=None) -> MeshData:
+    """One octant (x, y, z >= 0) of a thick spherical shell, radii ``inner`` < ``outer`` (mm):
+    the classic pressurized / inflated thick sphere, with closed-form (incompressible) and radial-
+    ODE (compressible) answers. Facet regions: inner, outer, and the symmetry planes xsym (x = 0),
+    ysym, zsym; cell group tissue."""
+    if not (0 < inner < outer):
+        raise CaseError(f"shell radii must satisfy 0 < inner < outer, got {inner!r}, {outer!r}")
+    with _gmsh_session("shell-octant", size) as gmsh:
+        occ = gmsh.model.occ
+        big = occ.addSphere(0, 0, 0, outer)
+        small = occ.addSphere(0, 0, 0, inner)
+        shell, _ = occ.cut([(3, big)], [(3, small)])
+        clip = occ.addBox(0, 0, 0, 2 * outer, 2 * outer, 2 * outer)
+        octant, _ = occ.intersect(shell, [(3, clip)])
+        occ.synchronize()
+        vols = [t for d, t in octant if d == 3]
+        gmsh.model.addPhysicalGroup(3, vols, 1)
+        gmsh.model.setPhysicalName(3, 1, "tissue")
+        groups = {"inner": [], "outer": [], "xsym": [], "ysym": [], "zsym": []}
+        for _, f in gmsh.model.getBoundary([(3, v) for v in vols], oriented=False):
+            c = np.array(occ.getCenterOfMass(2, f))
+            planar = [k for k in range(3) if abs(c[k]) < 1e-9 * outer]
+            if planar:
+                groups["xyz"[planar[0]] + "sym"].append(f)
+            else:
+                groups["inner" if np.linalg.norm(c) < 0.5 * (inner + outer) else "outer"].append(f)
+        for i, (name, fs) in enumerate(groups.items()):
+            gmsh.model.addPhysicalGroup(2, fs, 10 + i)
+            gmsh.model.setPhysicalName(2, 10 + i, name)
+        return _finish(gmsh, 3, out)
+
+
+BUILDERS = {"phantom": phantom, "phantom-3": phantom3, "box": box, "rectangle": rectangle,
+            "shell-octant": shell_octant}
 
 
 def build(name: str, size: float, *, out=None) -> MeshData:

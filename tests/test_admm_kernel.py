@@ -130,7 +130,7 @@ def test_polish_factorization_is_cholmod_while_definite_and_superlu_otherwise():
 
     from fem_reference import cholmod_factor
     from fem_reference.factor import _PetscFactor
-    from fem_reference.solver import _has_cholmod
+    from fem_reference.linalg import _has_cholmod
     case = _case(box(1.5), "neo-hookean")
     ops = admm.prepare(case)
     u = admm.solve(case, polish=False, max_iter=50).u.ravel()

@@ -1,0 +1,207 @@
+"""Linear algebra of the reference's Newton: the factorizing KSPs (CHOLMOD in serial, MUMPS
+LDL^T for indefinite tangents, saddle-point systems and MPI), the lagged-factor GMRES, and the
+CG + GAMG iterative mode. Mixed into ReferenceSolver; units are those of the assembled tangent
+(mN/mm) and residual (mN)."""
+from __future__ import annotations
+
+import functools
+import logging
+import os
+import sys
+
+import dolfinx
+import dolfinx.fem
+from petsc4py import PETSc
+
+log = logging.getLogger("tissue.fem")
+
+# linear_solver="auto": above this many dofs Newton reuses a MUMPS factorization as the GMRES
+# preconditioner of later tangents instead of refactorizing every iteration (measured faster from
+# 1.8k tets up: 0.97 vs 1.27 s; at 26.6k tets 9.7 vs 22 s, bench/bench_reference.py).
+LAGGED_ABOVE_DOFS = 1000
+
+
+@functools.cache
+def _has_cholmod() -> bool:
+    """Whether this PETSc build has SuiteSparse's CHOLMOD (Debian's has)."""
+    try:
+        m = PETSc.Mat().createAIJ((1, 1), nnz=1, comm=PETSc.COMM_SELF)
+        m.setValue(0, 0, 1.0)
+        m.assemble()
+        k = PETSc.KSP().create(PETSc.COMM_SELF)
+        k.setOperators(m)
+        k.setType("preonly")
+        k.getPC().setType("cholesky")
+        k.getPC().setFactorSolverType("cholmod")
+        k.setUp()
+        return True
+    except PETSc.Error:
+        return False
+
+
+class _quiet_c_output:
+    """Silences C-level stdout and stderr (file descriptors 1 and 2) inside the block (CHOLMOD
+    prints its warnings with printf)."""
+
+    def __enter__(self):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        self._saved = [(fd, os.dup(fd)) for fd in (1, 2)]
+        null = os.open(os.devnull, os.O_WRONLY)
+        for fd, _ in self._saved:
+            os.dup2(null, fd)
+        os.close(null)
+
+    def __exit__(self, *exc):
+        for fd, saved in self._saved:
+            os.dup2(saved, fd)
+            os.close(saved)
+        return False
+
+
+
+
+class LinearSolveMixin:
+    """The ReferenceSolver's linear solves (needs self.A, self.b, self.du, self.comm, ...)."""
+
+    def _rigid_body_nullspace(self):
+        x = self.V.tabulate_dof_coordinates()[:, :self.gdim]
+        n_own = self.V.dofmap.index_map.size_local
+        d = self.gdim
+        # keep the Functions alive: their vectors share the Functions' memory
+        self._ns_funcs = [dolfinx.fem.Function(self.V) for _ in range(6 if d == 3 else 3)]
+        vecs = [f.vector for f in self._ns_funcs]
+        arrs = [v.array.reshape(-1, d) for v in vecs]  # owned part, (n_own, d) views
+        xo = x[:n_own]
+        for k in range(d):
+            arrs[k][:, k] = 1.0
+        if d == 3:
+            arrs[3][:, 0], arrs[3][:, 1] = -xo[:, 1], xo[:, 0]
+            arrs[4][:, 1], arrs[4][:, 2] = -xo[:, 2], xo[:, 1]
+            arrs[5][:, 0], arrs[5][:, 2] = xo[:, 2], -xo[:, 0]
+        else:
+            arrs[2][:, 0], arrs[2][:, 1] = -xo[:, 1], xo[:, 0]
+        for v in vecs:
+            v.assemble()
+        from dolfinx.la import orthonormalize
+
+        orthonormalize(vecs)
+        return PETSc.NullSpace().create(vectors=vecs, comm=self.comm)
+
+
+    def _factor_ksp(self, pkg: str):
+        """KSP whose preconditioner is a Cholesky factorization by ``pkg`` ("mumps" or
+        "cholmod"): GMRES around it for "lagged", the factorization alone otherwise."""
+        k = PETSc.KSP().create(self.comm)
+        k.setOperators(self.A)
+        k.getPC().setType("cholesky")
+        k.getPC().setFactorSolverType(pkg)
+        if self.linear_solver == "lagged":
+            # right preconditioning: GMRES then tests the true residual of the current tangent
+            k.setType("gmres")
+            k.setPCSide(PETSc.PC.Side.RIGHT)
+            m = max(30, self.settings.lag_max_its + 1)
+            k.setGMRESRestart(m)
+            k.setTolerances(rtol=1e-10, atol=1e-300, max_it=m)
+        else:
+            k.setType("preonly")
+        return k
+
+    def _use_factor(self, pkg: str):
+        """(Re)build the factorizing KSP with ``pkg``; P is made at the next refresh."""
+        self.factor_package = pkg
+        self.P = None
+        self._T = None
+        self._refactor = True
+        self.ksp = self.direct_ksp = self._factor_ksp(pkg)
+
+    def _refresh_factor(self):
+        """Copy the current tangent into the matrix that is factorized (the factorization itself
+        happens at the next solve; PETSc reuses the symbolic analysis, the pattern being fixed).
+        MUMPS reads SBAIJ (the upper half) or AIJ; CHOLMOD reads a point-block (bs 1) AIJ."""
+        # (petsc4py's convert() without a target converts in place: always pass one)
+        first = self.P is None
+        if self.factor_package == "cholmod":
+            if self._T is None:
+                self._T = PETSc.Mat()
+            self.A.convert("aij", self._T)
+            ai, aj, av = self._T.getValuesCSR()
+            if first:
+                self.P = PETSc.Mat().createAIJ(self.A.getSize(), csr=(ai, aj, av), comm=self.comm)
+                self.P.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+            else:
+                self.P.setValuesCSR(ai, aj, av)
+                self.P.assemble()
+        elif self.A.getType().endswith("baij"):
+            if first:
+                self.P = PETSc.Mat()
+            self.A.convert("sbaij", self.P)
+        else:
+            # AIJ (the mixed space has no common block size): MUMPS's LDL^T reads the upper
+            # triangle of AIJ itself; a copy keeps the factorized tangent apart from A (an AIJ ->
+            # SBAIJ conversion into an existing matrix fails in PETSc 3.18)
+            if first:
+                self.P = self.A.duplicate(copy=True)
+            else:
+                self.A.copy(self.P, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+        if first:
+            self.ksp.setOperators(self.A, self.P)
+        self._refactor = False
+        self.timings.factorizations += 1
+
+    def _krylov_solve(self, eta):
+        """One solve of the current factorizing KSP; a CHOLMOD failure (tangent not positive
+        definite) switches to MUMPS and solves again."""
+        if self.linear_solver == "direct" or self._refactor:
+            self._refresh_factor()
+        if self.linear_solver == "lagged":
+            self.ksp.setTolerances(rtol=eta)
+        try:
+            if self.factor_package == "cholmod":
+                with _quiet_c_output():  # CHOLMOD printf's a warning on an indefinite tangent
+                    self.ksp.solve(self.b, self.du.vector)
+            else:
+                self.ksp.solve(self.b, self.du.vector)
+        except PETSc.Error:
+            if self.factor_package != "cholmod":
+                raise
+            log.info("tangent not positive definite for CHOLMOD: switching to MUMPS LDL^T")
+            self._use_factor("mumps")
+            self._krylov_solve(eta)
+
+    def _linear_solve(self, eta: float) -> bool:
+        """du = -A^-1 b at relative tolerance ``eta`` (Krylov modes); False when it fails."""
+        lagged = self.linear_solver == "lagged"
+        self.b.scale(-1.0)
+        try:
+            if self.linear_solver == "iterative":
+                ksp = self.ksp
+                ksp.solve(self.b, self.du.vector)
+                its = ksp.getIterationNumber()
+                if ksp.getConvergedReason() < 0:
+                    ksp = self.direct_ksp
+                    ksp.solve(self.b, self.du.vector)
+                    self.timings.factorizations += 1
+            else:
+                self._krylov_solve(eta)
+                ksp = self.ksp
+                its = ksp.getIterationNumber()
+                if ksp.getConvergedReason() < 0 and lagged:
+                    # the old factor is too far from this tangent: refactorize and solve again
+                    self._refactor = True
+                    self._krylov_solve(eta)
+                    ksp = self.ksp
+                    its += ksp.getIterationNumber()
+        except PETSc.Error as exc:  # MUMPS on NaN entries (error 76) and the like
+            log.debug("linear solve failed: %s", exc)
+            self._refactor = True
+            return False
+        finally:
+            self.b.scale(-1.0)
+        if self.linear_solver != "direct":
+            self.timings.krylov_iterations += its
+            if lagged and its > self.settings.lag_max_its:
+                self._refactor = True
+        self.du.x.scatter_forward()
+        return ksp.getConvergedReason() > 0
+

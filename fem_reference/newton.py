@@ -1,0 +1,264 @@
+"""Newton iterations and load stepping of the reference: residual-first Newton with a line
+search against inverted elements, secant predictor, automatic cut-back; the converged reason is
+checked every load step and a failure raises ConvergenceError carrying the last converged state.
+Units: mm, mN. Mixed into ReferenceSolver."""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass
+
+import dolfinx
+import dolfinx.fem
+import dolfinx.fem.petsc
+import numpy as np
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from meshes.case import Case
+from meshes.errors import CaseError, ConvergenceError
+from meshes.results import SolveResult
+
+
+@dataclass(frozen=True)
+class NewtonSettings:
+    """Newton and load-stepping controls.
+
+    rtol, atol: residual reduction within the final load step / absolute residual (mN);
+    atol_mm: Newton correction (inf-norm, mm) under which the final step is converged;
+    intermediate_rtol, intermediate_atol_mm: the same, for load steps before the last (their states
+        only start the next step, so they need not be converged to round-off);
+    max_step_mm: largest prescribed-displacement increment of the first try;
+    line_search: halvings of a Newton correction allowed when it inverts an element (non-finite
+        residual) before the step counts as failed;
+    lag_max_its: "lagged" linear solver: GMRES iterations above which the tangent is refactorized.
+    """
+
+    rtol: float = 1e-10
+    atol: float = 1e-10
+    atol_mm: float = 1e-10
+    intermediate_rtol: float = 1e-6
+    intermediate_atol_mm: float = 1e-6
+    max_iterations: int = 25
+    max_step_mm: float = 5.0
+    min_fraction: float = 1.0 / 1024
+    grow: float = 1.5
+    line_search: int = 4
+    lag_max_its: int = 12
+
+    def __post_init__(self):
+        for name in ("rtol", "atol", "atol_mm", "intermediate_rtol", "intermediate_atol_mm",
+                     "max_step_mm", "min_fraction"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
+                raise ValueError(f"NewtonSettings.{name} must be a positive number, got {v!r}")
+        if self.max_iterations < 1:
+            raise ValueError(f"NewtonSettings.max_iterations must be >= 1, got {self.max_iterations}")
+        if self.line_search < 0 or self.lag_max_its < 1:
+            raise ValueError("NewtonSettings.line_search must be >= 0 and lag_max_its >= 1")
+
+
+
+@dataclass
+class _Timings:
+    assemble: float = 0.0
+    solve: float = 0.0
+    setup: float = 0.0
+    factorizations: int = 0
+    krylov_iterations: int = 0
+
+
+
+
+class NewtonMixin:
+    """Load stepping and Newton on the solver's unknown (needs the forms, bcs and linear solves)."""
+
+    def _assemble_residual(self, bcs) -> float:
+        """b = R(u) with the Dirichlet rows set to u - g (lifting included); returns |b|."""
+        t0 = time.perf_counter()
+        b = self.b
+        with b.localForm() as bl:
+            bl.set(0.0)
+        dolfinx.fem.petsc.assemble_vector(b, self.R_form)
+        dolfinx.fem.petsc.apply_lifting(b, [self.K_form], bcs=[bcs], x0=[self.x.vector], scale=-1.0)
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        dolfinx.fem.petsc.set_bc(b, bcs, self.x.vector, -1.0)
+        self.timings.assemble += time.perf_counter() - t0
+        return b.norm()
+
+    def _assemble_tangent(self, bcs):
+        t0 = time.perf_counter()
+        self.A.zeroEntries()
+        dolfinx.fem.petsc.assemble_matrix(self.A, self.K_form, bcs=bcs)
+        self.A.assemble()
+        self.timings.assemble += time.perf_counter() - t0
+
+
+    def _newton(self, bcs, progress, label, rtol=None, atol_mm=None):
+        """Newton iterations at fixed load; returns (converged, iterations, residual).
+
+        Residual first, tangent only when another correction is needed. A correction that
+        inverts an element (non-finite residual) is halved up to ``settings.line_search`` times.
+        """
+        s = self.settings
+        rtol = s.rtol if rtol is None else rtol
+        atol_mm = s.atol_mm if atol_mm is None else atol_mm
+        u, du = self.x, self.du
+        r0 = rprev = None
+        rnorm = self._assemble_residual(bcs)
+        for it in range(1, s.max_iterations + 1):
+            if not math.isfinite(rnorm):
+                return False, it, rnorm
+            if r0 is None:
+                r0 = max(rnorm, 1e-300)
+            elif rnorm <= s.atol or rnorm <= rtol * r0:
+                return True, it - 1, rnorm
+            # forcing term of the inexact (Krylov) solves: no more accuracy than Newton can use
+            eta = 1e-3 if rprev is None else \
+                min(1e-3, max((rnorm / rprev) ** 2, 0.1 * rtol * r0 / rnorm, 1e-12))
+            self._assemble_tangent(bcs)
+            t0 = time.perf_counter()
+            ok = self._linear_solve(eta)
+            self.timings.solve += time.perf_counter() - t0
+            if not ok:
+                return False, it, rnorm
+            # the largest displacement correction (mm; the pressure's, in kPa, is not compared)
+            step = self.comm.allreduce(
+                float(np.abs(du.x.array[self._umap]).max(initial=0.0)), op=MPI.MAX)
+            if not math.isfinite(step):
+                return False, it, float("nan")
+            u_old = u.x.array.copy()
+            alpha = 1.0
+            for _ in range(s.line_search + 1):
+                u.x.array[:] = u_old + alpha * du.x.array
+                rnew = self._assemble_residual(bcs)
+                if math.isfinite(rnew):
+                    break
+                alpha *= 0.5
+            else:
+                u.x.array[:] = u_old
+                return False, it, float("nan")
+            if progress and self.comm.rank == 0:
+                ls = "" if alpha == 1.0 else f"  (step x{alpha:g}: inverted elements)"
+                print(f"  {label} newton {it:2d}  |R| {rnorm:.3e}  |du|_max {step:.3e} mm{ls}",
+                      file=sys.stderr, flush=True)
+            rprev, rnorm = rnorm, rnew
+            if alpha == 1.0 and step <= atol_mm and it > 1:
+                return True, it, rnorm
+        return False, s.max_iterations, rnorm
+
+    def _max_prescribed(self, case, override):
+        m = np.abs(case.constraints.values).max(initial=0.0)
+        for b in case.boundaries:
+            if b.type == "sliding":
+                m = max(m, abs(float(b.value or 0.0)))
+        if override is not None:
+            m = max(m, np.abs(np.asarray(override[1], float)).max(initial=0.0))
+        return m
+
+    def solve(self, pushes=None, *, case: Case | None = None, initial=None, dirichlet_override=None,
+              progress: bool = False, cases_first=None) -> SolveResult:
+        """Solve ``case`` (default: the one given at construction) with ``pushes`` applied.
+
+        pushes: actuator name -> push (mm) along its direction.
+        initial: warm start: (n_vertices, gdim) in the Case numbering (at degree 2 the edge
+            nodes start at the mean of their end vertices), the full (n_nodes, gdim) degree-2
+            nodal state in Tangent node order, or a previous SolveResult of a reference solve on
+            this mesh (degree 2: its full nodal state); the load path starts from the case's
+            prescribed values at fraction 0 scaled from there.
+        dirichlet_override: (dofs, values): extra per-vertex prescriptions (node-major Case dofs,
+            mm at full load), degree 1.
+        Raises ConvergenceError (with ``last_converged`` SolveResult and the load fraction reached)
+        when a load step still fails after the cut-backs.
+        """
+        t_start = time.perf_counter()
+        self.timings = _Timings(setup=self.timings.setup)  # per-solve counters
+        case = (case or self.case).with_pushes(pushes or {})
+        if case.mesh is not self.case.mesh:
+            raise CaseError("ReferenceSolver.solve: the case mesh differs from the solver's mesh")
+        self.E.value = case.material.E
+        self.nu.value = case.material.nu
+        self.inv_kappa.value = 3.0 * (1.0 - 2.0 * case.material.nu) / case.material.E
+        s = self.settings
+        warm = initial is not None
+        if warm:
+            self._set_state(initial)
+        else:
+            self.x.x.array[:] = 0.0
+        # Dirichlet data at full load; each load step sets g = start + lam (full - start), where
+        # start is the state's own boundary values (0 when cold), so a warm start ramps from
+        # where it is to the new prescriptions.
+        entries = self._bcs(case, 1.0, dirichlet_override)
+        bcs = [e[0] for e in entries]
+        ramps = []
+        span = 0.0
+        for _, gfun, parent, coll in entries:
+            garr = gfun.x.array
+            full = garr.copy()
+            start = np.zeros_like(full)
+            if warm:
+                start[coll] = self.x.x.array[parent]
+            ramps.append((garr, start, full))
+            span = max(span, np.abs(full[coll] - start[coll]).max(initial=0.0))
+        span = self.comm.allreduce(span, op=MPI.MAX)
+        inc = 1.0 if span <= s.max_step_mm else s.max_step_mm / span
+        lam = 0.0
+        steps = iters = 0
+        last_good = self.x.x.array.copy()
+        residual = 0.0
+        history = {"load_fraction": [], "newton_iterations": [], "residual": []}
+        prev_good, prev_lam = None, 0.0
+        predict = True
+        while lam < 1.0 - 1e-14:
+            trial = min(1.0, lam + inc)
+            for garr, start, full in ramps:
+                garr[:] = start + trial * (full - start)
+            self.load.value = 1.0 if warm else trial
+            if predict and prev_good is not None and lam > prev_lam:
+                # linear extrapolation of the load path (secant predictor)
+                self.x.x.array[:] += (trial - lam) / (lam - prev_lam) * (last_good - prev_good)
+                self.x.x.scatter_forward()
+            final = trial >= 1.0 - 1e-14
+            tol = {} if final else {"rtol": s.intermediate_rtol, "atol_mm": s.intermediate_atol_mm}
+            ok, it, res = self._newton(bcs, progress, f"load {trial:6.3f}", **tol)
+            iters += it
+            if not ok and predict and prev_good is not None:
+                # retry the same step from the last converged state, without the predictor
+                self.x.x.array[:] = last_good
+                self.x.x.scatter_forward()
+                ok, it, res = self._newton(bcs, progress, f"load {trial:6.3f}", **tol)
+                iters += it
+            if ok:
+                prev_good, prev_lam = last_good.copy(), lam
+                lam = trial
+                steps += 1
+                residual = res
+                last_good[:] = self.x.x.array
+                history["load_fraction"].append(lam)
+                history["newton_iterations"].append(it)
+                history["residual"].append(res)
+                if progress and self.comm.rank == 0:
+                    print(f"tissue fem: load fraction {lam:.4f} converged in {it} Newton "
+                          f"iterations (|R| {res:.2e})", file=sys.stderr, flush=True)
+                if it <= 5:
+                    inc *= s.grow
+            else:
+                self.x.x.array[:] = last_good
+                self.x.x.scatter_forward()
+                inc /= 2.0
+                if progress and self.comm.rank == 0:
+                    print(f"tissue fem: load fraction {trial:.4f} failed, cutting the step to "
+                          f"{inc:.4f}", file=sys.stderr, flush=True)
+                if inc < s.min_fraction:
+                    self.load.value = 1.0 if warm else lam
+                    wall = time.perf_counter() - t_start
+                    last = self._result(case, False, iters, residual, wall, steps, history, lam)
+                    raise ConvergenceError(
+                        f"{case.source or case.name}: Newton did not converge beyond load fraction "
+                        f"{lam:.4f} (tried {trial:.4f}) after cut-backs down to {inc * 2:.2e}",
+                        load_fraction=lam, last_converged=last)
+        wall = time.perf_counter() - t_start
+        return self._result(case, True, iters, residual, wall, max(steps, 1), history, 1.0)
+
+    # ------------------------------------------------------------------ state I/O

@@ -1,0 +1,160 @@
+"""The mixed u-p (Taylor-Hood P2/P1) reference for nearly incompressible tissue, against answers
+computed here independently of the solver:
+
+- patch tests: homogeneous states with the closed-form first Piola stress of seed 000 eq. 14,
+  P = mu J^(-2/3) (F - I1/3 F^-T) + kappa J (J - 1) F^-T, and the pressure p = -kappa (J - 1);
+- the thick sphere (an octant, inner surface pushed out radially, outer surface free) against the
+  radial equilibrium ODE d P_rR / dR + 2 (P_rR - P_tt) / R = 0 solved with scipy's solve_bvp.
+Units: mm, kPa, mN.
+"""
+import numpy as np
+import pytest
+from scipy.integrate import solve_bvp
+from scipy.optimize import brentq
+
+import fem_reference as fr
+from meshes.builders import box, shell_octant
+from meshes.case import Boundary, Case, Material
+from meshes.errors import CaseError
+
+A, B, UA = 10.0, 20.0, 2.0  # shell radii and the inner surface's radial push, mm
+E = 6.0
+L = 10.0
+
+
+def principal_piola(l1, l2, mu, kappa):
+    """First Piola stresses (P_11, P_22) of seed 000 eq. 14 at principal stretches (l1, l2, l2)."""
+    J = l1 * l2 * l2
+    I1 = l1 ** 2 + 2 * l2 ** 2
+    a = mu * J ** (-2 / 3)
+    return (a * (l1 - I1 / (3 * l1)) + kappa * (J - 1) * J / l1,
+            a * (l2 - I1 / (3 * l2)) + kappa * (J - 1) * J / l2)
+
+
+def thick_sphere(mu, kappa):
+    """Radial solution r(R) of the shell A <= R <= B with r(A) = A + UA and P_rR(B) = 0.
+
+    State (r, P_rR); lambda_r = r' is recovered from P_rR by Newton at each point (P_rR is
+    monotone in lambda_r). Returns (u(B), P_rR(A))."""
+    def lam_r(P, r, R):
+        x = np.ones_like(r)
+        for _ in range(50):
+            h = 1e-7
+            f = principal_piola(x, r / R, mu, kappa)[0] - P
+            df = (principal_piola(x + h, r / R, mu, kappa)[0]
+                  - principal_piola(x - h, r / R, mu, kappa)[0]) / (2 * h)
+            x = x - f / df
+        return x
+
+    def rhs(R, y):
+        r, P = y
+        l1 = lam_r(P, r, R)
+        P1, P2 = principal_piola(l1, r / R, mu, kappa)
+        return np.vstack([l1, -2.0 / R * (P1 - P2)])
+
+    R = np.linspace(A, B, 200)
+    guess = np.vstack([R + UA * (A / R) ** 2, np.zeros_like(R)])
+    sol = solve_bvp(rhs, lambda ya, yb: np.array([ya[0] - A - UA, yb[1]]), R, guess, tol=1e-10,
+                    max_nodes=100000)
+    assert sol.success, sol.message
+    return float(sol.sol(B)[0] - B), float(sol.sol(A)[1])
+
+
+def solve_shell(size, nu, formulation):
+    """FE solve of the octant; returns (mean radial displacement of the outer nodes, the radial
+    generalized reaction sum_i f_i . X_i / A over the inner nodes)."""
+    mat = Material("neo-hookean", E=E, nu=nu)
+    bcs = [Boundary("xsym", "sliding", normal=[1, 0, 0]),
+           Boundary("ysym", "sliding", normal=[0, 1, 0]),
+           Boundary("zsym", "sliding", normal=[0, 0, 1]),
+           # u = UA X / A: the radial push on the sphere |X| = A, a uniform scaling of the surface
+           Boundary("inner", "affine", gradient=(UA / A * np.eye(3)).tolist(), offset=[0, 0, 0])]
+    case = Case(mesh=shell_octant(size), material=mat, boundaries=bcs, name="thick-sphere")
+    s = fr.ReferenceSolver(case, degree=2, formulation=formulation)
+    res = s.solve()
+    assert res.converged
+    X = s.node_points()
+    r = np.linalg.norm(X, axis=1)
+    f = s.internal_forces().reshape(-1, 3)
+    inner = r < A * (1 + 1e-3)  # inner vertices and the edge nodes of inner facets (just inside)
+    outer = np.abs(r - B) < 1e-6 * B
+    u_out = np.sum(res.extra["node_u"][outer] * X[outer], axis=1) / B
+    return res, float(u_out.mean()), float(np.sum(f[inner] * X[inner]) / A)
+
+
+@pytest.fixture(scope="module")
+def cube():
+    return box(5.0)
+
+
+@pytest.mark.parametrize("nu", [0.45, 0.4999])
+def test_mixed_uniaxial_patch_test_is_exact(cube, nu):
+    mat = Material("neo-hookean", E=E, nu=nu)
+    stretch = 1.15
+    bcs = [Boundary("xmin", "sliding", normal=[1, 0, 0]),
+           Boundary("ymin", "sliding", normal=[0, 1, 0]),
+           Boundary("zmin", "sliding", normal=[0, 0, 1]),
+           Boundary("xmax", "displacement", value=[(stretch - 1) * L, 0, 0], components=(0,))]
+    case = Case(mesh=cube, material=mat, boundaries=bcs, name="patch")
+    res = fr.solve(case, degree=2, formulation="mixed")
+    lat = brentq(lambda t: principal_piola(stretch, t, mat.mu, mat.kappa)[1], 0.5, 1.5, xtol=1e-15)
+    F = np.diag([stretch, lat, lat])
+    np.testing.assert_allclose(res.u, cube.points @ (F - np.eye(3)).T, atol=1e-9)
+    P11 = principal_piola(stretch, lat, mat.mu, mat.kappa)[0]
+    np.testing.assert_allclose(res.reactions["xmax"][0], P11 * L * L, rtol=1e-8)
+    J = stretch * lat * lat
+    np.testing.assert_allclose(res.extra["pressure"], -mat.kappa * (J - 1), rtol=1e-7)
+    assert res.extra["discretization"]["formulation"] == "mixed"
+    assert res.extra["discretization"]["pressure_degree"] == 1
+
+
+def test_mixed_shear_patch_test_with_affine_boundary_is_exact(cube):
+    mat = Material("neo-hookean", E=E, nu=0.4999)
+    F = np.array([[1.0, 0.2, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # isochoric: J = 1
+    faces = ["xmin", "xmax", "ymin", "ymax", "zmin", "zmax"]
+    bcs = [Boundary(f, "affine", gradient=(F - np.eye(3)).tolist()) for f in faces]
+    res = fr.solve(Case(mesh=cube, material=mat, boundaries=bcs, name="shear"), degree=2,
+                   formulation="mixed")
+    np.testing.assert_allclose(res.u, cube.points @ (F - np.eye(3)).T, atol=1e-9)
+    np.testing.assert_allclose(res.extra["pressure"], 0.0, atol=1e-8 * mat.mu)
+    # strain energy of the isochoric shear: mu/2 (I1 - 3) per unit volume
+    np.testing.assert_allclose(res.strain_energy, mat.mu / 2 * 0.2 ** 2 * L ** 3, rtol=1e-9)
+
+
+def test_auto_picks_mixed_for_nearly_incompressible_and_refuses_p1(cube):
+    mat = Material("neo-hookean", E=E, nu=0.495)
+    case = Case(mesh=cube, material=mat, boundaries=[Boundary("zmin", "fixed")], name="auto")
+    assert fr.resolve_formulation("auto", mat) == "mixed"
+    assert fr.resolve_formulation("auto", Material(nu=0.45)) == "displacement"
+    with pytest.raises(CaseError, match="needs degree=2"):
+        fr.ReferenceSolver(case, degree=1)
+    with pytest.raises(CaseError, match="formulation must be one of"):
+        fr.ReferenceSolver(case, degree=2, formulation="hybrid")
+
+
+@pytest.mark.slow
+def test_nearly_incompressible_thick_sphere_matches_the_radial_ode():
+    """nu = 0.4999 (kappa / mu = 1.5e4). The mixed answers converge to the ODE's at the rate of
+    the faceted geometry (h^2: the inner surface is a polyhedron), while the displacement P2
+    reaction is off by tens of percent (volumetric locking)."""
+    mat = Material("neo-hookean", E=E, nu=0.4999)
+    u_ref, P_ref = thick_sphere(mat.mu, mat.kappa)
+    G_ref = -P_ref * A ** 2 * np.pi / 2  # virtual work of the inner support for delta u = e_R
+    errs = []
+    for size in (2.5, 1.5):
+        _, u_out, G = solve_shell(size, 0.4999, "mixed")
+        errs.append((abs(u_out / u_ref - 1), abs(G / G_ref - 1)))
+    # geometric error of the faceted sphere at these sizes: ~1.8 % and ~0.8 %
+    assert errs[1][0] < 0.01 and errs[1][1] < 0.01, errs
+    assert errs[0][0] > 2.0 * errs[1][0] and errs[0][1] > 2.0 * errs[1][1], errs
+    _, _, G_disp = solve_shell(2.5, 0.4999, "displacement")
+    assert abs(G_disp / G_ref - 1) > 0.15  # the locking the mixed formulation removes
+
+
+def test_thick_sphere_ode_matches_the_incompressible_closed_form():
+    """Check of the test's own ODE: as kappa -> inf, incompressibility alone gives
+    r(R)^3 = R^3 + (A + UA)^3 - A^3, whatever the shear law."""
+    mu = E / 3
+    u_ref, _ = thick_sphere(mu, 1e5 * mu)
+    u_closed = ((B ** 3 + (A + UA) ** 3 - A ** 3) ** (1 / 3)) - B
+    assert abs(u_ref - u_closed) < 1e-4 * u_closed  # O(mu / kappa) compressibility
