@@ -138,22 +138,32 @@ def point_matrix(mesh, points, *, n_dofs=None):
     return sp.csr_matrix((vals, (rows, cols)), shape=(d * len(pts), n_dofs)), inside
 
 
-def _check_K(K, case, P):
+def _check_K(K, case, P, internal=0):
+    """K as CSR and P padded to K's size. ``internal``: trailing dofs of K that are not
+    displacements (the pressure of the mixed formulation): free and unforced, so every solve with
+    K condenses them out exactly."""
     d = case.mesh.gdim
     if not sp.issparse(K):
         K = sp.csr_matrix(np.asarray(K, float))
     K = K.tocsr()
     n = K.shape[0]
-    if K.shape[0] != K.shape[1] or n % d or n < d * case.mesh.n_vertices:
+    nu = n - int(internal)
+    if K.shape[0] != K.shape[1] or internal < 0 or nu % d or nu < d * case.mesh.n_vertices:
         raise CaseError(f"tangent K of shape {K.shape} does not fit the Case: it must be square, "
-                        f"node-major with at least {d}*{case.mesh.n_vertices} rows")
-    if n > d * case.mesh.n_vertices and P is None:
-        raise CaseError(f"tangent K has {n // d} nodes but the Case mesh {case.mesh.n_vertices} "
-                        f"vertices (degree 2?): pass P, the target interpolation on all {n} dofs, "
+                        f"node-major with at least {d}*{case.mesh.n_vertices} displacement rows "
+                        f"(then {internal} internal dofs)")
+    if nu > d * case.mesh.n_vertices and P is None:
+        raise CaseError(f"tangent K has {nu // d} nodes but the Case mesh {case.mesh.n_vertices} "
+                        f"vertices (degree 2?): pass P, the target interpolation on all {nu} dofs, "
                         f"and region_nodes")
-    if P is not None and P.shape[1] != n:
-        raise CaseError(f"interpolation P of shape {P.shape} does not match K's {n} dofs")
-    return K
+    if P is not None:
+        P = sp.csr_matrix(P)
+        if P.shape[1] == nu and internal:
+            P = sp.hstack([P, sp.csr_matrix((P.shape[0], internal))]).tocsr()
+        if P.shape[1] != n:
+            raise CaseError(f"interpolation P of shape {P.shape} does not match K's {nu} "
+                            f"displacement dofs")
+    return K, P
 
 
 def _region_dofs(case, region, d, region_nodes):
@@ -163,7 +173,7 @@ def _region_dofs(case, region, d, region_nodes):
 
 
 def dirichlet_jacobian(case, K, *, actuators=None, targets=None, P=None,
-                       region_nodes=None) -> ControlJacobian:
+                       region_nodes=None, internal_dofs=0) -> ControlJacobian:
     """Exact sensitivity (mm/mm) of target displacements to rigid pushes of actuator patches.
 
     case: the Case (its Dirichlet dofs stay prescribed; sliding on oblique planes is refused).
@@ -171,10 +181,12 @@ def dirichlet_jacobian(case, K, *, actuators=None, targets=None, P=None,
     P: optional (gdim * n_targets, n_dofs) interpolation of the targets (default: P1 probes).
     region_nodes: optional callable region -> node ids of K (degree 2: vertices and edge nodes);
         default: the Case mesh's region vertices. It is used for the Case's boundary regions too.
+    internal_dofs: trailing dofs of K that are not displacements (``Tangent.internal_dofs``: the
+        mixed formulation's pressure); they stay free, which condenses them out exactly.
     """
     t0 = time.perf_counter()
     acts, tg = _names(case, actuators, targets)
-    K = _check_K(K, case, P)
+    K, P = _check_K(K, case, P, internal_dofs)
     d = case.mesh.gdim
     n = K.shape[0]
     c = case.constraints
@@ -220,7 +232,7 @@ def dirichlet_jacobian(case, K, *, actuators=None, targets=None, P=None,
 
 
 def force_jacobian(case, K, *, actuators=None, targets=None, P=None, control="point",
-                   region_nodes=None) -> ControlJacobian:
+                   region_nodes=None, internal_dofs=0) -> ControlJacobian:
     """Seed 000 eq. 19: J_s = J_m^T K^-1 J_c (J_c^T K^-1 J_c)^-1 (mm of target per mm of control
     point displacement along d_i), K restricted to the Case's free dofs (actuator regions free).
 
@@ -228,12 +240,13 @@ def force_jacobian(case, K, *, actuators=None, targets=None, P=None, control="po
              "patch" -- the unit force is spread evenly over the region's nodes (x_c = mean
              displacement of the patch along d_i).
     Also returned in ``extra``: "G" = J_m^T K^-1 J_c (mm per mN) and "C" = J_c^T K^-1 J_c.
+    internal_dofs: as for :func:`dirichlet_jacobian`.
     """
     t0 = time.perf_counter()
     if control not in ("point", "patch"):
         raise CaseError(f"control must be 'point' or 'patch', got {control!r}")
     acts, tg = _names(case, actuators, targets)
-    K = _check_K(K, case, P)
+    K, P = _check_K(K, case, P, internal_dofs)
     d = case.mesh.gdim
     n = K.shape[0]
     fixed = np.zeros(n, bool)

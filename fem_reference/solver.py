@@ -79,7 +79,7 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
     Args:
         case: the Case (mesh, material, boundaries, probes).
         degree: Lagrange degree of the displacement, 1 or 2 (the mixed formulation is Taylor-Hood
-            P2/P1: degree 2, pressure of degree 1).
+            P2/P1: degree 2, pressure of degree 1); None: 2 for mixed, 1 for displacement.
         formulation: "displacement" (the energy of u alone), "mixed" (u-p perturbed Lagrangian,
             see ``forms``: locking-free up to the incompressible limit nu = 0.5) or "auto" (mixed
             from nu >= MIXED_FROM_NU).
@@ -96,13 +96,15 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
             formulation only) or "auto" ("lagged" above LAGGED_ABOVE_DOFS dofs, "direct" below).
     """
 
-    def __init__(self, case: Case, *, degree: int = 1, formulation: str = "auto",
+    def __init__(self, case: Case, *, degree: int | None = None, formulation: str = "auto",
                  quadrature_degree: int | None = None, settings: NewtonSettings | None = None,
                  comm=MPI.COMM_WORLD, sliding_penalty: float = 1e4, body_force=None,
                  linear_solver: str = "auto"):
+        self.formulation = resolve_formulation(formulation, case.material)
+        if degree is None:
+            degree = 2 if self.formulation == "mixed" else 1
         if degree not in (1, 2):
             raise CaseError(f"degree must be 1 or 2, got {degree!r}")
-        self.formulation = resolve_formulation(formulation, case.material)
         if self.formulation == "mixed" and degree != 2:
             why = "" if formulation == "mixed" else \
                 f" (picked for nu = {case.material.nu} >= {MIXED_FROM_NU}: P1 displacement " \
@@ -255,8 +257,10 @@ def _inv_kappa(material: Material) -> float:
 _CACHE: dict = {}
 
 
-def _solver_for(case: Case, degree: int, **kw) -> ReferenceSolver:
+def _solver_for(case: Case, degree: int | None, **kw) -> ReferenceSolver:
     kw["formulation"] = resolve_formulation(kw.get("formulation", "auto"), case.material)
+    if degree is None:
+        degree = 2 if kw["formulation"] == "mixed" else 1
     key = (id(case.mesh), degree, case.material.model, case.gravity,
            tuple((b.region, b.type, str(b.normal), str(b.value)) for b in case.boundaries
                  if b.type in ("traction", "sliding")), tuple(sorted(kw.items())))
@@ -270,10 +274,12 @@ def _solver_for(case: Case, degree: int, **kw) -> ReferenceSolver:
     return s
 
 
-def solve(case: Case, *, degree: int = 1, pushes=None, initial=None, dirichlet_override=None,
+def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None, dirichlet_override=None,
           progress: bool = False, **kw) -> SolveResult:
     """Solve a Case with the reference (compiled forms are cached per mesh and degree).
 
+    degree, formulation (in ``kw``) and the other options: see ReferenceSolver; the default
+    picks the mixed P2/P1 formulation for nu >= 0.49 and P1 displacement below.
     pushes: actuator name -> push (mm); initial: warm start (n_vertices, gdim) mm;
     dirichlet_override: (node-major Case dofs, values in mm) added to the Case's prescriptions.
     """
@@ -282,7 +288,7 @@ def solve(case: Case, *, degree: int = 1, pushes=None, initial=None, dirichlet_o
                    progress=progress)
 
 
-def tangent_stiffness(case: Case, u=None, *, degree: int = 1, pushes=None,
+def tangent_stiffness(case: Case, u=None, *, degree: int | None = None, pushes=None,
                       formulation: str = "auto") -> Tangent:
     """Exact tangent K (scipy CSR, node-major, Case vertex numbering) at displacement ``u``
     (default: rest). Degree 2: pass the SolveResult of a degree-2 reference solve (or its full

@@ -14,10 +14,11 @@ TISSUE = str(Path(sys.executable).with_name("tissue"))
 MPIRUN = shutil.which("mpirun")
 
 
-def run_solve(tmp_path, name, nproc, degree):
+def run_solve(tmp_path, name, nproc, degree, formulation="displacement"):
     out = tmp_path / f"{name}.json"
     cmd = [TISSUE, "solve", str(ROOT / "meshes/cases/phantom.toml"), "--size", "14", "--degree",
-           str(degree), "--push", "A1=8", "--push", "A3=4", "-q", "--json", str(out)]
+           str(degree), "--formulation", formulation, "--push", "A1=8", "--push", "A3=4", "-q",
+           "--json", str(out)]
     if nproc > 1:
         cmd = [MPIRUN, "--allow-run-as-root", "--oversubscribe", "-n", str(nproc)] + cmd
     env = {**os.environ, "OMPI_MCA_rmaps_base_oversubscribe": "1"}
@@ -27,10 +28,12 @@ def run_solve(tmp_path, name, nproc, degree):
 
 @pytest.mark.mpi
 @pytest.mark.skipif(MPIRUN is None, reason="mpirun not installed")
-@pytest.mark.parametrize("degree", [1, 2])
-def test_two_ranks_match_serial(tmp_path, degree):
-    serial = run_solve(tmp_path, "serial", 1, degree)
-    par = run_solve(tmp_path, "mpi", 2, degree)
+@pytest.mark.parametrize("degree,formulation", [(1, "displacement"), (2, "displacement"),
+                                                (2, "mixed")])
+def test_two_ranks_match_serial(tmp_path, degree, formulation):
+    serial = run_solve(tmp_path, "serial", 1, degree, formulation)
+    par = run_solve(tmp_path, "mpi", 2, degree, formulation)
+    assert serial["discretization"] == par["discretization"]
     assert serial["converged"] and par["converged"]
     for name, p in serial["probes"].items():
         a, b = np.array(p["displacement"]), np.array(par["probes"][name]["displacement"])

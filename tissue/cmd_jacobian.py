@@ -12,8 +12,7 @@ import numpy as np
 from meshes.errors import CaseError
 from meshes.results import write_json
 
-from .common import add_case_args, case_from_args, parse_pushes
-
+from .common import add_case_args, add_discretization_args, case_from_args, parse_pushes
 
 # ADMM as a control plant/model: the ADMM stage hands over to the Newton polish (part of
 # solvers.admm.solve, iteration budget left to the solver: 20 per load step) which finishes to
@@ -57,7 +56,7 @@ def tangent_for(name: str):
     raise CaseError(f"unknown plant/model solver {name!r}; choose fem or admm")
 
 
-def reference_state(case, state_pushes, *, degree=1):
+def reference_state(case, state_pushes, *, degree=None, formulation="auto"):
     """Reference solve at ``state_pushes`` and the exact tangent at *its own* state.
 
     Returns (SolveResult, Tangent, plant) where plant(case, pushes, initial) re-solves with the same
@@ -69,7 +68,7 @@ def reference_state(case, state_pushes, *, degree=1):
     """
     from fem_reference import ReferenceSolver
 
-    s = ReferenceSolver(case, degree=degree)
+    s = ReferenceSolver(case, degree=degree, formulation=formulation)
     res = s.solve(state_pushes)
     if not res.converged:
         raise CaseError(f"the state solve at pushes {state_pushes} did not converge")
@@ -80,25 +79,34 @@ def reference_state(case, state_pushes, *, degree=1):
     return res, T, plant
 
 
-def compute(case, state_pushes, *, solver="fem", degree=1, fd_h=0.02, actuators=None):
+def compute(case, state_pushes, *, solver="fem", degree=None, formulation="auto", fd_h=0.02,
+            actuators=None):
     """J_s at ``state_pushes`` from the solver's exact tangent and, when fd_h > 0, its max relative
     error against central finite differences (step fd_h mm) of the same solver's nonlinear solve.
     actuators: the columns (default: every actuator of the Case; the others are held)."""
-    from control.jacobian import (dirichlet_jacobian, fd_jacobian, full_pushes, max_rel_error,
-                                  p2_interpolation, p2_region_nodes)
+    from control.jacobian import (
+        dirichlet_jacobian,
+        fd_jacobian,
+        full_pushes,
+        max_rel_error,
+        p2_interpolation,
+        p2_region_nodes,
+    )
 
-    if degree not in (1, 2):
+    if degree not in (None, 1, 2):
         raise CaseError(f"--degree must be 1 or 2, got {degree}")
-    if degree == 2 and solver != "fem":
-        raise CaseError("--degree 2 needs --solver fem")
+    if solver != "fem" and (degree == 2 or formulation == "mixed"):
+        raise CaseError("--degree 2 and --formulation mixed need --solver fem")
     st = full_pushes(case, state_pushes)
     pushed = case.with_pushes(st)
     if solver == "fem":
-        res, T, plant = reference_state(case, st, degree=degree)
+        res, T, plant = reference_state(case, st, degree=degree, formulation=formulation)
+        degree = T.degree
         if degree == 2:
             P = p2_interpolation(case, T.node_points)
             jac = dirichlet_jacobian(pushed, T.K, actuators=actuators, P=P,
-                                     region_nodes=p2_region_nodes(case, T.node_points))
+                                     region_nodes=p2_region_nodes(case, T.node_points),
+                                     internal_dofs=T.internal_dofs)
         else:
             jac = dirichlet_jacobian(pushed, T.K, actuators=actuators)
     else:
@@ -109,7 +117,8 @@ def compute(case, state_pushes, *, solver="fem", degree=1, fd_h=0.02, actuators=
         jac = dirichlet_jacobian(pushed, tangent_for(solver)(pushed, res.u), actuators=actuators)
     out = {"actuators": list(jac.actuators), "targets": list(jac.targets),
            "rows": jac.rows, "J": jac.J.tolist(), "state_pushes": st, "solver": solver,
-           "degree": degree}
+           "degree": degree or 1, "formulation": res.extra.get("discretization", {}).get(
+               "formulation", "displacement")}
     if fd_h and fd_h > 0:
         # degree 2 solves start cold: a warm start from vertex values (edge nodes interpolated)
         # is not the P2 state and can leave Newton's basin on coarse meshes
@@ -125,11 +134,11 @@ def compute(case, state_pushes, *, solver="fem", degree=1, fd_h=0.02, actuators=
 def run(args) -> int:
     case = case_from_args(args)
     out = compute(case, parse_pushes(args.state_push), solver=args.solver, degree=args.degree,
-                  fd_h=args.fd_h)
+                  formulation=args.formulation, fd_h=args.fd_h)
     if args.json:
         write_json(out, args.json)
     J = np.asarray(out["J"])
-    print(f"{case.name}: J_s ({args.solver}, degree {args.degree}) rows T.x/T.y/T.z, columns "
+    print(f"{case.name}: J_s ({args.solver}, {out['formulation']} degree {out['degree']}) rows T.x/T.y/T.z, columns "
           f"{out['actuators']} (mm/mm); fd_max_rel_error = {out['fd_max_rel_error']}")
     for name, row in zip(out["rows"], J):
         print(f"  {name:6s} " + " ".join(f"{v:+.5f}" for v in row))
@@ -143,7 +152,7 @@ def add_parser(sub):
     p.add_argument("--state-push", action="append", default=[], metavar="NAME=MM",
                    help="state at which to linearize (repeatable); other actuators held at 0")
     p.add_argument("--solver", choices=("fem", "admm"), default="fem")
-    p.add_argument("--degree", type=int, default=1, choices=(1, 2))
+    add_discretization_args(p)
     p.add_argument("--fd-h", type=float, default=0.02, help="central FD step (mm); 0 skips")
     p.add_argument("--json", help="write the result here")
     p.set_defaults(func=run)

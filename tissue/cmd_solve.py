@@ -10,7 +10,14 @@ from meshes.errors import ConvergenceError
 from meshes.io import write_point_data
 from meshes.results import write_json
 
-from .common import SOLVER_NAMES, add_case_args, case_from_args, parse_pushes, run_solver
+from .common import (
+    SOLVER_NAMES,
+    add_case_args,
+    add_discretization_args,
+    case_from_args,
+    parse_pushes,
+    run_solver,
+)
 
 
 def _rank():
@@ -28,8 +35,10 @@ def write_outputs(case, res, out_dir=None, json_file=None, stem="displacement"):
         return
     if out_dir:
         u = res.u
-        write_point_data(case.mesh, out_dir, stem,
-                         {"displacement": u, "displacement_magnitude": np.linalg.norm(u, axis=1)})
+        fields = {"displacement": u, "displacement_magnitude": np.linalg.norm(u, axis=1)}
+        if res.extra.get("pressure") is not None:  # mixed formulation, kPa
+            fields["pressure"] = np.asarray(res.extra["pressure"], float)
+        write_point_data(case.mesh, out_dir, stem, fields)
     if json_file:
         write_json(res.to_json_dict(case), json_file)
 
@@ -38,8 +47,8 @@ def run(args) -> int:
     case = case_from_args(args)
     pushes = parse_pushes(args.push)
     try:
-        res = run_solver(args.solver, case, degree=args.degree, pushes=pushes,
-                         progress=not args.quiet)
+        res = run_solver(args.solver, case, degree=args.degree, formulation=args.formulation,
+                         pushes=pushes, progress=not args.quiet)
     except ConvergenceError as exc:
         if exc.last_converged is not None:
             write_outputs(case.with_pushes(pushes), exc.last_converged, args.out, args.json,
@@ -53,6 +62,11 @@ def run(args) -> int:
         print(f"{case.name}: {args.solver} converged={res.converged} "
               f"iterations={res.iterations} load_steps={res.load_steps} "
               f"time={res.wall_time_s:.2f}s vertices={res.n_vertices} cells={res.n_cells}")
+        disc = res.extra.get("discretization")
+        if disc:
+            p = f"/P{disc['pressure_degree']}" if disc.get("pressure_degree") is not None else ""
+            print(f"  discretization: {disc['formulation']} P{disc['degree']}{p}, "
+                  f"{disc['dofs']} dofs")
         for k, v in res.probes.items():
             print(f"  probe {k}: u = [{', '.join(f'{x:+.4f}' for x in v)}] mm")
         for k, v in res.reactions.items():
@@ -64,7 +78,7 @@ def add_parser(sub):
     p = sub.add_parser("solve", help="solve a case with the reference or a fast solver")
     add_case_args(p)
     p.add_argument("--solver", choices=SOLVER_NAMES, default="fem")
-    p.add_argument("--degree", type=int, choices=(1, 2), default=1, help="Lagrange degree (fem)")
+    add_discretization_args(p)
     p.add_argument("--push", action="append", metavar="NAME=MM",
                    help="push an actuator's region rigidly along its direction (repeatable)")
     p.add_argument("--out", help="folder for the displacement field (XDMF + VTU)")
