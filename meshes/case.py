@@ -10,14 +10,12 @@ freedom are all reported here, before any solver starts.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from functools import cached_property
-from pathlib import Path
 
 import numpy as np
 
-from .errors import CaseError, ReadError
+from .errors import CaseError
 from .mesh import MeshData, cell_volumes, check_cells
 
 __all__ = [
@@ -37,6 +35,11 @@ BOUNDARY_TYPES = ("fixed", "displacement", "affine", "sliding", "traction")
 MATERIAL_MODELS = ("neo-hookean", "linear-elastic")
 
 
+def _real(x) -> bool:
+    """A number that is not a boolean (True would read as 1)."""
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
 @dataclass(frozen=True)
 class Material:
     """Isotropic material. E in kPa, density in kg/mm^3.
@@ -54,11 +57,12 @@ class Material:
     def __post_init__(self):
         if self.model not in MATERIAL_MODELS:
             raise CaseError(f"unknown material model {self.model!r}; models: {list(MATERIAL_MODELS)}")
-        if not (isinstance(self.E, (int, float)) and math.isfinite(self.E) and self.E > 0):
+        if not (_real(self.E) and math.isfinite(self.E) and self.E > 0):
             raise CaseError(f"material E must be > 0 kPa, got E={self.E!r}")
-        if not (isinstance(self.nu, (int, float)) and -1.0 < self.nu < 0.5):
-            raise CaseError(f"material nu must lie in (-1, 0.5), got nu={self.nu!r}")
-        if not (isinstance(self.density, (int, float)) and self.density >= 0):
+        if not (_real(self.nu) and -1.0 < self.nu <= 0.5):
+            raise CaseError(f"material nu must lie in (-1, 0.5] (0.5: incompressible), "
+                            f"got nu={self.nu!r}")
+        if not (_real(self.density) and math.isfinite(self.density) and self.density >= 0):
             raise CaseError(f"material density must be >= 0 kg/mm^3, got {self.density!r}")
 
     @property
@@ -67,12 +71,25 @@ class Material:
 
     @property
     def kappa(self) -> float:
+        """Bulk modulus (kPa); inf for an incompressible material (nu = 0.5)."""
+        if self.nu >= 0.5:
+            return math.inf
         return self.E / (3.0 * (1.0 - 2.0 * self.nu))
 
     @property
     def lmbda(self) -> float:
-        """Lame's first parameter (kPa)."""
+        """Lame's first parameter (kPa); inf for nu = 0.5."""
+        if self.nu >= 0.5:
+            return math.inf
         return self.E * self.nu / ((1.0 + self.nu) * (1.0 - 2.0 * self.nu))
+
+    def require_compressible(self, who: str):
+        """Raise CaseError for an incompressible material (nu = 0.5), which ``who`` (a
+        displacement-based solver) cannot represent."""
+        if self.nu >= 0.5:
+            raise CaseError(f"{who} is displacement-based and cannot represent an incompressible "
+                            f"material (nu = 0.5); the mixed reference can "
+                            f"(fem_reference.solve(case, formulation='mixed'))")
 
 
 def _vec(value, n, what):
@@ -126,11 +143,12 @@ class Actuator:
 
     def __post_init__(self):
         d = np.asarray(self.direction, dtype=np.float64).reshape(-1)
-        n = np.linalg.norm(d)
-        if not np.isfinite(n) or n == 0:
+        s = np.abs(d).max(initial=0.0)
+        if not np.isfinite(s) or s == 0:
             raise CaseError(f"actuator {self.name!r}: direction must be a non-zero vector, "
                             f"got {self.direction!r}")
-        object.__setattr__(self, "direction", tuple((d / n).tolist()))
+        d = d / s  # scaled first: the norm of a vector of huge components would overflow
+        object.__setattr__(self, "direction", tuple((d / np.linalg.norm(d)).tolist()))
 
 
 @dataclass(frozen=True)
@@ -328,6 +346,7 @@ class Case:
                     put(verts, c, u[:, c], b.region)
             elif b.type == "sliding":
                 n = np.asarray(b.normal, float)
+                n = n / np.abs(n).max()
                 n = n / np.linalg.norm(n)
                 g = float(b.value or 0.0)
                 k = _axis_of(n)
@@ -469,68 +488,13 @@ class Case:
         return out
 
 
-# --------------------------------------------------------------------------- TOML
-def _case_from_dict(data: dict, base: Path, where: str, mesh: MeshData | None = None) -> Case:
-    from .builders import build
-    from .io import read_mesh
-
-    known = {"name", "mesh", "material", "boundary", "probe", "actuator", "body"}
-    unknown = set(data) - known
-    if unknown:
-        raise CaseError(f"{where}: unknown top-level key(s) {sorted(unknown)}; known: {sorted(known)}")
-    if mesh is None:
-        m = data.get("mesh")
-        if not isinstance(m, dict):
-            raise CaseError(f"{where}: a [mesh] table with file = ... or builtin = ... is required")
-        if "file" in m:
-            mesh = read_mesh(base / m["file"])
-        elif "builtin" in m:
-            mesh = build(m["builtin"], float(m.get("size", 6.0)))
-        else:
-            raise CaseError(f"{where}: [mesh] needs file = \"part.msh\" or builtin = \"phantom\"")
-    mat = data.get("material", {})
-    try:
-        material = Material(**mat)
-    except TypeError as exc:
-        raise CaseError(f"{where}: [material]: {exc}") from None
-
-    def table(key, cls):
-        out = []
-        for i, entry in enumerate(data.get(key, [])):
-            try:
-                out.append(cls(**entry))
-            except TypeError as exc:
-                raise CaseError(f"{where}: [[{key}]] #{i + 1}: {exc}") from None
-        return out
-
-    body = data.get("body", {})
-    unknown = set(body) - {"gravity"}
-    if unknown:
-        raise CaseError(f"{where}: [body]: unknown key(s) {sorted(unknown)}")
-    return Case(mesh=mesh, material=material,
-                boundaries=[replace(b, components=tuple(b.components) if b.components else None)
-                            for b in table("boundary", Boundary)],
-                probes=table("probe", Probe), actuators=table("actuator", Actuator),
-                gravity=body.get("gravity"), name=str(data.get("name", Path(where).stem)),
-                source=where)
-
-
 def load_case(path, *, mesh: MeshData | None = None, size: float | None = None) -> Case:
-    """Read a Case TOML file (mesh paths relative to the file).
+    """Read a Case TOML file (mesh paths relative to the file; format: docs/case-file.md).
 
-    ``mesh`` replaces the file's mesh (e.g. a refined one); ``size`` overrides a builtin's size.
+    ``mesh`` replaces the file's mesh (e.g. a refined one); ``size`` (mm) overrides a builtin's
+    size. Any input either loads or raises CaseError (CaseReadError when a file cannot be read),
+    one line per fault naming the file and the key. The reader is ``meshes.case_file``.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise ReadError(f"case file {str(path)!r} does not exist")
-    try:
-        data = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ReadError(f"case file {str(path)!r} is not valid TOML: {exc}") from exc
-    if size is not None and mesh is None:
-        m = dict(data.get("mesh", {}))
-        if "builtin" not in m:
-            raise CaseError(f"{path}: size override needs a builtin mesh, not a mesh file")
-        m["size"] = size
-        data = {**data, "mesh": m}
-    return _case_from_dict(data, path.parent, str(path), mesh)
+    from .case_file import load_case as read
+
+    return read(path, mesh=mesh, size=size)

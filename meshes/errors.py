@@ -2,6 +2,7 @@
 
 __all__ = [
     "CaseError",
+    "CaseReadError",
     "ConvergenceError",
     "MeshQualityError",
     "ReadError",
@@ -25,6 +26,11 @@ class WriteError(TissueError):
 
 class CaseError(TissueError, ValueError):
     """The problem description is inconsistent (unknown region, bad material value, ...)."""
+
+
+class CaseReadError(CaseError, ReadError):
+    """A case file, or the mesh file it names, could not be read (missing, a directory, not TOML,
+    not a mesh): both a CaseError and a ReadError."""
 
 
 class MeshQualityError(CaseError):
