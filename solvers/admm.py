@@ -178,6 +178,7 @@ class _Law:
     displacement gradient H (m, d, d)."""
 
     def __init__(self, material, d):
+        material.require_compressible("the ADMM solver")
         self.model = material.model
         self.mu, self.kappa, self.lmbda = material.mu, material.kappa, material.lmbda
         self.d = d

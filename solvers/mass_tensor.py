@@ -788,6 +788,7 @@ def solve(case, *, pushes=None, initial=None, method: str = "pcg", stop_mm: floa
     imbalance, mN), history={"max_step_mm": [...]}.
     """
     t0 = time.perf_counter()
+    case.material.require_compressible("the Mass Tensor solver")
     if pushes:
         case = case.with_pushes(pushes)
     model = _model_for(case)

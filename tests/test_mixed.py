@@ -60,6 +60,24 @@ def thick_sphere(mu, kappa):
     return float(sol.sol(B)[0] - B), float(sol.sol(A)[1])
 
 
+def incompressible_sphere(mu):
+    """Closed form of the incompressible Neo-Hookean shell: r^3 = R^3 + (A + UA)^3 - A^3 and
+    sigma_rr(a) = int_a^b 2 mu (l_r^2 - l_t^2) / r dr (radial equilibrium, sigma_rr(b) = 0).
+    Returns (u(B), P_rR(A) = sigma_rr(a) (a / A)^2)."""
+    from scipy.integrate import quad
+
+    a = A + UA
+    c = a ** 3 - A ** 3
+    b = (B ** 3 + c) ** (1 / 3)
+
+    def integrand(r):
+        R = (r ** 3 - c) ** (1 / 3)
+        return 2 * mu * ((R / r) ** 4 - (r / R) ** 2) / r
+
+    s_a = quad(integrand, a, b, epsabs=0, epsrel=1e-12)[0]
+    return b - B, s_a * (a / A) ** 2
+
+
 def solve_shell(size, nu, formulation):
     """FE solve of the octant; returns (mean radial displacement of the outer nodes, the radial
     generalized reaction sum_i f_i . X_i / A over the inner nodes)."""
@@ -182,3 +200,43 @@ def test_mixed_control_jacobian_matches_finite_differences_of_mixed_solves():
     fd = fd_jacobian(lambda c, pushes, initial: s.solve(pushes, case=c, initial=initial), case,
                      state, h=0.01, initial=res)
     np.testing.assert_allclose(jac.J, fd.J, atol=1e-6 * np.abs(fd.J).max())
+
+
+@pytest.mark.slow
+def test_incompressible_thick_sphere_matches_the_closed_form():
+    """nu = 0.5 exactly (1/kappa = 0: p is the Lagrange multiplier of J = 1)."""
+    mat = Material("neo-hookean", E=E, nu=0.5)
+    u_ref, P_ref = incompressible_sphere(mat.mu)
+    G_ref = -P_ref * A ** 2 * np.pi / 2
+    res, u_out, G = solve_shell(1.5, 0.5, "mixed")
+    assert res.extra["discretization"]["formulation"] == "mixed"
+    assert abs(u_out / u_ref - 1) < 0.01 and abs(G / G_ref - 1) < 0.01, (u_out, u_ref, G, G_ref)
+
+
+def test_incompressible_uniaxial_patch_test_is_exact(cube):
+    """nu = 0.5: lateral stretch exactly l^(-1/2), P_11 = mu (l - l^-2)."""
+    mat = Material("neo-hookean", E=E, nu=0.5)
+    stretch = 1.2
+    bcs = [Boundary("xmin", "sliding", normal=[1, 0, 0]),
+           Boundary("ymin", "sliding", normal=[0, 1, 0]),
+           Boundary("zmin", "sliding", normal=[0, 0, 1]),
+           Boundary("xmax", "displacement", value=[(stretch - 1) * L, 0, 0], components=(0,))]
+    res = fr.solve(Case(mesh=cube, material=mat, boundaries=bcs, name="incompressible"))
+    lat = stretch ** -0.5
+    F = np.diag([stretch, lat, lat])
+    np.testing.assert_allclose(res.u, cube.points @ (F - np.eye(3)).T, atol=1e-9)
+    np.testing.assert_allclose(res.reactions["xmax"][0],
+                               mat.mu * (stretch - stretch ** -2) * L * L, rtol=1e-8)
+
+
+def test_fast_solvers_and_the_displacement_reference_refuse_an_incompressible_material(cube):
+    from solvers import admm, mass_tensor
+
+    case = Case(mesh=cube, material=Material("neo-hookean", E=E, nu=0.5),
+                boundaries=[Boundary("zmin", "fixed")], name="incompressible")
+    with pytest.raises(CaseError, match="incompressible"):
+        fr.ReferenceSolver(case, degree=2, formulation="displacement")
+    with pytest.raises(CaseError, match="incompressible"):
+        admm.solve(case)
+    with pytest.raises(CaseError, match="incompressible"):
+        mass_tensor.solve(case.with_material(model="linear-elastic"))

@@ -1,0 +1,151 @@
+"""Mixed u-p (Taylor-Hood P2/P1) reference against a textbook dolfinx solve of the same
+discretization: the same mesh, energy, boundary conditions and load steps, solved with
+dolfinx.fem.petsc.NonlinearProblem + dolfinx.nls.petsc.NewtonSolver + MUMPS LU (every Newton
+iteration factorized), as the dolfinx demos do.
+
+Prints, per mesh size: tets, dofs, both wall times (solve only; forms compiled beforehand), the
+speed ratio, Newton iterations, peak memory and the largest probe difference (mm) between the two.
+
+    .venv/bin/python bench/bench_mixed.py [--sizes 6 4] [--nu 0.49] [--push 10]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def textbook(case, push_mm: float, steps: int, qdeg: int):
+    """The dolfinx-demo way: NonlinearProblem + NewtonSolver, MUMPS LU, equal load steps (as many
+    as the reference took, doubled until Newton converges: only the converging run is timed)."""
+    import dolfinx
+    import dolfinx.fem.petsc
+    import dolfinx.nls.petsc
+    import ufl
+    from mpi4py import MPI
+    from petsc4py import PETSc
+
+    from fem_reference.dolfinx_mesh import to_dolfinx
+
+    dm = to_dolfinx(case.mesh, MPI.COMM_WORLD)
+    mesh = dm.mesh
+    cell = mesh.ufl_cell()
+    W = dolfinx.fem.FunctionSpace(mesh, ufl.MixedElement([ufl.VectorElement("Lagrange", cell, 2),
+                                                          ufl.FiniteElement("Lagrange", cell, 1)]))
+    w = dolfinx.fem.Function(W)
+    u, p = ufl.split(w)
+    E, nu = case.material.E, case.material.nu
+    mu, kappa = E / (2 * (1 + nu)), E / (3 * (1 - 2 * nu))
+    F = ufl.Identity(3) + ufl.grad(u)
+    J = ufl.det(F)
+    psi = mu / 2 * (J ** (-2 / 3) * ufl.tr(F.T * F) - 3) - p * (J - 1) - p ** 2 / (2 * kappa)
+    dx = ufl.dx(metadata={"quadrature_degree": qdeg})
+    Pi = psi * dx
+    R = ufl.derivative(Pi, w, ufl.TestFunction(W))
+    K = ufl.derivative(R, w, ufl.TrialFunction(W))
+    V, _ = W.sub(0).collapse()
+    tdim = mesh.topology.dim
+    ft = dm.facet_tags
+    bcs, moving = [], []
+    for region, value in [("base", (0.0, 0.0, 0.0)),
+                          (case.actuator("A1").region, tuple(case.actuator("A1").direction))]:
+        facets = ft.indices[ft.values == dm.region_tags[region]]
+        dofs = dolfinx.fem.locate_dofs_topological((W.sub(0), V), tdim - 1, facets)
+        g = dolfinx.fem.Function(V)
+        bcs.append(dolfinx.fem.dirichletbc(g, dofs, W.sub(0)))
+        moving.append((g, np.asarray(value, float)))
+    while True:  # equal load steps; twice as many when Newton fails (timed: the last run only)
+        its = 0
+        w.x.array[:] = 0.0
+        problem = dolfinx.fem.petsc.NonlinearProblem(R, w, bcs=bcs, J=K)
+        solver = dolfinx.nls.petsc.NewtonSolver(MPI.COMM_WORLD, problem)
+        solver.rtol, solver.atol, solver.max_it = 1e-10, 1e-10, 50
+        ksp = solver.krylov_solver
+        ksp.setType("preonly")
+        ksp.getPC().setType("lu")
+        ksp.getPC().setFactorSolverType("mumps")
+        t0 = time.perf_counter()
+        try:
+            for k in range(1, steps + 1):
+                for g, direction in moving:
+                    val = push_mm * k / steps * direction
+                    g.interpolate(lambda x, val=val: np.tile(val[:, None], (1, x.shape[1])))
+                n, ok = solver.solve(w)
+                its += n
+            wall = time.perf_counter() - t0
+            break
+        except RuntimeError:
+            if steps >= 64:
+                raise
+            steps *= 2
+    uh = w.sub(0).collapse()
+    probes = {}
+    tree = dolfinx.geometry.BoundingBoxTree(mesh, tdim)
+    for pr in case.probes:
+        x = np.asarray(pr.point, float)[None, :]
+        cells = dolfinx.geometry.compute_colliding_cells(
+            mesh, dolfinx.geometry.compute_collisions(tree, x), x).links(0)
+        probes[pr.name] = uh.eval(x, cells[:1]).tolist()
+    del PETSc
+    return wall, its, steps, probes
+
+
+def one(size: float, nu: float, push: float) -> dict:
+    sys.path.insert(0, str(ROOT))
+    import fem_reference as fr
+    from meshes.case import load_case
+
+    case = load_case(ROOT / "meshes/cases/phantom.toml", size=size).with_material(nu=nu)
+    solver = fr.ReferenceSolver(case, formulation="mixed")
+    res = solver.solve({"A1": push})
+    peak_ours = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 ** 2
+    steps = max(res.load_steps, math.ceil(push / solver.settings.max_step_mm))
+    wall_tb, its_tb, steps, probes_tb = textbook(case.with_pushes({"A1": push}), push, steps,
+                                          solver.qdeg)
+    diff = max(float(np.abs(np.asarray(res.probes[k]) - v).max()) for k, v in probes_tb.items())
+    return {"size": size, "tets": case.mesh.n_cells, "dofs": res.extra["n_dofs"],
+            "ours_s": res.wall_time_s, "ours_newton": res.iterations,
+            "ours_steps": res.load_steps, "factorizations": res.extra["factorizations"],
+            "textbook_s": wall_tb, "textbook_newton": its_tb, "textbook_steps": steps,
+            "ratio": wall_tb / res.wall_time_s, "probe_diff_mm": diff, "peak_gib": peak_ours,
+            "T1_mm": np.asarray(res.probes["T1"]).tolist()}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--sizes", type=float, nargs="+", default=[6.0, 4.0])
+    ap.add_argument("--nu", type=float, default=0.49)
+    ap.add_argument("--push", type=float, default=10.0, help="A1 push, mm")
+    ap.add_argument("--one", type=float, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.one is not None:
+        print(json.dumps(one(args.one, args.nu, args.push)))
+        return
+    print(f"phantom, A1 = {args.push} mm, nu = {args.nu}, mixed P2/P1 (ours vs textbook dolfinx)")
+    print(f"{'size':>5} {'tets':>7} {'dofs':>8} {'ours_s':>7} {'newton':>6} {'factor':>6} "
+          f"{'textbook_s':>10} {'steps':>5} {'newton':>6} {'ratio':>6} {'probe_diff_mm':>13} {'peak_GiB':>8}")
+    for size in args.sizes:
+        out = subprocess.run([sys.executable, __file__, "--one", str(size), "--nu", str(args.nu),
+                              "--push", str(args.push)], capture_output=True, text=True)
+        if out.returncode:
+            print(f"{size:5g} failed: {out.stderr.strip().splitlines()[-1:]}")
+            continue
+        r = json.loads(out.stdout.strip().splitlines()[-1])
+        print(f"{r['size']:5g} {r['tets']:7d} {r['dofs']:8d} {r['ours_s']:7.2f} "
+              f"{r['ours_newton']:6d} {r['factorizations']:6d} {r['textbook_s']:10.2f} "
+              f"{r['textbook_steps']:5d} "
+              f"{r['textbook_newton']:6d} {r['ratio']:6.2f} {r['probe_diff_mm']:13.2e} "
+              f"{r['peak_gib']:8.2f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
