@@ -1,83 +1,60 @@
-"""``tissue converge CASE [--degrees 1 2] [--levels 4]``: refinement study of the reference."""
+"""``tissue converge CASE [--size MM] [--levels 3] [--degrees 1 2] [--push A1=5] [--json FILE]
+[--out DIR] [--max-cells N]``: mesh-convergence study of the reference on nested uniform
+refinements of the case mesh (``fem_reference.convergence``). Lengths mm, forces mN."""
 from __future__ import annotations
 
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from meshes.errors import CaseError
-from meshes.io import atomic_path
 from meshes.results import write_json
 
 from .common import parse_pushes
 
 
 def run(args) -> int:
-    import tomllib
+    from fem_reference.convergence import (
+        MAX_CELLS,
+        format_study,
+        plot_studies,
+        run_study,
+        study_to_json,
+    )
 
-    from fem_reference.convergence import refinement_study
-    from meshes.case import load_case
-
-    case = load_case(args.case)
-    data = tomllib.loads(Path(args.case).read_text())
-    builder = data.get("mesh", {}).get("builtin")
-    if builder is None:
-        raise CaseError(f"{args.case}: a refinement study needs a builtin mesh (gmsh sizes halved)")
     pushes = parse_pushes(args.push)
-    out = {"case": case.name, "pushes": pushes, "studies": []}
-    studies = []
-    for deg in args.degrees:
-        st = refinement_study(case, builder, coarsest=args.coarsest, levels=args.levels,
-                              degree=deg, pushes=pushes, progress=True)
-        studies.append(st)
-        out["studies"].append({
-            "degree": deg, "sizes_mm": st.sizes, "n_cells": st.n_cells,
-            "probes_mm": {k: v.tolist() for k, v in st.probes.items()},
-            "observed_order": st.order,
-            "richardson_mm": {k: np.asarray(v).tolist() for k, v in st.extrapolated.items()}})
-        for k in st.probes:
-            print(f"degree {deg} {k}: |u| = " + ", ".join(f"{np.linalg.norm(x):.4f}" for x in st.probes[k])
-                  + f" mm; observed order {st.order[k]:.2f}; Richardson |u| "
-                  f"{np.linalg.norm(st.extrapolated[k]):.4f} mm")
+    studies = run_study(args.case, size=args.size, degrees=args.degrees, levels=args.levels,
+                        pushes=pushes, max_cells=args.max_cells or MAX_CELLS, progress=True)
+    out = {"case": studies[0].case_name, "pushes_mm": pushes, "levels": args.levels,
+           "refinement_ratio": 2,
+           "h_definition": "mean edge length of the coarsest mesh, halved per level (mm)",
+           "studies": [study_to_json(st) for st in studies]}
+    for st in studies:
+        print(format_study(st))
+        print()
     if args.json:
         write_json(out, args.json)
     if args.out:
-        plot(studies, Path(args.out) / "convergence.png")
+        png = plot_studies(studies, Path(args.out) / "convergence.png")
         write_json(out, Path(args.out) / "convergence.json")
-        print(f"wrote {Path(args.out) / 'convergence.png'}", file=sys.stderr)
+        print(f"wrote {png} (differences between successive levels against h, slopes 1 and 2) "
+              f"and {Path(args.out) / 'convergence.json'}", file=sys.stderr)
     return 0
 
 
-def plot(studies, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4.5))
-    for st in studies:
-        for k, q in st.probes.items():
-            err = [np.linalg.norm(x - st.extrapolated[k]) for x in q]
-            ax.loglog(st.sizes, np.maximum(err, 1e-12), "o-", label=f"P{st.degree} {k}")
-    ax.set_xlabel("h (mm)")
-    ax.set_ylabel("|u - u_Richardson| at probe (mm)")
-    ax.set_title("Reference refinement study")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-
-
 def add_parser(sub):
-    p = sub.add_parser("converge", help="mesh-refinement study of the reference")
-    p.add_argument("case")
+    p = sub.add_parser("converge", help="mesh-convergence study of the reference (nested "
+                                        "uniform refinement, observed orders, GCI)")
+    p.add_argument("case", help="case TOML file (e.g. meshes/cases/phantom.toml)")
+    p.add_argument("--size", type=float, default=None,
+                   help="characteristic length (mm) of the coarsest mesh (builtin meshes; "
+                        "default: the case's own mesh)")
+    p.add_argument("--levels", type=int, default=3,
+                   help="number of meshes: the coarsest and levels-1 uniform refinements "
+                        "(>= 3; 4 or more to confirm the observed order)")
     p.add_argument("--degrees", type=int, nargs="+", default=[1], choices=(1, 2))
-    p.add_argument("--levels", type=int, default=4)
-    p.add_argument("--coarsest", type=float, default=16.0, help="coarsest mesh size (mm)")
     p.add_argument("--push", action="append", metavar="NAME=MM", default=None)
-    p.add_argument("--out", help="folder for the plot and JSON")
+    p.add_argument("--max-cells", type=int, default=None,
+                   help="refuse a study whose finest mesh would exceed this many cells "
+                        "(default 400,000; each refinement multiplies cells by 8 in 3D)")
+    p.add_argument("--out", help="folder for convergence.png and convergence.json")
     p.add_argument("--json", help="JSON file")
     p.set_defaults(func=run)
