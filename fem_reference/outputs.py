@@ -60,10 +60,10 @@ class OutputsMixin:
         self.global_nodes = imap.local_to_global(np.arange(n_local, dtype=np.int32))
         self.n_global_nodes = imap.size_global
         self.p_vertex = None
-        if self.Q is not None:  # P1 pressure: one dof per vertex, same local cell ordering
-            qd = self.Q.dofmap.list.array.reshape(-1, nv)
+        if self.Q is not None:  # pressure dofs at vertices (first nv per cell); -1 for others
+            qd = self.Q.dofmap.list.array.reshape(-1, self.Q.dofmap.dof_layout.num_dofs)
             self.p_vertex = -np.ones(len(self.p.x.array), np.int64)
-            self.p_vertex[qd.ravel()] = dm.node_to_vertex[geo.ravel()]
+            self.p_vertex[qd[:, :nv].ravel()] = dm.node_to_vertex[geo.ravel()]
 
     # ------------------------------------------------------------------ mixed: u, p <-> x
     def _sync_fields(self):
@@ -80,7 +80,7 @@ class OutputsMixin:
         if self.Q is None:
             return
         self.x.x.array[self._umap] = self.u.x.array
-        if pressure is not None:
+        if pressure is not None and np.all(self.p_vertex >= 0):
             pressure = np.asarray(pressure, float).reshape(-1)
             if pressure.shape != (self.case.mesh.n_vertices,):
                 raise CaseError(f"pressure state must have one value per vertex "
@@ -123,8 +123,9 @@ class OutputsMixin:
     def _pressure_vertex_field(self) -> np.ndarray:
         """Pressure (kPa, positive in compression) at the Case vertices, on every rank."""
         n_own = self.Q.dofmap.index_map.size_local
-        ids = self.comm.allgather(self.p_vertex[:n_own])
-        vals = self.comm.allgather(self.p.x.array[:n_own])
+        at = self.p_vertex[:n_own] >= 0
+        ids = self.comm.allgather(self.p_vertex[:n_own][at])
+        vals = self.comm.allgather(self.p.x.array[:n_own][at])
         out = np.zeros(self.case.mesh.n_vertices)
         for i, v in zip(ids, vals):
             out[i] = v
@@ -138,7 +139,10 @@ class OutputsMixin:
             return perm
         out = np.empty(len(self.x.x.array), np.int64)
         out[self._umap] = perm
-        out[self._pmap] = len(perm) + self.p_vertex
+        pv = self.p_vertex.copy()
+        extra = pv < 0  # pressure dofs away from the vertices (degree >= 2): after the vertices
+        pv[extra] = self.case.mesh.n_vertices + np.arange(np.count_nonzero(extra))
+        out[self._pmap] = len(perm) + pv
         return out
 
 
@@ -158,7 +162,7 @@ class OutputsMixin:
         d = self.gdim
         arr = self.u.x.array.reshape(-1, d)
         if isinstance(initial, SolveResult):
-            node_u = initial.extra.get("node_u") if self.degree == 2 else None
+            node_u = initial.extra.get("node_u") if self.degree >= 2 else None
             pressure = initial.extra.get("pressure") if self.Q is not None else None
             if node_u is not None:
                 self._set_nodes(self._nodes_in_own_order(np.asarray(node_u, float),
@@ -172,28 +176,29 @@ class OutputsMixin:
             u0 = np.asarray(initial, float)
             source = "vertex values"
             pressure = None
-            if self.degree == 2 and u0.shape == (len(self.node_vertex), d) and u0.shape[0] != n:
+            if self.degree >= 2 and u0.shape == (len(self.node_vertex), d) and u0.shape[0] != n:
                 if self.comm.size > 1:
-                    raise CaseError("a degree-2 nodal state array is accepted in serial only")
+                    raise CaseError("a full nodal state array is accepted in serial only")
                 self._set_nodes(u0)
                 self._x_from_fields(exact=exact)
                 return
         if u0.shape != (n, d):
             shapes = f"{(n, d)}" if self.degree == 1 else \
-                f"{(len(self.node_vertex), d)} (all degree-2 nodes) or {(n, d)}"
+                f"{(len(self.node_vertex), d)} (all degree-{self.degree} nodes) or {(n, d)}"
             raise CaseError(f"displacement state must have shape {shapes}, got {u0.shape}")
-        if exact and self.degree == 2 and np.any(u0):
+        if exact and self.degree >= 2 and np.any(u0):
             raise CaseError(
-                f"degree-2 state from {source}: the edge nodes are not determined by the vertex "
-                f"values (their midpoint means are not the solver's state away from rest); pass "
-                f"the SolveResult of a degree-2 reference solve, the full nodal array "
+                f"degree-{self.degree} state from {source}: the nodes off the vertices are not "
+                f"determined by the vertex values (the P1 interpolant is not the solver's state "
+                f"away from rest); pass the SolveResult of a degree-{self.degree} reference "
+                f"solve, the full nodal array "
                 f"({len(self.node_vertex)}, {d}) in Tangent node order (vertices, then edge "
                 f"nodes), or None for the solver's current state")
-        vmask = self.node_vertex >= 0
-        arr[vmask] = u0[self.node_vertex[vmask]]
-        if self.degree == 2:
-            # edge nodes: mean of the two end vertices (P1 field interpolated into P2)
-            self._p1_into_p2(u0, arr)
+        if self.degree == 1:
+            vmask = self.node_vertex >= 0
+            arr[vmask] = u0[self.node_vertex[vmask]]
+        else:  # the P1 field of the vertex values, interpolated
+            self._from_p1(u0)
         self.u.x.scatter_forward()
         self._x_from_fields(pressure, exact=exact)
 
@@ -234,22 +239,21 @@ class OutputsMixin:
             raise CaseError("nodal state: its node points are not this solver's degree-2 nodes")
         return node_u[idx]
 
-    def _p1_into_p2(self, u0, arr):
-        V = self.V
-        cell_dofs = V.dofmap.list.array.reshape(-1, V.dofmap.dof_layout.num_dofs)
-        geo = self.dm.mesh.geometry.dofmap.array.reshape(-1, self.gdim + 1)
-        verts = self.dm.node_to_vertex[geo]
-        # basix P2 edge ordering on the reference simplex: edge i opposite ... use coordinates
-        x = V.tabulate_dof_coordinates()[:, :self.gdim]
-        X = self.case.mesh.points
-        for k in range(self.gdim + 1, cell_dofs.shape[1]):
-            nodes = cell_dofs[:, k]
-            # find the two cell vertices whose midpoint is the node
-            mids = 0.5 * (X[verts][:, :, None, :] + X[verts][:, None, :, :])
-            d = np.linalg.norm(mids - x[nodes][:, None, None, :], axis=3)
-            flat = d.reshape(len(nodes), -1).argmin(axis=1)
-            a, b = np.unravel_index(flat, d.shape[1:])
-            arr[nodes] = 0.5 * (u0[verts[np.arange(len(nodes)), a]] + u0[verts[np.arange(len(nodes)), b]])
+    def _from_p1(self, u0):
+        """u = the P1 interpolant of vertex values u0 (n_vertices, gdim), in this degree."""
+        if getattr(self, "_p1", None) is None:
+            mesh = self.dm.mesh
+            V1 = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
+            nv = mesh.topology.dim + 1
+            d1 = V1.dofmap.list.array.reshape(-1, nv)
+            geo = mesh.geometry.dofmap.array.reshape(len(d1), -1)[:, :nv]
+            vert = -np.ones(V1.dofmap.index_map.size_local + V1.dofmap.index_map.num_ghosts,
+                            np.int64)
+            vert[d1.ravel()] = self.dm.node_to_vertex[geo.ravel()]
+            self._p1 = (dolfinx.fem.Function(V1), vert)
+        u1, vert = self._p1
+        u1.x.array.reshape(-1, self.gdim)[:] = u0[vert]
+        self.u.interpolate(u1)
 
     def gather_nodes(self, local_array) -> np.ndarray:
         """(n_global_nodes, gdim) array of a nodal field (owned values), on every rank."""
@@ -336,8 +340,8 @@ class OutputsMixin:
         u_v = self._vertex_field()
         energy = self.comm.allreduce(dolfinx.fem.assemble_scalar(self.W_form))
         state = {}
-        if self.degree == 2 and self.comm.size == 1:
-            # the full P2 state (u holds the vertices only): tangent / internal_forces / warm
+        if self.degree >= 2 and self.comm.size == 1:
+            # the full nodal state (u holds the vertices only): tangent / internal_forces / warm
             # starts from this result use it; arrays, so the JSON form leaves them out
             nodes = np.empty((len(self.node_vertex), self.gdim))
             nodes[self._out_permutation()[0]] = self.u.x.array.reshape(-1, self.gdim)

@@ -56,7 +56,8 @@ for _name in ("UFL", "FFCx", "ffcx", "root"):
 # Quadrature degree per Lagrange degree. P1: F is constant per cell, degree 1 integrates the
 # energy and the body-force term exactly. P2: F is linear; psi is not polynomial, degree 4 is
 # checked against degree 6 in tests (UFL would estimate ~ 146 points per cell for J**(-2/3)).
-DEFAULT_QUADRATURE = {1: 1, 2: 4}
+# P3 (used to estimate the error of P2 answers): F is quadratic, degree 6.
+DEFAULT_QUADRATURE = {1: 1, 2: 4, 3: 6}
 FORMULATIONS = ("auto", "displacement", "mixed")
 # "auto" picks the mixed u-p formulation from this Poisson ratio up: displacement elements lock
 # (P1) or show pressure oscillations in their reactions (P2) as nu -> 0.5.
@@ -78,8 +79,9 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
 
     Args:
         case: the Case (mesh, material, boundaries, probes).
-        degree: Lagrange degree of the displacement, 1 or 2 (the mixed formulation is Taylor-Hood
-            P2/P1: degree 2, pressure of degree 1); None: 2 for mixed, 1 for displacement.
+        degree: Lagrange degree of the displacement, 1, 2 or 3 (the mixed formulation is
+            Taylor-Hood: pressure one degree lower, so degree >= 2); None: 2 for mixed, 1 for
+            displacement.
         formulation: "displacement" (the energy of u alone), "mixed" (u-p perturbed Lagrangian,
             see ``forms``: locking-free up to the incompressible limit nu = 0.5) or "auto" (mixed
             from nu >= MIXED_FROM_NU).
@@ -103,14 +105,14 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
         self.formulation = resolve_formulation(formulation, case.material)
         if degree is None:
             degree = 2 if self.formulation == "mixed" else 1
-        if degree not in (1, 2):
-            raise CaseError(f"degree must be 1 or 2, got {degree!r}")
-        if self.formulation == "mixed" and degree != 2:
+        if degree not in (1, 2, 3):
+            raise CaseError(f"degree must be 1, 2 or 3, got {degree!r}")
+        if self.formulation == "mixed" and degree < 2:
             why = "" if formulation == "mixed" else \
                 f" (picked for nu = {case.material.nu} >= {MIXED_FROM_NU}: P1 displacement " \
                 f"elements lock there; formulation='displacement' accepts that)"
-            raise CaseError(f"the mixed u-p formulation is Taylor-Hood P2/P1 and needs degree=2, "
-                            f"got degree={degree}{why}")
+            raise CaseError(f"the mixed u-p formulation is Taylor-Hood (P2/P1, P3/P2) and needs "
+                            f"degree=2 or 3, got degree={degree}{why}")
         if self.formulation == "displacement" and case.material.nu >= 0.5:
             raise CaseError("an incompressible material (nu = 0.5) needs the mixed formulation")
         t0 = time.perf_counter()

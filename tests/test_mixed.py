@@ -144,7 +144,7 @@ def test_auto_picks_mixed_for_nearly_incompressible_and_refuses_p1(cube):
     case = Case(mesh=cube, material=mat, boundaries=[Boundary("zmin", "fixed")], name="auto")
     assert fr.resolve_formulation("auto", mat) == "mixed"
     assert fr.resolve_formulation("auto", Material(nu=0.45)) == "displacement"
-    with pytest.raises(CaseError, match="needs degree=2"):
+    with pytest.raises(CaseError, match="needs degree=2 or 3"):
         fr.ReferenceSolver(case, degree=1)
     with pytest.raises(CaseError, match="formulation must be one of"):
         fr.ReferenceSolver(case, degree=2, formulation="hybrid")
@@ -240,3 +240,23 @@ def test_fast_solvers_and_the_displacement_reference_refuse_an_incompressible_ma
         admm.solve(case)
     with pytest.raises(CaseError, match="incompressible"):
         mass_tensor.solve(case.with_material(model="linear-elastic"))
+
+
+@pytest.mark.parametrize("formulation", ["displacement", "mixed"])
+def test_degree_3_patch_test_is_exact(cube, formulation):
+    """P3 (and P3/P2 Taylor-Hood) reproduce a homogeneous deformation and its closed-form force."""
+    mat = Material("neo-hookean", E=E, nu=0.45)
+    stretch = 1.1
+    bcs = [Boundary("xmin", "sliding", normal=[1, 0, 0]),
+           Boundary("ymin", "sliding", normal=[0, 1, 0]),
+           Boundary("zmin", "sliding", normal=[0, 0, 1]),
+           Boundary("xmax", "displacement", value=[(stretch - 1) * L, 0, 0], components=(0,))]
+    res = fr.solve(Case(mesh=cube, material=mat, boundaries=bcs, name="p3"), degree=3,
+                   formulation=formulation)
+    lat = brentq(lambda t: principal_piola(stretch, t, mat.mu, mat.kappa)[1], 0.5, 1.5, xtol=1e-15)
+    F = np.diag([stretch, lat, lat])
+    np.testing.assert_allclose(res.u, cube.points @ (F - np.eye(3)).T, atol=1e-9)
+    np.testing.assert_allclose(res.extra["node_u"], res.extra["node_points"] @ (F - np.eye(3)).T,
+                               atol=1e-9)
+    P11 = principal_piola(stretch, lat, mat.mu, mat.kappa)[0]
+    np.testing.assert_allclose(res.reactions["xmax"][0], P11 * L * L, rtol=1e-8)
