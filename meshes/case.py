@@ -20,6 +20,7 @@ from .mesh import MeshData, cell_volumes, check_cells
 
 __all__ = [
     "BOUNDARY_TYPES",
+    "E_RANGE_KPA",
     "MATERIAL_MODELS",
     "Actuator",
     "Boundary",
@@ -32,6 +33,9 @@ __all__ = [
 ]
 
 BOUNDARY_TYPES = ("fixed", "displacement", "affine", "sliding", "traction")
+E_RANGE_KPA = (1e-9, 1e12)
+"""Young's moduli accepted (kPa): from far softer than any tissue to harder than diamond
+(1.2e9 kPa); outside it the residuals of a solve under- or overflow."""
 MATERIAL_MODELS = ("neo-hookean", "linear-elastic")
 
 
@@ -59,6 +63,9 @@ class Material:
             raise CaseError(f"unknown material model {self.model!r}; models: {list(MATERIAL_MODELS)}")
         if not (_real(self.E) and math.isfinite(self.E) and self.E > 0):
             raise CaseError(f"material E must be > 0 kPa, got E={self.E!r}")
+        if not E_RANGE_KPA[0] <= self.E <= E_RANGE_KPA[1]:
+            raise CaseError(f"material E must lie in the physical range [{E_RANGE_KPA[0]:g}, "
+                            f"{E_RANGE_KPA[1]:g}] kPa, got E={self.E!r}")
         if not (_real(self.nu) and -1.0 < self.nu <= 0.5):
             raise CaseError(f"material nu must lie in (-1, 0.5] (0.5: incompressible), "
                             f"got nu={self.nu!r}")
@@ -488,13 +495,16 @@ class Case:
         return out
 
 
-def load_case(path, *, mesh: MeshData | None = None, size: float | None = None) -> Case:
+def load_case(path, *, mesh: MeshData | None = None, size: float | None = None,
+              max_cells: float | None = None) -> Case:
     """Read a Case TOML file (mesh paths relative to the file; format: docs/case-file.md).
 
     ``mesh`` replaces the file's mesh (e.g. a refined one); ``size`` (mm) overrides a builtin's
-    size. Any input either loads or raises CaseError (CaseReadError when a file cannot be read),
-    one line per fault naming the file and the key. The reader is ``meshes.case_file``.
+    size. ``max_cells``: a builtin mesh whose estimated cell count exceeds it is refused before
+    gmsh starts (default None: ``meshes.builders.MAX_CELLS``; math.inf: no limit). Any input
+    either loads or raises CaseError (CaseReadError when a file cannot be read), one line per
+    fault naming the file and the key. The reader is ``meshes.case_file``.
     """
     from .case_file import load_case as read
 
-    return read(path, mesh=mesh, size=size)
+    return read(path, mesh=mesh, size=size, max_cells=max_cells)

@@ -67,7 +67,8 @@ def case_file_markdown() -> str:
              ("A case file that breaks a rule below is rejected with one line per fault, naming "
               "the file and the key, e.g."), "",
              "```",
-             "phantom.toml: [material].E: expected a finite number > 0, found true (a boolean)",
+             ("phantom.toml: [material].E: expected a finite number in [1e-09, 1e+12], found "
+              "true (a boolean)"),
              ("phantom.toml: [mesh].sise: expected a key of [mesh] (file, builtin, size), found "
               "unknown key 'sise' (did you mean 'size'?)"),
              "```", "",

@@ -67,8 +67,8 @@ def _read(path) -> dict:
         raise CaseReadError(f"{path}:{at}: invalid TOML: {msg}") from None
 
 
-def _mesh(data, base: Path, src: str, size) -> MeshData:
-    from .builders import build
+def _mesh(data, base: Path, src: str, size, max_cells=None) -> MeshData:
+    from .builders import MAX_CELLS, build
     from .io import read_mesh
 
     m = data["mesh"]
@@ -89,7 +89,7 @@ def _mesh(data, base: Path, src: str, size) -> MeshData:
     default = case_schema()["properties"]["mesh"]["properties"]["size"]["default"]
     h = float(size if size is not None else m.get("size", default))
     try:
-        return build(name, h)
+        return build(name, h, max_cells=MAX_CELLS if max_cells is None else max_cells)
     except CaseError as exc:
         raise CaseError(f"{src}: [mesh]: {exc}") from None
     except Exception as exc:  # gmsh raises plain Exception
@@ -227,7 +227,8 @@ def _probe_errors(case: Case, src: str) -> list[str]:
 
 
 # --------------------------------------------------------------------------- the loader
-def load_case(path, *, mesh: MeshData | None = None, size: float | None = None) -> Case:
+def load_case(path, *, mesh: MeshData | None = None, size: float | None = None,
+              max_cells: float | None = None) -> Case:
     """Read a Case TOML file; ``meshes.case.load_case`` documents it and calls this."""
     data = _read(path)
     src = str(Path(path))
@@ -237,7 +238,7 @@ def load_case(path, *, mesh: MeshData | None = None, size: float | None = None) 
                         f"{size!r}")
     _raise(schema_errors(data, src, need_mesh=mesh is None))
     if mesh is None:
-        mesh = _mesh(data, Path(path).parent, src, size)
+        mesh = _mesh(data, Path(path).parent, src, size, max_cells)
     _raise(_mesh_errors(data, mesh, src))
     try:  # the schema let through only keys these classes take
         case = Case(mesh=mesh, material=Material(**data.get("material", {})),

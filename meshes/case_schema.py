@@ -1,7 +1,7 @@
 """The case-file schema (``case.schema.json``, JSON Schema draft 2020-12): the one description of
 the TOML format, and its faults in words, one line each, naming the file and the key:
 
-    case.toml: [material].E: expected a finite number > 0, found true (a boolean)
+    case.toml: [material].E: expected a finite number in [1e-09, 1e+12], found true (a boolean)
     case.toml: [[boundary]][2].type: expected one of 'fixed', ..., found 'glued'
 
 Arrays of tables are counted from 1 in file order. What the schema cannot say (numbers finite,

@@ -1,31 +1,39 @@
 """Mesh I/O: gmsh ``.msh`` with named physical groups in, XDMF / VTU / ``.msh`` out.
 
 Writers are registered by suffix in ``WRITERS``; every writer writes to a temporary file in the
-target folder and renames it, so a file is written whole or not at all.
+target folder and renames it, so a file is written whole or not at all, and no temporary is left
+behind after an error or an interrupt. ``check_output_file`` / ``check_output_dir`` refuse a path
+that cannot be written before any work starts.
 """
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from .errors import ReadError, WriteError
-from .mesh import MeshData, orient_cells
+from .mesh import MeshData, check_tangles
 
-__all__ = ["WRITERS", "atomic_path", "read_mesh", "read_msh", "write_mesh", "write_point_data"]
+__all__ = ["WRITERS", "atomic_path", "check_output_dir", "check_output_file", "read_mesh",
+           "read_msh", "write_mesh", "write_point_data"]
 
 _CELL = {3: "tetra", 2: "triangle"}
 _FACET = {3: "triangle", 2: "line"}
 
 
-def read_msh(path) -> MeshData:
+def read_msh(path, *, overlap_check: bool = True) -> MeshData:
     """Read a gmsh ``.msh`` (2.2 or 4.1) with named physical groups.
 
     The highest-dimensional simplices (tetra, else triangle) form the mesh; physical groups of
     dimension d-1 become facet regions, of dimension 0 point regions, of dimension d cell regions.
-    Unused nodes are dropped and cells oriented positively.
+    Unused nodes are dropped. The cells are checked as they are in the file, before any
+    re-orientation (``meshes.mesh.check_tangles``): a tangled, inverted or degenerate mesh raises
+    MeshQualityError with the count and the worst cell; a body ordered left-handed throughout is
+    re-oriented. overlap_check=False skips the vertex-in-cell overlap search (the builders' own
+    gmsh output).
     """
     import meshio
 
@@ -37,6 +45,11 @@ def read_msh(path) -> MeshData:
     except (Exception, SystemExit) as exc:  # meshio raises many types, even SystemExit
         raise ReadError(f"cannot read mesh file {str(path)!r} as gmsh .msh: {exc}") from None
     blocks = [(c.type, c.data) for c in m.cells]
+    # second-order meshes (gmsh order 2): corners form the linear mesh, the mid-edge nodes its
+    # curved geometry (meshes.curved)
+    high = {"tetra10": ("tetra", 4), "triangle6": ("triangle", 3), "line3": ("line", 2)}
+    high_order = [(high[t][0], d) for t, d in blocks if t in ("tetra10", "triangle6")]
+    blocks = [(high[t][0], d[:, :high[t][1]]) if t in high else (t, d) for t, d in blocks]
     types = {t for t, _ in blocks}
     if "tetra" in types:
         dim = 3
@@ -65,11 +78,22 @@ def read_msh(path) -> MeshData:
         if pts.shape[1] == 3 and np.ptp(pts[:, 2]) > 1e-12 * max(np.ptp(pts), 1.0):
             raise ReadError(f"{str(path)!r}: triangles only but the mesh is not planar (z varies)")
         pts = pts[:, :2]
+    curved = {}
+    ho = [d for t, d in high_order if t == _CELL[dim]]
+    if ho:
+        from .curved import from_high_order_cells
+
+        try:
+            _, edges, xe = from_high_order_cells(pts, np.concatenate(ho).astype(np.int64), dim)
+        except ValueError as exc:
+            raise ReadError(f"{str(path)!r}: {exc}") from None
     used = np.unique(cells)
     remap = -np.ones(len(pts), dtype=np.int64)
     remap[used] = np.arange(len(used))
+    if ho:
+        curved = {"curved_edges": remap[edges], "curved_points": xe}
     pts = pts[used]
-    cells = orient_cells(pts, remap[cells])
+    cells = check_tangles(pts, remap[cells], source=str(path), overlap=overlap_check)
 
     def name_of(d, tag):
         return names.get((d, int(tag)), f"{d}d-{int(tag)}")
@@ -94,7 +118,12 @@ def read_msh(path) -> MeshData:
             if np.any(v < 0):
                 raise ReadError(f"{str(path)!r}: point group {name_of(0, tag)!r} is not a mesh vertex")
             point_regions[name_of(0, tag)] = v
-    return MeshData(pts, cells, facet_regions, point_regions, cell_regions)
+    mesh = MeshData(pts, cells, facet_regions, point_regions, cell_regions, **curved)
+    if curved:
+        from .curved import validate
+
+        mesh, _ = validate(mesh)
+    return mesh
 
 
 READERS = {".msh": read_msh}
@@ -109,34 +138,118 @@ def read_mesh(path) -> MeshData:
     return READERS[suffix](path)
 
 
+def _why(exc: OSError) -> str:
+    return exc.strerror or str(exc)
+
+
 class atomic_path:
-    """Context manager yielding a temporary path beside ``path``, renamed onto it on success."""
+    """Context manager yielding a temporary path beside ``path``, renamed onto it on success.
+
+    The temporary is removed whatever ends the block (an error, KeyboardInterrupt, a failed
+    rename); a failure to write raises WriteError naming ``path``."""
 
     def __init__(self, path, suffix=None):
         self.path = Path(path)
         self.suffix = suffix if suffix is not None else self.path.suffix
+        self.tmp = None
 
     def __enter__(self):
+        if self.path.is_dir():
+            raise WriteError(f"cannot write {str(self.path)!r}: it is a directory, expected a "
+                             "file path")
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.", suffix=self.suffix,
                                        dir=self.path.parent)
         except OSError as exc:
-            raise WriteError(f"cannot write {str(self.path)!r}: {exc}") from exc
-        os.close(fd)
-        self.tmp = Path(tmp)
+            raise WriteError(f"cannot write {str(self.path)!r}: {_why(exc)}") from None
+        try:
+            os.close(fd)
+        finally:
+            self.tmp = Path(tmp)
         return self.tmp
 
+    def _discard(self):
+        if self.tmp is not None:
+            try:
+                self.tmp.unlink(missing_ok=True)
+            except OSError:
+                pass
+
     def __exit__(self, exc_type, exc, tb):
-        if exc_type is None:
+        if exc_type is not None:
+            self._discard()
+            return False
+        try:
             # mkstemp makes the file 0600; give it the mode a plain open() would (umask applied)
             umask = os.umask(0)
             os.umask(umask)
             os.chmod(self.tmp, 0o666 & ~umask)
             os.replace(self.tmp, self.path)
-        else:
-            self.tmp.unlink(missing_ok=True)
+        except OSError as err:
+            self._discard()
+            raise WriteError(f"cannot write {str(self.path)!r}: {_why(err)}") from None
+        except BaseException:
+            self._discard()
+            raise
         return False
+
+
+def _parent_folder(path: Path, what: str) -> Path:
+    """The folder ``path`` goes into; WriteError when it does not exist or is not a folder."""
+    p = path.parent
+    if not p.exists():
+        raise WriteError(f"{what} {str(path)!r}: folder {str(p)!r} does not exist")
+    if not p.is_dir():
+        raise WriteError(f"{what} {str(path)!r}: {str(p)!r} is not a folder")
+    return p
+
+
+def _check_writable(folder: Path, path: Path, what: str):
+    ok = os.access(folder, os.W_OK | os.X_OK)
+    if ok:
+        try:  # the real test (root, read-only file systems): create and drop a file there
+            with tempfile.TemporaryFile(dir=folder):
+                pass
+        except OSError:
+            ok = False
+    if not ok:
+        raise WriteError(f"{what} {str(path)!r}: folder {str(folder)!r} is not writable")
+
+
+def check_output_file(path, what: str = "output file", *, suffixes=None) -> Path:
+    """Refuse, before any work, a file path that cannot be written: an existing directory, a
+    name ending in a path separator, a folder that does not exist, is a file or is not writable,
+    or a suffix not in ``suffixes``. Raises WriteError naming ``what`` (e.g. the option) and the
+    path."""
+    text = os.fspath(path)
+    path = Path(text)
+    if not text or text.endswith(os.sep) or path.is_dir():
+        raise WriteError(f"{what} {text!r}: is a directory, expected a file path")
+    if suffixes is not None and path.suffix.lower() not in suffixes:
+        raise WriteError(f"{what} {text!r}: unsupported suffix {path.suffix!r}; expected one of "
+                         f"{sorted(suffixes)}")
+    if path.exists() and not path.is_file():
+        raise WriteError(f"{what} {text!r}: exists and is not a regular file")
+    _check_writable(_parent_folder(path, what), path, what)
+    return path
+
+
+def check_output_dir(path, what: str = "output folder") -> Path:
+    """Refuse, before any work, a folder path that cannot be written: an existing file or a
+    folder that is not writable; a missing folder is created when writing, and its parent must
+    exist and be writable. Raises WriteError naming ``what`` and the path."""
+    text = os.fspath(path)
+    path = Path(text)
+    if not text:
+        raise WriteError(f"{what} {text!r}: expected a folder path")
+    if path.exists():
+        if not path.is_dir():
+            raise WriteError(f"{what} {text!r}: is a file, expected a folder")
+        _check_writable(path, path, what)
+    else:
+        _check_writable(_parent_folder(path, what), path, what)
+    return path
 
 
 def _meshio_mesh(mesh: MeshData, point_data=None, cell_data=None):
@@ -166,19 +279,22 @@ def _write_xdmf(mesh, path, point_data=None, cell_data=None):
 
     path = Path(path)
     h5 = path.with_suffix(".h5")
-    tmpdir = Path(tempfile.mkdtemp(prefix=".xdmf-", dir=path.parent if path.parent.exists() else None))
+    if path.is_dir() or h5.is_dir():
+        raise WriteError(f"cannot write {str(path)!r}: it or its .h5 is a directory")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmpdir = Path(tempfile.mkdtemp(prefix=".xdmf-", dir=path.parent))
+    except OSError as exc:
+        raise WriteError(f"cannot write {str(path)!r}: {_why(exc)}") from None
     try:
         tmp_x = tmpdir / path.name
         meshio.write(str(tmp_x), _meshio_mesh(mesh, point_data, cell_data), file_format="xdmf")
-        path.parent.mkdir(parents=True, exist_ok=True)
         os.replace(tmp_x.with_suffix(".h5"), h5)
         os.replace(tmp_x, path)
     except Exception as exc:
-        raise WriteError(f"cannot write {str(path)!r}: {exc}") from exc
+        raise WriteError(f"cannot write {str(path)!r}: {exc}") from None
     finally:
-        for f in tmpdir.glob("*"):
-            f.unlink()
-        tmpdir.rmdir()
+        shutil.rmtree(tmpdir, ignore_errors=True)
 
 
 def _write_msh(mesh, path, point_data=None, cell_data=None):
@@ -230,7 +346,10 @@ def write_mesh(mesh: MeshData, path, *, point_data=None, cell_data=None) -> Path
     return path
 
 
-def write_point_data(mesh: MeshData, out_dir, stem: str, point_data: dict) -> list[Path]:
-    """Write ``stem.xdmf`` and ``stem.vtu`` with the given vertex fields (ParaView-readable)."""
+def write_point_data(mesh: MeshData, out_dir, stem: str, point_data: dict,
+                     cell_data: dict | None = None) -> list[Path]:
+    """Write ``stem.xdmf`` and ``stem.vtu`` with the given vertex (and cell) fields
+    (ParaView-readable)."""
     out_dir = Path(out_dir)
-    return [write_mesh(mesh, out_dir / f"{stem}{s}", point_data=point_data) for s in (".xdmf", ".vtu")]
+    return [write_mesh(mesh, out_dir / f"{stem}{s}", point_data=point_data, cell_data=cell_data)
+            for s in (".xdmf", ".vtu")]

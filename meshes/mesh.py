@@ -10,7 +10,8 @@ import numpy as np
 
 from .errors import CaseError, MeshQualityError
 
-__all__ = ["MeshData", "MeshQuality", "boundary_facets", "cell_volumes", "quality"]
+__all__ = ["MeshData", "MeshQuality", "boundary_facets", "cell_jacobians", "cell_volumes",
+           "check_cells", "check_tangles", "deformation_state", "quality"]
 
 
 @dataclass(frozen=True)
@@ -22,6 +23,10 @@ class MeshData:
     facet_regions: name -> (k, gdim) vertex ids of boundary facets (triangles / edges).
     point_regions: name -> vertex ids (gmsh point physical groups, e.g. targets T1..T5).
     cell_regions: name -> cell ids.
+    curved_edges, curved_points: optional second-order geometry (see meshes.curved): the edges
+        (k, 2 vertex ids) whose mid-edge node lies off the straight midpoint, and those nodes'
+        coordinates (k, gdim) on the true curved boundary. The linear cells stay the mesh every
+        solver uses; the reference builds isoparametric cells from them at degree >= 2.
     """
 
     points: np.ndarray
@@ -29,6 +34,8 @@ class MeshData:
     facet_regions: dict = field(default_factory=dict)
     point_regions: dict = field(default_factory=dict)
     cell_regions: dict = field(default_factory=dict)
+    curved_edges: np.ndarray | None = None
+    curved_points: np.ndarray | None = None
 
     def __post_init__(self):
         pts = np.ascontiguousarray(self.points, dtype=np.float64)
@@ -46,6 +53,11 @@ class MeshData:
     @property
     def gdim(self) -> int:
         return self.points.shape[1]
+
+    @property
+    def geometry_order(self) -> int:
+        """2 when the mesh carries curved (second-order) edge nodes, else 1."""
+        return 2 if self.curved_edges is not None and len(self.curved_edges) else 1
 
     @property
     def n_vertices(self) -> int:
@@ -142,9 +154,12 @@ def check_cells(mesh: MeshData, *, source: str = "mesh", rtol: float = 1e-12) ->
     bad = np.flatnonzero(vol <= rtol * scale)
     if bad.size:
         kinds = "inverted" if np.any(vol[bad] < -rtol * scale) else "zero-volume"
+        worst = int(bad[np.argmin(vol[bad])])
         raise MeshQualityError(
             f"{source}: {bad.size} inverted or zero-volume cells ({kinds}); first ids "
-            f"{bad[:10].tolist()}, volumes {np.round(vol[bad[:3]], 6).tolist()}")
+            f"{bad[:10].tolist()}, volumes {np.round(vol[bad[:3]], 6).tolist()}; worst cell "
+            f"{worst} at {_at(mesh.points[mesh.cells[worst]].mean(axis=0))} mm, volume "
+            f"{vol[worst]:.3g} mm^{mesh.gdim}")
     try:
         object.__setattr__(mesh, "_cells_checked", key)
     except (AttributeError, TypeError):  # a mesh-like object without a __dict__
@@ -166,3 +181,232 @@ def orient_cells(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
     neg = cell_volumes(points, cells) < 0
     cells[neg, 0], cells[neg, 1] = cells[neg, 1], cells[neg, 0].copy()
     return cells
+
+
+# --------------------------------------------------------------------------- tangled meshes
+DEGENERATE_RTOL = 1e-12
+"""A cell whose |volume| is at most this fraction of the cube of the bounding box's largest side
+(the square in 2D) is degenerate: flat, zero volume."""
+OVERLAP_NEIGHBOURS = 16
+"""Cells (nearest centroids) searched for each vertex by the vertex-in-cell overlap test."""
+
+
+def _at(x) -> str:
+    return "(" + ", ".join(f"{float(v):.4g}" for v in x) + ")"
+
+
+def _n(count: int, word: str, plural: str | None = None) -> str:
+    """'1 cell', '3 cells'."""
+    return f"{count} {word if count == 1 else plural or word + 's'}"
+
+
+def _facet_keys(cells: np.ndarray, n_vertices: int):
+    """One integer key per (cell, facet): (k*m,) keys, owner cells, local opposite vertex."""
+    m, k = cells.shape
+    f = np.sort(np.concatenate([np.delete(cells, j, axis=1) for j in range(k)]), axis=1)
+    owner = np.tile(np.arange(m), k)
+    opp = np.repeat(np.arange(k), m)
+    n = max(int(n_vertices), 1)
+    if float(n) ** (k - 1) < 2.0 ** 62:
+        key = f[:, 0].copy()
+        for j in range(1, k - 1):
+            key = key * n + f[:, j]
+    else:  # too many vertices for one int64: number the distinct facets instead
+        key = np.unique(f, axis=0, return_inverse=True)[1].reshape(-1)
+    return key, owner, opp, f
+
+
+def _side(points, facet, p):
+    """Signed volume (area in 2D) of the simplex (facet vertices in the given order, p)."""
+    x0 = points[facet[:, 0]]
+    if facet.shape[1] == 3:
+        return np.einsum("ij,ij->i", np.cross(points[facet[:, 1]] - x0, points[facet[:, 2]] - x0),
+                         points[p] - x0)
+    a, b = points[facet[:, 1]] - x0, points[p] - x0
+    return a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+
+
+def check_tangles(points: np.ndarray, cells: np.ndarray, *, source: str = "mesh",
+                  overlap: bool = True) -> np.ndarray:
+    """Refuse a tangled, inverted or degenerate mesh BEFORE any re-orientation; return its cells,
+    every one with positive orientation. Lengths in mm.
+
+    The sign of a cell's volume depends on the order of its vertices as well as on its shape, so a
+    negative volume alone does not say that a cell is inverted; its neighbours do. In each
+    connected body (cells joined through shared facets):
+
+    - every cell negative: a consistently left-handed vertex ordering (another program's
+      convention): accepted, and each cell re-oriented (two vertices swapped);
+    - both signs present: some cells are inside out relative to the rest: tangled, refused (also
+      a file whose ordering is merely inconsistent: it cannot be told from an inversion);
+
+    and in the whole mesh:
+
+    - a cell of zero volume (|V| <= ``DEGENERATE_RTOL`` times the bounding box's largest side
+      cubed) is degenerate: refused;
+    - cells overlap: a facet shared by more than two cells, two cells on the same side of the
+      facet they share (a fold), or a vertex strictly inside a cell it does not belong to
+      (searched among the ``OVERLAP_NEIGHBOURS`` cells with the nearest centroids; ``overlap=False``
+      skips that search, e.g. for a mesher's own output): refused.
+
+    Raises MeshQualityError with the count and the worst cell (its index among the mesh's cells,
+    position in mm, volume).
+    """
+    points = np.asarray(points, float)
+    cells = np.asarray(cells, np.int64)
+    m = len(cells)
+    if m == 0:
+        return cells.copy()
+    d = points.shape[1]
+    unit = f"mm^{d}"
+    vol = cell_volumes(points, cells)
+    scale = float(np.ptp(points[np.unique(cells)], axis=0).max()) ** d
+    flat = ~(np.abs(vol) > DEGENERATE_RTOL * scale)
+    if flat.any():
+        ids = np.flatnonzero(flat)
+        w = int(ids[np.argmin(np.nan_to_num(np.abs(vol[ids]), nan=-1.0))])
+        raise MeshQualityError(
+            f"{source}: {_n(ids.size, 'degenerate (zero-volume) cell')} of {m}; worst cell {w} at "
+            f"{_at(points[cells[w]].mean(axis=0))} mm, volume {vol[w]:.3g} {unit}")
+    key, owner, opp, facet = _facet_keys(cells, len(points))
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    start = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
+    count = np.diff(np.r_[start, len(ks)])
+    many = start[count > 2]
+    if many.size:
+        f0 = order[many[0]]
+        group = owner[order[many[0]:many[0] + count[count > 2][0]]]
+        raise MeshQualityError(
+            f"{source}: tangled mesh: {_n(many.size, 'facet')} shared by more than two cells "
+            f"(cells overlap); e.g. cells {group.tolist()} share the facet at "
+            f"{_at(points[facet[f0]].mean(axis=0))} mm")
+    pair = start[count == 2]
+    a, b = owner[order[pair]], owner[order[pair + 1]]
+    # orientation per connected body
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    adj = coo_matrix((np.ones(len(a)), (a, b)), shape=(m, m))
+    n_bodies, body = connected_components(adj, directed=False)
+    pos = vol > 0
+    n_pos = np.bincount(body, weights=pos, minlength=n_bodies)
+    n_all = np.bincount(body, minlength=n_bodies)
+    mixed = (n_pos > 0) & (n_pos < n_all)
+    if mixed.any():
+        majority_pos = n_pos > n_all - n_pos      # the smaller share counts as inverted
+        inv = mixed[body] & (pos != majority_pos[body])
+        ids = np.flatnonzero(inv)
+        x = points[cells[ids]]
+        lrms = np.sqrt(np.mean([np.sum((x[:, i] - x[:, j]) ** 2, axis=1)
+                                for i in range(d + 1) for j in range(i)], axis=0))
+        w = int(ids[np.argmax(np.abs(vol[ids]) / lrms ** d)])
+        raise MeshQualityError(
+            f"{source}: tangled mesh: {ids.size} of {_n(m, 'cell')} inverted (oriented opposite "
+            f"to the rest of their connected body); worst cell {w} at "
+            f"{_at(points[cells[w]].mean(axis=0))} mm, volume {vol[w]:.3g} {unit} "
+            f"(checked before any re-orientation)")
+    out = cells.copy()
+    flip = ~pos                                      # bodies ordered left-handed throughout
+    out[flip, 0], out[flip, 1] = cells[flip, 1], cells[flip, 0]
+    # folds: the two cells of an interior facet must lie on opposite sides of it
+    fa = facet[order[pair]]
+    sa = _side(points, fa, cells[a, opp[order[pair]]])
+    sb = _side(points, fa, cells[b, opp[order[pair + 1]]])
+    fold = np.flatnonzero(np.sign(sa) * np.sign(sb) > 0)
+    if fold.size:
+        depth = np.minimum(np.abs(sa[fold]), np.abs(sb[fold]))
+        k = int(fold[np.argmax(depth)])
+        raise MeshQualityError(
+            f"{source}: tangled mesh: {_n(fold.size, 'pair')} of neighbouring cells overlap "
+            f"(both on the same side of the facet they share); worst: cells {int(a[k])} and "
+            f"{int(b[k])} at {_at(points[fa[k]].mean(axis=0))} mm")
+    if overlap:
+        _check_vertices_outside_foreign_cells(points, out, source)
+    return out
+
+
+def _check_vertices_outside_foreign_cells(points, cells, source, chunk: int = 20000):
+    from scipy.spatial import cKDTree
+
+    m = len(cells)
+    used = np.unique(cells)
+    x0 = points[cells[:, 0]]
+    T = np.transpose(points[cells[:, 1:]] - x0[:, None, :], (0, 2, 1))   # columns: edges
+    Tinv = np.linalg.inv(T)
+    tree = cKDTree(points[cells].mean(axis=1))
+    k = min(m, OVERLAP_NEIGHBOURS)
+    hits = []
+    for s in range(0, len(used), chunk):
+        v = used[s:s + chunk]
+        _, cand = tree.query(points[v], k=k)
+        cand = cand.reshape(len(v), k)
+        lam = np.einsum("ckij,ckj->cki", Tinv[cand], points[v][:, None, :] - x0[cand])
+        wmin = np.minimum(1.0 - lam.sum(axis=2), lam.min(axis=2))
+        member = (cells[cand] == v[:, None, None]).any(axis=2)
+        inside = (wmin > 1e-9) & ~member
+        for i, j in zip(*np.nonzero(inside)):
+            hits.append((float(wmin[i, j]), int(v[i]), int(cand[i, j])))
+    if hits:
+        _, v, c = max(hits)
+        n = len({h[1] for h in hits})
+        raise MeshQualityError(
+            f"{source}: tangled mesh: {_n(n, 'vertex', 'vertices')} of some cells strictly "
+            f"inside another cell (cells overlap); worst: vertex {v} at {_at(points[v])} mm "
+            f"inside cell {c}")
+
+
+# --------------------------------------------------------------------------- deformed states
+RUNAWAY_FACTOR = 10.0
+"""A displacement larger than this many times the body's diameter (bounding-box diagonal) is
+runaway growth, not an answer."""
+
+
+def cell_jacobians(points: np.ndarray, cells: np.ndarray, u) -> np.ndarray:
+    """J = det F of each cell under the vertex displacement ``u`` ((n, gdim), mm), interpolated
+    linearly (P1): F = I + grad u is constant in a linear simplex and J is the ratio of the
+    deformed cell's signed volume (area in 2D, plane strain) to the reference cell's.
+    Dimensionless; J <= 0 is an inverted cell; a non-finite displacement gives nan."""
+    points = np.asarray(points, float)
+    u = np.asarray(u, float).reshape(points.shape)
+    with np.errstate(all="ignore"):
+        return cell_volumes(points + u, cells) / cell_volumes(points, cells)
+
+
+def deformation_state(mesh: MeshData, u, *, degree: int = 1,
+                      runaway: float = RUNAWAY_FACTOR) -> dict:
+    """Whether the vertex displacement ``u`` ((n, gdim), mm) is an admissible final state.
+
+    Returns the keys every solver puts in ``SolveResult.extra``: ``inverted_cells`` (cells with
+    J <= 0, see ``cell_jacobians``), ``min_J``, ``max_displacement_mm``, ``valid`` and
+    ``invalid_reason`` (None when valid), and ``J_evaluated`` (how J was taken: per P1 cell, or
+    for ``degree`` >= 2 from the P1 interpolant of the vertex values). A state is invalid when it
+    is not finite, has an inverted cell, or its largest displacement exceeds ``runaway`` times
+    the body's diameter (bounding-box diagonal, mm).
+    """
+    u = np.asarray(u, float).reshape(mesh.points.shape)
+    J = cell_jacobians(mesh.points, mesh.cells, u)
+    finite = bool(np.all(np.isfinite(u)))
+    inverted = int(np.count_nonzero(~(J > 0)))
+    with np.errstate(all="ignore"):
+        umax = float(np.sqrt(np.max(np.sum(u * u, axis=1), initial=0.0)))
+        lo, hi = mesh.points.min(axis=0), mesh.points.max(axis=0)
+        diameter = float(np.linalg.norm(hi - lo))
+    min_j = float(np.min(J)) if J.size and np.all(np.isfinite(J)) else None
+    reasons = []
+    if not finite:
+        reasons.append("non-finite displacement (nan or inf)")
+    else:
+        if inverted:
+            w = int(np.argmin(np.where(np.isfinite(J), J, -np.inf)))
+            reasons.append(f"{_n(inverted, 'inverted cell')} (J <= 0; worst cell {w} at "
+                           f"{_at(mesh.points[mesh.cells[w]].mean(axis=0))} mm, J = {J[w]:.3g})")
+        if umax > runaway * diameter:
+            reasons.append(f"runaway displacement: max |u| = {umax:.3g} mm, more than "
+                           f"{runaway:g} x the body's diameter ({diameter:.3g} mm)")
+    how = "per cell (P1: J constant in each cell)" if degree == 1 else \
+        "per cell of the P1 interpolant of the vertex displacements (edge nodes not used)"
+    return {"inverted_cells": inverted, "min_J": min_j,
+            "max_displacement_mm": umax if np.isfinite(umax) else None,
+            "valid": not reasons, "invalid_reason": "; ".join(reasons) or None,
+            "J_evaluated": how}

@@ -94,6 +94,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from meshes.errors import CaseError, SolverDivergedError
+from meshes.mesh import deformation_state
 from meshes.results import SolveResult
 from solvers import _ckernel
 
@@ -1519,6 +1520,9 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         # most step_mm (mm); each step is an ADMM solve warm-started from the previous one
         uc = u - ops.red.Z @ (ops.red.ZT @ u)
         jump = _vertex_norm_max(up - uc, d)
+        if not np.isfinite(jump):
+            raise CaseError(f"{case.source or case.name}: the prescribed displacements are too "
+                            f"large to be represented (|u| overflows)")
         if load_steps is None:
             load_steps = max(1, int(np.ceil(jump / step_mm)))
         for j in range(1, int(load_steps) + 1):
@@ -1589,7 +1593,8 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     extra = {"admm_iterations": int(admm_it), "newton_iterations": int(newton_it),
              "load_steps": int(load_steps) if dynamics is None else 0,
              "rho_kPa": ops.rho, "setup_s": ops.setup_s, "tol_mm": tol_mm,
-             "polish_restarts": restarts, "lift_solves": lifts}
+             "polish_restarts": restarts, "lift_solves": lifts,
+             **deformation_state(case.mesh, u.reshape(n, d))}
     if dynamics is not None:
         extra.update({"dt_s": dt, "steps": int(dynamics.steps), "probe_trajectory": traj,
                       "velocity": v.reshape(n, d)})

@@ -79,6 +79,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from meshes.errors import CaseError, SolverDivergedError
+from meshes.mesh import deformation_state
 from meshes.results import SolveResult
 
 log = logging.getLogger("tissue.mass_tensor")
@@ -814,7 +815,8 @@ def solve(case, *, pushes=None, initial=None, method: str = "pcg", stop_mm: floa
         wall_time_s=wall, solver="mass-tensor", probes=case.probe_values(u), reactions=reactions,
         strain_energy=0.5 * float(np.vdot(u, F)), load_steps=1, degree=1, case_name=case.name,
         n_vertices=n, n_cells=case.mesh.n_cells, history={"max_step_mm": list(sol.max_step_mm)},
-        extra={"method": method, "stop_mm": float(stop_mm), "point_types": types.counts()})
+        extra={"method": method, "stop_mm": float(stop_mm), "point_types": types.counts(),
+               **deformation_state(case.mesh, u)})
 
 
 def _reactions(case, r):

@@ -209,7 +209,7 @@ def test_a_probe_just_outside_is_snapped_and_a_size_override_still_works(tmp_pat
 # --------------------------------------------------------------------------- typical mistakes
 MISTAKES = [
     ("E = true", PHANTOM.replace("E = 6.0 ", "E = true"),
-     "FILE: [material].E: expected a finite number > 0, found true (a boolean)"),
+     "FILE: [material].E: expected a finite number in [1e-09, 1e+12], found true (a boolean)"),
     ("unknown key", PHANTOM.replace("size = 6.0", "sise = 6.0"),
      ("FILE: [mesh].sise: expected a key of [mesh] (file, builtin, size), found unknown key 'sise' "
       "(did you mean 'size'?)")),
@@ -234,7 +234,8 @@ MISTAKES = [
     ("scalar as table", "material = 6.0\n" + BOX.replace("[material]\nE = 6.0\nnu = 0.45\n", ""),
      "FILE: [material]: expected a table with keys model, E, nu, density, found 6.0 (a number)"),
     ("table as scalar", PHANTOM.replace("E = 6.0 ", "E = {value = 6.0}"),
-     "FILE: [material].E: expected a finite number > 0, found {value = 6.0} (a table)"),
+     ("FILE: [material].E: expected a finite number in [1e-09, 1e+12], found {value = 6.0} "
+      "(a table)")),
     ("unknown region", BOX.replace('region = "zmin"', 'region = "floor"'),
      ("FILE: [[boundary]][1].region: expected a region of the mesh (tissue, xmax, xmin, ymax, "
       "ymin, zmax, zmin), found unknown region 'floor'")),
@@ -285,7 +286,7 @@ def test_missing_case_file_and_missing_mesh_file_are_read_errors_and_case_errors
 def test_all_faults_are_reported_one_line_each(tmp_path):
     got = message(tmp_path, PHANTOM.replace("E = 6.0 ", "E = -1.0").replace("nu = 0.45", "nuu = 3"))
     assert got.splitlines() == [
-        "FILE: [material].E: expected a finite number > 0, found -1.0",
+        "FILE: [material].E: expected a finite number in [1e-09, 1e+12], found -1.0",
         ("FILE: [material].nuu: expected a key of [material] (model, E, nu, density), found "
          "unknown key 'nuu' (did you mean 'nu'?)")]
 

@@ -6,6 +6,7 @@ purpose: --model admm --model-size 12 --model-E-factor 1.2), with the open-loop 
 """
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from html import escape as html_escape
@@ -13,31 +14,44 @@ from pathlib import Path
 
 import numpy as np
 
-from meshes.case import load_case
+from meshes.case import E_RANGE_KPA
 from meshes.errors import CaseError, ConvergenceError
-from meshes.io import atomic_path
+from meshes.io import atomic_path, check_output_dir
 from meshes.results import write_json
 
 from .cmd_jacobian import plant_for, tangent_for
-from .common import add_case_args, case_from_args
+from .common import (
+    add_case_args,
+    body_diameter,
+    case_from_args,
+    check_outputs,
+    check_prescribed,
+    integer,
+    real,
+)
+
+MAX_MAP_POINTS = 20_000
+"""Grid points of one manipulability map at most (each is a small linear program)."""
 
 
 def _loop_args(p):
     p.add_argument("--plant", choices=("fem", "admm"), default="fem")
     p.add_argument("--model", choices=("fem", "admm"), default=None,
                    help="controller's model solver (default: the plant's)")
-    p.add_argument("--model-E-factor", type=float, default=1.0,
+    p.add_argument("--model-E-factor", type=real("positive"), default=1.0,
                    help="the model's E = factor * the Case's E")
-    p.add_argument("--model-size", type=float, default=None,
+    p.add_argument("--model-size", type=real("positive", "mm"), default=None,
                    help="the model's mesh size (mm; default: the plant's mesh)")
-    p.add_argument("--noise", type=float, default=0.0, help="measurement noise std (mm)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--steps", type=int, default=60)
-    p.add_argument("--dt", type=float, default=1.0, help="time per MPC step (s)")
-    p.add_argument("--horizon", type=int, default=5)
-    p.add_argument("--q", type=float, default=3.0)
-    p.add_argument("--r", type=float, default=2.0)
-    p.add_argument("--max-travel", type=float, default=None, help="push limit per actuator (mm)")
+    p.add_argument("--noise", type=real("nonneg", "mm"), default=0.0,
+                   help="measurement noise std (mm)")
+    p.add_argument("--seed", type=integer(0, 2 ** 32 - 1), default=0)
+    p.add_argument("--steps", type=integer(1, 100_000), default=60)
+    p.add_argument("--dt", type=real("positive", "s"), default=1.0, help="time per MPC step (s)")
+    p.add_argument("--horizon", type=integer(1, 1000), default=5)
+    p.add_argument("--q", type=real("positive", "1/mm^2"), default=3.0)
+    p.add_argument("--r", type=real("positive", "1/mm^2"), default=2.0)
+    p.add_argument("--max-travel", type=real("positive", "mm"), default=None,
+                   help="push limit per actuator (mm)")
     p.add_argument("--qp-solver", default="qpoases", help="casadi conic plugin")
 
 
@@ -45,15 +59,24 @@ def _setup(args, case):
     from control.loop import LoopSettings
     from control.mpc import MPCSettings
 
+    check_prescribed(case)
     if not (np.isfinite(args.model_E_factor) and args.model_E_factor > 0):
         raise CaseError(f"--model-E-factor must be > 0, got {args.model_E_factor}")
+    E = case.material.E * args.model_E_factor
+    if not E_RANGE_KPA[0] <= E <= E_RANGE_KPA[1]:
+        raise CaseError(f"--model-E-factor {args.model_E_factor:g}: the model's E would be "
+                        f"{E:g} kPa, outside the physical range [{E_RANGE_KPA[0]:g}, "
+                        f"{E_RANGE_KPA[1]:g}] kPa")
+    diam = body_diameter(case)
+    if args.noise > diam:
+        raise CaseError(f"--noise {args.noise:g}: expected a measurement noise <= the body's "
+                        f"diameter ({diam:.4g} mm)")
     plant = plant_for(args.plant)
     mname = args.model or args.plant
     if mname == args.plant and args.model_E_factor == 1.0 and args.model_size is None:
         mcase, msolve = case, plant          # the model is the plant: reuse its solution
     else:
-        mcase = load_case(Path(args.case), size=args.model_size if args.model_size is not None
-                          else args.size)
+        mcase = case_from_args(args, size=args.model_size)
         mcase = mcase.with_material(E=mcase.material.E * args.model_E_factor)
         msolve = plant_for(mname)
     settings = LoopSettings(steps=args.steps, dt_s=args.dt, noise_mm=args.noise, seed=args.seed,
@@ -73,7 +96,9 @@ def run_mpc(args) -> int:
     from control.controllability import UnreachableGoalError
     from control.loop import plot_response
 
+    check_outputs(args, files=("json",), dirs=("out",))
     case = case_from_args(args)
+    case.probe(args.target)   # a missing target is named before any solve
     plant, mcase, msolve, mtan, settings = _setup(args, case)
     try:
         res = run_one(case, args.target, args.task, plant, mcase, msolve, mtan, settings)
@@ -192,11 +217,12 @@ def run_table1(args) -> int:
     from control.controllability import UnreachableGoalError
     from control.loop import plot_response
 
+    check_outputs(args, dirs=("out",))
     case = case_from_args(args)
-    plant, mcase, msolve, mtan, settings = _setup(args, case)
     targets = args.targets or [p.name for p in case.probes]
     for t in targets:
         case.probe(t)   # a missing target is named before any solve
+    plant, mcase, msolve, mtan, settings = _setup(args, case)
     meta = {"case": case.name, "plant": args.plant, "model": args.model or args.plant,
             "model_E_factor": args.model_E_factor, "model_size": args.model_size,
             "size": args.size, "steps": args.steps, "dt_s": args.dt, "horizon": args.horizon,
@@ -239,10 +265,14 @@ def run_manipulability(args) -> int:
     from control.controllability import manipulability_map
 
     paths = [args.case] + list(args.compare or [])
-    out = Path(args.out)
-    maps = []
+    out = check_output_dir(args.out, "--out")
+    cases = []
     for path in paths:
-        case = load_case(Path(path), size=args.size)
+        case = case_from_args(argparse.Namespace(**{**vars(args), "case": path}))
+        _check_map(case, args.plane_z, args.spacing)
+        cases.append(case)
+    maps = []
+    for case in cases:
         K = tangent_for(args.solver)(case, np.zeros((case.mesh.n_vertices, case.mesh.gdim)))
         mp = manipulability_map(case, K, plane_z=args.plane_z, spacing=args.spacing)
         maps.append((case.name, mp))
@@ -274,6 +304,21 @@ def run_manipulability(args) -> int:
     return 0
 
 
+def _check_map(case, plane_z, spacing):
+    """CaseError naming --plane-z / --spacing for a section that misses the body or a grid of
+    more than MAX_MAP_POINTS points (mm)."""
+    X = case.mesh.points
+    lo, hi = X.min(axis=0), X.max(axis=0)
+    if X.shape[1] == 3 and not lo[2] < plane_z < hi[2]:
+        raise CaseError(f"--plane-z {plane_z:g}: expected a section through "
+                        f"{case.source or case.name} ({lo[2]:.4g} < z < {hi[2]:.4g} mm)")
+    n = np.prod(np.floor((hi[:2] - lo[:2]) / spacing) + 1)
+    if n > MAX_MAP_POINTS:
+        raise CaseError(f"--spacing {spacing:g}: the map of {case.source or case.name} would have "
+                        f"about {n:,.0f} grid points, more than {MAX_MAP_POINTS:,}; use a larger "
+                        f"spacing (mm)")
+
+
 def add_parser(sub):
     p = sub.add_parser("mpc", help="closed-loop push-only MPC of one target (seed 000)",
                        description=__doc__)
@@ -297,7 +342,9 @@ def add_parser(sub):
     p.add_argument("--compare", nargs="*", default=["meshes/cases/phantom-3.toml"],
                    help="other cases to map side by side (default: the 3-actuator phantom)")
     p.add_argument("--solver", choices=("fem", "admm"), default="fem")
-    p.add_argument("--plane-z", type=float, default=15.0)
-    p.add_argument("--spacing", type=float, default=3.0, help="grid spacing (mm)")
+    p.add_argument("--plane-z", type=real("finite", "mm"), default=15.0,
+                   help="height of the mapped section (mm)")
+    p.add_argument("--spacing", type=real("positive", "mm"), default=3.0,
+                   help="grid spacing (mm)")
     p.add_argument("--out", required=True)
     p.set_defaults(func=run_manipulability)

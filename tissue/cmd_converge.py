@@ -6,9 +6,20 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from meshes.builders import BODY_DIMENSIONS, estimate_cells
+from meshes.errors import CaseError
 from meshes.results import write_json
 
-from .common import parse_pushes
+from .common import (
+    announce_build,
+    builtin_of,
+    check_outputs,
+    integer,
+    parse_pushes,
+    real,
+)
+
+PRECHECK_FROM_CELLS = 20_000
 
 
 def run(args) -> int:
@@ -20,9 +31,30 @@ def run(args) -> int:
         study_to_json,
     )
 
+    check_outputs(args, files=("json",), dirs=("out",))
     pushes = parse_pushes(args.push)
+    limit = args.max_cells or MAX_CELLS
+    b = builtin_of(args.case, args.size)
+    if b is not None:
+        # the finest mesh's estimate, before a costly coarsest mesh is built (a cheap one is
+        # built and counted exactly by run_study)
+        try:
+            est = estimate_cells(*b)
+        except CaseError:
+            est = None  # the case loader names the fault
+        grow = 2 ** BODY_DIMENSIONS.get(b[0], 3)
+        if est is not None and est > PRECHECK_FROM_CELLS and \
+                est * grow ** (args.levels - 1) > limit:
+            raise CaseError(
+                f"the finest of {args.levels} meshes would have about "
+                f"{est * grow ** (args.levels - 1):,} cells (builtin {b[0]!r} at size {b[1]:g} "
+                f"mm: about {est:,} cells, x {grow}^{args.levels - 1}), more than the limit of "
+                f"{limit:,} (--max-cells): use a larger --size, fewer --levels or raise the "
+                f"limit")
+        announce_build("converge", *b, args.max_cells)
     studies = run_study(args.case, size=args.size, degrees=args.degrees, levels=args.levels,
-                        pushes=pushes, max_cells=args.max_cells or MAX_CELLS, progress=True)
+                        pushes=pushes, max_cells=args.max_cells or MAX_CELLS, progress=True,
+                        formulation=args.formulation)
     out = {"case": studies[0].case_name, "pushes_mm": pushes, "levels": args.levels,
            "refinement_ratio": 2,
            "h_definition": "mean edge length of the coarsest mesh, halved per level (mm)",
@@ -44,15 +76,19 @@ def add_parser(sub):
     p = sub.add_parser("converge", help="mesh-convergence study of the reference (nested "
                                         "uniform refinement, observed orders, GCI)")
     p.add_argument("case", help="case TOML file (e.g. meshes/cases/phantom.toml)")
-    p.add_argument("--size", type=float, default=None,
+    p.add_argument("--size", type=real("positive", "mm"), default=None,
                    help="characteristic length (mm) of the coarsest mesh (builtin meshes; "
                         "default: the case's own mesh)")
-    p.add_argument("--levels", type=int, default=3,
+    p.add_argument("--levels", type=integer(3, 12, "at least 3 meshes: an observed order "
+                                                  "takes three"), default=3,
                    help="number of meshes: the coarsest and levels-1 uniform refinements "
                         "(>= 3; 4 or more to confirm the observed order)")
-    p.add_argument("--degrees", type=int, nargs="+", default=[1], choices=(1, 2))
+    p.add_argument("--degrees", type=int, nargs="+", default=[1], choices=(1, 2, 3))
     p.add_argument("--push", action="append", metavar="NAME=MM", default=None)
-    p.add_argument("--max-cells", type=int, default=None,
+    p.add_argument("--formulation", choices=("auto", "displacement", "mixed"), default="auto",
+                   help="reference formulation (auto: mixed u-p for nu >= 0.49, which needs "
+                        "--degrees 2 or 3)")
+    p.add_argument("--max-cells", type=integer(1), default=None,
                    help="refuse a study whose finest mesh would exceed this many cells "
                         "(default 400,000; each refinement multiplies cells by 8 in 3D)")
     p.add_argument("--out", help="folder for convergence.png and convergence.json")

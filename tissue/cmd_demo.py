@@ -11,9 +11,12 @@ from pathlib import Path
 
 import numpy as np
 
+from meshes.errors import CaseError
 from meshes.io import atomic_path, write_point_data
 from meshes.mesh import quality
 from meshes.results import write_json
+
+from .common import add_max_cells, announce_build, check_outputs, check_pushes, real
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE = ROOT / "meshes" / "cases" / "phantom.toml"
@@ -81,9 +84,18 @@ def _have(module):
 
 
 def run(args) -> int:
-    from meshes.builders import phantom
+    from meshes.builders import MAX_CELLS, check_cell_budget, phantom
     from meshes.case import load_case
 
+    check_outputs(args, dirs=("out",))
+    limit = args.max_cells if args.max_cells is not None else MAX_CELLS
+    for opt, size in (("--size", args.size), ("--verify-size", args.verify_size)):
+        try:
+            check_cell_budget("phantom", size, limit)
+        except CaseError as exc:
+            raise CaseError(f"{opt} {size:g}: {exc}") from None
+    for size in (args.size, args.verify_size):
+        announce_build("demo", "phantom", size, limit)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -118,7 +130,8 @@ def run(args) -> int:
                   "A4": args.verify_push}
         _say(f"verification: {', '.join(solvers)} against the reference, all actuators "
              f"{args.verify_push:g} mm (mesh size {args.verify_size} mm)")
-        vcase = load_case(CASE, size=args.verify_size)
+        vcase = load_case(CASE, size=args.verify_size, max_cells=limit)
+        check_pushes(vcase, pushes, "--verify-push")
         v = verify(vcase, pushes, solvers=solvers, out_dir=out / "verify",
                    json_file=out / "verify" / "verify.json")
         summary["verify"] = v
@@ -148,9 +161,12 @@ def run(args) -> int:
 def add_parser(sub):
     p = sub.add_parser("demo", help="build the phantom, solve, verify, write a report")
     p.add_argument("--out", default="out")
-    p.add_argument("--size", type=float, default=6.0, help="phantom mesh size for the reference (mm)")
-    p.add_argument("--verify-size", type=float, default=10.0,
+    p.add_argument("--size", type=real("positive", "mm"), default=6.0,
+                   help="phantom mesh size for the reference (mm)")
+    p.add_argument("--verify-size", type=real("positive", "mm"), default=10.0,
                    help="mesh size of the verification run (mm; 10 ~ the seed's 1.7k tets)")
-    p.add_argument("--verify-push", type=float, default=15.0, help="push of all four actuators (mm)")
+    p.add_argument("--verify-push", type=real("finite", "mm"), default=15.0,
+                   help="push of all four actuators (mm)")
+    add_max_cells(p, what="phantom mesh")
     p.add_argument("--skip-verify", action="store_true")
     p.set_defaults(func=run)

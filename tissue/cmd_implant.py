@@ -20,6 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .common import check_outputs, real
+
+WIDTH_MM = (40.0, 300.0)        # base widths of the implants in use, with a margin
+PROJECTION_RATIO = (0.1, 1.0)   # projection / width
+
 
 def add_parser(sub) -> None:
     p = sub.add_parser("implant", help="seed 001 breast implant planning (Mass Tensor vs FEM)",
@@ -28,18 +33,24 @@ def add_parser(sub) -> None:
     src.add_argument("--skin", type=Path, help="skin surface (STL, PLY, OBJ, VTK), mm, x = "
                      "patient's left, y up, z anterior")
     src.add_argument("--synthetic", action="store_true", help="synthetic torso with known muscle")
-    p.add_argument("--thickness", type=float, nargs=3, metavar=("A", "B", "C"),
+    p.add_argument("--thickness", type=real("finite", "mm", magnitude=1e4), nargs=3,
+                   metavar=("A", "B", "C"),
                    help="tissue thickness (mm): right lateral, sternum, left lateral")
-    p.add_argument("--thickness-x", type=float, nargs=3, metavar=("XA", "XB", "XC"),
+    p.add_argument("--thickness-x", type=real("finite", "mm", magnitude=1e4), nargs=3,
+                   metavar=("XA", "XB", "XC"),
                    help="x (mm) of the three thickness planes (default: from the skin's extent)")
-    p.add_argument("--volume", type=float, default=245.0, help="implant volume (cc)")
+    p.add_argument("--volume", type=real("positive", "cc"), default=245.0,
+                   help="implant volume (cc)")
     p.add_argument("--shape", choices=["round", "anatomical"], default="round")
     p.add_argument("--side", choices=["left", "right"], default="left")
-    p.add_argument("--at", type=float, nargs=2, metavar=("X", "Y"),
+    p.add_argument("--at", type=real("finite", "mm", magnitude=1e4), nargs=2,
+                   metavar=("X", "Y"),
                    help="implant centre seen from the front (mm); default under the breast")
-    p.add_argument("--width", type=float, help="implant base width (mm)")
-    p.add_argument("--projection", type=float, help="implant projection (mm)")
-    p.add_argument("--free-ring", type=float, default=30.0,
+    p.add_argument("--width", type=real("positive", "mm", at_least=WIDTH_MM[0],
+                                        at_most=WIDTH_MM[1]), help="implant base width (mm)")
+    p.add_argument("--projection", type=real("positive", "mm", at_least=4.0, at_most=300.0),
+                   help="implant projection (mm)")
+    p.add_argument("--free-ring", type=real("nonneg", "mm"), default=30.0,
                    help="free ring around the implant (mm, 0 = none; seed: 30)")
     p.add_argument("--sliding", action="store_true",
                    help="switch target points to sliding on the implant once reached")
@@ -53,6 +64,24 @@ def add_parser(sub) -> None:
     p.add_argument("--out", type=Path, help="folder for tissue.vtu, skin_distance.vtu/.png")
     p.add_argument("--json", type=Path, required=True, help="result JSON")
     p.set_defaults(func=run)
+
+
+def check_dimensions(spec, args):
+    """CaseError naming --volume / --width / --projection when the implant they give (scaled to
+    the volume) has a base width outside WIDTH_MM (mm) or a projection outside PROJECTION_RATIO
+    of its width: no such implant exists and its surface cannot be built."""
+    w, _, p = spec.dimensions()
+    given = " ".join(f"{o} {v:g}" for o, v in (("--volume", args.volume), ("--width", args.width),
+                                               ("--projection", args.projection))
+                     if v is not None)
+    if not (WIDTH_MM[0] <= w <= WIDTH_MM[1] and
+            PROJECTION_RATIO[0] <= p / w <= PROJECTION_RATIO[1]):
+        from meshes.errors import CaseError
+
+        raise CaseError(f"{given}: the implant would be {w:.4g} mm wide with a projection of "
+                        f"{p:.4g} mm; expected a width of {WIDTH_MM[0]:g} to {WIDTH_MM[1]:g} mm "
+                        f"and a projection of {PROJECTION_RATIO[0]:g} to {PROJECTION_RATIO[1]:g} "
+                        f"times the width")
 
 
 def reference_case(plan, *, model: str = "linear-elastic"):
@@ -85,9 +114,15 @@ def run(args) -> int:
     from implant.pipeline import PlanSettings, patient_from_file, plan_implant, synthetic_patient
     from implant.registration import icp, surface_distances
     from implant.surface import check_single_sheet, read_surface
-    from meshes.errors import CaseError
+    from meshes.errors import CaseError, ReadError
     from meshes.results import write_json
 
+    check_outputs(args, files=("json",), dirs=("out",))
+    for opt, f in (("--skin", args.skin), ("--postop", args.postop)):
+        if f is not None and not f.is_file():
+            raise ReadError(f"{opt} {str(f)!r}: "
+                            f"{'is a directory' if f.is_dir() else 'does not exist'}, expected a "
+                            f"surface file (STL, PLY, OBJ, VTK)")
     if args.skin is not None:
         if args.thickness is None:
             raise CaseError("--skin needs --thickness A B C (mm)")
@@ -100,6 +135,7 @@ def run(args) -> int:
                             at=tuple(args.at) if args.at else None, width=args.width,
                             projection=args.projection, free_ring=args.free_ring or None,
                             sliding=args.sliding, method=args.method)
+    check_dimensions(settings.spec, args)
     postop = None
     if args.postop is not None:  # read and check before any solve
         postop = check_single_sheet(read_surface(args.postop), source=f"{args.postop}")

@@ -7,12 +7,24 @@ tangent, checked against central finite differences of the same solver's nonline
 """
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 
 from meshes.errors import CaseError
 from meshes.results import write_json
 
-from .common import add_case_args, add_discretization_args, case_from_args, parse_pushes
+from .common import (
+    add_case_args,
+    add_discretization_args,
+    body_diameter,
+    case_from_args,
+    check_outputs,
+    check_prescribed,
+    check_pushes,
+    parse_pushes,
+    real,
+)
 
 # ADMM as a control plant/model: the ADMM stage hands over to the Newton polish (part of
 # solvers.admm.solve, iteration budget left to the solver: 20 per load step) which finishes to
@@ -24,6 +36,9 @@ from .common import add_case_args, add_discretization_args, case_from_args, pars
 # finds the reference's solution (tests/test_control_admm_model.py). With lift="auto" a sub-mm step
 # whose polish restarted returned the previous step's boundary values flagged converged (caught by
 # control.loop.check_prescribed).
+FD_FLOOR = 1e-7
+"""Smallest central-difference step, relative to the body's diameter: the solves agree to about
+1e-10 mm, so a smaller step differences round-off."""
 ADMM_CONTROL_OPTIONS = {"tol_mm": 1e-2, "polish": True, "polish_tol_mm": 1e-7, "lift": True}
 
 
@@ -118,7 +133,9 @@ def compute(case, state_pushes, *, solver="fem", degree=None, formulation="auto"
     out = {"actuators": list(jac.actuators), "targets": list(jac.targets),
            "rows": jac.rows, "J": jac.J.tolist(), "state_pushes": st, "solver": solver,
            "degree": degree or 1, "formulation": res.extra.get("discretization", {}).get(
-               "formulation", "displacement")}
+               "formulation", "displacement"),
+           "state_valid": bool(res.extra.get("valid", True)),
+           "state_invalid_reason": res.extra.get("invalid_reason")}
     if fd_h and fd_h > 0:
         # degree 2 solves start cold: a warm start from vertex values (edge nodes interpolated)
         # is not the P2 state and can leave Newton's basin on coarse meshes
@@ -132,8 +149,20 @@ def compute(case, state_pushes, *, solver="fem", degree=None, formulation="auto"
 
 
 def run(args) -> int:
+    check_outputs(args, files=("json",))
+    state = parse_pushes(args.state_push, "--state-push")
     case = case_from_args(args)
-    out = compute(case, parse_pushes(args.state_push), solver=args.solver, degree=args.degree,
+    check_pushes(case, state, "--state-push", margin=args.fd_h)
+    check_prescribed(case, state)
+    floor = FD_FLOOR * body_diameter(case)
+    if 0 < args.fd_h < floor:
+        raise CaseError(f"--fd-h {args.fd_h:g}: a step below {floor:.2g} mm ({FD_FLOOR:g} of the "
+                        f"body's diameter) differences round-off; expected 0 (no check) or a "
+                        f"larger step (mm)")
+    if args.fd_h > 0:  # every actuator is stepped by fd_h, the held ones too
+        check_pushes(case, {a.name: 0.0 for a in case.actuators if a.name not in state},
+                     f"--fd-h {args.fd_h:g}: push", margin=args.fd_h)
+    out = compute(case, state, solver=args.solver, degree=args.degree,
                   formulation=args.formulation, fd_h=args.fd_h)
     if args.json:
         write_json(out, args.json)
@@ -142,6 +171,11 @@ def run(args) -> int:
           f"{out['actuators']} (mm/mm); fd_max_rel_error = {out['fd_max_rel_error']}")
     for name, row in zip(out["rows"], J):
         print(f"  {name:6s} " + " ".join(f"{v:+.5f}" for v in row))
+    if not out["state_valid"]:
+        print(f"tissue jacobian: error: the state at {out['state_pushes']} is not valid: "
+              f"{out['state_invalid_reason']} (outputs written, marked state_valid = false)",
+              file=sys.stderr)
+        return 1
     return 0
 
 
@@ -153,6 +187,7 @@ def add_parser(sub):
                    help="state at which to linearize (repeatable); other actuators held at 0")
     p.add_argument("--solver", choices=("fem", "admm"), default="fem")
     add_discretization_args(p)
-    p.add_argument("--fd-h", type=float, default=0.02, help="central FD step (mm); 0 skips")
+    p.add_argument("--fd-h", type=real("nonneg", "mm"), default=0.02,
+                   help="central FD step (mm); 0 skips")
     p.add_argument("--json", help="write the result here")
     p.set_defaults(func=run)

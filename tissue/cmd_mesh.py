@@ -1,17 +1,20 @@
-"""``tissue mesh BUILDER --size MM -o FILE``: build a gmsh mesh and report its size and quality."""
+"""``tissue mesh BUILDER --size MM -o FILE [--max-cells N]``: build a gmsh mesh and report its
+size and quality. The output path and the estimated cell count are checked before gmsh starts."""
 from __future__ import annotations
 
-from pathlib import Path
-
-from meshes.builders import BUILDERS, build
-from meshes.io import write_mesh
+from meshes.builders import BUILDERS, MAX_CELLS, build
+from meshes.io import WRITERS, check_output_file, write_mesh
 from meshes.mesh import quality
+
+from .common import add_max_cells, announce_build, real
 
 
 def run(args) -> int:
-    out = Path(args.output)
+    out = check_output_file(args.output, "-o", suffixes=set(WRITERS))
     suffix = out.suffix.lower()
-    mesh = build(args.builder, args.size, out=out if suffix == ".msh" else None)
+    announce_build("mesh", args.builder, args.size, args.max_cells)
+    mesh = build(args.builder, args.size, out=out if suffix == ".msh" else None,
+                 max_cells=args.max_cells if args.max_cells is not None else MAX_CELLS)
     if suffix != ".msh":
         write_mesh(mesh, out)
     q = quality(mesh)
@@ -26,6 +29,8 @@ def run(args) -> int:
 def add_parser(sub):
     p = sub.add_parser("mesh", help="build a phantom / box / rectangle mesh with gmsh")
     p.add_argument("builder", choices=sorted(BUILDERS))
-    p.add_argument("--size", type=float, default=6.0, help="characteristic length (mm)")
+    p.add_argument("--size", type=real("positive", "mm"), default=6.0,
+                   help="characteristic length (mm)")
+    add_max_cells(p)
     p.add_argument("-o", "--output", required=True, help="output .msh, .vtu or .xdmf")
     p.set_defaults(func=run)

@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from meshes.errors import ConvergenceError
-from meshes.io import write_point_data
+from meshes.io import check_output_file, write_point_data
+from meshes.mesh import cell_jacobians
 from meshes.results import write_json
 
 from .common import (
@@ -15,9 +16,15 @@ from .common import (
     add_case_args,
     add_discretization_args,
     case_from_args,
+    check_outputs,
+    check_prescribed,
+    check_pushes,
     parse_pushes,
+    report_validity,
     run_solver,
 )
+
+STEMS = ("displacement", "last_converged")
 
 
 def _rank():
@@ -30,7 +37,9 @@ def _rank():
 
 
 def write_outputs(case, res, out_dir=None, json_file=None, stem="displacement"):
-    """Fields (XDMF + VTU) and the JSON summary; rank 0 writes."""
+    """Fields (XDMF + VTU: displacement, its magnitude, pressure for the mixed formulation, and
+    per cell J = det F and ``inverted`` = 1 where J <= 0) and the JSON summary (with ``valid``
+    and ``invalid_reason``); rank 0 writes, each file whole or not at all."""
     if _rank() != 0:
         return
     if out_dir:
@@ -38,14 +47,23 @@ def write_outputs(case, res, out_dir=None, json_file=None, stem="displacement"):
         fields = {"displacement": u, "displacement_magnitude": np.linalg.norm(u, axis=1)}
         if res.extra.get("pressure") is not None:  # mixed formulation, kPa
             fields["pressure"] = np.asarray(res.extra["pressure"], float)
-        write_point_data(case.mesh, out_dir, stem, fields)
+        J = cell_jacobians(case.mesh.points, case.mesh.cells, u)
+        write_point_data(case.mesh, out_dir, stem, fields,
+                         cell_data={"J": J, "inverted": (~(J > 0)).astype(float)})
     if json_file:
         write_json(res.to_json_dict(case), json_file)
 
 
 def run(args) -> int:
-    case = case_from_args(args)
+    check_outputs(args, files=("json",), dirs=("out",))
+    if args.out and Path(args.out).is_dir():
+        for stem in STEMS:
+            for suffix in (".xdmf", ".h5", ".vtu"):
+                check_output_file(Path(args.out) / f"{stem}{suffix}", "--out")
     pushes = parse_pushes(args.push)
+    case = case_from_args(args)
+    check_pushes(case, pushes)
+    check_prescribed(case, pushes)
     try:
         res = run_solver(args.solver, case, degree=args.degree, formulation=args.formulation,
                          pushes=pushes, progress=not args.quiet)
@@ -71,7 +89,8 @@ def run(args) -> int:
             print(f"  probe {k}: u = [{', '.join(f'{x:+.4f}' for x in v)}] mm")
         for k, v in res.reactions.items():
             print(f"  reaction {k}: [{', '.join(f'{x:+.2f}' for x in v)}] mN")
-    return 0
+        return report_validity("solve", res)
+    return 0 if res.extra.get("valid", True) else 1
 
 
 def add_parser(sub):

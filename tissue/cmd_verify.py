@@ -2,13 +2,26 @@
 [--json FILE]``: each fast solver against the degree-1 reference on the same Case."""
 from __future__ import annotations
 
-from .common import add_case_args, case_from_args, parse_pushes
-from .verify import FAST_SOLVERS, verify
+import sys
+
+from .common import (
+    add_case_args,
+    case_from_args,
+    check_outputs,
+    check_prescribed,
+    check_pushes,
+    parse_pushes,
+    real,
+)
+from .verify import FAST_SOLVERS, invalid_runs, verify
 
 
 def run(args) -> int:
-    case = case_from_args(args)
+    check_outputs(args, files=("json",), dirs=("out",))
     pushes = parse_pushes(args.push)
+    case = case_from_args(args)
+    check_pushes(case, pushes)
+    check_prescribed(case, pushes)
     options = {}
     if args.stop_mm is not None:
         for name in args.solvers:
@@ -30,7 +43,11 @@ def run(args) -> int:
         print("    probes: " + ", ".join(f"{k} {v:.4g}" for k, v in e["probe_error_mm"].items()))
     if "report" in res:
         print(f"  report: {res['report']}")
-    return 0
+    bad = invalid_runs(res)
+    for name, why in bad.items():
+        print(f"tissue verify: error: {name}: the answer is not valid: {why} (outputs written, "
+              f"marked valid = false)", file=sys.stderr)
+    return 1 if bad else 0
 
 
 def add_parser(sub):
@@ -40,8 +57,9 @@ def add_parser(sub):
                    help="push an actuator's region rigidly along its direction (repeatable)")
     p.add_argument("--solvers", nargs="+", choices=sorted(FAST_SOLVERS),
                    default=["admm", "mass-tensor"], help="fast solvers to check")
-    p.add_argument("--stop-mm", type=float, default=None,
-                   help="Mass Tensor stopping rule (mm, default 0.01)")
+    p.add_argument("--stop-mm", type=real("positive", "mm", at_least=1e-9), default=None,
+                   help="Mass Tensor stopping rule (mm, default 0.01; at least 1e-9: below "
+                        "that a step is round-off)")
     p.add_argument("--out", help="folder for report.html and the convergence plots")
     p.add_argument("--json", help="JSON file of the errors and timings")
     p.set_defaults(func=run)

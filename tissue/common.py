@@ -1,41 +1,197 @@
-"""Helpers shared by the command modules: push parsing, case loading, solver dispatch."""
+"""Helpers shared by the command modules: validated option values, push parsing, output checks,
+case loading, solver dispatch, and the validity of an answer.
+
+Every numeric option is parsed by one of the argparse types here (``real``, ``integer``): a value
+that is not a finite number, or not in its range, stops the command before any work with one
+line naming the option and the value (exit status 2). Output paths are checked before any
+meshing or solving (``check_outputs``). Units: lengths mm.
+"""
 from __future__ import annotations
 
 import argparse
+import math
+import sys
+import tomllib
 from pathlib import Path
 
+import numpy as np
+
+from meshes.builders import MAX_CELLS, estimate_cells
 from meshes.case import Case, load_case
 from meshes.errors import CaseError
+from meshes.io import check_output_dir, check_output_file
+from meshes.mesh import RUNAWAY_FACTOR
 
-__all__ = ["SOLVER_NAMES", "add_case_args", "add_discretization_args", "case_from_args",
-           "parse_pushes", "run_solver"]
+__all__ = ["PROGRESS_FROM_CELLS", "SOLVER_NAMES", "add_case_args", "add_discretization_args",
+           "body_diameter", "case_from_args", "check_outputs", "check_prescribed",
+           "check_pushes", "integer",
+           "parse_pushes", "real", "report_validity", "run_solver"]
 
 SOLVER_NAMES = ("fem", "admm", "mass-tensor")
+PROGRESS_FROM_CELLS = 100_000
+"""A builtin mesh estimated at more cells than this announces the estimate before gmsh starts."""
 
 
-def parse_pushes(items) -> dict:
-    """["A1=15", "A2=5.5"] -> {"A1": 15.0, "A2": 5.5} (mm)."""
+# --------------------------------------------------------------------------- option values
+def _number_text(text: str) -> str:
+    return repr(text) if isinstance(text, str) else repr(str(text))
+
+
+def real(kind: str = "finite", unit: str = "", *, at_least: float | None = None,
+         at_most: float | None = None, magnitude: float | None = None):
+    """argparse type: a finite float, ``kind`` "finite", "positive" (> 0) or "nonneg" (>= 0);
+    optionally >= ``at_least``, <= ``at_most``, |v| <= ``magnitude``. ``unit`` is named in the
+    message."""
+    lo = {"finite": None, "positive": 0.0, "nonneg": 0.0}[kind]
+    strict = kind == "positive"
+    if at_least is not None:
+        lo, strict = at_least, False
+    if magnitude is not None:
+        want = f"a finite number between {-magnitude:g} and {magnitude:g}"
+        lo, strict, at_most = -magnitude, False, magnitude
+    else:
+        want = "a finite number" + (f" {'>' if strict else '>='} {lo:g}" if lo is not None
+                                    else "") + (f" and <= {at_most:g}" if at_most is not None
+                                                else "")
+    want += f" ({unit})" if unit else ""
+
+    def parse(text):
+        try:
+            v = float(text)
+        except (TypeError, ValueError):
+            raise argparse.ArgumentTypeError(f"expected {want}, found {_number_text(text)}") \
+                from None
+        ok = math.isfinite(v) and (lo is None or (v > lo if strict else v >= lo)) and \
+            (at_most is None or v <= at_most)
+        if not ok:
+            raise argparse.ArgumentTypeError(f"expected {want}, found {_number_text(text)}")
+        return v
+
+    parse.__name__ = "number"
+    return parse
+
+
+def integer(minimum: int | None = None, maximum: int | None = None, why: str = ""):
+    """argparse type: an integer in [minimum, maximum] (either may be None); "2e6" reads as
+    2000000. ``why`` is added to the message."""
+    want = "an integer" + (f" >= {minimum}" if minimum is not None else "") + \
+        (f" and <= {maximum}" if maximum is not None else "") + (f" ({why})" if why else "")
+
+    def parse(text):
+        try:
+            v = int(text)
+        except (TypeError, ValueError):
+            try:
+                f = float(text)
+            except (TypeError, ValueError):
+                f = math.nan
+            if not (math.isfinite(f) and f == int(f)):
+                raise argparse.ArgumentTypeError(f"expected {want}, found {_number_text(text)}") \
+                    from None
+            v = int(f)
+        if (minimum is not None and v < minimum) or (maximum is not None and v > maximum):
+            raise argparse.ArgumentTypeError(f"expected {want}, found {_number_text(text)}")
+        return v
+
+    parse.__name__ = "integer"
+    return parse
+
+
+# --------------------------------------------------------------------------- pushes
+def parse_pushes(items, option: str = "--push") -> dict:
+    """["A1=15", "A2=5.5"] -> {"A1": 15.0, "A2": 5.5} (mm); CaseError naming ``option`` and the
+    item for a malformed one, a non-finite push or an actuator named twice."""
     out = {}
     for item in items or []:
-        name, sep, val = item.partition("=")
+        name, sep, val = str(item).partition("=")
+        name = name.strip()
         try:
-            if not sep:
+            if not sep or not name:
                 raise ValueError
-            out[name.strip()] = float(val)
+            v = float(val)
         except ValueError:
-            raise CaseError(f"--push expects NAME=MM (e.g. A1=15), got {item!r}") from None
+            raise CaseError(f"{option} expects NAME=MM (e.g. A1=15), got {item!r}") from None
+        if not math.isfinite(v):
+            raise CaseError(f"{option} {item}: expected a finite push (mm), found {val.strip()!r}")
+        if name in out:
+            raise CaseError(f"{option} {item}: actuator {name!r} is given twice ({out[name]:g} "
+                            f"and {v:g} mm)")
+        out[name] = v
     return out
 
 
+def body_diameter(case: Case) -> float:
+    """Bounding-box diagonal of the Case mesh (mm)."""
+    p = case.mesh.points
+    return float(np.linalg.norm(p.max(axis=0) - p.min(axis=0)))
+
+
+def check_pushes(case: Case, pushes: dict, option: str = "--push", *, margin: float = 0.0):
+    """CaseError naming ``option`` for an actuator the Case lacks, or a push whose magnitude
+    (plus ``margin``, mm) exceeds the body's diameter (no push through the whole body is an
+    answer)."""
+    names = [a.name for a in case.actuators]
+    diam = body_diameter(case)
+    for name, v in pushes.items():
+        if name not in names:
+            raise CaseError(f"{option} {name}={v:g}: unknown actuator {name!r}; actuators of "
+                            f"{case.source or case.name}: {', '.join(names) or 'none'}")
+        if abs(v) + margin > diam:
+            raise CaseError(f"{option} {name}={v:g}: expected |push| <= {diam - margin:.4g} mm "
+                            f"(the body's diameter is {diam:.4g} mm), found {v:g} mm")
+
+
+def check_prescribed(case: Case, pushes: dict | None = None):
+    """CaseError naming the region for a prescribed displacement (boundary value or push, mm)
+    larger than RUNAWAY_FACTOR times the body's diameter: no answer to it can be valid."""
+    c = case.with_pushes(pushes or {})
+    limit = RUNAWAY_FACTOR * body_diameter(case)
+    vals = np.abs(c.constraints.values)
+    if vals.size and not vals.max() <= limit:
+        k = int(np.argmax(np.where(np.isfinite(vals), vals, np.inf)))
+        raise CaseError(f"{case.source or case.name}: region {c.constraints.owner[k]!r} is "
+                        f"displaced by {c.constraints.values[k]:g} mm, more than "
+                        f"{RUNAWAY_FACTOR:g} x the body's diameter (limit {limit:.4g} mm): no "
+                        f"answer to that is valid")
+    for b in c.boundaries:
+        if b.type == "sliding" and not abs(float(b.value or 0.0)) <= limit:
+            raise CaseError(f"{case.source or case.name}: sliding region {b.region!r} is displaced "
+                            f"by {float(b.value):g} mm along its normal, more than "
+                            f"{RUNAWAY_FACTOR:g} x the body's diameter (limit {limit:.4g} mm)")
+
+
+# --------------------------------------------------------------------------- outputs
+def check_outputs(args, files=(), dirs=(), suffixes=None):
+    """Check the output options named in ``files`` (attribute names of file paths, e.g. "json")
+    and ``dirs`` (folders, e.g. "out") before any work; WriteError naming the option."""
+    for attr in files:
+        v = getattr(args, attr, None)
+        if v is not None:
+            check_output_file(v, f"--{attr.replace('_', '-')}",
+                              suffixes=(suffixes or {}).get(attr))
+    for attr in dirs:
+        v = getattr(args, attr, None)
+        if v is not None:
+            check_output_dir(v, f"--{attr.replace('_', '-')}")
+
+
+# --------------------------------------------------------------------------- cases
 def add_case_args(p: argparse.ArgumentParser):
     p.add_argument("case", help="case TOML file (e.g. meshes/cases/phantom.toml)")
-    p.add_argument("--size", type=float, default=None,
+    p.add_argument("--size", type=real("positive", "mm"), default=None,
                    help="override the builtin mesh's characteristic length (mm)")
+    add_max_cells(p)
+
+
+def add_max_cells(p: argparse.ArgumentParser, default=None, what="builtin mesh"):
+    p.add_argument("--max-cells", type=integer(1), default=default, metavar="N",
+                   help=f"refuse a {what} estimated at more than N cells (default "
+                        f"{MAX_CELLS:,})")
 
 
 def add_discretization_args(p: argparse.ArgumentParser):
     """--degree and --formulation of the reference."""
-    p.add_argument("--degree", type=int, choices=(1, 2), default=None,
+    p.add_argument("--degree", type=int, choices=(1, 2, 3), default=None,
                    help="Lagrange degree of the reference's displacement (default: 2 for the "
                         "mixed formulation, 1 otherwise)")
     p.add_argument("--formulation", choices=("auto", "displacement", "mixed"), default="auto",
@@ -44,10 +200,45 @@ def add_discretization_args(p: argparse.ArgumentParser):
                         "nu >= 0.49")
 
 
-def case_from_args(args) -> Case:
-    return load_case(Path(args.case), size=args.size)
+def builtin_of(path, size=None):
+    """(builder name, size mm) of a case file with a builtin mesh, else None (also for a file
+    that does not read: the case loader reports that)."""
+    try:
+        mesh = tomllib.loads(Path(path).read_text(encoding="utf-8")).get("mesh", {})
+        name = mesh.get("builtin")
+        h = size if size is not None else mesh.get("size", 6.0)
+        if isinstance(name, str) and isinstance(h, (int, float)) and not isinstance(h, bool):
+            return name, float(h)
+    except (OSError, ValueError, AttributeError, TypeError):
+        pass
+    return None
 
 
+def announce_build(command: str, name: str, size: float, max_cells: int | None = None):
+    """Print the estimated cell count of a large builtin mesh (within ``max_cells``, default
+    MAX_CELLS) before gmsh starts."""
+    try:
+        est = estimate_cells(name, size)
+    except CaseError:
+        return
+    if est is not None and \
+            PROGRESS_FROM_CELLS < est <= (max_cells if max_cells is not None else MAX_CELLS):
+        print(f"tissue {command}: building {name!r} at size {size:g} mm: about {est:,} cells "
+              f"(estimate); this can take minutes", file=sys.stderr, flush=True)
+
+
+def case_from_args(args, *, size: float | None = None) -> Case:
+    """The Case of ``args.case`` at ``size`` (default ``args.size``), refusing a builtin mesh
+    estimated above ``args.max_cells`` before it is built."""
+    size = size if size is not None else getattr(args, "size", None)
+    max_cells = getattr(args, "max_cells", None)
+    b = builtin_of(args.case, size)
+    if b is not None:
+        announce_build(getattr(args, "command", "") or "", *b, max_cells)
+    return load_case(Path(args.case), size=size, max_cells=max_cells)
+
+
+# --------------------------------------------------------------------------- solving
 def run_solver(name: str, case: Case, *, degree: int | None = None, formulation: str = "auto",
                pushes=None, initial=None, progress: bool = False, **kw):
     """Solve ``case`` with the named solver; every solver returns a SolveResult. ``degree`` and
@@ -72,3 +263,13 @@ def run_solver(name: str, case: Case, *, degree: int | None = None, formulation:
     else:
         raise CaseError(f"unknown solver {name!r}; solvers: {list(SOLVER_NAMES)}")
     return solve(case, pushes=pushes, initial=initial, progress=progress, **kw)
+
+
+def report_validity(command: str, res, what: str = "the answer") -> int:
+    """0 for a valid final state; else print the reason (one line) and return 1."""
+    extra = getattr(res, "extra", {}) or {}
+    if extra.get("valid", True):
+        return 0
+    print(f"tissue {command}: error: {what} is not valid: {extra.get('invalid_reason')} "
+          f"(outputs written, marked valid = false)", file=sys.stderr)
+    return 1

@@ -28,7 +28,9 @@ from meshes.io import atomic_path
 from meshes.results import write_json
 from solvers import SOLVERS, get_solver
 
-__all__ = ["FAST_SOLVERS", "reference_material_for", "verify"]
+__all__ = ["FAST_SOLVERS", "VALIDITY_KEYS", "invalid_runs", "reference_material_for", "verify"]
+
+VALIDITY_KEYS = ("valid", "invalid_reason", "inverted_cells", "min_J", "max_displacement_mm")
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +85,8 @@ def verify(case, pushes=None, solvers=("admm", "mass-tensor"), out_dir=None, *, 
         from fem_reference import solve as fem_solve
 
         def reference_solve(c):
-            return fem_solve(c, degree=1, pushes=pushes, progress=progress)
+            return fem_solve(c, degree=1, formulation="displacement", pushes=pushes,
+                             progress=progress)
     else:
         _user_ref = reference_solve
 
@@ -157,6 +160,7 @@ def verify(case, pushes=None, solvers=("admm", "mass-tensor"), out_dir=None, *, 
             "reference_newton_iterations": int(res_ref.iterations),
             "load_steps": int(res.load_steps),
             "options": {k: v for k, v in kw.items() if isinstance(v, (int, float, str, bool))},
+            **{k: res.extra[k] for k in VALIDITY_KEYS if k in res.extra},
         })
         out["solvers"][name] = entry
         traces[name] = trace
@@ -165,6 +169,16 @@ def verify(case, pushes=None, solvers=("admm", "mass-tensor"), out_dir=None, *, 
     if json_file is not None:
         write_json(out, json_file)
     return out
+
+
+def invalid_runs(out: dict) -> dict:
+    """Run name -> reason, for the reference runs and fast solvers of a ``verify`` result whose
+    final state is not valid (inverted cells, runaway growth)."""
+    bad = {f"reference {m}": r.get("invalid_reason") for m, r in out["reference"]["runs"].items()
+           if r.get("valid") is False}
+    bad.update({n: e.get("invalid_reason") for n, e in out["solvers"].items()
+                if e.get("valid") is False})
+    return bad
 
 
 # --------------------------------------------------------------------------- report
