@@ -29,22 +29,32 @@ class DolfinxMesh:
     h_min: float
 
 
-def to_dolfinx(md: MeshData, comm=MPI.COMM_WORLD) -> DolfinxMesh:
-    """Create the distributed dolfinx mesh (rank 0 holds the input) with one tag per facet region."""
+def to_dolfinx(md: MeshData, comm=MPI.COMM_WORLD, *, geometry_order: int = 1) -> DolfinxMesh:
+    """Create the distributed dolfinx mesh (rank 0 holds the input) with one tag per facet region.
+
+    geometry_order 2: isoparametric cells whose mid-edge nodes lie on the curved boundary (the
+    mesh's ``curved_edges``; straight elsewhere); node ids >= n_vertices are those edge nodes."""
     gdim = md.gdim
     shape = "tetrahedron" if gdim == 3 else "triangle"
-    domain = ufl.Mesh(ufl.VectorElement("Lagrange", shape, 1))
+    domain = ufl.Mesh(ufl.VectorElement("Lagrange", shape, geometry_order))
     names = sorted(md.facet_regions)
     tags = {n: i + 1 for i, n in enumerate(names)}
+    nf = gdim if geometry_order == 1 else (6 if gdim == 3 else 3)
+    nc = gdim + 1 if geometry_order == 1 else (10 if gdim == 3 else 6)
     if comm.rank == 0:
         cells, x = md.cells, md.points
         facets = [md.facet_regions[n] for n in names]
         facets = np.concatenate(facets).astype(np.int64) if facets else np.zeros((0, gdim), np.int64)
         values = np.concatenate([np.full(len(md.facet_regions[n]), tags[n], np.int32) for n in names]) \
             if names else np.zeros(0, np.int32)
+        if geometry_order == 2:
+            from meshes.curved import p2_cells, p2_facets
+
+            x, cells, edges = p2_cells(md)
+            facets = p2_facets(md, facets, edges)
     else:
-        cells, x = np.zeros((0, gdim + 1), np.int64), np.zeros((0, gdim))
-        facets, values = np.zeros((0, gdim), np.int64), np.zeros(0, np.int32)
+        cells, x = np.zeros((0, nc), np.int64), np.zeros((0, gdim))
+        facets, values = np.zeros((0, nf), np.int64), np.zeros(0, np.int32)
     mesh = dolfinx.mesh.create_mesh(comm, cells, x, domain)
     tdim = mesh.topology.dim
     mesh.topology.create_connectivity(tdim - 1, tdim)
@@ -55,7 +65,7 @@ def to_dolfinx(md: MeshData, comm=MPI.COMM_WORLD) -> DolfinxMesh:
     node_to_vertex = np.asarray(mesh.geometry.input_global_indices, dtype=np.int64)
     # smallest edge length (for the sliding penalty and step heuristics)
     xg = mesh.geometry.x[:, :gdim]
-    cg = mesh.geometry.dofmap.array.reshape(-1, tdim + 1)
+    cg = mesh.geometry.dofmap.array.reshape(-1, nc)[:, :tdim + 1]
     if len(cg):
         e = np.linalg.norm(xg[cg[:, 1:]] - xg[cg[:, :1]], axis=2)
         h_loc = float(e.min())

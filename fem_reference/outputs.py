@@ -14,6 +14,7 @@ from petsc4py import PETSc
 
 from meshes.case import Case
 from meshes.errors import CaseError
+from meshes.mesh import deformation_state
 from meshes.results import SolveResult
 
 
@@ -50,7 +51,7 @@ class OutputsMixin:
         tdim = dm.mesh.topology.dim
         nv = tdim + 1
         cell_dofs = V.dofmap.list.array.reshape(-1, V.dofmap.dof_layout.num_dofs)
-        geo = dm.mesh.geometry.dofmap.array.reshape(-1, nv)
+        geo = dm.mesh.geometry.dofmap.array.reshape(len(cell_dofs), -1)[:, :nv]
         imap = V.dofmap.index_map
         n_local = imap.size_local + imap.num_ghosts
         node_vertex = -np.ones(n_local, np.int64)
@@ -75,12 +76,15 @@ class OutputsMixin:
 
     def _x_from_fields(self, pressure=None, *, exact=False):
         """Set the unknown from ``u`` and a pressure: ``pressure`` (Case-vertex values, kPa) when
-        given, else the discrete pressure equation solved for u (exact when 1/kappa > 0), else
-        (incompressible, or a warm start) the solver's current pressure."""
+        given (or a dolfinx Function on this mesh, interpolated: e.g. the P1 pressure of a P2/P1
+        answer starting a P3/P2 solve), else the discrete pressure equation solved for u (exact
+        when 1/kappa > 0), else (incompressible, or a warm start) the solver's current pressure."""
         if self.Q is None:
             return
         self.x.x.array[self._umap] = self.u.x.array
-        if pressure is not None and np.all(self.p_vertex >= 0):
+        if isinstance(pressure, dolfinx.fem.Function):
+            self.p.interpolate(pressure)
+        elif pressure is not None and np.all(self.p_vertex >= 0):
             pressure = np.asarray(pressure, float).reshape(-1)
             if pressure.shape != (self.case.mesh.n_vertices,):
                 raise CaseError(f"pressure state must have one value per vertex "
@@ -299,7 +303,9 @@ class OutputsMixin:
             val = np.zeros(self.gdim)
             found = 0
             if len(cells):
-                val = self.u.eval(p, cells[:1])
+                # mixed: evaluate the unknown's displacement part; dolfinx 0.5 evaluates the
+                # collapsed P3 subspace with its edge dofs permuted (wrong values at points)
+                val = (self.u if self.Q is None else self.x.sub(0)).eval(p, cells[:1])
                 found = 1
             count = self.comm.allreduce(found)
             tot = self.comm.allreduce(np.asarray(val, float) * found)
@@ -331,7 +337,7 @@ class OutputsMixin:
         """What the reference solved: formulation, degrees, geometry order, cells and dofs."""
         return {"formulation": self.formulation, "degree": self.degree,
                 "pressure_degree": self.degree - 1 if self.Q is not None else None,
-                "geometry_order": 1, "cells": self.case.mesh.n_cells,
+                "geometry_order": self.geometry_order, "cells": self.case.mesh.n_cells,
                 "dofs": int(self.W.dofmap.index_map.size_global * self.W.dofmap.index_map_bs),
                 "quadrature_degree": self.qdeg}
 
@@ -359,7 +365,8 @@ class OutputsMixin:
                    "assemble_s": self.timings.assemble, "linear_solve_s": self.timings.solve,
                    "linear_solver": self.linear_solver,
                    "factorizations": self.timings.factorizations,
-                   "krylov_iterations": self.timings.krylov_iterations, **state})
+                   "krylov_iterations": self.timings.krylov_iterations, **state,
+                   **deformation_state(case.mesh, u_v, degree=self.degree)})
 
     # ------------------------------------------------------------------ residual / tangent
     def _out_permutation(self):

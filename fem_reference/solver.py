@@ -96,12 +96,15 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
             refactorized only when GMRES needs more than ``settings.lag_max_its`` iterations),
             "iterative" (CG + GAMG with rigid-body near null space, MUMPS fallback; displacement
             formulation only) or "auto" ("lagged" above LAGGED_ABOVE_DOFS dofs, "direct" below).
+        curved: isoparametric (second-order) geometry from the mesh's curved edges (the builtin
+            curved bodies and any order-2 .msh carry them). None: curved at degree >= 2 when the
+            mesh has them (at degree 1 the straight cells the fast solvers use); False: straight.
     """
 
     def __init__(self, case: Case, *, degree: int | None = None, formulation: str = "auto",
                  quadrature_degree: int | None = None, settings: NewtonSettings | None = None,
                  comm=MPI.COMM_WORLD, sliding_penalty: float = 1e4, body_force=None,
-                 linear_solver: str = "auto"):
+                 linear_solver: str = "auto", curved: bool | None = None):
         self.formulation = resolve_formulation(formulation, case.material)
         if degree is None:
             degree = 2 if self.formulation == "mixed" else 1
@@ -121,7 +124,11 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
         self.comm = comm
         self.settings = settings or NewtonSettings()
         self.qdeg = quadrature_degree or DEFAULT_QUADRATURE[degree]
-        self.dm: DolfinxMesh = to_dolfinx(case.mesh, comm)
+        if curved and case.mesh.geometry_order == 1:
+            raise CaseError("curved=True: this mesh has no curved (second-order) edges")
+        self.geometry_order = 2 if case.mesh.geometry_order == 2 and \
+            (curved or (curved is None and degree >= 2)) else 1
+        self.dm: DolfinxMesh = to_dolfinx(case.mesh, comm, geometry_order=self.geometry_order)
         mesh = self.dm.mesh
         self.gdim = case.mesh.gdim
         self._spaces(mesh, degree)
@@ -277,17 +284,26 @@ def _solver_for(case: Case, degree: int | None, **kw) -> ReferenceSolver:
 
 
 def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None, dirichlet_override=None,
-          progress: bool = False, **kw) -> SolveResult:
+          progress: bool = False, estimate: bool = False, **kw) -> SolveResult:
     """Solve a Case with the reference (compiled forms are cached per mesh and degree).
 
     degree, formulation (in ``kw``) and the other options: see ReferenceSolver; the default
     picks the mixed P2/P1 formulation for nu >= 0.49 and P1 displacement below.
     pushes: actuator name -> push (mm); initial: warm start (n_vertices, gdim) mm;
     dirichlet_override: (node-major Case dofs, values in mm) added to the Case's prescriptions.
+    estimate: add the estimated discretization error (``fem_reference.estimate``: one more solve
+    at degree + 1) to ``extra``: probe_error_estimates (mm), reaction_error_estimates (mN), ...
     """
+    if estimate and dirichlet_override is not None:
+        raise CaseError("estimate=True: the error estimate does not take dirichlet_override")
     s = _solver_for(case, degree, **kw)
-    return s.solve(pushes, case=case, initial=initial, dirichlet_override=dirichlet_override,
-                   progress=progress)
+    res = s.solve(pushes, case=case, initial=initial, dirichlet_override=dirichlet_override,
+                  progress=progress)
+    if estimate:
+        from .estimate import estimate as with_estimate
+
+        return with_estimate(case, res, pushes=pushes, progress=progress, **kw)
+    return res
 
 
 def tangent_stiffness(case: Case, u=None, *, degree: int | None = None, pushes=None,

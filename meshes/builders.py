@@ -30,10 +30,14 @@ from .mesh import MeshData
 
 __all__ = [
     "BUILDERS",
+    "MAX_CELLS",
     "PHANTOM",
     "PhantomGeometry",
     "box",
     "build",
+    "check_cell_budget",
+    "cook_membrane",
+    "estimate_cells",
     "phantom",
     "phantom3",
     "rectangle",
@@ -96,19 +100,23 @@ def _gmsh_session(name: str, size: float, *, order: int = 1):
             _GMSH_STATE["on"] = False
 
 
-def _finish(gmsh, dim: int, out) -> MeshData:
-    """Mesh, write a .msh (to ``out`` or a temporary) and read it back through ``read_msh``."""
+def _finish(gmsh, dim: int, out, *, curved: bool = False) -> MeshData:
+    """Mesh, write a .msh (to ``out`` or a temporary) and read it back through ``read_msh``.
+    curved: second-order mesh (mid-edge nodes on the true geometry), read as linear cells plus
+    curved edges (meshes.curved)."""
     gmsh.model.mesh.generate(dim)
+    if curved:
+        gmsh.model.mesh.setOrder(2)
     gmsh.option.setNumber("Mesh.SaveAll", 0)
     gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
     if out is not None:
         with atomic_path(out, suffix=".msh") as tmp:
             gmsh.write(str(tmp))
-        return read_msh(out)
+        return read_msh(out, overlap_check=False)
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / "mesh.msh"
         gmsh.write(str(p))
-        return read_msh(p)
+        return read_msh(p, overlap_check=False)
 
 
 def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANTOM) -> MeshData:
@@ -175,7 +183,7 @@ def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANT
         # finer patches so each actuator touches several vertices
         gmsh.model.mesh.setSize(gmsh.model.getBoundary([(2, s) for g_ in patches.values() for s in g_],
                                                        recursive=True), min(size, g.patch_radius))
-        return _finish(gmsh, 3, out)
+        return _finish(gmsh, 3, out, curved=True)
 
 
 def phantom(size: float = 6.0, *, out=None) -> MeshData:
@@ -250,15 +258,101 @@ def shell_octant(size: float = 2.5, *, inner: float = 10.0, outer: float = 20.0,
         for i, (name, fs) in enumerate(groups.items()):
             gmsh.model.addPhysicalGroup(2, fs, 10 + i)
             gmsh.model.setPhysicalName(2, 10 + i, name)
-        return _finish(gmsh, 3, out)
+        return _finish(gmsh, 3, out, curved=True)
+
+
+def cook_membrane(size: float = 4.0, *, out=None) -> MeshData:
+    """Cook's membrane (R. D. Cook 1974; Simo & Rifai 1990): the tapered panel with corners
+    (0, 0), (48, 44), (48, 60), (0, 44) mm, in 2D (the reference's plane strain). Edges ``left``
+    (x = 0, clamped in the benchmark), ``right`` (x = 48, 16 mm long, carrying the shear load),
+    ``top`` and ``bottom`` (free); point groups ``mid_edge`` (48, 52), the midpoint of the loaded
+    edge, and ``corner`` (48, 60), both mesh vertices; cell group ``tissue``. size: element
+    edge length (mm).
+
+    The benchmark (linear elasticity, E = 1, nu = 1/3, plane stress, unit total shear load on
+    ``right``): the vertical displacement at ``mid_edge`` converges to 23.96 (the value quoted
+    for Cook's membrane; e.g. 23.97 in P. Krysl's FinEtools plane-stress tutorial, tracked at
+    (48, 52)). Plane stress (E, nu) is plane strain with E* = E (1 + 2 nu) / (1 + nu)^2,
+    nu* = nu / (1 + nu): E* = 15/16, nu* = 1/4 here."""
+    corners = [(0.0, 0.0), (48.0, 44.0), (48.0, 52.0), (48.0, 60.0), (0.0, 44.0)]
+    with _gmsh_session("cook-membrane", size) as gmsh:
+        occ = gmsh.model.occ
+        pts = [occ.addPoint(x, y, 0.0) for x, y in corners]
+        lines = [occ.addLine(pts[k], pts[(k + 1) % 5]) for k in range(5)]
+        surf = occ.addPlaneSurface([occ.addCurveLoop(lines)])
+        occ.synchronize()
+        gmsh.model.addPhysicalGroup(2, [surf], 1)
+        gmsh.model.setPhysicalName(2, 1, "tissue")
+        groups = {"bottom": [lines[0]], "right": [lines[1], lines[2]], "top": [lines[3]],
+                  "left": [lines[4]]}
+        for k, (name, ls) in enumerate(groups.items()):
+            gmsh.model.addPhysicalGroup(1, ls, 10 + k)
+            gmsh.model.setPhysicalName(1, 10 + k, name)
+        for k, (name, p) in enumerate((("mid_edge", pts[2]), ("corner", pts[3]))):
+            gmsh.model.addPhysicalGroup(0, [p], 20 + k)
+            gmsh.model.setPhysicalName(0, 20 + k, name)
+        return _finish(gmsh, 2, out)
 
 
 BUILDERS = {"phantom": phantom, "phantom-3": phantom3, "box": box, "rectangle": rectangle,
             "shell-octant": shell_octant}
 
 
-def build(name: str, size: float, *, out=None) -> MeshData:
-    """Build a named mesh (see ``BUILDERS``) with characteristic length ``size`` (mm)."""
+# Volume (mm^3; area in mm^2 for the 2D rectangle) of each builder's body at its default
+# dimensions, for the cell-count estimate.
+BODY_VOLUMES = {
+    "phantom": 2.0 / 3.0 * math.pi * PHANTOM.radius ** 2 * PHANTOM.height,
+    "phantom-3": 2.0 / 3.0 * math.pi * PHANTOM.radius ** 2 * PHANTOM.height,
+    "box": 1000.0,
+    "rectangle": 100.0,
+    "shell-octant": math.pi / 6.0 * (20.0 ** 3 - 10.0 ** 3),
+}
+BODY_DIMENSIONS = {"rectangle": 2}
+# Cells per (volume / size^3): a regular tetrahedron of edge h has volume h^3 / (6 sqrt 2); gmsh's
+# Delaunay meshes have about 0.55 times that many cells (measured on the phantom, box and shell
+# at 0.55-0.59 for 5k-41k cells; coarse meshes have relatively more, up to 1.5x near 100 cells);
+# triangles: 4 / sqrt 3 per (area / size^2), as measured on the rectangle.
+CELLS_PER_VOLUME = {3: 0.55 * 6.0 * math.sqrt(2.0), 2: 4.0 / math.sqrt(3.0)}
+MAX_CELLS = 2_000_000
+"""Default limit on the estimated cells of a builtin mesh; ``build(max_cells=...)`` and the
+command line's ``--max-cells`` raise it."""
+
+
+def estimate_cells(name: str, size: float) -> int | None:
+    """Estimated cells (tetrahedra, or triangles for the rectangle) of builder ``name`` at
+    characteristic length ``size`` (mm): about CELLS_PER_VOLUME * V / size^d, within ~10 %
+    above a few thousand cells; None for a builder whose body volume is not in BODY_VOLUMES."""
     if name not in BUILDERS:
         raise CaseError(f"unknown mesh builder {name!r}; builders: {sorted(BUILDERS)}")
+    if isinstance(size, bool) or not isinstance(size, (int, float)) or not math.isfinite(size) \
+            or size <= 0:
+        raise CaseError(f"mesh size must be a positive length in mm, got {size!r}")
+    if name not in BODY_VOLUMES:
+        return None
+    d = BODY_DIMENSIONS.get(name, 3)
+    with np.errstate(over="ignore"):
+        est = CELLS_PER_VOLUME[d] * BODY_VOLUMES[name] / float(size) ** d
+    return int(min(est, 1e18)) if math.isfinite(est) else 10 ** 18
+
+
+def check_cell_budget(name: str, size: float, max_cells: int | None = MAX_CELLS) -> int | None:
+    """The estimate of ``estimate_cells``; CaseError naming it when it exceeds ``max_cells``
+    (None: no limit)."""
+    est = estimate_cells(name, size)
+    if est is not None and max_cells is not None and est > max_cells:
+        raise CaseError(
+            f"builtin mesh {name!r} at size {size:g} mm would have about {est:,} cells, more "
+            f"than the limit of {int(max_cells):,} (--max-cells N raises it; a larger size "
+            f"gives fewer cells)")
+    return est
+
+
+def build(name: str, size: float, *, out=None, max_cells: int | None = MAX_CELLS) -> MeshData:
+    """Build a named mesh (see ``BUILDERS``) with characteristic length ``size`` (mm).
+
+    max_cells: refuse (CaseError with the estimate, before gmsh starts) a mesh whose estimated
+    cell count (``estimate_cells``) exceeds it; None: no limit."""
+    if name not in BUILDERS:
+        raise CaseError(f"unknown mesh builder {name!r}; builders: {sorted(BUILDERS)}")
+    check_cell_budget(name, size, max_cells)
     return BUILDERS[name](size, out=out)
