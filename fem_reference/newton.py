@@ -89,6 +89,10 @@ class NewtonMixin:
     (mN/mm) instead of 1, so every row of the residual is a force (mN) proportional to E and the
     relative tolerance means the same for every E; the absolute one is ``atol`` E h_min^2."""
 
+    # terms added to the residual and tangent after assembly (e.g. the inertia of implicit-Euler
+    # dynamics, ``dynamics``): an object with add_residual(b, bcs) and add_tangent(A, bcs)
+    extra_terms = None
+
     def _bc_stiffness(self) -> float:
         """E h_min (mN/mm): the diagonal of the Dirichlet rows."""
         return float(self.E.value) * float(self.dm.h_min)
@@ -103,6 +107,8 @@ class NewtonMixin:
         dolfinx.fem.petsc.assemble_vector(b, self.R_form)
         dolfinx.fem.petsc.apply_lifting(b, [self.K_form], bcs=[bcs], x0=[self.x.vector], scale=-1.0)
         b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        if self.extra_terms is not None:
+            self.extra_terms.add_residual(b, bcs)
         dolfinx.fem.petsc.set_bc(b, bcs, self.x.vector, -self._bc_stiffness())
         self.timings.assemble += time.perf_counter() - t0
         return b.norm()
@@ -113,6 +119,8 @@ class NewtonMixin:
         dolfinx.fem.petsc.assemble_matrix(self.A, self.K_form, bcs=bcs,
                                           diagonal=self._bc_stiffness())
         self.A.assemble()
+        if self.extra_terms is not None:
+            self.extra_terms.add_tangent(self.A, bcs)
         self.timings.assemble += time.perf_counter() - t0
 
 

@@ -270,7 +270,7 @@ def _solver_for(case: Case, degree: int | None, **kw) -> ReferenceSolver:
     kw["formulation"] = resolve_formulation(kw.get("formulation", "auto"), case.material)
     if degree is None:
         degree = 2 if kw["formulation"] == "mixed" else 1
-    key = (id(case.mesh), degree, case.material.model, case.gravity,
+    key = (id(case.mesh), degree, case.material.model, case.gravity, case.material.density,
            tuple((b.region, b.type, str(b.normal), str(b.value)) for b in case.boundaries
                  if b.type in ("traction", "sliding")), tuple(sorted(kw.items())))
     s = _CACHE.get(key)

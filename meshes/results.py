@@ -9,7 +9,7 @@ import numpy as np
 
 from .io import atomic_path
 
-__all__ = ["SolveResult", "write_json"]
+__all__ = ["DynamicsResult", "SolveResult", "write_json"]
 
 
 @dataclass(frozen=True)
@@ -60,6 +60,59 @@ class SolveResult:
             "strain_energy": float(self.strain_energy),
         }
         d.update({k: v for k, v in self.extra.items() if _jsonable(v)})
+        return d
+
+
+@dataclass(frozen=True)
+class DynamicsResult:
+    """A trajectory of implicit-Euler steps; index 0 is the start state (t = 0).
+
+    times: (steps + 1,) s.  u, velocity: (steps + 1, n_vertices, gdim) displacement (mm) and
+    velocity (mm/s) at the Case's vertices, in its numbering.  probes: name -> (steps + 1, gdim)
+    mm.  kinetic_energy = v^T M v / 2 and strain_energy = W(u): (steps + 1,) uJ.  converged,
+    iterations: (steps,) per time step (Newton iterations of the reference; the solver's own
+    iterations for another solver).  final: the SolveResult of the last step (reactions,
+    validity, discretization).  total_mass_kg: the body's mass (kg).
+    """
+
+    times: np.ndarray
+    u: np.ndarray
+    velocity: np.ndarray
+    probes: dict
+    kinetic_energy: np.ndarray
+    strain_energy: np.ndarray
+    converged: np.ndarray
+    iterations: np.ndarray
+    wall_time_s: float
+    dt: float
+    mass: str
+    degree: int
+    total_mass_kg: float
+    final: SolveResult | None = None
+    case_name: str = "case"
+    solver: str = "fem"
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def steps(self) -> int:
+        return len(self.times) - 1
+
+    def to_json_dict(self) -> dict:
+        """The trajectory as JSON-ready data (the vertex fields are left out: see ``u``)."""
+        d = {"case": self.case_name, "solver": self.solver, "dt_s": float(self.dt),
+             "steps": self.steps, "mass": self.mass, "degree": int(self.degree),
+             "total_mass_kg": float(self.total_mass_kg),
+             "converged": bool(np.all(self.converged)),
+             "wall_time_s": float(self.wall_time_s),
+             "times_s": np.asarray(self.times, float).tolist(),
+             "step_converged": np.asarray(self.converged, bool).tolist(),
+             "iterations": np.asarray(self.iterations, int).tolist(),
+             "kinetic_energy_uJ": np.asarray(self.kinetic_energy, float).tolist(),
+             "strain_energy_uJ": np.asarray(self.strain_energy, float).tolist(),
+             "max_displacement_mm": np.sqrt((self.u ** 2).sum(axis=2).max(axis=1)).tolist(),
+             "probes": {k: np.asarray(v, float).tolist() for k, v in self.probes.items()}}
+        if self.final is not None:
+            d["final"] = self.final.to_json_dict()
         return d
 
 
