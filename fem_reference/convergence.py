@@ -156,6 +156,10 @@ def refinement_study(case: Case, *, levels: int = MIN_LEVELS, degree: int = 1, p
             raise ConvergenceError(
                 f"level {k} of the study ({mesh.n_cells:,} cells, h {h[k]:.3g} mm): {exc}",
                 load_fraction=exc.load_fraction, last_converged=exc.last_converged) from exc
+        if res.extra.get("valid", True) is False:  # a folded state is no point of a study
+            raise ConvergenceError(
+                f"level {k} of the study ({mesh.n_cells:,} cells, h {h[k]:.3g} mm): the answer is "
+                f"not valid: {res.extra.get('invalid_reason')}", last_converged=res)
         wall = time.perf_counter() - t0
         u_scale = max(u_scale, float(np.abs(np.asarray(res.u)).max(initial=0.0)))
         for name, series in probes.items():

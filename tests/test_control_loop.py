@@ -223,3 +223,23 @@ def test_a_failed_warm_start_is_retried_cold_and_recorded(setup):
     assert len(res.extra["plant_retries"]) == 6 - 2         # closed-loop calls 4..7 (1-based)
     assert all("warm start left the basin" in m for m in res.extra["plant_retries"])
     assert len(res.open_loop["retries"]) == 6               # open-loop steps 1..6 (step 0 cold)
+
+
+def test_a_converged_but_folded_plant_state_is_not_measured():
+    """A plant answer marked invalid (inverted cells) fails the step instead of being measured."""
+    from control.loop import check_prescribed
+    from meshes.builders import box
+    from meshes.case import Boundary, Case
+    from meshes.errors import ConvergenceError
+    from meshes.results import SolveResult
+
+    mesh = box(5.0)
+    case = Case(mesh=mesh, boundaries=[Boundary("zmin", "fixed")], name="folded")
+    r = SolveResult(u=np.zeros((mesh.n_vertices, 3)), converged=True, iterations=1, residual=0.0,
+                    wall_time_s=0.0, solver="test",
+                    extra={"valid": False, "invalid_reason": "3 inverted cells"})
+    with pytest.raises(ConvergenceError, match="not valid: 3 inverted cells"):
+        check_prescribed(case, {}, r, "plant")
+    ok = SolveResult(u=np.zeros((mesh.n_vertices, 3)), converged=True, iterations=1,
+                     residual=0.0, wall_time_s=0.0, solver="test", extra={"valid": True})
+    check_prescribed(case, {}, ok, "plant")
