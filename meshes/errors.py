@@ -1,6 +1,7 @@
 """Exception hierarchy of the toolkit. Every message names the file, region or value at fault."""
 
 __all__ = [
+    "AccuracyNotReached",
     "CaseError",
     "CaseReadError",
     "ConvergenceError",
@@ -48,3 +49,12 @@ class ConvergenceError(TissueError, RuntimeError):
 
 class SolverDivergedError(ConvergenceError):
     """A fast solver diverged (NaN, inverted element, residual growth)."""
+
+
+class AccuracyNotReached(TissueError):
+    """``fem_reference.adapt.solve_to_accuracy`` stopped at ``max_dofs`` before every probe met the accuracy.
+    ``result`` holds the AdaptiveResult of the steps done (None when not even the first fitted)."""
+
+    def __init__(self, message, *, result=None):
+        super().__init__(message)
+        self.result = result

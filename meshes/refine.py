@@ -304,6 +304,24 @@ def _cylinder(x, p, axis, r):
 
 
 @dataclass(frozen=True)
+class ShellProjection:
+    """Projection onto the spheres of ``meshes.builders.shell_octant``: a boundary edge of the
+    ``inner`` (``outer``) region goes radially onto the sphere of radius ``inner`` (``outer``),
+    mm; edges only on the symmetry planes stay (radial scaling keeps them in their planes)."""
+
+    inner: float = 10.0
+    outer: float = 20.0
+
+    def __call__(self, x: np.ndarray, regions) -> np.ndarray:
+        x = np.array(x, dtype=np.float64)
+        for i, reg in enumerate(regions):
+            r = self.inner if "inner" in reg else self.outer if "outer" in reg else None
+            if r is not None:
+                x[i] *= r / max(float(np.linalg.norm(x[i])), 1e-300)
+        return x
+
+
+@dataclass(frozen=True)
 class DomeProjection:
     """Projection onto the phantom of ``meshes.builders``: the half-ellipsoid
     (x^2 + y^2) / R^2 + z^2 / H^2 = 1, z >= 0, on the flat base z = 0, with actuator patches
@@ -382,6 +400,8 @@ def projector_for(builder: str):
 
     if builder not in BUILDERS:
         raise CaseError(f"unknown mesh builder {builder!r}; builders: {sorted(BUILDERS)}")
+    if builder == "shell-octant":
+        return ShellProjection()
     patches = {"phantom": ACTUATORS_4, "phantom-3": ACTUATORS_3}.get(builder)
     if patches is None:
         return None

@@ -56,10 +56,16 @@ class SolveResult:
             "wall_time_s": float(self.wall_time_s),
             "probes": {k: {"point": pts.get(k), "displacement": np.asarray(v, float).tolist()}
                        for k, v in self.probes.items()},
+            # reference answers with an error estimate (fem_reference.estimate): per probe the
+            # norm of the estimated error vector (mm)
             "reactions": {k: np.asarray(v, float).tolist() for k, v in self.reactions.items()},
             "strain_energy": float(self.strain_energy),
         }
         d.update({k: v for k, v in self.extra.items() if _jsonable(v)})
+        est = self.extra.get("probe_error_estimates") or {}
+        for k, e in est.items():
+            if k in d["probes"]:
+                d["probes"][k]["error_estimate"] = float(e)
         return d
 
 

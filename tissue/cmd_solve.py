@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from meshes.errors import ConvergenceError
+from meshes.errors import AccuracyNotReached, CaseError, ConvergenceError
 from meshes.io import check_output_file, write_point_data
 from meshes.mesh import cell_jacobians
 from meshes.results import write_json
@@ -15,11 +15,14 @@ from .common import (
     SOLVER_NAMES,
     add_case_args,
     add_discretization_args,
+    builtin_of,
     case_from_args,
     check_outputs,
     check_prescribed,
     check_pushes,
+    integer,
     parse_pushes,
+    real,
     report_validity,
     run_solver,
 )
@@ -64,9 +67,20 @@ def run(args) -> int:
     case = case_from_args(args)
     check_pushes(case, pushes)
     check_prescribed(case, pushes)
+    if (args.estimate or args.accuracy is not None) and args.solver != "fem":
+        raise CaseError("--estimate and --accuracy apply to the reference (--solver fem)")
     try:
-        res = run_solver(args.solver, case, degree=args.degree, formulation=args.formulation,
-                         pushes=pushes, progress=not args.quiet)
+        if args.accuracy is not None:
+            res = solve_adaptive(case, pushes, args)
+        else:
+            res = run_solver(args.solver, case, degree=args.degree, formulation=args.formulation,
+                             pushes=pushes, progress=not args.quiet,
+                             **({"estimate": True} if args.estimate else {}))
+    except AccuracyNotReached as exc:
+        if exc.result is not None:
+            write_outputs(case.with_pushes(pushes), exc.result.result, args.out, args.json)
+        print(f"tissue solve: error: {exc}", file=sys.stderr)
+        return 1
     except ConvergenceError as exc:
         if exc.last_converged is not None:
             write_outputs(case.with_pushes(pushes), exc.last_converged, args.out, args.json,
@@ -85,12 +99,53 @@ def run(args) -> int:
             p = f"/P{disc['pressure_degree']}" if disc.get("pressure_degree") is not None else ""
             print(f"  discretization: {disc['formulation']} P{disc['degree']}{p}, "
                   f"{disc['dofs']} dofs")
-        for k, v in res.probes.items():
-            print(f"  probe {k}: u = [{', '.join(f'{x:+.4f}' for x in v)}] mm")
-        for k, v in res.reactions.items():
-            print(f"  reaction {k}: [{', '.join(f'{x:+.2f}' for x in v)}] mN")
+        print_answer(res)
         return report_validity("solve", res)
     return 0 if res.extra.get("valid", True) else 1
+
+
+def solve_adaptive(case, pushes, args):
+    """The reference refined until every probe's estimated error is within ``args.accuracy``
+    (relative) of its value: P1, P2, then uniform refinement (fem_reference.adapt)."""
+    from fem_reference.adapt import solve_to_accuracy
+    from meshes.refine import projector_for
+
+    opts = {} if args.formulation == "auto" else {"formulation": args.formulation}
+    b = builtin_of(args.case, args.size)
+    if b is not None:  # new boundary nodes of a refined builtin mesh go onto its true surface
+        opts["project"] = projector_for(b[0])
+    out = solve_to_accuracy(case, pushes, accuracy=args.accuracy, max_dofs=args.max_dofs,
+                            degree=args.degree, progress=not args.quiet, **opts)
+    return out.result
+
+
+ESTIMATE_WARN = 0.02  # warn when a probe's estimated error exceeds this fraction of its value
+
+
+def print_answer(res):
+    """Probes and reactions, each with its estimated discretization error when there is one."""
+    pe = res.extra.get("probe_error_estimates") or {}
+    re_ = res.extra.get("reaction_error_estimates") or {}
+    for k, v in res.probes.items():
+        line = f"  probe {k}: u = [{', '.join(f'{x:+.4f}' for x in v)}] mm"
+        if k in pe:
+            size = float(np.linalg.norm(v))
+            rel = pe[k] / size if size > 0 else float("inf")
+            line += f"  +- {pe[k]:.2g} mm ({rel:.1%})"
+            if rel > ESTIMATE_WARN:
+                line += "  WARNING: estimated error above 2 %"
+        print(line)
+    for k, v in res.reactions.items():
+        line = f"  reaction {k}: [{', '.join(f'{x:+.2f}' for x in v)}] mN"
+        if k in re_:
+            line += f"  +- {re_[k]:.2g} mN"
+        print(line)
+    if pe:
+        ed = res.extra.get("estimate_discretization") or {}
+        print(f"  error estimate: {res.extra.get('estimate_method')} against "
+              f"{ed.get('formulation')} P{ed.get('degree')} ({ed.get('dofs')} dofs), cost "
+              f"{res.extra.get('estimate_cost_ratio', float('nan')):.1f}x the solve; geometry "
+              f"error {'included' if res.extra.get('estimate_includes_geometry') else 'excluded'}")
 
 
 def add_parser(sub):
@@ -102,5 +157,13 @@ def add_parser(sub):
                    help="push an actuator's region rigidly along its direction (repeatable)")
     p.add_argument("--out", help="folder for the displacement field (XDMF + VTU)")
     p.add_argument("--json", help="JSON summary file")
+    p.add_argument("--estimate", action="store_true",
+                   help="estimate each probe's and reaction's discretization error (one more "
+                        "solve at degree + 1 on the same mesh)")
+    p.add_argument("--accuracy", type=real("positive", at_most=1.0), default=None,
+                   metavar="REL", help="refine (P1, P2, then uniform refinement) until every "
+                   "probe's estimated error is within REL of its value, e.g. 0.01")
+    p.add_argument("--max-dofs", type=integer(1), default=500_000,
+                   help="with --accuracy: stop (exit 1) before a system larger than this")
     p.add_argument("-q", "--quiet", action="store_true", help="no per-step progress")
     p.set_defaults(func=run)

@@ -1,0 +1,248 @@
+"""Goal-oriented adaptivity: solve a Case until every probe's estimated discretization error is
+within a requested accuracy of its value.
+
+Strategy (degree first, then uniform refinement):
+
+    level 0, degree 1  (estimated by degree 2 on the same mesh)
+    level 0, degree 2  (the degree-2 solve of the previous estimate is this answer, no new
+                        solve, unless the mesh has curved edges: degree 2 then solves on the
+                        curved cells; estimated by degree 3)
+    level 1, degree 2  (the mesh refined uniformly: every tetrahedron into 8, every triangle into
+                        4, ``meshes.refine.refine_uniform``; estimated by degree 3)
+    level 2, degree 2  ...
+
+(the mixed formulation starts at degree 2). Each step is one answer and its error estimate
+(``fem_reference.estimate``: one more solve at degree + 1), so the estimate of the answer handed
+back is the last solve. A probe q passes when |e_q| <= accuracy * max(|q|, floor * max_k |q_k|):
+relative to its own displacement, with a floor (a fraction of the largest probe displacement) so
+that a probe that barely moves does not demand an absolute accuracy nobody asked for. The
+estimates are those of ``fem_reference.estimate``, with the same scope (the discretization error
+on the geometry the solves use; see there).
+
+Cost: every degree-2 level solves the answer and the degree-3 estimate; a uniform refinement
+multiplies the dofs by about 8 in 3D (4 in 2D), so each level costs roughly 8-10x the previous
+one and the last level dominates. ``max_dofs`` bounds the largest system solved (the degree-3
+estimate of the last level): before a step whose estimate would exceed it, ``solve_to_accuracy``
+raises AccuracyNotReached (the command line exits 1), carrying the last answer with its estimate.
+Local refinement driven by per-cell indicators would reach the same accuracy with fewer dofs
+where the error concentrates (the rim of a pushed patch); it is not done here.
+
+A curved boundary needs ``project`` (``meshes.refine.projector_for(builder)``, or pass the Case
+file's path, which finds it), else the refined meshes keep the coarse facets and the answers
+converge to the faceted body. The refined meshes have straight cells (their new boundary vertices
+on the true surface): the estimates exclude the faceting that remains (``fem_reference.estimate``
+states the scope), e.g. the polygonal rim of a pushed patch. Units: mm, kPa, mN.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from meshes.case import Case
+from meshes.errors import AccuracyNotReached, CaseError
+from meshes.mesh import MeshData
+from meshes.refine import refine_uniform
+from meshes.results import SolveResult
+
+from .estimate import ESTIMATE_RTOL, MAX_DEGREE, error_estimate
+
+__all__ = ["AccuracyNotReached", "AdaptiveResult", "AdaptiveStep", "predicted_dofs",
+           "solve_to_accuracy"]
+
+
+@dataclass(frozen=True)
+class AdaptiveStep:
+    """One answer and its estimate.
+
+    level: uniform refinements of the Case mesh; degree: the answer's; cells; dofs: the answer's;
+    estimate_dofs: the degree-(p+1) estimate's; probes: name -> (gdim,) answer (mm); estimates:
+    name -> |estimated error| (mm); targets: name -> the accuracy asked of it (mm); wall_time_s:
+    the step's solves.
+    """
+
+    level: int
+    degree: int
+    cells: int
+    dofs: int
+    estimate_dofs: int
+    probes: dict
+    estimates: dict
+    targets: dict
+    wall_time_s: float
+
+    @property
+    def passed(self) -> bool:
+        return all(self.estimates[k] <= self.targets[k] for k in self.targets)
+
+    @property
+    def worst(self) -> tuple:
+        """(probe name, estimate / target) of the probe farthest from its target."""
+        k = max(self.targets, key=lambda n: self.estimates[n] / self.targets[n])
+        return k, self.estimates[k] / self.targets[k]
+
+
+@dataclass(frozen=True)
+class AdaptiveResult:
+    """The accepted answer (``result``: a SolveResult with the estimate's entries in ``extra``,
+    see ``fem_reference.estimate``), the Case on its mesh, every step, and whether the accuracy
+    was reached."""
+
+    result: SolveResult
+    case: Case
+    steps: tuple
+    accuracy: float
+    reached: bool
+    wall_time_s: float
+
+
+def _targets(probes: dict, accuracy: float, floor: float) -> dict:
+    mags = {k: float(np.linalg.norm(v)) for k, v in probes.items()}
+    top = max(mags.values(), default=0.0)
+    return {k: accuracy * max(m, floor * top) for k, m in mags.items()}
+
+
+def _counts(mesh: MeshData) -> tuple:
+    """(vertices, edges, faces, cells) of a simplex mesh (faces = cells in 2D)."""
+    cells = mesh.cells
+    k = cells.shape[1]
+    pairs = [(i, j) for i in range(k) for j in range(i + 1, k)]
+    edges = np.unique(np.sort(np.concatenate([cells[:, [i, j]] for i, j in pairs])), axis=0)
+    if k == 4:
+        tri = [(0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3)]
+        faces = len(np.unique(np.sort(np.concatenate([cells[:, list(t)] for t in tri])), axis=0))
+    else:
+        faces = len(cells)
+    return mesh.n_vertices, len(edges), faces, len(cells)
+
+
+def _refined_counts(counts: tuple, gdim: int) -> tuple:
+    """Counts after one uniform refinement (Bey's 1:8 tetrahedra, 1:4 triangles)."""
+    v, e, f, c = counts
+    if gdim == 3:
+        return v + e, 2 * e + 3 * f + c, 4 * f + 8 * c, 8 * c
+    return v + e, 2 * e + 3 * c, 4 * c, 4 * c
+
+
+def predicted_dofs(counts: tuple, gdim: int, degree: int, formulation: str) -> int:
+    """Unknowns of a reference solve of ``degree`` on a mesh with ``counts`` = (vertices, edges,
+    faces, cells): vector Lagrange (plus the pressure one degree lower for "mixed")."""
+    v, e, f, c = counts
+
+    def nodes(k):
+        if k == 1:
+            return v
+        if k == 2:
+            return v + e
+        return v + 2 * e + (f if gdim == 3 else c)   # k == 3
+
+    return gdim * nodes(degree) + (nodes(degree - 1) if formulation == "mixed" else 0)
+
+
+def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: int = 500_000,
+                      degree: int | None = None, project=None, floor: float = 0.1,
+                      progress: bool = True, **solver_options) -> AdaptiveResult:
+    """Refine until every probe's estimated error is within ``accuracy`` (relative) of its value.
+
+    case: a Case, or the path of a Case file (its builtin's boundary projection is then used
+        unless ``project`` is given).
+    pushes: actuator name -> push (mm). accuracy: relative, e.g. 0.01 for 1 %.
+    max_dofs: bound on the largest system solved (the degree-3 estimate of the last level).
+    degree: the first answer's degree (default 1; 2 for the mixed formulation).
+    project: boundary projection for the uniform refinements (``meshes.refine.projector_for``).
+    floor: a probe's target is accuracy * max(|q|, floor * the largest probe |q|) (mm).
+    progress: print each step (cells, dofs, worst probe) to stderr.
+    solver_options: ReferenceSolver options (formulation, curved, settings, ...).
+    Returns AdaptiveResult; raises AccuracyNotReached at max_dofs, CaseError for a case without
+    probes or a bad accuracy, ConvergenceError when a solve fails.
+    """
+    from .solver import resolve_formulation, solve
+
+    t0 = time.perf_counter()
+    if isinstance(case, (str, Path)):
+        from .convergence import load_study_case
+
+        case, found = load_study_case(case)
+        project = project if project is not None else found
+    if not case.probes:
+        raise CaseError(f"{case.source or case.name}: solve_to_accuracy needs probes: the "
+                        f"accuracy is asked of their displacements")
+    if not (isinstance(accuracy, (int, float)) and 0 < accuracy < 1):
+        raise CaseError(f"accuracy must be a relative error in (0, 1), e.g. 0.01, got "
+                        f"{accuracy!r}")
+    formulation = resolve_formulation(solver_options.pop("formulation", "auto"), case.material)
+    p = degree if degree is not None else (2 if formulation == "mixed" else 1)
+    if p not in (1, 2) or (formulation == "mixed" and p != 2):
+        raise CaseError(f"solve_to_accuracy starts at degree 1 or 2 (2 for the mixed "
+                        f"formulation): the estimate needs degree + 1 <= {MAX_DEGREE}, got "
+                        f"degree={p}")
+    gdim = case.mesh.gdim
+    counts = _counts(case.mesh)
+    level, answer, steps, last = 0, None, [], None
+    while True:
+        n_est = predicted_dofs(counts, gdim, p + 1, formulation)
+        if n_est > max_dofs:
+            done = None if last is None else AdaptiveResult(
+                last[0], case, tuple(steps), accuracy, False, time.perf_counter() - t0)
+            if last is None:
+                msg = (f"{case.source or case.name}: the first estimate (degree {p + 1}, "
+                       f"{counts[3]:,} cells) needs {n_est:,} dofs, more than "
+                       f"max_dofs = {max_dofs:,}")
+            else:
+                s = steps[-1]
+                name, ratio = s.worst
+                msg = (f"{case.source or case.name}: accuracy {accuracy:.3g} not reached within "
+                       f"max_dofs = {max_dofs:,}: the next step (level {level}, degree {p}, "
+                       f"estimated at degree {p + 1}) needs {n_est:,} dofs; the last answer "
+                       f"({s.dofs:,} dofs, degree {s.degree}, {s.cells:,} cells) has probe "
+                       f"{name!r} at {ratio * accuracy:.3g} relative (estimate "
+                       f"{s.estimates[name]:.3g} mm)")
+            raise AccuracyNotReached(msg, result=done)
+        ts = time.perf_counter()
+        if answer is None:
+            answer = solve(case, degree=p, pushes=pushes, formulation=formulation,
+                           **solver_options)
+        # degree-2 answers of a mesh with curved edges use them, degree-1 answers do not
+        curved = getattr(case.mesh, "geometry_order", 1) == 2 and \
+            solver_options.get("curved") is not False
+        # a degree-2 estimate that will be the next answer is converged fully
+        est = error_estimate(case, answer, pushes=pushes, formulation=formulation,
+                             rtol=None if p == 1 and not curved else ESTIMATE_RTOL,
+                             **solver_options)
+        targets = _targets(answer.probes, accuracy, floor)
+        step = AdaptiveStep(level, p, case.mesh.n_cells, int(answer.extra.get("n_dofs", 0)),
+                            int(est.enriched.extra.get("n_dofs", 0)),
+                            {k: np.asarray(v, float) for k, v in answer.probes.items()},
+                            est.probe_norms, targets, time.perf_counter() - ts)
+        steps.append(step)
+        last = (replace(answer, extra={**answer.extra, **est.extras()}), est)
+        if progress:
+            name, ratio = step.worst
+            print(f"tissue adapt: level {level}, degree {p}: {step.cells:,} cells, "
+                  f"{step.dofs:,} dofs (estimate {step.estimate_dofs:,}): worst probe {name} "
+                  f"{step.estimates[name]:.3g} mm = {ratio * accuracy:.3g} relative (target "
+                  f"{accuracy:.3g}); {step.wall_time_s:.1f} s", file=sys.stderr, flush=True)
+        if step.passed:
+            return AdaptiveResult(last[0], case, tuple(steps), accuracy, True,
+                                  time.perf_counter() - t0)
+        if p == 1:   # degree 2 on the same mesh: the estimate's solve, unless on curved cells
+            p, answer = 2, (None if curved else est.enriched)
+            continue
+        if project is None and getattr(case.mesh, "geometry_order", 1) == 2:
+            raise AccuracyNotReached(
+                f"{case.source or case.name}: accuracy {accuracy:.3g} not reached on the given "
+                f"mesh, and its curved edges would be lost by a uniform refinement without the "
+                f"boundary projection: pass project= (meshes.refine.projector_for) or the Case "
+                f"file's path", result=AdaptiveResult(last[0], case, tuple(steps), accuracy,
+                                                      False, time.perf_counter() - t0))
+        n_next = predicted_dofs(_refined_counts(counts, gdim), gdim, p + 1, formulation)
+        if n_next > max_dofs:   # report before refining a mesh that would not be solved
+            counts = _refined_counts(counts, gdim)
+            level += 1
+            continue
+        case = case.with_mesh(refine_uniform(case.mesh, project=project))
+        counts = _counts(case.mesh)
+        level, answer = level + 1, None

@@ -1,0 +1,287 @@
+"""A-posteriori estimate of the discretization error of a reference answer, by p-enrichment.
+
+The answer u_p of degree p (P1 or P2 displacement, Taylor-Hood P2/P1 mixed) is compared with the
+answer u_{p+1} of the same Case on the *same mesh* at degree p + 1 (P2, P3, P3/P2 mixed). For
+every probe and every Dirichlet region's reaction the estimated error of the degree-p value q_p is
+
+    e_q = q_{p+1} - q_p                 (probes: mm, reactions: mN)
+
+and ``probe_error_estimates`` / ``reaction_error_estimates`` hold its norm |e_q|. Since
+q - q_p = e_q + (q - q_{p+1}), the effectivity |e_q| / |q - q_p| tends to 1 when the
+degree-(p+1) answer converges faster than the degree-p one. Where both are limited by the same
+singularity (a clamped corner, the rim of a rigidly pushed patch) the degree-(p+1) error is a
+fraction of the degree-p one and the estimate is low by about that fraction. Measured
+(bench/bench_estimate.py, probes): 1.0-1.3 (once 1.8) where the answer is smooth (thick
+sphere), 0.8-1.0 for P1 answers, 0.6-0.7 for P2 answers limited by a clamped corner or a patch
+rim (Cook's membrane, the phantom), 0.4-0.6 at a point where the P2 error is nearly zero (a
+few 1e-5 mm).
+
+The degree-3 solve that estimates a degree-2 answer starts from that answer interpolated (the
+mixed pressure too); its first Newton step is then the dual-weighted-residual estimate with the
+exact tangent's adjoint in the enriched space (J'(u_p) K_{p+1}^{-1} R_{p+1}(u_p) for every linear
+goal J at once), and the further iterations add the nonlinear terms. The degree-2 solve that
+estimates a degree-1 answer starts from rest: a coarse P1 answer is a worse start than that.
+
+What it measures: the discretization error of the degree-p answer on the geometry it was
+solved on: the enriched solve uses the same cells (straight, or the curved second-order cells of
+a degree >= 2 answer on a mesh that carries curved edges). The estimate therefore EXCLUDES the
+geometric error of that geometry: the faceting of a curved boundary by straight cells (a
+degree-1 answer of a curved body, or ``curved=False``), or the much smaller one of the
+quadratic surface of curved cells. A refinement study with the boundary projected onto the true
+surface (``fem_reference.convergence``) includes it. Passing ``curved=True`` for a degree-1
+answer on a curved mesh enriches onto the curved cells, and the estimate then includes the
+faceting (``estimate_includes_geometry`` is True).
+The model error (material law, boundary conditions) and the solver error (Newton stops far below
+any discretization error) are not part of it.
+
+Reactions are sums of nodal residuals over a region's dofs. A region whose border nodes are also
+prescribed by another region (an inner surface meeting symmetry planes) shares those nodes'
+forces with it: that share shrinks only as the cells do, at any degree, so such a reaction
+converges slowly and its estimate is low (0.36 on the thick sphere's inner surface). Probe
+estimates are not affected.
+
+Cost: one solve at degree p + 1 on the same mesh, stopped at a residual reduction of
+ESTIMATE_RTOL; for a degree-2 answer warm-started (one load step, a few Newton iterations), or,
+when Newton does not converge from there within WARM_ITERATIONS (large strains on a coarse
+mesh), solved along the load path from rest (``estimate_warm_start`` False).
+``estimate_cost_ratio`` is the estimate's wall time (the enriched solver's set-up included when it
+was built for this call) over the degree-p solve's wall time. The enriched problem has 3-7x the
+dofs in 3D and a denser, costlier tangent: measured 2-7 for degree-2 answers (0.4-0.9 of a
+separate degree-3 solve) and 10-40 for degree-1 answers (about one separate degree-2 solve) on
+meshes of 1-3k tetrahedra (bench/bench_estimate.py).
+
+    res = fr.solve(case, pushes={"A1": 5.0}, estimate=True)
+    res.extra["probe_error_estimates"]       # {"T1": 0.012, ...} mm
+    res.extra["reaction_error_estimates"]    # {"act_px": 0.8, ...} mN
+
+Units: mm, kPa, mN. Serial (a degree-2 answer hands its nodal state on in serial runs only).
+"""
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+
+import numpy as np
+
+from meshes.case import Case
+from meshes.errors import CaseError, ConvergenceError
+from meshes.results import SolveResult
+
+__all__ = ["ESTIMATE_METHOD", "ESTIMATE_RTOL", "MAX_DEGREE", "ErrorEstimate", "error_estimate",
+           "estimate"]
+
+ESTIMATE_METHOD = "p-enrichment"
+MAX_DEGREE = 3
+"""The richest reference degree: answers of degree 1 and 2 can be estimated."""
+ESTIMATE_RTOL = 1e-6
+"""Newton of the enriched solve stops once its residual has fallen by this factor within the
+final load step (from the warm start's, for a degree-2 answer): the Newton error left is then
+about this fraction of the estimate itself."""
+WARM_ITERATIONS = 6
+"""Newton iterations allowed from the interpolated answer before the enriched problem is solved
+from rest instead."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ErrorEstimate:
+    """The estimated discretization error of one reference answer (see the module docstring).
+
+    probes: probe name -> (gdim,) estimated error vector q_{p+1} - q_p (mm).
+    reactions: Dirichlet region -> (gdim,) estimated error vector (mN).
+    enriched: the degree-(p+1) SolveResult the estimate comes from.
+    includes_geometry: the enriched solve used a curved geometry the answer did not.
+    warm_start: the enriched solve started from the answer (degree 2; False for degree 1, or when
+        Newton did not converge from there and the solve went along the load path from rest).
+    wall_time_s: the estimate's wall time (s), set-up included; setup_s: the part spent building
+        the enriched solver (about 0 when it was cached).
+    cost_ratio: wall_time_s over the degree-p solve's wall time.
+    """
+
+    method: str
+    degree: int
+    enriched_degree: int
+    probes: dict
+    reactions: dict
+    enriched: SolveResult
+    includes_geometry: bool
+    warm_start: bool
+    wall_time_s: float
+    setup_s: float
+    cost_ratio: float
+
+    @property
+    def probe_norms(self) -> dict:
+        """Probe name -> |estimated error| (mm)."""
+        return {k: float(np.linalg.norm(v)) for k, v in self.probes.items()}
+
+    @property
+    def reaction_norms(self) -> dict:
+        """Dirichlet region -> |estimated error| (mN)."""
+        return {k: float(np.linalg.norm(v)) for k, v in self.reactions.items()}
+
+    def extras(self) -> dict:
+        """The entries ``estimate`` adds to ``SolveResult.extra`` (all JSON-serializable)."""
+        return {
+            "probe_error_estimates": self.probe_norms,
+            "reaction_error_estimates": self.reaction_norms,
+            "probe_error_vectors": {k: np.asarray(v, float).tolist()
+                                    for k, v in self.probes.items()},
+            "reaction_error_vectors": {k: np.asarray(v, float).tolist()
+                                       for k, v in self.reactions.items()},
+            "estimate_method": self.method,
+            "estimate_discretization": self.enriched.extra.get("discretization"),
+            "estimate_includes_geometry": self.includes_geometry,
+            "estimate_warm_start": self.warm_start,
+            "estimate_wall_time_s": self.wall_time_s,
+            "estimate_setup_s": self.setup_s,
+            "estimate_cost_ratio": self.cost_ratio,
+        }
+
+
+def error_estimate(case: Case, result: SolveResult, *, pushes=None, progress: bool = False,
+                   rtol: float | None = ESTIMATE_RTOL, **solver_options) -> ErrorEstimate:
+    """Estimate the discretization error of ``result``, a reference solve of ``case`` with
+    ``pushes`` (actuator name -> mm), by one solve at degree ``result.degree + 1`` on the same
+    mesh (module docstring).
+
+    rtol: residual reduction at which the enriched Newton stops (None: the solver settings' own,
+        1e-10: a fully converged degree-(p+1) answer, e.g. to be used as an answer itself).
+    solver_options: the ReferenceSolver options of the degree-p solve (formulation, curved,
+        settings, sliding_penalty, body_force, linear_solver); the formulation defaults to the
+        one recorded in ``result.extra["discretization"]``; a quadrature_degree is not passed
+        on (the enriched degree has its own).
+    Raises CaseError when the answer cannot be enriched (degree 3, not a reference answer of this
+    mesh, a degree-2 answer without its nodal state) and ConvergenceError when the enriched
+    solve fails.
+    """
+    from .newton import NewtonSettings
+    from .solver import _solver_for
+
+    t0 = time.perf_counter()
+    if result.solver != "fem":
+        raise CaseError(f"error estimates are for reference (fem) answers, got a "
+                        f"{result.solver!r} result")
+    if result.n_vertices != case.mesh.n_vertices:
+        raise CaseError(f"the answer has {result.n_vertices} vertices, the case mesh "
+                        f"{case.mesh.n_vertices}: estimate an answer of this case")
+    p = int(result.degree)
+    if p + 1 > MAX_DEGREE:
+        raise CaseError(f"a degree-{p} answer cannot be estimated by p-enrichment: the richest "
+                        f"reference degree is {MAX_DEGREE}; estimate a degree-{MAX_DEGREE - 1} "
+                        f"answer (or refine the mesh)")
+    disc = result.extra.get("discretization") or {}
+    options = dict(solver_options)
+    options.pop("degree", None)
+    options.pop("quadrature_degree", None)
+    options.setdefault("formulation", disc.get("formulation", "auto"))
+    if "geometry_order" in disc and hasattr(case.mesh, "geometry_order"):
+        options.setdefault("curved", disc["geometry_order"] == 2)   # the answer's geometry
+    if rtol is not None:
+        settings = options.get("settings") or NewtonSettings()
+        options["settings"] = dataclasses.replace(settings, rtol=max(settings.rtol, rtol))
+    ts = time.perf_counter()
+    enriched = _solver_for(case, p + 1, **options)   # cached per mesh, degree and options
+    setup = time.perf_counter() - ts
+    if progress:
+        print(f"tissue fem: error estimate ({ESTIMATE_METHOD}): degree {p + 1} on the same "
+              f"{case.mesh.n_cells:,} cells", file=sys.stderr, flush=True)
+    # A degree-2 answer starts the degree-3 solve (Newton converges from it in a few
+    # iterations). A degree-1 answer is a poor start for degree 2 (on a coarse mesh it is off by
+    # tens of percent, and Newton from rest along the load path needs fewer iterations).
+    warm = p >= 2
+    if warm:
+        settings = enriched.settings
+        # one try (with nothing to ramp, cut-backs would repeat it) of WARM_ITERATIONS
+        enriched.settings = dataclasses.replace(settings, min_fraction=0.75,
+                                                max_iterations=WARM_ITERATIONS)
+        try:
+            res = enriched.solve(pushes, case=case, initial=_lift(enriched, result),
+                                 progress=progress)
+        except ConvergenceError:
+            warm = False
+            if progress:
+                print("tissue fem: error estimate: Newton from the interpolated answer did not "
+                      "converge, solving from rest", file=sys.stderr, flush=True)
+        finally:
+            enriched.settings = settings
+    if not warm:
+        res = enriched.solve(pushes, case=case, progress=progress)
+    probes = {k: np.asarray(res.probes[k], float) - np.asarray(v, float)
+              for k, v in result.probes.items() if k in res.probes}
+    reactions = {k: np.asarray(res.reactions[k], float) - np.asarray(v, float)
+                 for k, v in result.reactions.items() if k in res.reactions}
+    geo = (res.extra.get("discretization") or {}).get("geometry_order", 1)
+    wall = time.perf_counter() - t0
+    ratio = wall / result.wall_time_s if result.wall_time_s > 0 else float("inf")
+    return ErrorEstimate(ESTIMATE_METHOD, p, p + 1, probes, reactions, res,
+                         geo > disc.get("geometry_order", 1), warm, wall, setup, ratio)
+
+
+def estimate(case: Case, result: SolveResult | None = None, *, pushes=None,
+             progress: bool = False, **solver_options) -> SolveResult:
+    """The reference answer with its estimated discretization error.
+
+    result: a reference SolveResult of ``case`` with ``pushes`` (actuator name -> mm); None
+        solves it first: ``fem_reference.solve(case, pushes=pushes, **solver_options)`` (degree
+        and formulation among ``solver_options``).
+    Returns ``result`` with ``extra`` holding ``probe_error_estimates`` (probe -> mm, the norm of
+    the estimated error vector), ``reaction_error_estimates`` (region -> mN),
+    ``estimate_method`` ("p-enrichment"), ``estimate_cost_ratio`` (estimate wall time / solve
+    wall time), the error vectors and the enriched discretization (``ErrorEstimate.extras``).
+    """
+    if result is None:
+        from .solver import solve
+
+        result = solve(case, pushes=pushes, progress=progress, **solver_options)
+    est = error_estimate(case, result, pushes=pushes, progress=progress, **solver_options)
+    return dataclasses.replace(result, extra={**result.extra, **est.extras()})
+
+
+def _match(source: np.ndarray, target: np.ndarray, what: str) -> np.ndarray:
+    """Index into ``source`` (k, gdim) of each point of ``target`` (mm), equal to round-off."""
+    from scipy.spatial import cKDTree
+
+    dist, idx = cKDTree(source).query(target)
+    scale = max(1.0, float(np.abs(target).max(initial=0.0)))
+    if np.any(dist > 1e-9 * scale):
+        raise CaseError(f"{what}: {np.count_nonzero(dist > 1e-9 * scale)} nodes do not match "
+                        f"(largest distance {dist.max():.3g} mm)")
+    return idx
+
+
+def _lift(enriched, result: SolveResult) -> SolveResult:
+    """The degree-p state of ``result`` interpolated into the enriched solver's spaces, as a
+    SolveResult its ``solve(initial=...)`` takes: the nodal displacement (mm) in its Tangent node
+    order and, for the mixed formulation, the P1 pressure field (kPa) as a Function (a pressure
+    recovered from the interpolated displacement alone is far off for nearly incompressible
+    tissue: kappa times the interpolation error of J)."""
+    import dolfinx.fem
+
+    node_u = result.extra.get("node_u")
+    node_points = result.extra.get("node_points")
+    if node_u is None or node_points is None:
+        raise CaseError(f"a degree-{result.degree} answer without its nodal state "
+                        f"(extra['node_u'], serial solves only) cannot be estimated")
+    gdim = enriched.gdim
+    mesh = enriched.dm.mesh
+    Vp = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", int(result.degree)))
+    up = dolfinx.fem.Function(Vp)
+    up.x.array.reshape(-1, gdim)[:] = np.asarray(node_u, float)[
+        _match(np.asarray(node_points, float), Vp.tabulate_dof_coordinates()[:, :gdim],
+               f"the degree-{result.degree} answer's nodes")]
+    uq = dolfinx.fem.Function(enriched.V)
+    uq.interpolate(up)
+    points = enriched.node_points()
+    own = enriched.V.tabulate_dof_coordinates()[:, :gdim]
+    state = {"node_u": uq.x.array.reshape(-1, gdim)[_match(own, points, "the enriched nodes")],
+             "node_points": points}
+    pressure = result.extra.get("pressure")
+    if enriched.Q is not None and pressure is not None:
+        Q1 = dolfinx.fem.FunctionSpace(mesh, ("Lagrange", 1))
+        p1 = dolfinx.fem.Function(Q1)
+        p1.x.array[:] = np.asarray(pressure, float)[
+            _match(enriched.case.mesh.points, Q1.tabulate_dof_coordinates()[:, :gdim],
+                   "the pressure's vertices")]
+        state["pressure"] = p1
+    return dataclasses.replace(result, degree=enriched.degree, extra=state)

@@ -1,0 +1,115 @@
+"""Goal-oriented adaptivity (fem_reference.adapt.solve_to_accuracy): degree 1 -> 2, then uniform
+refinement, until every probe's estimated error is within the requested relative accuracy; a
+max_dofs budget stops it with AccuracyNotReached. Units: mm, kPa, mN."""
+import numpy as np
+import pytest
+
+import fem_reference as fr
+from fem_reference.adapt import (
+    AccuracyNotReached,
+    _counts,
+    _refined_counts,
+    predicted_dofs,
+    solve_to_accuracy,
+)
+from meshes.builders import box, cook_membrane
+from meshes.case import Actuator, Boundary, Case, Material, Probe
+from meshes.errors import CaseError
+from meshes.refine import refine_uniform
+
+
+def cook(size=8.0):
+    """Cook's membrane, plane stress E = 1, nu = 1/3 (as plane strain E* = 15/16, nu* = 1/4),
+    unit shear load."""
+    return Case(mesh=cook_membrane(size), material=Material("linear-elastic", E=15 / 16, nu=0.25),
+                boundaries=[Boundary("left", "fixed"),
+                            Boundary("right", "traction", value=[0.0, 1.0 / 16.0])],
+                probes=[Probe("mid_edge", (48.0, 52.0)), Probe("corner", (48.0, 60.0))],
+                name="cook")
+
+
+def test_solve_to_accuracy_reaches_one_percent_on_cooks_membrane(capsys):
+    ad = solve_to_accuracy(cook(), accuracy=0.01)
+    assert ad.reached
+    est = ad.result.extra["probe_error_estimates"]
+    for name, q in ad.result.probes.items():
+        assert est[name] <= 0.01 * np.linalg.norm(q)
+    # the sequence: P1, then P2 on the same mesh, then P2 on refined meshes
+    assert [(s.level, s.degree) for s in ad.steps][:2] == [(0, 1), (0, 2)]
+    assert all(s.degree == 2 for s in ad.steps[1:])
+    assert ad.steps[-1].passed and not any(s.passed for s in ad.steps[:-1])
+    # the answer is within 1 % of a fine P3 solve (and of the literature's 23.96)
+    truth = fr.solve(cook(1.0), degree=3).probes
+    for name, q in ad.result.probes.items():
+        assert np.linalg.norm(truth[name] - q) <= 0.01 * np.linalg.norm(truth[name])
+    assert abs(ad.result.probes["mid_edge"][1] - 23.96) < 0.01 * 23.96
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("tissue adapt")]
+    assert len(lines) == len(ad.steps) and "dofs" in lines[0] and "worst probe" in lines[0]
+
+
+def test_solve_to_accuracy_stops_at_max_dofs_with_a_message():
+    with pytest.raises(AccuracyNotReached, match=r"not reached within max_dofs = 3,000") as info:
+        solve_to_accuracy(cook(), accuracy=1e-4, max_dofs=3000, progress=False)
+    done = info.value.result
+    assert done is not None and not done.reached and len(done.steps) >= 2
+    assert all(s.estimate_dofs <= 3000 for s in done.steps)
+    assert "probe 'corner'" in str(info.value) or "probe 'mid_edge'" in str(info.value)
+    with pytest.raises(AccuracyNotReached, match="the first estimate"):
+        solve_to_accuracy(cook(), accuracy=0.01, max_dofs=100, progress=False)
+
+
+def test_solve_to_accuracy_on_a_nonlinear_3d_block():
+    """Neo-Hookean block, top face pushed 1 mm: 2 % is reached after degree elevation and at
+    most one refinement (34 tetrahedra to start)."""
+    case = Case(mesh=box(5.0), material=Material("neo-hookean", E=6.0, nu=0.45),
+                boundaries=[Boundary("zmin", "fixed")], probes=[Probe("T", (5.0, 5.0, 5.0))],
+                actuators=[Actuator("A1", "zmax", (1.0, 0.0, -1.0))], name="block")
+    ad = solve_to_accuracy(case, {"A1": 1.0}, accuracy=0.02, progress=False)
+    assert ad.reached and ad.steps[-1].level <= 1
+    assert ad.result.extra["probe_error_estimates"]["T"] <= 0.02 * np.linalg.norm(
+        ad.result.probes["T"])
+
+
+def test_predicted_dofs_match_the_solver():
+    case = cook(8.0)
+    counts = _counts(case.mesh)
+    for degree in (1, 2, 3):
+        res = fr.solve(case, degree=degree)
+        assert predicted_dofs(counts, 2, degree, "displacement") == res.extra["n_dofs"]
+    fine = refine_uniform(case.mesh)
+    assert _refined_counts(counts, 2) == _counts(fine)
+    cube = box(5.0)
+    assert _refined_counts(_counts(cube), 3) == _counts(refine_uniform(cube))
+
+
+def test_solve_to_accuracy_refuses_bad_input():
+    case = cook()
+    with pytest.raises(CaseError, match="accuracy"):
+        solve_to_accuracy(case, accuracy=0.0)
+    with pytest.raises(CaseError, match="needs probes"):
+        solve_to_accuracy(Case(mesh=case.mesh, material=case.material,
+                               boundaries=case.boundaries, name="none"))
+    with pytest.raises(CaseError, match="degree"):
+        solve_to_accuracy(case, degree=3)
+
+
+def test_command_line_estimate_and_accuracy(tmp_path, capsys):
+    """`tissue solve --estimate` puts each probe's error estimate in the JSON and the printout;
+    `--accuracy` with a budget too small for it exits 1 with the reason and the last answer."""
+    import json
+    from pathlib import Path
+
+    from tissue.cli import main
+
+    case = str(Path(__file__).resolve().parents[1] / "meshes/cases/phantom.toml")
+    out = tmp_path / "est.json"
+    rc = main(["solve", case, "--size", "14", "--push", "A1=3", "--estimate", "-q",
+               "--json", str(out)])
+    text = capsys.readouterr().out
+    assert rc == 0 and "+-" in text and "error estimate: p-enrichment" in text
+    d = json.loads(out.read_text())
+    assert all(p["error_estimate"] > 0 for p in d["probes"].values())
+    assert d["estimate_discretization"]["degree"] == d["discretization"]["degree"] + 1
+    rc = main(["solve", case, "--size", "14", "--push", "A1=3", "--accuracy", "0.001",
+               "--max-dofs", "20000", "-q"])
+    assert rc == 1 and "not reached within max_dofs" in capsys.readouterr().err
