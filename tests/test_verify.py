@@ -165,3 +165,14 @@ def test_plot_trace_error_is_the_distance_to_the_reference(small_case, monkeypat
     assert np.isclose(tr["max_error_mm"][-1], res["solvers"]["mass-tensor"]["max_vertex_error_mm"],
                       rtol=1e-9)
     assert tr["max_step_mm"][-1] < 0.05 <= min(tr["max_step_mm"][:-1])
+
+
+def test_discretization_error_is_reported_beside_the_solver_error(small_case):
+    """With estimate=True each solver's entry carries the reference's own estimated
+    discretization error per probe, a different quantity from its error to the reference."""
+    out = verify(small_case, {"A1": 5.0}, solvers=("mass-tensor",), estimate=True)
+    e = out["solvers"]["mass-tensor"]
+    assert set(e["discretization_error_estimate_mm"]) == set(e["probe_error_mm"])
+    assert all(v > 0 for v in e["discretization_error_estimate_mm"].values())
+    run = out["reference"]["runs"]["linear-elastic"]
+    assert run["estimate_discretization"]["degree"] == 2

@@ -1,5 +1,6 @@
-"""``tissue verify CASE [--size MM] [--push A1=15 ...] [--solvers admm mass-tensor] [--out DIR]
-[--json FILE]``: each fast solver against the degree-1 reference on the same Case."""
+"""``tissue verify CASE [--size MM] [--push A1=15 ...] [--solvers admm mass-tensor] [--estimate]
+[--out DIR] [--json FILE]``: each fast solver against the degree-1 reference on the same Case,
+and with --estimate that reference's own discretization error beside it."""
 from __future__ import annotations
 
 import sys
@@ -28,7 +29,7 @@ def run(args) -> int:
             if name.startswith("mass-tensor"):
                 options[name] = {"stop_mm": args.stop_mm}
     res = verify(case, pushes, solvers=tuple(args.solvers), out_dir=args.out, json_file=args.json,
-                 options=options, progress=False)
+                 options=options, progress=False, estimate=args.estimate)
     print(f"{case.name}: {case.mesh.n_vertices} vertices, {case.mesh.n_cells} cells, "
           f"pushes {pushes or '{}'} (mm)")
     for model, r in res["reference"]["runs"].items():
@@ -41,6 +42,9 @@ def run(args) -> int:
               f"  {its}  {e['wall_time_s']:.3f} s  "
               f"x{e['speedup_vs_reference']:.2f} vs reference ({e['reference_model']})")
         print("    probes: " + ", ".join(f"{k} {v:.4g}" for k, v in e["probe_error_mm"].items()))
+        if "discretization_error_estimate_mm" in e:
+            print("    the reference's own discretization error (estimate): " + ", ".join(
+                f"{k} {v:.4g}" for k, v in e["discretization_error_estimate_mm"].items()))
     if "report" in res:
         print(f"  report: {res['report']}")
     bad = invalid_runs(res)
@@ -60,6 +64,9 @@ def add_parser(sub):
     p.add_argument("--stop-mm", type=real("positive", "mm", at_least=1e-9), default=None,
                    help="Mass Tensor stopping rule (mm, default 0.01; at least 1e-9: below "
                         "that a step is round-off)")
+    p.add_argument("--estimate", action="store_true",
+                   help="also estimate the reference's discretization error (one P2 solve), "
+                        "printed beside each solver's error to the reference")
     p.add_argument("--out", help="folder for report.html and the convergence plots")
     p.add_argument("--json", help="JSON file of the errors and timings")
     p.set_defaults(func=run)

@@ -62,12 +62,17 @@ def _errors(case, u, u_ref, probes, probes_ref):
 
 
 def verify(case, pushes=None, solvers=("admm", "mass-tensor"), out_dir=None, *, json_file=None,
-           options=None, reference_solve=None, progress: bool = False) -> dict:
+           options=None, reference_solve=None, progress: bool = False,
+           estimate: bool = False) -> dict:
     """Run the degree-1 reference and each fast solver on ``case`` with ``pushes`` (name -> mm).
 
     solvers: names from FAST_SOLVERS; a solver whose module is missing is skipped (listed under
     "skipped"). options: solver name -> extra keyword arguments for its ``solve``.
     reference_solve(case) -> SolveResult replaces ``fem_reference.solve(case, degree=1)`` (tests).
+    estimate: also estimate the reference's own discretization error (one P2 solve on the same
+    mesh, ``fem_reference.estimate``), reported beside each solver's error to the reference as
+    ``discretization_error_estimate_mm``: the solver error (fast solver vs the same discretization)
+    and the discretization error (that discretization vs the converged answer), never confused.
     Returns {"reference": {...}, "solvers": {name: {"probe_error_mm": {...}, "max_vertex_error_mm",
     "rms_vertex_error_mm", "iterations", "wall_time_s", "speedup_vs_reference", ...}},
     "skipped": {...}}; writes ``json_file`` and ``out_dir``/report.html + PNGs when given.
@@ -114,6 +119,10 @@ def verify(case, pushes=None, solvers=("admm", "mass-tensor"), out_dir=None, *, 
             # timed like the fast solvers' timed run: a second, warm solve (form compilation,
             # caches of the first call excluded)
             res_ref = reference_solve(rcase)
+            if estimate:
+                from fem_reference.estimate import estimate as with_estimate
+
+                res_ref = with_estimate(rcase.with_pushes(pushes), res_ref)
             refs[model] = (rcase, res_ref)
             out["reference"]["runs"][model] = {
                 **res_ref.to_json_dict(rcase), "E_kPa": rcase.material.E, "nu": rcase.material.nu,
@@ -162,6 +171,9 @@ def verify(case, pushes=None, solvers=("admm", "mass-tensor"), out_dir=None, *, 
             "options": {k: v for k, v in kw.items() if isinstance(v, (int, float, str, bool))},
             **{k: res.extra[k] for k in VALIDITY_KEYS if k in res.extra},
         })
+        if "probe_error_estimates" in res_ref.extra:
+            entry["discretization_error_estimate_mm"] = {
+                k: float(v) for k, v in res_ref.extra["probe_error_estimates"].items()}
         out["solvers"][name] = entry
         traces[name] = trace
     if out_dir is not None:
