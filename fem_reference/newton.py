@@ -163,7 +163,8 @@ class NewtonMixin:
             for _ in range(s.line_search + 1):
                 u.x.array[:] = u_old + alpha * du.x.array
                 rnew = self._assemble_residual(bcs)
-                if math.isfinite(rnew):
+                if math.isfinite(rnew) and self.contact.accepts(
+                        rnew, rnorm, it == 1 or alpha <= 0.5 ** s.line_search):
                     break
                 alpha *= 0.5
             else:
@@ -231,6 +232,7 @@ class NewtonMixin:
                 start[coll] = self.x.x.array[parent]
             ramps.append((garr, start, full))
             span = max(span, np.abs(full[coll] - start[coll]).max(initial=0.0))
+        span = max(span, self.contact.ramps(case, ramps, initial))  # indenters' tips
         span = self.comm.allreduce(span, op=MPI.MAX)
         inc = 1.0 if span <= s.max_step_mm else s.max_step_mm / span
         lam = 0.0

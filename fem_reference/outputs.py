@@ -366,6 +366,7 @@ class OutputsMixin:
                    "linear_solver": self.linear_solver,
                    "factorizations": self.timings.factorizations,
                    "krylov_iterations": self.timings.krylov_iterations, **state,
+                   **self.contact.extra(),
                    **deformation_state(case.mesh, u_v, degree=self.degree)})
 
     # ------------------------------------------------------------------ residual / tangent

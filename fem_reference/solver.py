@@ -31,6 +31,7 @@ from meshes.errors import CaseError
 from meshes.results import SolveResult
 
 from .boundary import BoundaryMixin
+from .contact import DEFAULT_CONTACT_PENALTY, Contact, contact_key
 from .dolfinx_mesh import DolfinxMesh, to_dolfinx
 from .forms import mixed_energy_density, strain_energy_density
 from .linalg import LAGGED_ABOVE_DOFS, LinearSolveMixin, _has_cholmod
@@ -99,12 +100,16 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
         curved: isoparametric (second-order) geometry from the mesh's curved edges (the builtin
             curved bodies and any order-2 .msh carry them). None: curved at degree >= 2 when the
             mesh has them (at degree 1 the straight cells the fast solvers use); False: straight.
+        contact_penalty: beta of the indenters' contact penalty k = beta E / h (kPa/mm, h the
+            cell size; see ``contact``: the penetration (p_c / E + 1/2) h / beta, mm, is the
+            method's error).
     """
 
     def __init__(self, case: Case, *, degree: int | None = None, formulation: str = "auto",
                  quadrature_degree: int | None = None, settings: NewtonSettings | None = None,
                  comm=MPI.COMM_WORLD, sliding_penalty: float = 1e4, body_force=None,
-                 linear_solver: str = "auto", curved: bool | None = None):
+                 linear_solver: str = "auto", curved: bool | None = None,
+                 contact_penalty: float = DEFAULT_CONTACT_PENALTY):
         self.formulation = resolve_formulation(formulation, case.material)
         if degree is None:
             degree = 2 if self.formulation == "mixed" else 1
@@ -177,8 +182,11 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
                     beta = sliding_penalty * case.material.E / self.dm.h_min
                     penalty = penalty + beta / 2 * (ufl.dot(u, nn) - self.load * gval) ** 2 * \
                         ds(self.dm.region_tags[b.region])
+        self.contact = Contact(self, case, penalty=contact_penalty)  # rigid indenters
+        penalty = penalty + self.contact.energy
         self.energy_internal = internal
         total = internal - self.load * external + penalty
+        self.contact.line_search_energy(total)
         v = ufl.TestFunction(self.W)
         w = ufl.TrialFunction(self.W)
         self.R_ufl = ufl.derivative(total, self.x, v)
@@ -272,7 +280,8 @@ def _solver_for(case: Case, degree: int | None, **kw) -> ReferenceSolver:
         degree = 2 if kw["formulation"] == "mixed" else 1
     key = (id(case.mesh), degree, case.material.model, case.gravity, case.material.density,
            tuple((b.region, b.type, str(b.normal), str(b.value)) for b in case.boundaries
-                 if b.type in ("traction", "sliding")), tuple(sorted(kw.items())))
+                 if b.type in ("traction", "sliding")), tuple(sorted(kw.items())),
+           contact_key(case))
     s = _CACHE.get(key)
     if s is None or s.case.mesh is not case.mesh:
         if len(_CACHE) > 8:

@@ -19,9 +19,12 @@ from .errors import CaseError
 from .mesh import MeshData, cell_volumes, check_cells
 
 __all__ = [
+    "ACTUATOR_TYPES",
     "BOUNDARY_TYPES",
+    "CONTACT_TYPES",
     "E_RANGE_KPA",
     "MATERIAL_MODELS",
+    "TIP_SHAPES",
     "Actuator",
     "Boundary",
     "Case",
@@ -37,6 +40,9 @@ E_RANGE_KPA = (1e-9, 1e12)
 """Young's moduli accepted (kPa): from far softer than any tissue to harder than diamond
 (1.2e9 kPa); outside it the residuals of a solve under- or overflow."""
 MATERIAL_MODELS = ("neo-hookean", "linear-elastic")
+ACTUATOR_TYPES = ("patch", "indenter")
+TIP_SHAPES = ("sphere", "punch")
+CONTACT_TYPES = ("frictionless", "tied")
 
 
 def _real(x) -> bool:
@@ -142,11 +148,34 @@ class Probe:
 
 @dataclass(frozen=True)
 class Actuator:
-    """A region pushed rigidly along ``direction`` (normalized on construction)."""
+    """An actuator pushed along ``direction`` (normalized on construction). Lengths in mm.
+
+    type "patch" (default): ``region`` is glued to a rigid plate and moved rigidly;
+        ``Case.with_pushes`` turns a push into a displacement condition on it.
+    type "indenter": a rigid tip pressing on the skin, solved with contact by the reference
+        (``fem_reference.contact``; the fast solvers refuse it). ``tip`` "sphere" of ``radius``,
+        or "punch": a flat circular punch of outer ``radius`` whose edge is rounded with
+        ``edge_radius`` (0 < edge_radius < radius; the flat face has radius radius -
+        edge_radius). The tip's axis passes through ``point`` (default: the area centroid of the
+        facet region ``region``) along ``direction``; at push 0 it touches the contact surface
+        (zero gap, zero force) and a push moves it by push * direction. ``contact``:
+        "frictionless" (default) or "tied" (no slip where in contact). The contact surface is
+        ``region`` and the facet regions ``contact_region`` (a name or a tuple of names, e.g.
+        the skin around the site: contact spreads as the tip goes in). ``push`` (mm) is the
+        indenter's position, set by ``Case.with_pushes``; a patch keeps 0.
+    """
 
     name: str
     region: str
     direction: tuple
+    type: str = "patch"
+    tip: str | None = None
+    radius: float | None = None
+    edge_radius: float | None = None
+    point: tuple | None = None
+    contact: str | None = None
+    contact_region: tuple = ()
+    push: float = 0.0
 
     def __post_init__(self):
         d = np.asarray(self.direction, dtype=np.float64).reshape(-1)
@@ -156,6 +185,52 @@ class Actuator:
                             f"got {self.direction!r}")
         d = d / s  # scaled first: the norm of a vector of huge components would overflow
         object.__setattr__(self, "direction", tuple((d / np.linalg.norm(d)).tolist()))
+        self._check_indenter()
+
+    def _check_indenter(self):
+        what = f"actuator {self.name!r}"
+        if self.type not in ACTUATOR_TYPES:
+            raise CaseError(f"{what}: unknown type {self.type!r}; types: {list(ACTUATOR_TYPES)}")
+        if not (_real(self.push) and math.isfinite(self.push)):
+            raise CaseError(f"{what}: push must be a finite number (mm), got {self.push!r}")
+        regions = (self.contact_region,) if isinstance(self.contact_region, str) else \
+            self.contact_region
+        if regions is None or not all(isinstance(r, str) and r for r in regions):
+            raise CaseError(f"{what}: contact_region must be a region name or a list of names, "
+                            f"got {self.contact_region!r}")
+        object.__setattr__(self, "contact_region", tuple(regions))
+        if self.type == "patch":
+            extra = [k for k in ("tip", "radius", "edge_radius", "point", "contact")
+                     if getattr(self, k) is not None] + (["contact_region"] if regions else [])
+            if extra:
+                raise CaseError(f"{what}: {', '.join(extra)} only for an indenter "
+                                f"(type = 'indenter'), not a patch")
+            return
+        if self.tip not in TIP_SHAPES:
+            raise CaseError(f"{what}: an indenter needs tip = one of {list(TIP_SHAPES)}, "
+                            f"got {self.tip!r}")
+        if not (_real(self.radius) and math.isfinite(self.radius) and self.radius > 0):
+            raise CaseError(f"{what}: an indenter needs a radius > 0 (mm), got {self.radius!r}")
+        if self.tip == "punch":
+            e = self.edge_radius
+            if not (_real(e) and math.isfinite(e) and 0 < e < self.radius):
+                raise CaseError(f"{what}: a punch needs 0 < edge_radius < radius = "
+                                f"{self.radius:g} mm, got edge_radius={e!r}")
+        elif self.edge_radius is not None:
+            raise CaseError(f"{what}: edge_radius only for tip = 'punch', not a sphere")
+        if self.point is not None:
+            object.__setattr__(self, "point", tuple(_vec(self.point, len(self.direction),
+                                                         f"{what}: point").tolist()))
+        contact = "frictionless" if self.contact is None else self.contact
+        if contact not in CONTACT_TYPES:
+            raise CaseError(f"{what}: contact must be one of {list(CONTACT_TYPES)}, "
+                            f"got {self.contact!r}")
+        object.__setattr__(self, "contact", contact)
+
+    @property
+    def contact_regions(self) -> tuple:
+        """The facet regions an indenter's tip may touch: ``region``, then ``contact_region``."""
+        return tuple(dict.fromkeys((self.region, *self.contact_region)))
 
 
 @dataclass(frozen=True)
@@ -241,6 +316,12 @@ class Case:
             if len(a.direction) != gdim:
                 raise CaseError(f"{where}: actuator {a.name!r} direction must have {gdim} "
                                 f"components, got {a.direction!r}")
+            if a.type == "indenter":
+                for r in a.contact_regions:
+                    if r not in self.mesh.facet_regions:
+                        raise CaseError(f"{where}: indenter {a.name!r} touches facet regions "
+                                        f"only; {r!r} is not one; facet regions: "
+                                        f"{sorted(self.mesh.facet_regions)}")
         if self.gravity is not None:
             object.__setattr__(self, "gravity", tuple(_vec(self.gravity, gdim, f"{where}: gravity")))
         _ = self.constraints  # validates the prescriptions (raises on conflicts)
@@ -453,17 +534,34 @@ class Case:
                         f"{[p.name for p in self.probes]}")
 
     def with_pushes(self, pushes: dict) -> Case:
-        """A new Case where each named actuator's region is displaced rigidly by
-        ``push * direction`` (mm). Pushes replace any condition already on that region."""
+        """A new Case where each named patch actuator's region is displaced rigidly by
+        ``push * direction`` (mm; pushes replace any condition already on that region) and each
+        named indenter records its position ``push`` (mm; no condition: the reference solves
+        its contact)."""
         if not pushes:
             return self
         acts = {name: self.actuator(name) for name in pushes}
-        regions = {a.region for a in acts.values()}
+        patches = {n: a for n, a in acts.items() if a.type == "patch"}
+        regions = {a.region for a in patches.values()}
         kept = [b for b in self.boundaries if b.region not in regions]
         added = [Boundary(a.region, "displacement",
                           value=tuple((float(pushes[n]) * np.asarray(a.direction)).tolist()))
-                 for n, a in acts.items()]
-        return replace(self, boundaries=tuple(kept + added))
+                 for n, a in patches.items()]
+        actuators = tuple(replace(a, push=float(pushes[a.name]))
+                          if a.name in acts and a.type == "indenter" else a
+                          for a in self.actuators)
+        return replace(self, boundaries=tuple(kept + added), actuators=actuators)
+
+    def indenters(self) -> tuple:
+        """The actuators of type "indenter"."""
+        return tuple(a for a in self.actuators if a.type == "indenter")
+
+    def require_no_contact(self, who: str):
+        """Raise CaseError naming the first indenter: ``who`` (a solver without contact) cannot
+        model a rigid tip pressing on the skin."""
+        for a in self.indenters():
+            raise CaseError(f"{who} does not model contact: actuator {a.name!r} is an indenter "
+                            f"(the reference solves it: fem_reference.solve)")
 
     def with_material(self, **changes) -> Case:
         return replace(self, material=replace(self.material, **changes))

@@ -158,7 +158,20 @@ def _mesh_errors(data: dict, mesh: MeshData, src: str) -> list[str]:
         if a["region"] not in regions:
             line(("actuator", i, "region"), f"expected a region of the mesh ({', '.join(regions)})"
                                             f", found unknown region {a['region']!r}")
+        elif a.get("type") == "indenter" and a["region"] not in mesh.facet_regions:
+            line(("actuator", i, "region"), f"expected a boundary (facet) region for an indenter "
+                                            f"({', '.join(facets)}), found {a['region']!r}")
         vector(("actuator", i, "direction"), a["direction"])
+        vector(("actuator", i, "point"), a.get("point"))
+        if a.get("tip") == "punch" and not a["edge_radius"] < a["radius"]:
+            line(("actuator", i, "edge_radius"), f"expected a finite number < radius = "
+                                                 f"{a['radius']:g} (mm), found {a['edge_radius']!r}")
+        cr = a.get("contact_region", [])
+        for r in [cr] if isinstance(cr, str) else cr:
+            if r not in mesh.facet_regions:
+                line(("actuator", i, "contact_region"),
+                     f"expected boundary (facet) regions of the mesh ({', '.join(facets)}), "
+                     f"found {r!r}")
     vector(("body", "gravity"), data.get("body", {}).get("gravity"))
     return out
 
@@ -246,7 +259,8 @@ def load_case(path, *, mesh: MeshData | None = None, size: float | None = None,
                                             for k, v in b.items()})
                                 for b in data.get("boundary", [])],
                     probes=[Probe(p["name"], tuple(p["point"])) for p in data.get("probe", [])],
-                    actuators=[Actuator(a["name"], a["region"], tuple(a["direction"]))
+                    actuators=[Actuator(**{k: tuple(v) if isinstance(v, list) else v
+                                           for k, v in a.items()})
                                for a in data.get("actuator", [])],
                     gravity=data.get("body", {}).get("gravity"),
                     name=data.get("name", Path(path).stem), source=src)

@@ -257,14 +257,25 @@ def _lines_of(err, data, skip_mesh: bool) -> list[tuple]:
         bad = [k for k in parent if _walk(path + (k,), data)[0] is False]
         used = [k for k in _resolve(_walk(path, data)[0]).get("properties", {})
                 if _walk(path + (k,), data)[0] is not False]
-        kind = parent.get("type", "fixed")
-        return [(path + (k,), (f"expected no {k} with type = {show(kind)} (its keys: "
-                               f"{', '.join(used)}), found {k} = {show(parent[k])}")) for k in bad]
+        return [(path + (k,), (f"expected no {k} with {_forbidding(path, data, parent, k)} "
+                               f"(its keys: {', '.join(used)}), found {k} = {show(parent[k])}"))
+                for k in bad]
     loc = _leaf(path, data)
     s, x = _walk(loc, data)
     if s is False:  # reported by the error of the False schema itself
         return []
     return [(loc, f"expected {expected(s)}, found {_found(x, s)}")]
+
+
+def _forbidding(path, data, parent, key) -> str:
+    """The condition (``type = 'fixed'``, ``tip = 'sphere'``) of the branch of the table at
+    ``path`` that forbids ``key`` in ``parent``."""
+    for branch in _resolve(_walk(path, data)[0]).get("allOf", ()):
+        if branch["then"].get("properties", {}).get(key) is False and _branch_validator(
+                json.dumps(branch["if"])).is_valid(parent):
+            return ", ".join(f"{k} = {show(v['const'])}"
+                             for k, v in branch["if"].get("properties", {}).items() if "const" in v)
+    return f"type = {show(parent.get('type', 'fixed'))}"
 
 
 def _nonfinite(x, path=()):

@@ -880,6 +880,7 @@ def _structure_key(case, rho, dt):
 def prepare(case, *, rho: float | None = None, dt: float | None = None) -> AdmmOperators:
     """The per-Case operators (x-step factorization included), cached for the last 4 Case
     structures: a Case differing only in prescribed values (e.g. other pushes) reuses them."""
+    case.require_no_contact("the ADMM solver")
     key = _structure_key(case, rho, dt)
     ops = _CACHE.get(key)
     if ops is not None and ops.mesh is case.mesh:
@@ -1483,6 +1484,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     residual growth.
     """
     t0 = time.perf_counter()
+    case.require_no_contact("the ADMM solver")
     case0 = case  # same mesh: its cached probe locations serve the pushed Case too
     if pushes:
         case = case.with_pushes(pushes)

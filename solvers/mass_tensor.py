@@ -790,6 +790,7 @@ def solve(case, *, pushes=None, initial=None, method: str = "pcg", stop_mm: floa
     """
     t0 = time.perf_counter()
     case.material.require_compressible("the Mass Tensor solver")
+    case.require_no_contact("the Mass Tensor solver")
     if pushes:
         case = case.with_pushes(pushes)
     model = _model_for(case)

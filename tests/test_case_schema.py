@@ -12,7 +12,16 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from meshes import builders
-from meshes.case import BOUNDARY_TYPES, MATERIAL_MODELS, Case, load_case
+from meshes.case import (
+    ACTUATOR_TYPES,
+    BOUNDARY_TYPES,
+    CONTACT_TYPES,
+    MATERIAL_MODELS,
+    TIP_SHAPES,
+    Actuator,
+    Case,
+    load_case,
+)
 from meshes.case_doc import case_file_markdown
 from meshes.case_file import PROBE_TOLERANCE
 from meshes.case_schema import SCHEMA_PATH, case_schema, schema_errors
@@ -78,9 +87,34 @@ direction = [-1.0, 0.0]
 gravity = [0.0, -9810.0]
 """
 MESH_FILE = BOX.replace('builtin = "box"\nsize = 5.0', 'file = "part.msh"')
+INDENTER = BOX + """[[actuator]]
+name = "A1"
+region = "zmax"
+direction = [0.0, 0.0, -1.0]
+type = "indenter"
+tip = "punch"
+radius = 3.0
+edge_radius = 0.5
+point = [5.0, 5.0, 10.0]
+contact = "tied"
+contact_region = ["xmax", "ymax"]
+[[actuator]]
+name = "A2"
+region = "xmin"
+direction = [1.0, 0.0, 0.0]
+type = "indenter"
+tip = "sphere"
+radius = 2.0
+[[actuator]]
+name = "A3"
+region = "ymin"
+direction = [0.0, 1.0, 0.0]
+type = "patch"
+"""
 # coarse stand-ins for the builtin meshes: the loader is under test, not gmsh (a fuzzed tiny size
 # would make gmsh mesh for hours)
-COARSE = {"phantom": 14.0, "phantom-3": 14.0, "box": 5.0, "rectangle": 2.5, "shell-octant": 10.0}
+COARSE = {"phantom": 14.0, "phantom-3": 14.0, "box": 5.0, "rectangle": 2.5, "shell-octant": 10.0,
+          "indent-block": 6.0}
 
 
 @pytest.fixture(scope="module")
@@ -147,6 +181,9 @@ def test_schema_enums_follow_the_code():
     assert p["material"]["properties"]["model"]["enum"] == list(MATERIAL_MODELS)
     assert set(p["mesh"]["properties"]["builtin"]["enum"]) == set(builders.BUILDERS)
     assert case_schema()["$defs"]["boundary"]["properties"]["type"]["enum"] == list(BOUNDARY_TYPES)
+    actuator = case_schema()["$defs"]["actuator"]["properties"]
+    assert (actuator["type"]["enum"], actuator["tip"]["enum"], actuator["contact"]["enum"]) == \
+        (list(ACTUATOR_TYPES), list(TIP_SHAPES), list(CONTACT_TYPES))
     point = case_schema()["$defs"]["probe"]["properties"]["point"]["description"]
     assert float(re.search(r"at most ([0-9.e-]+) of", point)[1]) == PROBE_TOLERANCE
 
@@ -182,7 +219,7 @@ def test_every_shipped_case_validates_and_loads(path):
 def test_readme_and_test_case_examples_validate():
     readme = (ROOT / "README.md").read_text()
     block = re.search(r"## The Case file.*?```toml\n(.*?)```", readme, re.DOTALL)[1]
-    for text in (block, BOX, EVERY_TYPE, RECTANGLE, MESH_FILE):
+    for text in (block, BOX, EVERY_TYPE, RECTANGLE, MESH_FILE, INDENTER):
         assert schema_errors(tomllib.loads(text)) == []
 
 
@@ -191,6 +228,20 @@ def test_2d_and_mesh_file_cases_load(tmp_path, coarse_builders):
     assert load_text(tmp_path, MESH_FILE)[1].mesh.gdim == 3
     case = load_text(tmp_path, RECTANGLE)[1]
     assert case.mesh.gdim == 2 and case.actuators[0].direction == (-1.0, 0.0)
+
+
+def test_indenters_and_patches_load_with_their_defaults(tmp_path, coarse_builders):
+    _, case = load_text(tmp_path, INDENTER)
+    punch, sphere, patch = case.actuators
+    assert (punch.type, punch.tip, punch.radius, punch.edge_radius, punch.point, punch.contact,
+            punch.contact_regions) == ("indenter", "punch", 3.0, 0.5, (5.0, 5.0, 10.0), "tied",
+                                       ("zmax", "xmax", "ymax"))
+    assert (sphere.contact, sphere.contact_regions, sphere.edge_radius) == \
+        ("frictionless", ("xmin",), None)
+    assert (patch.type, patch.tip, patch.contact) == ("patch", None, None)
+    actuator = case_schema()["$defs"]["actuator"]["properties"]
+    assert actuator["type"]["default"] == Actuator("A", "r", (1.0, 0.0, 0.0)).type
+    assert actuator["contact"]["default"] == sphere.contact
 
 
 def test_every_boundary_type_loads(tmp_path, coarse_builders):
@@ -249,6 +300,22 @@ MISTAKES = [
     ("vector of the wrong length", BOX.replace("[5.0, 5.0, 5.0]", "[5.0, 5.0]"),
      ("FILE: [[probe]][1].point: expected a list of 3 finite numbers (the mesh is 3D), "
       "found [5.0, 5.0]")),
+    ("indenter without a tip", INDENTER.replace('tip = "sphere"\n', ""),
+     "FILE: [[actuator]][2].tip: expected one of 'sphere', 'punch', found nothing"),
+    ("edge radius of a sphere", INDENTER.replace("radius = 2.0", "radius = 2.0\nedge_radius = 1.0"),
+     ("FILE: [[actuator]][2].edge_radius: expected no edge_radius with tip = 'sphere' (its keys: "
+      "name, region, direction, type, tip, radius, point, contact, contact_region), found "
+      "edge_radius = 1.0")),
+    ("punch edge as wide as the punch", INDENTER.replace("edge_radius = 0.5", "edge_radius = 3.0"),
+     "FILE: [[actuator]][1].edge_radius: expected a finite number < radius = 3 (mm), found 3.0"),
+    ("tip of a patch", INDENTER.replace('type = "patch"', 'tip = "sphere"'),
+     ("FILE: [[actuator]][3].tip: expected no tip with type = 'patch' (its keys: name, region, "
+      "direction, type), found tip = 'sphere'")),
+    ("indenter on a cell region", INDENTER.replace('["xmax", "ymax"]', '["xmax", "tissue"]'),
+     ("FILE: [[actuator]][1].contact_region: expected boundary (facet) regions of the mesh (xmax, "
+      "xmin, ymax, ymin, zmax, zmin), found 'tissue'")),
+    ("unknown contact", INDENTER.replace('"tied"', '"sticky"'),
+     "FILE: [[actuator]][1].contact: expected one of 'frictionless', 'tied', found 'sticky'"),
 ]
 
 
@@ -294,10 +361,12 @@ def test_all_faults_are_reported_one_line_each(tmp_path):
 # --------------------------------------------------------------------------- fuzz
 KEYS = ["name", "mesh", "file", "builtin", "size", "material", "model", "E", "nu", "density",
         "boundary", "region", "type", "value", "components", "gradient", "offset", "normal",
-        "probe", "point", "actuator", "direction", "body", "gravity", "sise", "Nu", "e"]
+        "probe", "point", "actuator", "direction", "body", "gravity", "sise", "Nu", "e", "tip",
+        "radius", "edge_radius", "contact", "contact_region"]
 WORDS = ["base", "skin", "act_px", "act_a", "zmin", "tissue", "T1", "A1", "box", "rectangle",
          "phantom", "phantom-3", "fixed", "displacement", "affine", "sliding", "traction",
-         "neo-hookean", "linear-elastic", "part.msh", "../x.msh", ""]
+         "neo-hookean", "linear-elastic", "part.msh", "../x.msh", "", "indenter", "sphere",
+         "punch", "tied"]
 NUMBERS = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True),
     st.sampled_from([0.0, -0.0, 1.0, -1.0, 0.5, 0.49, -0.99, 1e308, -1e308, 1e-308, 5e-324,
@@ -413,7 +482,7 @@ def _mutate(draw, data):
 
 
 BASES = [tomllib.loads(t) for t in [p.read_text() for p in CASES] + [BOX, EVERY_TYPE, RECTANGLE,
-                                                                     MESH_FILE]]
+                                                                     MESH_FILE, INDENTER]]
 
 
 def test_fuzz_any_input_loads_or_raises_a_case_error(tmp_path_factory, coarse_builders):

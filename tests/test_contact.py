@@ -1,0 +1,211 @@
+"""Rigid indenters with contact (fem_reference/contact.py) against answers computed here
+independently of the solver, on the quarter block ``indent-block`` (symmetry planes sliding,
+bottom fixed, 240 mm deep, cells of h mm within 2.5 mm of the tip's axis):
+
+- Hertz: a rigid sphere of radius R into a half-space, F = 4/3 E* sqrt(R) d^(3/2), contact
+  radius a = sqrt(R d), E* = E / (1 - nu^2);
+- a flat circular punch of radius A with its edge rounded by e: Sneddon's integrals for an
+  axisymmetric frictionless indenter of profile f(r) (contact radius c):
+  d = c int_0^c f'(r) / sqrt(c^2 - r^2) dr, F = 2 E* int_0^c r^2 f'(r) / sqrt(c^2 - r^2) dr,
+  between Boussinesq's 2 (A - e) E* d and 2 A E* d (the flat face alone, the whole punch);
+- a tied flat punch wider than a glued patch, pushed a little, against the glued patch;
+- the penalty's effect: the force converges as O(1/beta) and the penetration falls as 1/beta.
+
+Error budget of the half-space comparisons (linear-elastic material, nu = 0.45): the block's
+bottom at depth D = 240 mm stiffens it by about a (1 + nu) (3 - 2 nu) / (pi (1 - nu^2) D)
+(0.4 % at a = 1 mm); the contact's exact (finite-deformation) gap against Hertz's linearized one,
+O((1 - 2 nu) a / R), about 0.1 %; the penalty (beta = 1e3) about -0.2 %; the rest is the mesh
+(P2, h = 0.5 mm: 2 cells across the Hertz contact radius). Measured: Hertz +0.5 %, punch +1.0 %;
+the tolerances are 2 % and 3 % (the punch's pressure is singular-like at its rounded edge).
+Units: mm, kPa, mN.
+"""
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import quad
+from scipy.optimize import brentq
+
+import fem_reference as fr
+from meshes.builders import indent_block
+from meshes.case import Actuator, Boundary, Case, Material
+from meshes.errors import CaseError
+from solvers import admm, mass_tensor
+
+E, NU = 6.0, 0.45
+E_STAR = E / (1 - NU ** 2)
+DOWN = (0.0, 0.0, -1.0)
+H = 0.5  # mm, cell size under the tip
+
+
+@pytest.fixture(scope="module")
+def block():
+    return indent_block(H)
+
+
+def quarter_case(mesh, actuator, model="linear-elastic"):
+    return Case(mesh, Material(model, E, NU),
+                boundaries=[Boundary("bottom", "fixed"),
+                            Boundary("xsym", "sliding", normal=(1.0, 0.0, 0.0)),
+                            Boundary("ysym", "sliding", normal=(0.0, 1.0, 0.0))],
+                actuators=[actuator])
+
+
+def sphere(R, **kw):
+    return Actuator("I", "tip", DOWN, type="indenter", tip="sphere", radius=R,
+                    point=(0.0, 0.0, 0.0), contact_region="top", **kw)
+
+
+def indent(case, push, **kw):
+    res = fr.solve(case, pushes={"I": push}, **kw)
+    assert res.converged and res.extra["valid"]
+    return res, res.extra["indenters"]["I"]
+
+
+def sneddon_rounded_punch(A, e, d):
+    """(F (mN), contact radius c (mm)) of a rigid flat punch of radius A whose edge is a quarter
+    circle of radius e, pressed d mm into a half-space (Sneddon's integrals, r = c sin t)."""
+    b = A - e
+
+    def slope(r):
+        x = max(r - b, 0.0)
+        return x / math.sqrt(e * e - x * x)
+
+    def integral(c, power):
+        t0 = math.asin(b / c)
+        return quad(lambda t: math.sin(t) ** power * slope(c * math.sin(t)), t0, math.pi / 2,
+                    limit=200, epsabs=1e-13, epsrel=1e-10)[0]
+
+    c = brentq(lambda c: c * integral(c, 0) - d, b * (1 + 1e-9), b + 0.9 * e, xtol=1e-14)
+    return 2 * E_STAR * c * c * integral(c, 2), c
+
+
+# --------------------------------------------------------------------------- half-space answers
+@pytest.mark.slow
+def test_sphere_into_a_half_space_gives_hertz_force_within_2_percent(block):
+    R, d = 10.0, 0.1
+    res, ind = indent(quarter_case(block, sphere(R)), d, degree=2)
+    F_hertz = 4.0 / 3.0 * E_STAR * math.sqrt(R) * d ** 1.5
+    F = 4 * ind["force"]  # a quarter of the body
+    print(f"\nHertz: F = {F:.5f} mN vs {F_hertz:.5f} mN ({100 * (F / F_hertz - 1):+.2f} %), "
+          f"contact area {4 * ind['contact_area']:.3f} vs {math.pi * R * d:.3f} mm^2, "
+          f"penetration {ind['max_penetration']:.2e} mm, {res.iterations} Newton iterations")
+    assert abs(F / F_hertz - 1) < 0.02
+    # the contact area is the lumped area of the surface nodes in contact: radius within a cell
+    a_fe = math.sqrt(4 * ind["contact_area"] / math.pi)
+    assert abs(a_fe - math.sqrt(R * d)) < H
+    # the actuator force is the reaction: the fixed bottom, the one support prescribing the
+    # push direction (the symmetry planes slide along it), balances the tip
+    assert abs(res.reactions["bottom"][2] + ind["force_vector"][2]) < 1e-6 * ind["force"]
+    assert 0 < ind["max_penetration"] < 1e-2 * d
+
+
+@pytest.mark.slow
+def test_rounded_flat_punch_gives_sneddons_force_within_3_percent(block):
+    A, e, d = 1.5, 0.3, 0.05
+    punch = Actuator("I", "tip", DOWN, type="indenter", tip="punch", radius=A, edge_radius=e,
+                     point=(0.0, 0.0, 0.0), contact_region="top")
+    _, ind = indent(quarter_case(block, punch), d, degree=2)
+    F_exact, c = sneddon_rounded_punch(A, e, d)
+    F = 4 * ind["force"]
+    print(f"\nrounded punch: F = {F:.5f} mN vs Sneddon {F_exact:.5f} mN "
+          f"({100 * (F / F_exact - 1):+.2f} %, contact radius {c:.3f} mm); Boussinesq "
+          f"{2 * (A - e) * E_STAR * d:.5f} (flat face) .. {2 * A * E_STAR * d:.5f} mN (radius A)")
+    assert 2 * (A - e) * E_STAR * d < F_exact < 2 * A * E_STAR * d
+    assert abs(F / F_exact - 1) < 0.03
+
+
+def test_force_converges_as_the_penalty_grows_and_penetration_falls_as_its_inverse(block):
+    """P1, Hertz geometry: |F(beta) - F(1e4)| falls about tenfold per decade of beta, and so does
+    the penetration (the method's error, p h_c / (beta E) plus half the smoothing width)."""
+    R, d = 10.0, 0.1
+    case = quarter_case(block, sphere(R))
+    out = {b: indent(case, d, degree=1, contact_penalty=b)[1] for b in (1e2, 1e3, 1e4)}
+    F = {b: v["force"] for b, v in out.items()}
+    pen = {b: v["max_penetration"] for b, v in out.items()}
+    print("\n" + "\n".join(f"beta {b:g}: F = {4 * F[b]:.6f} mN, penetration {pen[b]:.3e} mm"
+                           for b in out))
+    e2, e3 = abs(F[1e2] - F[1e4]), abs(F[1e3] - F[1e4])
+    assert e3 < 0.2 * e2 and e2 < 0.05 * F[1e4]
+    assert 5 < pen[1e2] / pen[1e3] < 20 and 5 < pen[1e3] / pen[1e4] < 20
+
+
+# --------------------------------------------------------------------------- tied = glued
+def test_small_push_of_a_tied_punch_matches_the_glued_patch(block):
+    """A tied flat punch wider than the patch ``tip`` (its contact surface) pushed 0.05 mm moves
+    the patch like a glued plate: the same displacements and force, to the penalty's
+    penetration (beta = 1e4 here: 0.1 % of the push); frictionless, the patch slides."""
+    d = 0.05
+    glued = quarter_case(block, Actuator("I", "tip", DOWN), model="neo-hookean")
+
+    def punch(contact):
+        return quarter_case(block, Actuator("I", "tip", DOWN, type="indenter", tip="punch",
+                                            radius=2.5, edge_radius=0.25, contact=contact),
+                            model="neo-hookean")
+
+    rg = fr.solve(glued, pushes={"I": d})
+    rt, ind = indent(punch("tied"), d, contact_penalty=1e4)
+    rf, _ = indent(punch("frictionless"), d, contact_penalty=1e4)
+    diff = np.abs(rg.u - rt.u).max()
+    patch = block.region_vertices("tip")
+    slide = {name: np.abs(r.u[patch, :2]).max() for name, r in (("tied", rt), ("free", rf))}
+    print(f"\ntied punch vs glued patch: max |u difference| {diff:.2e} mm "
+          f"({100 * diff / d:.2f} % of the push); force {ind['force']:.5f} vs "
+          f"{rg.reactions['tip'] @ np.asarray(DOWN):.5f} mN; largest sideways displacement "
+          f"on the patch: tied {slide['tied']:.1e}, frictionless {slide['free']:.1e} mm")
+    assert diff < 0.005 * d
+    # the force along the push (the patch's sideways reaction also carries its share of the
+    # symmetry planes' support, which the punch leaves to them)
+    assert abs(ind["force"] / (rg.reactions["tip"] @ np.asarray(DOWN)) - 1) < 0.005
+    assert slide["tied"] < 0.1 * slide["free"]
+
+
+# --------------------------------------------------------------------------- the Case
+def test_with_pushes_records_an_indenter_position_and_adds_no_condition(block):
+    case = quarter_case(block, sphere(10.0))
+    pushed = case.with_pushes({"I": 0.3})
+    assert pushed.boundaries == case.boundaries
+    assert pushed.actuator("I").push == 0.3 and case.actuator("I").push == 0.0
+    patch = quarter_case(block, Actuator("I", "tip", DOWN)).with_pushes({"I": 0.3})
+    assert patch.boundaries[-1] == Boundary("tip", "displacement", value=(0.0, 0.0, -0.3))
+
+
+def test_warm_start_moves_the_tip_from_where_the_initial_state_left_it(block):
+    case = quarter_case(block, sphere(10.0))
+    first, _ = indent(case, 0.05)
+    warm, ind = indent(case, 0.1, initial=first)
+    cold, ind0 = indent(case, 0.1)
+    assert ind["push"] == 0.1 and abs(ind["force"] / ind0["force"] - 1) < 1e-6
+    assert np.abs(warm.u - cold.u).max() < 1e-6
+
+
+@pytest.mark.parametrize("kw,match", [
+    ({"tip": "cone", "radius": 1.0}, "tip = one of"),
+    ({"tip": "sphere", "radius": -1.0}, "radius > 0"),
+    ({"tip": "punch", "radius": 1.0, "edge_radius": 1.0}, "0 < edge_radius < radius"),
+    ({"tip": "sphere", "radius": 1.0, "edge_radius": 0.5}, "edge_radius only for tip = 'punch'"),
+    ({"tip": "sphere", "radius": 1.0, "contact": "glued"}, "contact must be one of"),
+    ({"tip": "sphere", "radius": 1.0, "point": (0.0, 1.0)}, "point must be a list of 3"),
+])
+def test_bad_indenters_are_refused_naming_the_actuator(kw, match):
+    with pytest.raises(CaseError, match=match) as err:
+        Actuator("A1", "tip", DOWN, type="indenter", **kw)
+    assert "actuator 'A1'" in str(err.value)
+
+
+def test_a_patch_takes_no_tip_and_an_indenter_touches_facet_regions_only(block):
+    with pytest.raises(CaseError, match="radius only for an indenter"):
+        Actuator("A1", "tip", DOWN, radius=1.0)
+    with pytest.raises(CaseError, match="'tissue' is not one"):
+        quarter_case(block, sphere(10.0).__class__("I", "tissue", DOWN, type="indenter",
+                                                   tip="sphere", radius=1.0))
+
+
+def test_fast_solvers_refuse_an_indenter_naming_it(block):
+    case = quarter_case(block, sphere(10.0))
+    for solve, who in ((admm.solve, "the ADMM solver"),
+                       (mass_tensor.solve, "the Mass Tensor solver")):
+        with pytest.raises(CaseError) as err:
+            solve(case, pushes={"I": 0.1})
+        assert str(err.value).startswith(f"{who} does not model contact: actuator 'I' is an "
+                                         f"indenter")
