@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from meshes.errors import CaseError
+from meshes.errors import CaseError, ConvergenceError
 from meshes.io import atomic_path, write_point_data
 from meshes.mesh import quality
 from meshes.results import write_json
@@ -29,12 +29,17 @@ def _say(msg):
 def reference_series(case, out: Path, pushes_mm=(5.0, 10.0, 15.0)) -> dict:
     """A1 pushed 5, 10, 15 mm (each warm-started from the previous): fields + summary + plot."""
     import fem_reference as fr
+    from fem_reference.estimate import estimate as with_estimate
 
     solver = fr.ReferenceSolver(case, degree=1)
     rows, prev = [], None
     for push in pushes_mm:
         res = solver.solve({"A1": push}, initial=prev, progress=False)
         prev = res.u
+        try:  # the P1 answer's discretization error, by one P2 solve on the same mesh
+            res = with_estimate(case, res, pushes={"A1": push})
+        except ConvergenceError as exc:
+            _say(f"reference A1={push:g} mm: no error estimate (the P2 solve failed: {exc})")
         stem = f"A1_{push:g}mm"
         write_point_data(case.mesh, out / "fem", stem,
                          {"displacement": res.u,
@@ -44,9 +49,13 @@ def reference_series(case, out: Path, pushes_mm=(5.0, 10.0, 15.0)) -> dict:
                      "load_steps": res.load_steps, "wall_time_s": res.wall_time_s,
                      "probes_mm": {k: np.asarray(v).tolist() for k, v in res.probes.items()},
                      "reaction_A1_mN": np.asarray(res.reactions["act_px"]).tolist(),
-                     "strain_energy_uJ": res.strain_energy})
+                     "strain_energy_uJ": res.strain_energy,
+                     "probe_error_estimates_mm": res.extra.get("probe_error_estimates")})
+        est = (res.extra.get("probe_error_estimates") or {}).get("T1")
+        bar = "" if est is None else \
+            f" +- {est:.3f} mm (estimated discretization error of this P1 answer)"
         _say(f"reference A1={push:g} mm: {res.iterations} Newton iterations, "
-             f"{res.wall_time_s:.2f} s, T1 u_x = {res.probes['T1'][0]:+.3f} mm")
+             f"{res.wall_time_s:.2f} s, T1 u_x = {res.probes['T1'][0]:+.3f} mm{bar}")
     _plot_series(rows, out / "fem" / "probes_vs_push.png")
     return {"case": case.name, "n_vertices": case.mesh.n_vertices, "n_cells": case.mesh.n_cells,
             "series": rows}
