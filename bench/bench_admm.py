@@ -1,4 +1,4 @@
-"""ADMM benchmarks (issue 3): time per ADMM iteration at ~1.7k tets, warm-started re-solve after a
+"""ADMM benchmarks: time per ADMM iteration at ~1.7k tets, warm-started re-solve after a
 0.5 mm actuator increment against the FEniCSx reference Newton from the same warm start, and
 scaling of time per iteration and peak memory with mesh size (log-log growth exponent).
 

@@ -1,4 +1,5 @@
-"""Control-layer figures of issue 4, measured in one run (prints; asserts nothing).
+"""Control-layer figures (MPC step time, closed loop, mismatch table), measured in one run
+(prints; asserts nothing).
 
 1. J_s from the reference's exact tangent vs central FD of the reference solve (phantom, size 10,
    state A1 = 5 mm): max relative error.

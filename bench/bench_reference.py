@@ -1,4 +1,4 @@
-"""Reference solver scaling on the phantom, all four actuators pushed 15 mm (issue 2 figures).
+"""Reference solver scaling on the phantom, all four actuators pushed 15 mm (speed and memory figures).
 
 Each size runs in its own process so that peak memory (ru_maxrss) is that size's own.
 Prints tets, dofs, load steps, Newton iterations, the linear solver chosen ("auto": MUMPS every

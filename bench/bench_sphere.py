@@ -25,6 +25,7 @@ def main():
     ap.add_argument("--nus", type=float, nargs="+", default=[0.45, 0.4999, 0.5])
     args = ap.parse_args()
     import test_mixed as tm
+
     from meshes.case import Material
 
     print(f"{'nu':>7} {'formulation':>12} {'cells':>9} {'size':>5} {'u(B) err':>10} "

@@ -32,9 +32,19 @@ from scipy.optimize import linprog, nnls
 
 from meshes.errors import CaseError, TissueError
 
-__all__ = ["positively_spans", "positively_independent", "is_positive_basis", "basis_kind",
-           "ManipulabilityResult", "inverse_push", "manipulability", "TASKS", "task_goal",
-           "manipulability_map", "UnreachableGoalError"]
+__all__ = [
+    "TASKS",
+    "ManipulabilityResult",
+    "UnreachableGoalError",
+    "basis_kind",
+    "inverse_push",
+    "is_positive_basis",
+    "manipulability",
+    "manipulability_map",
+    "positively_independent",
+    "positively_spans",
+    "task_goal",
+]
 
 
 class UnreachableGoalError(TissueError):

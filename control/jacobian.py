@@ -36,9 +36,19 @@ import scipy.sparse.linalg as spla
 
 from meshes.errors import CaseError, ConvergenceError
 
-__all__ = ["ControlJacobian", "probe_matrix", "point_matrix", "dirichlet_jacobian",
-           "force_jacobian", "fd_jacobian", "max_rel_error", "full_pushes", "target_rows",
-           "p2_interpolation", "p2_region_nodes"]
+__all__ = [
+    "ControlJacobian",
+    "dirichlet_jacobian",
+    "fd_jacobian",
+    "force_jacobian",
+    "full_pushes",
+    "max_rel_error",
+    "p2_interpolation",
+    "p2_region_nodes",
+    "point_matrix",
+    "probe_matrix",
+    "target_rows",
+]
 
 
 @dataclass(frozen=True)
@@ -228,7 +238,7 @@ def dirichlet_jacobian(case, K, *, actuators=None, targets=None, P=None,
     Pm = probe_matrix(case, tg, n_dofs=n) if P is None else sp.csr_matrix(P)
     J = np.asarray(Pm @ du)
     return ControlJacobian(J, acts, tg, "dirichlet", d, time.perf_counter() - t0,
-                           {"n_free": int(len(free))})
+                           {"n_free": len(free)})
 
 
 def force_jacobian(case, K, *, actuators=None, targets=None, P=None, control="point",

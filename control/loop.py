@@ -31,8 +31,14 @@ from .controllability import UnreachableGoalError, inverse_push, task_goal
 from .jacobian import dirichlet_jacobian
 from .mpc import MPCSettings, PushOnlyMPC
 
-__all__ = ["LoopSettings", "LinearizedModel", "LoopResult", "run_closed_loop", "itae",
-           "check_prescribed"]
+__all__ = [
+    "LinearizedModel",
+    "LoopResult",
+    "LoopSettings",
+    "check_prescribed",
+    "itae",
+    "run_closed_loop",
+]
 
 
 def itae(t, e, dt) -> float:
@@ -126,7 +132,7 @@ class LoopResult:
     extra: dict = field(default_factory=dict)
 
     def to_json_dict(self) -> dict:
-        """The keys of ``tissue mpc --json`` (issue 4)."""
+        """The keys of ``tissue mpc --json``."""
         ol = self.open_loop or {}
         return {"steps": int(len(self.time_s) - 1), "itae": float(self.itae),
                 "steady_state_error_mm": float(self.steady_state_error_mm),

@@ -36,7 +36,7 @@ import numpy as np
 
 from meshes.errors import CaseError, ConvergenceError
 
-__all__ = ["MPCSettings", "PushOnlyMPC", "MPCStep"]
+__all__ = ["MPCSettings", "MPCStep", "PushOnlyMPC"]
 
 _PLUGIN_OPTS = {
     "qpoases": {"printLevel": "none", "sparse": False, "enableRegularisation": False},

@@ -1,4 +1,4 @@
-"""Fast solvers of issue 3, by name: ``get_solver("admm")`` -> ``solvers.admm.solve``.
+"""The fast solvers, by name: ``get_solver("admm")`` -> ``solvers.admm.solve``.
 
 Every registered ``solve(case, *, pushes=None, initial=None, callback=None, progress=False, ...)``
 returns a ``meshes.results.SolveResult``. Modules are imported on first use (importing this

@@ -3,11 +3,11 @@ along a push sequence with sub-mm steps meet the prescribed pushes, and J_s from
 central finite differences of its own solves."""
 import numpy as np
 import pytest
+from test_control_support import column_case
 
 from control.jacobian import dirichlet_jacobian, fd_jacobian, full_pushes, max_rel_error
 from control.loop import check_prescribed
 from solvers.admm import tangent_stiffness
-from test_control_support import column_case
 from tissue.cmd_jacobian import plant_for
 
 
@@ -43,8 +43,9 @@ def test_admm_model_follows_the_reference_branch_under_opposing_pushes():
     # warm-started sequence must end on the reference's solution (a 1000-iteration ADMM stage
     # ended on a stationary point with 17% more strain energy)
     pytest.importorskip("dolfinx")
-    import fem_reference as fr
     from test_control_support import phantom
+
+    import fem_reference as fr
 
     case = phantom()
     case = case.with_material(E=1.2 * case.material.E)      # the mismatch runs' model

@@ -2,13 +2,19 @@
 index (eq. 21-22) with its least-travel tie-break, independent of the solver."""
 import numpy as np
 import pytest
+from test_control_support import PHANTOM3, linear_p1_stiffness, phantom
 
-from control.controllability import (basis_kind, inverse_push, manipulability,
-                                     manipulability_map, positively_independent, positively_spans,
-                                     task_goal)
+from control.controllability import (
+    basis_kind,
+    inverse_push,
+    manipulability,
+    manipulability_map,
+    positively_independent,
+    positively_spans,
+    task_goal,
+)
 from control.jacobian import dirichlet_jacobian
 from meshes.errors import CaseError
-from test_control_support import PHANTOM3, linear_p1_stiffness, phantom
 
 AXES2 = np.array([[1.0, 0, -1, 0], [0, 1, 0, -1]])
 TRI = np.array([[np.cos(a), np.sin(a)] for a in np.radians([90, 210, 330])]).T

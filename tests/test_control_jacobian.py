@@ -3,11 +3,17 @@ the finite difference of the solve is exact, plus their structural properties.""
 import numpy as np
 import pytest
 import scipy.sparse as sp
-
-from control.jacobian import (dirichlet_jacobian, fd_jacobian, force_jacobian, max_rel_error,
-                              point_matrix, probe_matrix)
-from meshes.errors import CaseError
 from test_control_support import LinearPlant, linear_p1_stiffness, phantom
+
+from control.jacobian import (
+    dirichlet_jacobian,
+    fd_jacobian,
+    force_jacobian,
+    max_rel_error,
+    point_matrix,
+    probe_matrix,
+)
+from meshes.errors import CaseError
 
 
 @pytest.fixture(scope="module")

@@ -4,12 +4,12 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from test_control_support import LinearPlant, linear_p1_stiffness, linear_tangent, phantom
 
 from control.controllability import UnreachableGoalError
 from control.loop import LinearizedModel, LoopSettings, itae, plot_response, run_closed_loop
 from control.mpc import MPCSettings
 from meshes.errors import CaseError, ConvergenceError
-from test_control_support import LinearPlant, linear_p1_stiffness, linear_tangent, phantom
 
 
 @pytest.fixture(scope="module")

@@ -7,9 +7,10 @@ import pytest
 
 pytest.importorskip("dolfinx")
 
-from control.jacobian import full_pushes, max_rel_error, p2_interpolation  # noqa: E402
-from tissue.cmd_jacobian import compute, reference_state  # noqa: E402
-from test_control_support import column_case  # noqa: E402
+from test_control_support import column_case
+
+from control.jacobian import full_pushes, max_rel_error, p2_interpolation
+from tissue.cmd_jacobian import compute, reference_state
 
 
 @pytest.fixture(scope="module")

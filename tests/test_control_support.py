@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import scipy.sparse.linalg as spla
@@ -17,7 +17,7 @@ PHANTOM = "meshes/cases/phantom.toml"
 PHANTOM3 = "meshes/cases/phantom-3.toml"
 
 
-@lru_cache(maxsize=None)
+@cache
 def phantom(path=PHANTOM, size=12.0):
     return load_case(path, size=size)
 

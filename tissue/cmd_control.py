@@ -121,7 +121,7 @@ def run_mpc(args) -> int:
     return 0
 
 
-SSE_GOAL_MM = 0.05   # issue 4: closed-loop steady-state error in every scenario
+SSE_GOAL_MM = 0.05   # the closed-loop steady-state error every scenario must meet (mm)
 
 
 def _fmt(v, spec):
@@ -153,7 +153,7 @@ def table1_row(t, task, res) -> dict:
 
 
 def table1_summary(rows, n_expected) -> dict:
-    """The issue 4 criteria over the rows: sse <= 0.05 mm, closed ITAE < open ITAE (an open-loop
+    """The closed-loop criteria over the rows: sse <= 0.05 mm, closed ITAE < open ITAE (an open-loop
     ITAE cut short by a plant failure is a lower bound, so closed < it still proves the claim),
     zero retraction -- each counted over the scenarios that ran."""
     ok = [r for r in rows if r["status"] == "ok"]

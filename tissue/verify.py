@@ -13,7 +13,7 @@ tables and, per fast solver, the seed 001 Fig. 7 analog: the largest distance to
 over all vertices and the largest per-iteration displacement, both against the iteration number
 on a log scale.
 
-Python:  ``verify(case, {"A1": 15.0}, out_dir="out/verify") -> dict`` (JSON form of issue 3).
+Python:  ``verify(case, {"A1": 15.0}, out_dir="out/verify") -> dict`` (its JSON form).
 """
 from __future__ import annotations
 
