@@ -33,7 +33,6 @@ def textbook(case, push_mm: float, steps: int, qdeg: int, geometry_order: int):
     import dolfinx.nls.petsc
     import ufl
     from mpi4py import MPI
-    from petsc4py import PETSc
 
     from fem_reference.dolfinx_mesh import to_dolfinx
 
@@ -96,7 +95,6 @@ def textbook(case, push_mm: float, steps: int, qdeg: int, geometry_order: int):
         cells = dolfinx.geometry.compute_colliding_cells(
             mesh, dolfinx.geometry.compute_collisions(tree, x), x).links(0)
         probes[pr.name] = uh.eval(x, cells[:1]).tolist()
-    del PETSc
     return wall, its, steps, probes
 
 
