@@ -94,6 +94,8 @@ def run(args) -> int:
         print(f"{case.name}: {args.solver} converged={res.converged} "
               f"iterations={res.iterations} load_steps={res.load_steps} "
               f"time={res.wall_time_s:.2f}s vertices={res.n_vertices} cells={res.n_cells}")
+        if res.extra.get("model_note"):
+            print(f"  model: {res.extra['model']} ({res.extra['model_note']})")
         disc = res.extra.get("discretization")
         if disc:
             p = f"/P{disc['pressure_degree']}" if disc.get("pressure_degree") is not None else ""

@@ -1,12 +1,14 @@
-"""``tissue verify CASE [--size MM] [--push A1=15 ...] [--solvers admm mass-tensor] [--estimate]
-[--out DIR] [--json FILE]``: each fast solver against the degree-1 reference on the same Case,
-and with --estimate that reference's own discretization error beside it."""
+"""``tissue verify CASE [--size MM] [--push A1=15 ...] [--solvers admm admm-plain mass-tensor
+my_module:solve ...] [--field FILE] [--degree N] [--formulation F] [--estimate] [--tol MM]
+[--out DIR] [--json FILE]``: fast solvers, anyone's solver, or a displacement field against the
+reference on the same Case (``tissue.verify``)."""
 from __future__ import annotations
 
 import sys
 
 from .common import (
     add_case_args,
+    add_discretization_args,
     case_from_args,
     check_outputs,
     check_prescribed,
@@ -14,7 +16,45 @@ from .common import (
     parse_pushes,
     real,
 )
-from .verify import FAST_SOLVERS, invalid_runs, verify
+from .verify import DEFAULT_SOLVERS, FAST_SOLVERS, invalid_runs, verify
+
+
+def _line(name, e):
+    its = ""
+    if "admm_iterations" in e:
+        its = f"its {e['iterations']} (ADMM {e['admm_iterations']} + Newton {e['newton_iterations']})"
+    elif e.get("iterations") is not None:
+        its = f"its {e['iterations']}"
+    timing = (f"  {e['wall_time_s']:.3f} s  x{e['speedup_vs_reference']:.2f} vs reference"
+              if "wall_time_s" in e else "")
+    conv = "" if e.get("converged", True) in (True, None) else "  NOT CONVERGED"
+    print(f"  {name:20s} max {e['max_vertex_error_mm']:.4g} mm  rms {e['rms_vertex_error_mm']:.4g} mm"
+          f"  {its}{timing}{conv}")
+    d = e.get("reference_discretization") or {}
+    p = f"/P{d['pressure_degree']}" if d.get("pressure_degree") is not None else ""
+    print(f"    model {e.get('model')}; reference {e['reference_model']} "
+          f"{d.get('formulation')} P{d.get('degree')}{p}, {d.get('dofs')} dofs")
+    if e.get("note"):
+        print(f"    note: {e['note']}")
+    if e.get("polish_restarts"):
+        print(f"    polish restarts: {len(e['polish_restarts'])}: {e['polish_restarts'][0]}")
+    if "l2_error_mm" in e:
+        en = e.get("energy_norm_error_uJ")
+        print(f"    volume L2 {e['l2_error_mm']:.4g} mm (rel {e['l2_relative_error'] or 0:.3g}), "
+              f"H1 seminorm {e['h1_seminorm_error']:.4g} (rel {e['h1_relative_error'] or 0:.3g})"
+              + (f", energy norm {en:.4g} sqrt(uJ) (rel {e['energy_relative_error']:.3g})"
+                 if en is not None else ""))
+    if e.get("matched"):
+        how = e["matched"] + (f"; reference {e['reference_interpolation']}"
+                              if e.get("reference_interpolation") else "")
+        print(f"    points: {e['n_points']}, {how}")
+    if e.get("outside_points"):
+        print(f"    {len(e['outside_points'])} point(s) outside the body left out")
+    if e["probe_error_mm"]:
+        print("    probes: " + ", ".join(f"{k} {v:.4g}" for k, v in e["probe_error_mm"].items()))
+    if "discretization_error_estimate_mm" in e:
+        print("    the reference's own discretization error (estimate): " + ", ".join(
+            f"{k} {v:.4g}" for k, v in e["discretization_error_estimate_mm"].items()))
 
 
 def run(args) -> int:
@@ -23,50 +63,69 @@ def run(args) -> int:
     case = case_from_args(args)
     check_pushes(case, pushes)
     check_prescribed(case, pushes)
+    names = list(args.solvers or []) + list(args.solver or [])
+    if not names and args.field is None:
+        names = list(DEFAULT_SOLVERS)
     options = {}
     if args.stop_mm is not None:
-        for name in args.solvers:
+        for name in names:
             if name.startswith("mass-tensor"):
                 options[name] = {"stop_mm": args.stop_mm}
-    res = verify(case, pushes, solvers=tuple(args.solvers), out_dir=args.out, json_file=args.json,
-                 options=options, progress=False, estimate=args.estimate)
+    res = verify(case, pushes, solvers=tuple(names), out_dir=args.out, json_file=args.json,
+                 options=options, progress=False, estimate=args.estimate, field=args.field,
+                 field_name=args.field_name, degree=args.degree, formulation=args.formulation,
+                 outside="skip" if args.skip_outside else "error")
     print(f"{case.name}: {case.mesh.n_vertices} vertices, {case.mesh.n_cells} cells, "
           f"pushes {pushes or '{}'} (mm)")
     for model, r in res["reference"]["runs"].items():
         print(f"  reference {model}: {r['newton_iterations']} Newton its, {r['wall_time_s']:.3f} s "
               f"(first call {r['first_call_wall_time_s']:.3f} s)")
     for name, e in res["solvers"].items():
-        its = (f"its {e['iterations']} (ADMM {e['admm_iterations']} + Newton "
-               f"{e['newton_iterations']})" if "admm_iterations" in e else f"its {e['iterations']}")
-        print(f"  {name:20s} max {e['max_vertex_error_mm']:.4g} mm  rms {e['rms_vertex_error_mm']:.4g} mm"
-              f"  {its}  {e['wall_time_s']:.3f} s  "
-              f"x{e['speedup_vs_reference']:.2f} vs reference ({e['reference_model']})")
-        print("    probes: " + ", ".join(f"{k} {v:.4g}" for k, v in e["probe_error_mm"].items()))
-        if "discretization_error_estimate_mm" in e:
-            print("    the reference's own discretization error (estimate): " + ", ".join(
-                f"{k} {v:.4g}" for k, v in e["discretization_error_estimate_mm"].items()))
+        _line(name, e)
     if "report" in res:
         print(f"  report: {res['report']}")
     bad = invalid_runs(res)
     for name, why in bad.items():
         print(f"tissue verify: error: {name}: the answer is not valid: {why} (outputs written, "
               f"marked valid = false)", file=sys.stderr)
-    return 1 if bad else 0
+    over = {n: e["max_vertex_error_mm"] for n, e in res["solvers"].items()
+            if args.tol is not None and e["max_vertex_error_mm"] > args.tol}
+    for name, err in over.items():
+        print(f"tissue verify: error: {name}: max vertex error {err:.4g} mm exceeds --tol "
+              f"{args.tol:g} mm", file=sys.stderr)
+    return 1 if bad or over else 0
 
 
 def add_parser(sub):
-    p = sub.add_parser("verify", help="fast solvers (ADMM, Mass Tensor) against the reference")
+    p = sub.add_parser("verify", help="fast solvers, your solver or a displacement field "
+                                      "against the reference")
     add_case_args(p)
     p.add_argument("--push", action="append", metavar="NAME=MM",
                    help="push an actuator's region rigidly along its direction (repeatable)")
-    p.add_argument("--solvers", nargs="+", choices=sorted(FAST_SOLVERS),
-                   default=["admm", "mass-tensor"], help="fast solvers to check")
+    p.add_argument("--solvers", nargs="+", metavar="NAME", default=None,
+                   help=f"solvers to score: built-in {sorted(FAST_SOLVERS)}, 'module:function' "
+                        f"or an installed 'tissue.solvers' entry point (default: "
+                        f"{' '.join(DEFAULT_SOLVERS)}; none when --field is given)")
+    p.add_argument("--solver", action="append", metavar="NAME",
+                   help="one more solver to score (repeatable), as for --solvers")
+    p.add_argument("--field", metavar="FILE",
+                   help="score a displacement field: VTU/VTK/XDMF (last time step) on any mesh "
+                        "of the body, or NPY/CSV (n x 3, the case mesh's vertex order)")
+    p.add_argument("--field-name", metavar="NAME",
+                   help="the point field of --field to take (default: displacement, u, or the "
+                        "only vector field)")
+    p.add_argument("--skip-outside", action="store_true",
+                   help="leave --field points outside the body out of the scores (default: "
+                        "an error naming them)")
+    add_discretization_args(p)
+    p.add_argument("--tol", type=real("positive", "mm"), default=None, metavar="MM",
+                   help="exit status 1 when a max vertex error exceeds MM")
     p.add_argument("--stop-mm", type=real("positive", "mm", at_least=1e-9), default=None,
                    help="Mass Tensor stopping rule (mm, default 0.01; at least 1e-9: below "
                         "that a step is round-off)")
     p.add_argument("--estimate", action="store_true",
-                   help="also estimate the reference's discretization error (one P2 solve), "
-                        "printed beside each solver's error to the reference")
+                   help="also estimate the reference's discretization error (one solve at "
+                        "degree + 1), printed beside each solver's error to the reference")
     p.add_argument("--out", help="folder for report.html and the convergence plots")
     p.add_argument("--json", help="JSON file of the errors and timings")
     p.set_defaults(func=run)

@@ -1,0 +1,155 @@
+"""Solvers that are not ours: a callable, an import path ``module:function``, or an entry point.
+
+The protocol every solver follows (the built-in ones too, through ``builtin_solver``)::
+
+    def my_solver(case, pushes, **options):
+        ...
+        return u            # (case.mesh.n_vertices, gdim) displacement at the vertices, mm
+
+``case`` is a ``meshes.case.Case`` (mesh points, cells, regions, material, actuators) and
+``pushes`` maps actuator names to pushes (mm); ``case.with_pushes(pushes)`` gives the boundary
+values. Instead of an array a solver may return an object (or a mapping) with ``u`` and any of
+``iterations``, ``converged``, ``wall_time_s``, ``history`` (a mapping of per-iteration lists,
+e.g. ``max_step_mm`` for the convergence plot) and ``extra`` (a mapping) — a
+``meshes.results.SolveResult`` is one.
+
+A package makes its solver available by name through the entry-point group ``tissue.solvers``::
+
+    [project.entry-points."tissue.solvers"]
+    my-solver = "my_package.solver:solve"
+"""
+from __future__ import annotations
+
+import importlib
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from meshes.errors import TissueError
+
+__all__ = ["ENTRY_POINT_GROUP", "PluginError", "PluginRun", "SolverPlugin", "entry_point_solvers",
+           "resolve_solver", "run_plugin"]
+
+ENTRY_POINT_GROUP = "tissue.solvers"
+
+
+class PluginError(TissueError):
+    """A solver that is not ours could not be found, raised, or returned something unusable; the
+    message names it."""
+
+
+@dataclass(frozen=True)
+class SolverPlugin:
+    """A solver following the protocol: ``name`` (how reports call it) and ``function``."""
+
+    name: str
+    function: object
+
+
+@dataclass(frozen=True)
+class PluginRun:
+    """What a solver returned, normalized: ``u`` (n, gdim) mm and the optional figures."""
+
+    u: np.ndarray
+    wall_time_s: float
+    iterations: int | None = None
+    converged: bool | None = None
+    history: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)
+
+
+def entry_point_solvers() -> dict:
+    """Name -> entry point of the installed packages' solvers (group ``tissue.solvers``)."""
+    from importlib.metadata import entry_points
+
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def resolve_solver(spec) -> SolverPlugin:
+    """A SolverPlugin from a callable, ``"module:function"`` or an entry-point name."""
+    if callable(spec):
+        name = getattr(spec, "__qualname__", None) or getattr(spec, "__name__", None) \
+            or type(spec).__name__
+        mod = getattr(spec, "__module__", None)
+        return SolverPlugin(f"{mod}:{name}" if mod and mod != "__main__" else str(name), spec)
+    if not isinstance(spec, str) or not spec:
+        raise PluginError(f"solver {spec!r}: expected a name, 'module:function' or a callable")
+    if ":" in spec:
+        modname, _, attr = spec.partition(":")
+        if os.getcwd() not in sys.path:  # "module:function" names a module of the working
+            sys.path.append(os.getcwd())  # directory too, as with python -m
+        try:
+            mod = importlib.import_module(modname)
+        except Exception as exc:  # noqa: BLE001 - any import failure is the plugin's
+            raise PluginError(f"solver {spec!r}: cannot import module {modname!r}: "
+                              f"{type(exc).__name__}: {exc}") from exc
+        fn = mod
+        for part in attr.split("."):
+            fn = getattr(fn, part, None)
+            if fn is None:
+                raise PluginError(f"solver {spec!r}: module {modname!r} has no {attr!r}")
+        if not callable(fn):
+            raise PluginError(f"solver {spec!r}: {attr!r} is not callable")
+        return SolverPlugin(spec, fn)
+    eps = entry_point_solvers()
+    if spec in eps:
+        try:
+            return SolverPlugin(spec, eps[spec].load())
+        except Exception as exc:  # noqa: BLE001
+            raise PluginError(f"solver {spec!r} (entry point {eps[spec].value!r}): cannot be "
+                              f"loaded: {type(exc).__name__}: {exc}") from exc
+    raise PluginError(f"unknown solver {spec!r}: not a built-in fast solver, not "
+                      f"'module:function', and no installed entry point of group "
+                      f"{ENTRY_POINT_GROUP!r} has that name (installed: {sorted(eps) or 'none'})")
+
+
+def _get(obj, key):
+    if isinstance(obj, dict):
+        return obj.get(key)
+    return getattr(obj, key, None)
+
+
+def run_plugin(plugin: SolverPlugin, case, pushes: dict, options: dict | None = None) -> PluginRun:
+    """Call ``plugin`` on ``case`` with ``pushes`` and check what it returns: an (n, gdim) finite
+    array (or an object or mapping holding one as ``u``). Every failure is a PluginError naming
+    the plugin."""
+    options = dict(options or {})
+    n, gdim = case.mesh.n_vertices, case.mesh.points.shape[1]
+    t0 = time.perf_counter()
+    try:
+        out = plugin.function(case, dict(pushes), **options)
+    except TissueError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - the user's solver may raise anything
+        raise PluginError(f"solver {plugin.name!r} raised {type(exc).__name__}: {exc}") from exc
+    wall = time.perf_counter() - t0
+    raw = out if isinstance(out, np.ndarray) or isinstance(out, (list, tuple)) else _get(out, "u")
+    if raw is None:
+        raise PluginError(f"solver {plugin.name!r} returned {type(out).__name__}: expected an "
+                          f"({n}, {gdim}) displacement array or an object with 'u'")
+    try:
+        u = np.asarray(raw, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise PluginError(f"solver {plugin.name!r}: its displacement is not numeric: {exc}") \
+            from None
+    if u.shape != (n, gdim):
+        raise PluginError(f"solver {plugin.name!r} returned a displacement of shape {u.shape}; "
+                          f"expected ({n}, {gdim}): one row per vertex of the case mesh, in its "
+                          f"order, in mm")
+    if not np.all(np.isfinite(u)):
+        bad = int(np.flatnonzero(~np.all(np.isfinite(u), axis=1))[0])
+        raise PluginError(f"solver {plugin.name!r} returned a displacement that is not finite "
+                          f"(first at vertex {bad})")
+    its = _get(out, "iterations") if not isinstance(out, np.ndarray) else None
+    conv = _get(out, "converged") if not isinstance(out, np.ndarray) else None
+    hist = _get(out, "history") if not isinstance(out, np.ndarray) else None
+    extra = _get(out, "extra") if not isinstance(out, np.ndarray) else None
+    reported = _get(out, "wall_time_s") if not isinstance(out, np.ndarray) else None
+    return PluginRun(u=u, wall_time_s=float(reported) if reported else wall,
+                     iterations=None if its is None else int(its),
+                     converged=None if conv is None else bool(conv),
+                     history=dict(hist) if isinstance(hist, dict) else {},
+                     extra=dict(extra) if isinstance(extra, dict) else {})

@@ -1,0 +1,121 @@
+"""The HTML report of a verification run: the reference runs, a table per solver (errors,
+iterations, time, speed-up), the probe errors and, per solver with a trace, the seed 001 Fig. 7
+analog (largest distance to the reference and largest per-iteration displacement against the
+iteration number)."""
+from __future__ import annotations
+
+import html
+from pathlib import Path
+
+import numpy as np
+
+from meshes.io import atomic_path
+
+__all__ = ["write_report"]
+
+
+def _plot(path: Path, name: str, trace: dict, entry: dict):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    it = np.asarray(trace["iteration"])
+    err = np.asarray(trace["max_error_mm"])
+    step = np.asarray(trace["max_step_mm"], float)
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    pos = lambda a: np.where(a > 0, a, np.nan)
+    ax.semilogy(it, pos(err), "-", color="C0", label="max distance to reference over all vertices")
+    ax.semilogy(it, pos(step), "--", color="C1", label="max displacement in one iteration")
+    stop = entry.get("options", {}).get("stop_mm")
+    if stop:
+        ax.axhline(stop, color="0.5", lw=0.8, ls=":", label=f"stopping rule {stop:g} mm")
+    ax.set_xlabel("iteration number")
+    ax.set_ylabel("distance (mm)")
+    ax.set_title(f"{name}: convergence (seed 001 Fig. 7 analog)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
+def _table(headers, rows):
+    th = "".join(f"<th>{html.escape(str(h))}</th>" for h in headers)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>"
+                   for r in rows)
+    return f"<table><tr>{th}</tr>{body}</table>"
+
+
+def _fmt(x, nd=4):
+    return f"{x:.{nd}g}" if isinstance(x, float) else str(x)
+
+
+def write_report(out_dir: Path, case, out: dict, traces: dict) -> Path:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    imgs = {}
+    for name, trace in traces.items():
+        png = out_dir / f"convergence_{name}.png"
+        _plot(png, name, trace, out["solvers"][name])
+        imgs[name] = png.name
+    ref = out["reference"]
+    ref_rows = [(m, r.get("E_kPa"), r.get("nu"), r.get("newton_iterations", r.get("iterations")),
+                 r.get("load_steps"), _fmt(r.get("wall_time_s")),
+                 _fmt(r.get("first_call_wall_time_s")), r.get("converged"))
+                for m, r in ref["runs"].items()]
+    def disc(e):
+        d = e.get("reference_discretization") or {}
+        p = f"/P{d['pressure_degree']}" if d.get("pressure_degree") is not None else ""
+        return f"{e['reference_model']}, {d.get('formulation', '')} P{d.get('degree', '')}{p}"
+
+    sol_rows = [(n, e.get("model", ""), disc(e), _fmt(e["max_vertex_error_mm"]),
+                 _fmt(e["rms_vertex_error_mm"]), _fmt(e.get("l2_error_mm", "")),
+                 _fmt(e.get("energy_norm_error_uJ", "") or ""), _fmt(e.get("iterations", "")),
+                 e.get("admm_iterations", ""), e.get("newton_iterations", ""),
+                 _fmt(e.get("wall_time_s", "")), _fmt(e.get("speedup_vs_reference", ""), 3),
+                 e.get("converged", ""))
+                for n, e in out["solvers"].items()]
+    notes = [f"<li>{html.escape(n)}: {html.escape(e['note'])}</li>"
+             for n, e in out["solvers"].items() if e.get("note")]
+    probes = sorted({p for e in out["solvers"].values() for p in e["probe_error_mm"]})
+    probe_rows = [(n, *[_fmt(e["probe_error_mm"].get(p, float("nan"))) for p in probes])
+                  for n, e in out["solvers"].items()]
+    parts = [
+        "<!DOCTYPE html><html><head><meta charset='utf-8'>",
+        f"<title>tissue verify: {html.escape(case.name)}</title>",
+        ("<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse;margin:1em 0}"
+        "td,th{border:1px solid #999;padding:3px 8px;text-align:right}th{background:#eee}</style>"),
+        "</head><body>",
+        f"<h1>Verification: {html.escape(case.name)}</h1>",
+        (f"<p>{ref['n_vertices']} vertices, {ref['n_cells']} cells; pushes (mm): "
+        f"{html.escape(str(ref['pushes_mm']))}. Errors are |u - u_ref| at vertices / probes (mm); "
+        "the built-in fast solvers are scored against the FEniCSx P1 displacement solution on the "
+        "same mesh (Neo-Hookean for ADMM, linear-elastic with the same E, nu for the Mass Tensor "
+        "Method, a linear model); solvers that are not ours and fields against the reference "
+        "named in their row. <i>admm</i> is ADMM finished by Newton steps, <i>admm-plain</i> ADMM "
+        "alone.</p>"),
+        "<h2>Reference</h2>",
+        _table(["material", "E (kPa)", "nu", "Newton its", "load steps", "wall time (s)",
+                "first call (s)", "converged"], ref_rows),
+        "<h2>Solvers and fields</h2>",
+        _table(["solver", "model", "reference", "max vertex error (mm)", "RMS vertex error (mm)",
+                "volume L2 error (mm)", "energy-norm error (sqrt uJ)", "iterations", "ADMM its",
+                "Newton its (polish)", "wall time (s)", "speed-up vs reference", "converged"],
+               sol_rows),
+        "<ul>" + "".join(notes) + "</ul>" if notes else "",
+        "<h2>Probe errors (mm)</h2>",
+        _table(["solver", *probes], probe_rows),
+    ]
+    if out.get("skipped"):
+        parts.append("<h2>Skipped</h2><ul>" + "".join(
+            f"<li>{html.escape(m)}</li>" for m in out["skipped"].values()) + "</ul>")
+    parts.append("<h2>Convergence (seed 001 Fig. 7 analog)</h2>")
+    for name, img in imgs.items():
+        parts.append(f"<h3>{html.escape(name)}</h3><img src='{html.escape(img)}' "
+                     f"alt='convergence of {html.escape(name)}'>")
+    parts.append("</body></html>")
+    path = out_dir / "report.html"
+    with atomic_path(path) as tmp:
+        tmp.write_text("\n".join(parts) + "\n")
+    return path
