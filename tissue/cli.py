@@ -16,7 +16,7 @@ from meshes.errors import TissueError
 
 # Each module defines add_parser(subparsers) that registers its command(s) with set_defaults(func=...).
 COMMAND_MODULES = ["cmd_mesh", "cmd_solve", "cmd_verify", "cmd_converge", "cmd_jacobian",
-                   "cmd_control", "cmd_implant", "cmd_demo", "cmd_dynamics"]
+                   "cmd_control", "cmd_implant", "cmd_demo", "cmd_dynamics", "cmd_suite"]
 
 
 class Parser(argparse.ArgumentParser):

@@ -134,35 +134,62 @@ def load_field(path, gdim: int, *, name: str | None = None) -> Field:
 
 
 # --------------------------------------------------------------------------- geometry
-def _locate(X, cells, pts, snap_rtol=SNAP_RTOL, k=16):
-    """Containing cell and barycentric weights of each point (vectorized over the k cells with
-    the nearest centroids); a point outside all of them within ``snap_rtol`` of the local cell
-    size is snapped to the closest of them. Returns (cell (m,), weights (m, d+1), inside (m,))."""
+def _locate(X, cells, pts, snap_rtol=SNAP_RTOL):
+    """Containing cell and barycentric weights of each point, searched among the cells with the
+    nearest centroids (16, then 64, then 256 for the points not found yet); a point outside all
+    of them within ``snap_rtol`` of the local cell size is snapped to the closest of them.
+    Returns (cell (m,), weights (m, d+1), inside (m,))."""
     from scipy.spatial import cKDTree
 
     d = X.shape[1]
-    cent = X[cells].mean(axis=1)
-    k = min(k, len(cells))
-    _, cand = cKDTree(cent).query(pts, k=k)
-    cand = cand.reshape(len(pts), k)
+    m = len(pts)
+    tree = cKDTree(X[cells].mean(axis=1))
     T = X[cells[:, 1:]] - X[cells[:, :1]]                     # (c, d, d) rows = edges
-    Tinv = np.linalg.inv(np.transpose(T, (0, 2, 1)))          # maps x - x0 to lambda_1..d
-    rel = pts[:, None, :] - X[cells[cand, 0]]                 # (m, k, d)
-    lam = np.einsum("mkij,mkj->mki", Tinv[cand], rel)
-    w = np.concatenate([1 - lam.sum(axis=2, keepdims=True), lam], axis=2)   # (m, k, d+1)
-    score = w.min(axis=2)
-    best = score.argmax(axis=1)
-    rows = np.arange(len(pts))
-    cell = cand[rows, best]
-    wb = w[rows, best]
+    Tinv = _inverse_transposed(T)                             # maps x - x0 to lambda_1..d
+    cell = np.zeros(m, np.int64)
+    w = np.zeros((m, d + 1))
+    score = np.full(m, -np.inf)
+    todo = np.arange(m)
+    for k in (16, 64, 256):
+        k = min(k, len(cells))
+        _, cand = tree.query(pts[todo], k=k)
+        cand = cand.reshape(len(todo), k)
+        rel = pts[todo, None, :] - X[cells[cand, 0]]           # (t, k, d)
+        lam = np.einsum("tkij,tkj->tki", Tinv[cand], rel)
+        wk = np.concatenate([1 - lam.sum(axis=2, keepdims=True), lam], axis=2)
+        sk = wk.min(axis=2)
+        best = sk.argmax(axis=1)
+        rows = np.arange(len(todo))
+        better = sk[rows, best] > score[todo]
+        sel = todo[better]
+        cell[sel] = cand[rows, best][better]
+        w[sel] = wk[rows, best][better]
+        score[sel] = sk[rows, best][better]
+        todo = todo[score[todo] < -1e-10]
+        if not len(todo) or k == len(cells):
+            break
     # distance outside: clamp the weights, renormalize, compare the point with its image
-    wc = np.clip(wb, 0.0, None)
+    wc = np.clip(w, 0.0, None)
     wc /= wc.sum(axis=1, keepdims=True)
     proj = np.einsum("mi,mij->mj", wc, X[cells[cell]])
     dist = np.linalg.norm(proj - pts, axis=1)
     size = np.abs(np.linalg.det(T[cell])) ** (1.0 / d)
-    inside = (score[rows, best] >= -1e-10) | (dist <= snap_rtol * size)
-    return cell, np.where((score[rows, best] >= -1e-10)[:, None], wb, wc), inside
+    found = score >= -1e-10
+    inside = found | (dist <= snap_rtol * size)
+    return cell, np.where(found[:, None], w, wc), inside
+
+
+def _inverse_transposed(T):
+    """inv(T^T) for a stack of (d, d) matrices whose rows are a simplex's edges, in closed form
+    (cross products in 3D), much faster than a batched LAPACK inverse."""
+    if T.shape[1] == 2:
+        det = T[:, 0, 0] * T[:, 1, 1] - T[:, 0, 1] * T[:, 1, 0]
+        inv = np.stack([np.stack([T[:, 1, 1], -T[:, 1, 0]], axis=1),
+                        np.stack([-T[:, 0, 1], T[:, 0, 0]], axis=1)], axis=1)
+        return inv / det[:, None, None]
+    e1, e2, e3 = T[:, 0], T[:, 1], T[:, 2]
+    rows = np.stack([np.cross(e2, e3), np.cross(e3, e1), np.cross(e1, e2)], axis=1)
+    return rows / np.einsum("ci,ci->c", e1, rows[:, 0])[:, None, None]
 
 
 def _p2_weights(w):
@@ -302,11 +329,11 @@ def score_field(case, ref, field: Field, *, outside: str = "error") -> dict:
         if field.cells is not None and inside.all():
             out.update(_mesh_norms(pts, field.cells, e, vals, case.material))
         probes = {}
-        if field.cells is not None:
-            for p in case.probes:
-                c, w, ins = _locate(pts, field.cells, np.asarray(p.point, float)[None, :gdim])
-                if ins[0]:
-                    probes[p.name] = w[0] @ u[field.cells[c[0]]]
+        if field.cells is not None and case.probes:
+            at = np.array([np.asarray(p.point, float)[:gdim] for p in case.probes])
+            c, w, ins = _locate(pts, field.cells, at)
+            probes = {p.name: w[i] @ u[field.cells[c[i]]] for i, p in enumerate(case.probes)
+                      if ins[i]}
         e_norm = np.linalg.norm(e[inside], axis=1)
         out["max_vertex_error_mm"] = float(e_norm.max(initial=0.0))
         out["rms_vertex_error_mm"] = float(np.sqrt(np.mean(e_norm ** 2))) if e_norm.size else 0.0
