@@ -131,16 +131,25 @@ class LoopResult:
     wall_time_s: float = 0.0
     extra: dict = field(default_factory=dict)
 
-    def to_json_dict(self) -> dict:
-        """The keys of ``tissue mpc --json``."""
+    def to_json_dict(self, meta: dict | None = None) -> dict:
+        """The keys of ``tissue mpc --json``; ``meta`` (case, plant, model, mismatch, settings:
+        ``control.plants.loop_metadata``) first."""
         ol = self.open_loop or {}
-        return {"steps": int(len(self.time_s) - 1), "itae": float(self.itae),
+        return {**(meta or {}), "target": self.target_name, "task": int(self.task),
+                "actuators": list(self.actuators), "goal_mm": self.goal.tolist(),
+                "controlled": self.mask.tolist(),
+                "steps": int(len(self.time_s) - 1), "itae": float(self.itae),
                 "steady_state_error_mm": float(self.steady_state_error_mm),
                 "max_retraction_mm": float(self.max_retraction_mm),
                 "mpc_step_median_ms": float(np.median(self.mpc_ms)) if len(self.mpc_ms) else 0.0,
                 "open_loop": _open_loop_json(ol),
                 "time_s": self.time_s.tolist(), "target_error_mm": self.error_mm.tolist(),
-                "actuator_positions_mm": self.pushes.tolist()}
+                "target_position_mm": self.target.tolist(),
+                "actuator_positions_mm": self.pushes.tolist(),
+                "mpc_step_ms": self.mpc_ms.tolist(),
+                "plant_retries": list(self.extra.get("plant_retries", [])),
+                "model_retries": list(self.extra.get("model_retries", [])),
+                "wall_time_s": float(self.wall_time_s)}
 
 
 def solve_checked(solve, case, pushes, initial, who: str, retries: list | None = None):
@@ -188,10 +197,21 @@ def check_prescribed(case, pushes, r, who: str, *, rtol=1e-9):
 
 
 def _open_loop_json(ol):
+    """The open-loop baseline: ``status`` "completed", "infeasible" (its pushes were clamped to
+    the push limit: it cannot reach the goal) or "failed" (the plant could not be solved at its
+    pushes; ``failed_at_step``, ``failure``), or "not run"."""
     if not ol:
-        return {"itae": None, "steady_state_error_mm": None}
-    out = {"itae": float(ol["itae"]), "steady_state_error_mm": ol["steady_state_error_mm"],
-           "converged": bool(ol["converged"]), "u_open_mm": np.asarray(ol["u_open"]).tolist()}
+        return {"status": "not run", "itae": None, "steady_state_error_mm": None}
+    status = "failed" if not ol["converged"] else (
+        "infeasible" if ol.get("clamped") else "completed")
+    out = {"status": status, "itae": float(ol["itae"]),
+           "steady_state_error_mm": ol["steady_state_error_mm"],
+           "converged": bool(ol["converged"]), "u_open_mm": np.asarray(ol["u_open"]).tolist(),
+           "clamped": bool(ol.get("clamped", False)),
+           "u_open_unclamped_mm": np.asarray(ol.get("u_open_unclamped", ol["u_open"])).tolist(),
+           "time_s": np.asarray(ol["time_s"], float).tolist(),
+           "target_error_mm": np.asarray(ol["error_mm"], float).tolist(),
+           "actuator_positions_mm": np.asarray(ol["pushes"], float).tolist()}
     if not ol["converged"]:
         out.update({"itae_is_lower_bound": True, "failed_at_step": ol["failed_at_step"],
                     "failed_pushes_mm": ol["failed_pushes_mm"],
@@ -252,6 +272,12 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
             f"outside the positive span of the actuators' J_s; closest reachable "
             f"{p_star.tolist()} mm with pushes {dict(zip(acts, u_open.round(4).tolist()))}",
             closest=closest, pushes=u_open)
+    # the open loop gets what a real actuator can do: the eq. 22 pushes clamped to the push
+    # limit; a clamped baseline is flagged infeasible (it cannot reach the goal by construction)
+    u_open_raw = np.asarray(u_open, float).copy()
+    limit = settings.mpc.max_travel
+    if limit is not None:
+        u_open = np.clip(u_open, 0.0, limit)
     rng = np.random.default_rng(settings.seed)
     mpc = PushOnlyMPC(na, mask, settings.mpc)
     plant_retries: list[str] = []
@@ -279,6 +305,8 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
     ol = None
     if settings.open_loop:
         ol = _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, settings)
+        ol["u_open_unclamped"] = u_open_raw
+        ol["clamped"] = bool(np.any(np.abs(u_open_raw - u_open) > 1e-12))
     wall = time.perf_counter() - t_start
     return LoopResult(t, X, err, S, itae(t, err, settings.dt_s), float(err[-1]), retract,
                       np.array(mpc.solve_ms), x_goal, mask, acts, target, task, ol, wall,
@@ -316,6 +344,7 @@ def _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, sett
     SO, XO = np.array(SO), np.array(XO)
     eo = np.linalg.norm((x_goal - XO)[:, mask], axis=1)
     ol = {"itae": itae(t[:len(eo)], eo, settings.dt_s), "error_mm": eo, "pushes": SO,
+          "time_s": t[:len(eo)],
           "target": XO, "u_open": u_open, "converged": failed is None, "retries": retries,
           "steady_state_error_mm": float(eo[-1]) if failed is None else None,
           "last_error_mm": float(eo[-1]) if len(eo) else None}

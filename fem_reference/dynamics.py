@@ -203,8 +203,7 @@ def simulate(case: Case, *, dt: float, steps: int, pushes=None, initial=None,
     if mass not in MASS_KINDS:
         raise CaseError(f"mass must be one of {list(MASS_KINDS)}, got {mass!r}")
     _check("material density (kg/mm^3)", float(case.material.density), positive=False)
-    if pushes:
-        case = case.with_pushes(pushes)
+    case = case.with_pushes(pushes)   # idle patches held unless the Case frees them
     formulation = resolve_formulation(solver_options.get("formulation", "auto"), case.material)
     if degree is None:
         degree = 2 if formulation == "mixed" else 1

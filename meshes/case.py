@@ -323,24 +323,38 @@ class Case:
         raise CaseError(f"{self.source or self.name}: unknown probe/target {name!r}; probes: "
                         f"{[p.name for p in self.probes]}")
 
-    def with_pushes(self, pushes: dict) -> Case:
+    def with_pushes(self, pushes: dict | None) -> Case:
         """A new Case where each named patch actuator's region is displaced rigidly by
-        ``push * direction`` (mm; pushes replace any condition already on that region) and each
-        named indenter records its position ``push`` (mm; no condition: the reference solves
-        its contact)."""
-        if not pushes:
-            return self
+        ``push * direction`` (mm; pushes replace any condition already on that region), each
+        patch not named and ``idle = "held"`` is held where it is (at its current ``push``: 0
+        on a Case no push was applied to), and each actuator records its position ``push``
+        (mm; an indenter gets no condition: the reference solves its contact). One convention
+        for every solver, the control Jacobians and the loop; ``with_free_actuators()`` first
+        makes the idle patches free."""
+        pushes = dict(pushes or {})
         acts = {name: self.actuator(name) for name in pushes}
+        held = {a.name: a for a in self.actuators
+                if a.type == "patch" and a.name not in pushes and a.idle == "held"}
+        if not pushes and not held:
+            return self
         patches = {n: a for n, a in acts.items() if a.type == "patch"}
+        patches.update(held)
+        values = {n: float(pushes[n]) if n in pushes else float(a.push)
+                  for n, a in patches.items()}
         regions = {a.region for a in patches.values()}
         kept = [b for b in self.boundaries if b.region not in regions]
         added = [Boundary(a.region, "displacement",
-                          value=tuple((float(pushes[n]) * np.asarray(a.direction)).tolist()))
+                          value=tuple((values[n] * np.asarray(a.direction)).tolist()))
                  for n, a in patches.items()]
-        actuators = tuple(replace(a, push=float(pushes[a.name]))
-                          if a.name in acts and a.type == "indenter" else a
+        actuators = tuple(replace(a, push=float(pushes[a.name])) if a.name in acts else a
                           for a in self.actuators)
         return replace(self, boundaries=tuple(kept + added), actuators=actuators)
+
+    def with_free_actuators(self) -> Case:
+        """The same Case with every patch actuator ``idle = "free"``: a patch a solve does not
+        push moves with the tissue."""
+        return replace(self, actuators=tuple(replace(a, idle="free") if a.type == "patch" else a
+                                             for a in self.actuators))
 
     def indenters(self) -> tuple:
         """The actuators of type "indenter"."""

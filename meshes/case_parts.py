@@ -25,6 +25,7 @@ __all__ = [
     "VertexConstraints",
 ]
 
+IDLE_MODES = ("held", "free")
 BOUNDARY_TYPES = ("fixed", "displacement", "affine", "sliding", "traction")
 E_RANGE_KPA = (1e-9, 1e12)
 """Young's moduli accepted (kPa): from far softer than any tissue to harder than diamond
@@ -141,7 +142,9 @@ class Actuator:
     """An actuator pushed along ``direction`` (normalized on construction). Lengths in mm.
 
     type "patch" (default): ``region`` is glued to a rigid plate and moved rigidly;
-        ``Case.with_pushes`` turns a push into a displacement condition on it.
+        ``Case.with_pushes`` turns a push into a displacement condition on it. ``idle``: what
+        the region does in a solve that does not push it: "held" (default) glued at push 0,
+        "free" no condition (it moves with the tissue).
     type "indenter": a rigid tip pressing on the skin, solved with contact by the reference
         (``fem_reference.contact``; the fast solvers refuse it). ``tip`` "sphere" of ``radius``,
         or "punch": a flat circular punch of outer ``radius`` whose edge is rounded with
@@ -152,7 +155,7 @@ class Actuator:
         "frictionless" (default) or "tied" (no slip where in contact). The contact surface is
         ``region`` and the facet regions ``contact_region`` (a name or a tuple of names, e.g.
         the skin around the site: contact spreads as the tip goes in). ``push`` (mm) is the
-        indenter's position, set by ``Case.with_pushes``; a patch keeps 0.
+        actuator's position, set by ``Case.with_pushes`` (0 on a Case as loaded).
     """
 
     name: str
@@ -166,6 +169,7 @@ class Actuator:
     contact: str | None = None
     contact_region: tuple = ()
     push: float = 0.0
+    idle: str = "held"
 
     def __post_init__(self):
         d = np.asarray(self.direction, dtype=np.float64).reshape(-1)
@@ -189,6 +193,11 @@ class Actuator:
             raise CaseError(f"{what}: contact_region must be a region name or a list of names, "
                             f"got {self.contact_region!r}")
         object.__setattr__(self, "contact_region", tuple(regions))
+        if self.idle not in IDLE_MODES:
+            raise CaseError(f"{what}: idle must be one of {list(IDLE_MODES)}, got {self.idle!r}")
+        if self.type == "indenter" and self.idle != "held":
+            raise CaseError(f"{what}: idle only for a patch: an idle indenter stays where it is "
+                            f"(push 0, touching the skin)")
         if self.type == "patch":
             extra = [k for k in ("tip", "radius", "edge_radius", "point", "contact")
                      if getattr(self, k) is not None] + (["contact_region"] if regions else [])

@@ -791,8 +791,7 @@ def solve(case, *, pushes=None, initial=None, method: str = "pcg", stop_mm: floa
     t0 = time.perf_counter()
     case.material.require_compressible("the Mass Tensor solver")
     case.require_no_contact("the Mass Tensor solver")
-    if pushes:
-        case = case.with_pushes(pushes)
+    case = case.with_pushes(pushes)   # idle patches held unless the Case frees them
     model = _model_for(case)
     types = case_point_types(case)
     n, d = case.mesh.n_vertices, case.mesh.gdim

@@ -310,7 +310,7 @@ MISTAKES = [
      "FILE: [[actuator]][1].edge_radius: expected a finite number < radius = 3 (mm), found 3.0"),
     ("tip of a patch", INDENTER.replace('type = "patch"', 'tip = "sphere"'),
      ("FILE: [[actuator]][3].tip: expected no tip with type = 'patch' (its keys: name, region, "
-      "direction, type), found tip = 'sphere'")),
+      "direction, type, idle), found tip = 'sphere'")),
     ("indenter on a cell region", INDENTER.replace('["xmax", "ymax"]', '["xmax", "tissue"]'),
      ("FILE: [[actuator]][1].contact_region: expected boundary (facet) regions of the mesh (xmax, "
       "xmin, ymax, ymin, zmax, zmin), found 'tissue'")),

@@ -1,4 +1,4 @@
-"""ADMM as the controller's model (tissue.cmd_jacobian.ADMM_CONTROL_OPTIONS): the states it returns
+"""ADMM as the controller's model (control.plants.ADMM_CONTROL_OPTIONS): the states it returns
 along a push sequence with sub-mm steps meet the prescribed pushes, and J_s from its tangent matches
 central finite differences of its own solves."""
 import numpy as np
@@ -7,8 +7,8 @@ from test_control_support import column_case
 
 from control.jacobian import dirichlet_jacobian, fd_jacobian, full_pushes, max_rel_error
 from control.loop import check_prescribed
+from control.plants import plant_for
 from solvers.admm import tangent_stiffness
-from tissue.cmd_jacobian import plant_for
 
 
 @pytest.fixture(scope="module")

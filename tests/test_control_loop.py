@@ -29,9 +29,12 @@ def test_exact_linear_model_closed_loop_reaches_goal_and_open_loop_is_exact(setu
     # linear plant = linear model: the eq. 22 pushes reach the goal exactly
     assert res.open_loop["steady_state_error_mm"] < 1e-9
     d = res.to_json_dict()
-    assert set(d) == {"steps", "itae", "steady_state_error_mm", "max_retraction_mm",
+    assert set(d) >= {"steps", "itae", "steady_state_error_mm", "max_retraction_mm",
                       "mpc_step_median_ms", "open_loop", "time_s", "target_error_mm",
-                      "actuator_positions_mm"}
+                      "actuator_positions_mm", "target", "task", "goal_mm",
+                      "target_position_mm", "mpc_step_ms"}
+    assert d["open_loop"]["status"] == "completed" and not d["open_loop"]["clamped"]
+    assert d["target"] == "T1" and d["task"] == 3
     assert d["steps"] == 100 and len(d["actuator_positions_mm"]) == 101
     png = plot_response(res, tmp_path / "r.png")
     assert png.read_bytes()[:4] == b"\x89PNG"
@@ -150,7 +153,7 @@ def test_open_loop_plant_failure_is_reported_with_a_lower_bound_itae(setup, tmp_
 def test_table1_files_and_summary(setup, tmp_path):
     import json
 
-    from tissue.cmd_control import table1_row, write_table1
+    from control.table1 import table1_row, write_table1
 
     case, K, plant = setup
     model = LinearizedModel(case, plant, linear_tangent(K), "T1")

@@ -10,7 +10,8 @@ pytest.importorskip("dolfinx")
 from test_control_support import column_case
 
 from control.jacobian import full_pushes, max_rel_error, p2_interpolation
-from tissue.cmd_jacobian import compute, reference_state
+from control.plants import jacobian_at as compute
+from control.plants import reference_state
 
 
 @pytest.fixture(scope="module")

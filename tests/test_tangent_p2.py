@@ -12,8 +12,8 @@ from test_control_support import column_case
 
 import fem_reference as fr
 from control.jacobian import full_pushes
+from control.plants import reference_state
 from meshes.errors import CaseError
-from tissue.cmd_jacobian import reference_state
 
 STATE = {"A1": 3.0, "A2": 1.0}
 

@@ -8,18 +8,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
-from html import escape as html_escape
 from pathlib import Path
 
 import numpy as np
 
-from meshes.case import E_RANGE_KPA
+from control.plants import tangent_for
 from meshes.errors import CaseError, ConvergenceError
 from meshes.io import atomic_path, check_output_dir
 from meshes.results import write_json
 
-from .cmd_jacobian import plant_for, tangent_for
 from .common import (
     add_case_args,
     body_diameter,
@@ -56,40 +53,35 @@ def _loop_args(p):
 
 
 def _setup(args, case):
+    """The loop (plant, model, mismatch) and settings named by the command line."""
     from control.loop import LoopSettings
     from control.mpc import MPCSettings
+    from control.plants import build_loop
 
     check_prescribed(case)
-    if not (np.isfinite(args.model_E_factor) and args.model_E_factor > 0):
-        raise CaseError(f"--model-E-factor must be > 0, got {args.model_E_factor}")
-    E = case.material.E * args.model_E_factor
-    if not E_RANGE_KPA[0] <= E <= E_RANGE_KPA[1]:
-        raise CaseError(f"--model-E-factor {args.model_E_factor:g}: the model's E would be "
-                        f"{E:g} kPa, outside the physical range [{E_RANGE_KPA[0]:g}, "
-                        f"{E_RANGE_KPA[1]:g}] kPa")
     diam = body_diameter(case)
     if args.noise > diam:
         raise CaseError(f"--noise {args.noise:g}: expected a measurement noise <= the body's "
                         f"diameter ({diam:.4g} mm)")
-    plant = plant_for(args.plant)
-    mname = args.model or args.plant
-    if mname == args.plant and args.model_E_factor == 1.0 and args.model_size is None:
-        mcase, msolve = case, plant          # the model is the plant: reuse its solution
-    else:
-        mcase = case_from_args(args, size=args.model_size)
-        mcase = mcase.with_material(E=mcase.material.E * args.model_E_factor)
-        msolve = plant_for(mname)
+    mcase = case_from_args(args, size=args.model_size) if args.model_size is not None else None
+    try:
+        loop = build_loop(case, plant=args.plant, model=args.model,
+                          model_E_factor=args.model_E_factor, model_case=mcase)
+    except CaseError as exc:
+        raise CaseError(f"--model-E-factor / --model: {exc}") from None
     settings = LoopSettings(steps=args.steps, dt_s=args.dt, noise_mm=args.noise, seed=args.seed,
                             mpc=MPCSettings(horizon=args.horizon, q=args.q, r=args.r,
                                             max_travel=args.max_travel, solver=args.qp_solver))
-    return plant, mcase, msolve, tangent_for(mname), settings
+    loop.meta.update({"size": args.size, "model_size": args.model_size,
+                      "settings": {"steps": args.steps, "dt_s": args.dt,
+                                   "horizon": args.horizon, "q": args.q, "r": args.r,
+                                   "max_travel_mm": args.max_travel, "noise_mm": args.noise,
+                                   "seed": args.seed, "qp_solver": args.qp_solver}})
+    return loop, settings
 
 
-def run_one(case, target, task, plant, mcase, msolve, mtangent, settings):
-    from control.loop import LinearizedModel, run_closed_loop
-
-    model = LinearizedModel(mcase, msolve, mtangent, target)
-    return run_closed_loop(plant, case, model, target, task, settings=settings)
+def _fmt(v, spec):
+    return "" if v is None else format(v, spec)
 
 
 def run_mpc(args) -> int:
@@ -99,159 +91,56 @@ def run_mpc(args) -> int:
     check_outputs(args, files=("json",), dirs=("out",))
     case = case_from_args(args)
     case.probe(args.target)   # a missing target is named before any solve
-    plant, mcase, msolve, mtan, settings = _setup(args, case)
+    loop, settings = _setup(args, case)
+    meta = {**loop.meta, "target": args.target, "task": args.task}
     try:
-        res = run_one(case, args.target, args.task, plant, mcase, msolve, mtan, settings)
+        res = loop.run(args.target, args.task, settings)
     except UnreachableGoalError as exc:
         if args.json:
-            write_json({"reachable": False, "error": str(exc),
+            write_json({**meta, "status": "unreachable", "reachable": False, "error": str(exc),
                         "closest_reachable_mm": np.asarray(exc.closest).tolist(),
                         "pushes_mm": np.asarray(exc.pushes).tolist()}, args.json)
         raise
-    d = res.to_json_dict()
+    except ConvergenceError as exc:
+        if args.json:
+            write_json({**meta, "status": "failed", "error": str(exc)}, args.json)
+        raise
+    d = res.to_json_dict({**meta, "status": "completed"})
     if args.json:
         write_json(d, args.json)
     if args.out:
         plot_response(res, Path(args.out) / f"mpc_{args.target}_task{args.task}.png")
+    ol = d["open_loop"]
+    if ol["status"] == "completed":
+        open_txt = f"itae={ol['itae']:.2f} sse={ol['steady_state_error_mm']:.4f} mm"
+    elif ol["status"] == "infeasible":
+        open_txt = (f"infeasible (eq. 22 pushes {[round(v, 2) for v in ol['u_open_unclamped_mm']]}"
+                    f" mm clamped to --max-travel) itae={ol['itae']:.2f} sse="
+                    f"{_fmt(ol['steady_state_error_mm'], '.4f') or 'not reached'} mm")
+    elif ol["status"] == "failed":
+        open_txt = (f"failed at step {ol['failed_at_step']} (plant at pushes "
+                    f"{[round(v, 2) for v in ol['failed_pushes_mm']]} mm: {ol['failure']}); "
+                    f"itae >= {ol['itae']:.2f}")
+    else:
+        open_txt = "not run"
     print(f"{case.name} {args.target} task {args.task}: steps={d['steps']} itae={d['itae']:.2f} "
           f"sse={d['steady_state_error_mm']:.4f} mm retraction={d['max_retraction_mm']} mm "
-          f"mpc median={d['mpc_step_median_ms']:.3f} ms | open loop itae="
-          f"{d['open_loop']['itae']:.2f} sse={d['open_loop']['steady_state_error_mm']:.4f} mm "
+          f"mpc median={d['mpc_step_median_ms']:.3f} ms | open loop {open_txt} "
           f"| wall {res.wall_time_s:.1f} s")
     return 0
 
 
-SSE_GOAL_MM = 0.05   # the closed-loop steady-state error every scenario must meet (mm)
-
-
-def _fmt(v, spec):
-    return "" if v is None else format(v, spec)
-
-
-def table1_row(t, task, res) -> dict:
-    """One scenario of Table I from a LoopResult (open loop included)."""
-    d = res.to_json_dict()
-    ol = d["open_loop"]
-    return {"target": t, "task": task, "status": "ok",
-            "closed_loop_itae": d["itae"], "open_loop_itae": ol["itae"],
-            "closed_loop_sse_mm": d["steady_state_error_mm"],
-            "open_loop_sse_mm": ol["steady_state_error_mm"],
-            "open_loop_converged": ol.get("converged", True),
-            "open_loop_failed_at_step": ol.get("failed_at_step"),
-            "open_loop_failed_pushes_mm": ol.get("failed_pushes_mm"),
-            "open_loop_last_error_mm": ol.get("last_error_mm"),
-            "u_open_mm": ol.get("u_open_mm"),
-            "final_pushes_mm": d["actuator_positions_mm"][-1],
-            "max_retraction_mm": d["max_retraction_mm"],
-            "mpc_step_median_ms": d["mpc_step_median_ms"], "wall_time_s": res.wall_time_s,
-            "closed_loop_s": res.extra.get("closed_loop_s"),
-            "model_time_s": res.extra.get("model_time_s"),
-            "open_loop_s": res.extra.get("open_loop_s"),
-            "cold_retries": {"plant": len(res.extra.get("plant_retries", [])),
-                             "model": len(res.extra.get("model_retries", [])),
-                             "open_loop_plant": len((res.open_loop or {}).get("retries", []))}}
-
-
-def table1_summary(rows, n_expected) -> dict:
-    """The closed-loop criteria over the rows: sse <= 0.05 mm, closed ITAE < open ITAE (an open-loop
-    ITAE cut short by a plant failure is a lower bound, so closed < it still proves the claim),
-    zero retraction -- each counted over the scenarios that ran."""
-    ok = [r for r in rows if r["status"] == "ok"]
-    sse = [r for r in ok if r["closed_loop_sse_mm"] <= SSE_GOAL_MM]
-    itae = [r for r in ok if r["closed_loop_itae"] < r["open_loop_itae"]]
-    retr = [r for r in ok if r["max_retraction_mm"] == 0.0]
-    return {"scenarios": n_expected, "ran": len(ok),
-            "unreachable": sum(r["status"] == "unreachable" for r in rows),
-            "failed": sum(r["status"] == "failed" for r in rows),
-            "sse_le_0.05mm": len(sse), "closed_itae_lt_open": len(itae),
-            "zero_retraction": len(retr),
-            "open_loop_plant_failures": sum(not r["open_loop_converged"] for r in ok),
-            "worst_closed_loop_sse_mm": max((r["closed_loop_sse_mm"] for r in ok), default=None),
-            "all_met": len(ok) == n_expected and len(sse) == len(itae) == len(retr) == n_expected}
-
-
-def write_table1(out, meta, rows, n_expected):
-    """table1.json, table1.md and table1.html in ``out`` (each written whole)."""
-    out = Path(out)
-    summ = table1_summary(rows, n_expected)
-    write_json({"meta": meta, "summary": summ, "rows": rows}, out / "table1.json")
-    hdr = ["Target", "Task", "Open-loop ITAE", "Closed-loop ITAE", "Open-loop SSE (mm)",
-           "Closed-loop SSE (mm)", "Max retraction (mm)", "Final pushes (mm)", "Note"]
-    body = []
-    for r in rows:
-        if r["status"] != "ok":
-            body.append([r["target"], str(r["task"]), "", "", "", "", "", "",
-                         f"{r['status']}: {r['error']}"])
-            continue
-        note = ""
-        oitae = _fmt(r["open_loop_itae"], ".2f")
-        if not r["open_loop_converged"]:
-            oitae = ">= " + oitae
-            note = (f"open loop: plant failed at step {r['open_loop_failed_at_step']} (pushes "
-                    f"{[round(v, 2) for v in r['open_loop_failed_pushes_mm']]} mm; error "
-                    f"{r['open_loop_last_error_mm']:.3f} mm at the last step solved)")
-        body.append([r["target"], str(r["task"]), oitae, f"{r['closed_loop_itae']:.2f}",
-                     _fmt(r["open_loop_sse_mm"], ".4f") or "not reached",
-                     f"{r['closed_loop_sse_mm']:.2e}", f"{r['max_retraction_mm']:.3g}",
-                     " ".join(f"{v:.2f}" for v in r["final_pushes_mm"]), note])
-    verdict = (f"{summ['ran']}/{summ['scenarios']} scenarios ran; closed-loop SSE <= "
-               f"{SSE_GOAL_MM} mm in {summ['sse_le_0.05mm']}, closed ITAE < open ITAE in "
-               f"{summ['closed_itae_lt_open']}, zero retraction in {summ['zero_retraction']}; "
-               f"worst closed-loop SSE {_fmt(summ['worst_closed_loop_sse_mm'], '.2e')} mm")
-    title = f"Table I analog: {json.dumps(meta)}"
-    md = [title, "", verdict, "", "| " + " | ".join(hdr) + " |", "|" + "---|" * len(hdr)]
-    md += ["| " + " | ".join(b) + " |" for b in body]
-    with atomic_path(out / "table1.md") as tmp:
-        tmp.write_text("\n".join(md) + "\n")
-    esc = html_escape
-    html = ["<html><body><table border='1'>", f"<caption>{esc(title)}<br>{esc(verdict)}</caption>",
-            "<tr>" + "".join(f"<th>{esc(h)}</th>" for h in hdr) + "</tr>"]
-    html += ["<tr>" + "".join(f"<td>{esc(c)}</td>" for c in b) + "</tr>" for b in body]
-    html.append("</table></body></html>")
-    with atomic_path(out / "table1.html") as tmp:
-        tmp.write_text("\n".join(html) + "\n")
-    return summ
-
-
 def run_table1(args) -> int:
-    from control.controllability import UnreachableGoalError
-    from control.loop import plot_response
+    from control.table1 import run_table1 as run_all
 
     check_outputs(args, dirs=("out",))
     case = case_from_args(args)
     targets = args.targets or [p.name for p in case.probes]
     for t in targets:
         case.probe(t)   # a missing target is named before any solve
-    plant, mcase, msolve, mtan, settings = _setup(args, case)
-    meta = {"case": case.name, "plant": args.plant, "model": args.model or args.plant,
-            "model_E_factor": args.model_E_factor, "model_size": args.model_size,
-            "size": args.size, "steps": args.steps, "dt_s": args.dt, "horizon": args.horizon,
-            "q": args.q, "r": args.r, "noise_mm": args.noise, "plant_cells": case.mesh.n_cells,
-            "model_cells": mcase.mesh.n_cells}
-    rows = []
-    n = 3 * len(targets)
-    for t in targets:
-        for task in (1, 2, 3):
-            try:
-                res = run_one(case, t, task, plant, mcase, msolve, mtan, settings)
-            except UnreachableGoalError as exc:
-                rows.append({"target": t, "task": task, "status": "unreachable", "error": str(exc),
-                             "closest_reachable_mm": np.asarray(exc.closest).tolist()})
-                print(f"{t} task {task}: unreachable: {exc}", file=sys.stderr, flush=True)
-            except ConvergenceError as exc:
-                rows.append({"target": t, "task": task, "status": "failed", "error": str(exc)})
-                print(f"{t} task {task}: closed loop failed: {exc}", file=sys.stderr, flush=True)
-            else:
-                row = table1_row(t, task, res)
-                rows.append(row)
-                print(f"{t} task {task}: itae closed {row['closed_loop_itae']:.2f} open "
-                      f"{'' if row['open_loop_converged'] else '>= '}{row['open_loop_itae']:.2f}"
-                      f"  sse closed {row['closed_loop_sse_mm']:.2e} open "
-                      f"{_fmt(row['open_loop_sse_mm'], '.4f') or 'not reached'} mm  retraction "
-                      f"{row['max_retraction_mm']}  ({res.wall_time_s:.1f} s)", flush=True)
-                if args.out:
-                    plot_response(res, Path(args.out) / f"response_{t}_task{task}.png")
-            summ = write_table1(args.out, meta, rows, n)   # after every scenario
+    loop, settings = _setup(args, case)
+    summ = run_all(case, targets, loop, settings, args.out, meta=loop.meta,
+                   progress=lambda line: print(line, flush=True))
     print(f"table1: {json.dumps(summ)}")
     return 0
 

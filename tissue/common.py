@@ -180,6 +180,9 @@ def add_case_args(p: argparse.ArgumentParser):
     p.add_argument("case", help="case TOML file (e.g. meshes/cases/phantom.toml)")
     p.add_argument("--size", type=real("positive", "mm"), default=None,
                    help="override the builtin mesh's characteristic length (mm)")
+    p.add_argument("--free-actuators", action="store_true",
+                   help="actuator patches a solve does not push move with the tissue (default: "
+                        "held where they are, the case's idle setting)")
     add_max_cells(p)
 
 
@@ -235,7 +238,8 @@ def case_from_args(args, *, size: float | None = None) -> Case:
     b = builtin_of(args.case, size)
     if b is not None:
         announce_build(getattr(args, "command", "") or "", *b, max_cells)
-    return load_case(Path(args.case), size=size, max_cells=max_cells)
+    case = load_case(Path(args.case), size=size, max_cells=max_cells)
+    return case.with_free_actuators() if getattr(args, "free_actuators", False) else case
 
 
 # --------------------------------------------------------------------------- solving

@@ -83,7 +83,7 @@ def resolve_solver(spec) -> SolverPlugin:
             sys.path.append(os.getcwd())  # directory too, as with python -m
         try:
             mod = importlib.import_module(modname)
-        except Exception as exc:  # noqa: BLE001 - any import failure is the plugin's
+        except Exception as exc:
             raise PluginError(f"solver {spec!r}: cannot import module {modname!r}: "
                               f"{type(exc).__name__}: {exc}") from exc
         fn = mod
@@ -98,7 +98,7 @@ def resolve_solver(spec) -> SolverPlugin:
     if spec in eps:
         try:
             return SolverPlugin(spec, eps[spec].load())
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:
             raise PluginError(f"solver {spec!r} (entry point {eps[spec].value!r}): cannot be "
                               f"loaded: {type(exc).__name__}: {exc}") from exc
     raise PluginError(f"unknown solver {spec!r}: not a built-in fast solver, not "
@@ -123,10 +123,10 @@ def run_plugin(plugin: SolverPlugin, case, pushes: dict, options: dict | None = 
         out = plugin.function(case, dict(pushes), **options)
     except TissueError:
         raise
-    except Exception as exc:  # noqa: BLE001 - the user's solver may raise anything
+    except Exception as exc:
         raise PluginError(f"solver {plugin.name!r} raised {type(exc).__name__}: {exc}") from exc
     wall = time.perf_counter() - t0
-    raw = out if isinstance(out, np.ndarray) or isinstance(out, (list, tuple)) else _get(out, "u")
+    raw = out if isinstance(out, (np.ndarray, list, tuple)) else _get(out, "u")
     if raw is None:
         raise PluginError(f"solver {plugin.name!r} returned {type(out).__name__}: expected an "
                           f"({n}, {gdim}) displacement array or an object with 'u'")

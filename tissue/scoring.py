@@ -25,12 +25,15 @@ norm. Units: mm, kPa, uJ.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from meshes.errors import CaseError
+
+log = logging.getLogger(__name__)
 
 __all__ = ["FIELD_NAMES", "Field", "field_from_array", "load_field", "score_field"]
 
@@ -84,8 +87,9 @@ def _read_mesh_file(path: Path):
                 for k in range(r.num_steps):
                     _, pd, _ = r.read_data(k)
                 return points, cells, pd
-        except Exception:  # noqa: BLE001 - not a time series: a plain XDMF mesh with fields
-            pass
+        except Exception as exc:  # noqa: BLE001 - not a time series: a plain XDMF with fields
+            log.debug("%s: not read as an XDMF time series (%s); reading it as one mesh",
+                      path, exc)
     m = meshio.read(str(path))
     return m.points, m.cells, m.point_data
 
@@ -291,7 +295,7 @@ def score_field(case, ref, field: Field, *, outside: str = "error") -> dict:
     u = np.asarray(field.u, float)
     X = case.mesh.points
     ref_u = np.asarray(ref.u, float)
-    out = {"field": field.source, "n_points": int(len(u))}
+    out = {"field": field.source, "n_points": len(u)}
     if u.ndim == 2 and not np.all(np.isfinite(u)):
         bad = np.flatnonzero(~np.all(np.isfinite(u), axis=1))
         raise CaseError(f"{field.source}: the displacement is not finite at {len(bad)} "

@@ -45,12 +45,12 @@ def write_scorecard(out: dict, out_dir) -> Path:
         "<!DOCTYPE html><html><head><meta charset='utf-8'><title>tissue suite</title>",
         f"<style>{_STYLE}</style></head><body>",
         "<h1>Verification suite</h1>",
-        "<p>Each problem's expected value is known without finite elements (closed form, ODE "
-        "solve or published figure). A solver passes when its relative error is within the "
-        "tolerance; it runs on the problem's own mesh, so a P1 solver's score includes its "
-        "discretization error. Hover over <i>refused</i> / <i>error</i> for the message.</p>",
-        "<h2>Summary</h2><table><tr><th>solver</th><th>passed</th><th>failed</th>"
-        f"<th>refused</th></tr>{summary}</table>",
+        ("<p>Each problem's expected value is known without finite elements (closed form, ODE "
+         "solve or published figure). A solver passes when its relative error is within the "
+         "tolerance; it runs on the problem's own mesh, so a P1 solver's score includes its "
+         "discretization error. Hover over <i>refused</i> / <i>error</i> for the message.</p>"),
+        ("<h2>Summary</h2><table><tr><th>solver</th><th>passed</th><th>failed</th>"
+         f"<th>refused</th></tr>{summary}</table>"),
         "<h2>Problems</h2>",
         f"<table><tr><th>problem</th><th>expected</th><th>tolerance (rel)</th>{head}</tr>"
         + "".join(rows) + "</table>",

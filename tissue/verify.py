@@ -179,7 +179,7 @@ def verify(case, pushes=None, solvers=DEFAULT_SOLVERS, out_dir=None, *, json_fil
                 plugins.append(resolve_solver(s))
             except CaseError:
                 raise
-            except Exception as exc:  # PluginError: name the choices too
+            except Exception as exc:  # noqa: BLE001 - PluginError: name the choices too
                 raise CaseError(f"{exc}; built-in solvers: {sorted(FAST_SOLVERS)}") from None
     _check_options(options, builtins, plugins)
     if (degree is not None or formulation != "auto") and not (plugins or field is not None):
@@ -295,7 +295,7 @@ def _score_builtin(name, case, pushes, opts, refs, out):
 
 
 def _score_plugin(plugin, case, pushes, opts, refs, degree, formulation):
-    rcase, res_ref = refs.get(case, degree, formulation, warm=False)
+    _, res_ref = refs.get(case, degree, formulation, warm=False)
     run = run_plugin(plugin, case, pushes, opts)
     entry = _errors(case, run.u, res_ref.u, case.probe_values(run.u), res_ref.probes)
     entry.update({
@@ -320,7 +320,7 @@ def _score_plugin(plugin, case, pushes, opts, refs, degree, formulation):
 
 
 def _score_field(field, case, refs, degree, formulation, outside):
-    rcase, res_ref = refs.get(case, degree, formulation, warm=False)
+    _, res_ref = refs.get(case, degree, formulation, warm=False)
     t0 = time.perf_counter()
     entry = score_field(case, res_ref, field, outside=outside)
     entry.update({"scoring_wall_time_s": time.perf_counter() - t0,

@@ -1,0 +1,199 @@
+"""Plants, models and tangents of the control layer: the solvers a control loop or a Jacobian
+computation runs, by name ("fem" the reference, "admm" the fast solver), and the control
+Jacobian J_s at a state with its finite-difference check (``jacobian_at``).
+
+Every actuator follows the Case's convention (``Case.with_pushes``): a patch that is not pushed
+is held where it is unless the Case (``idle = "free"``, ``Case.with_free_actuators``) frees it,
+so J_s here equals central differences of ``fem_reference.solve`` / ``tissue solve``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from meshes.errors import CaseError
+
+__all__ = ["ADMM_CONTROL_OPTIONS", "FD_FLOOR", "LoopSetup", "build_loop", "jacobian_at",
+           "plant_for", "reference_state", "tangent_for"]
+
+# ADMM as a control plant/model: the ADMM stage hands over to the Newton polish (part of
+# solvers.admm.solve, iteration budget left to the solver: 20 per load step) which finishes to
+# 1e-7 mm, the accuracy finite differences and J_s need; lift=True starts every load step from the
+# tangent lift of the new boundary values. Measured on the phantom (size 12, model of the mismatch
+# runs): a tight ADMM stage (tol 1e-6, or 1000 iterations per load step) cost up to 24 s per step
+# above ~21 mm pushes, and at A1 = 25, A3 = 12.5 mm its polish settled on a stationary point with
+# 17% more strain energy than the reference's solution on the same mesh; the default hand-over
+# finds the reference's solution (tests/test_control_admm_model.py). With lift="auto" a sub-mm step
+# whose polish restarted returned the previous step's boundary values flagged converged (caught by
+# control.loop.check_prescribed).
+FD_FLOOR = 1e-7
+"""Smallest central-difference step, relative to the body's diameter: the solves agree to about
+1e-10 mm, so a smaller step differences round-off."""
+ADMM_CONTROL_OPTIONS = {"tol_mm": 1e-2, "polish": True, "polish_tol_mm": 1e-7, "lift": True}
+
+
+def plant_for(name: str, *, degree: int = 1, tight: bool = True):
+    """plant(case, pushes, initial_u) -> SolveResult for solver ``name`` (fem | admm).
+    tight: ADMM with ``ADMM_CONTROL_OPTIONS`` (else the solver's defaults)."""
+    if name == "fem":
+        from fem_reference import solve
+
+        return lambda case, pushes, initial: solve(case, degree=degree, pushes=pushes,
+                                                   initial=initial)
+    if name == "admm":
+        from solvers.admm import solve
+
+        kw = dict(ADMM_CONTROL_OPTIONS) if tight else {}
+        return lambda case, pushes, initial: solve(case, pushes=pushes, initial=initial, **kw)
+    raise CaseError(f"unknown plant/model solver {name!r}; choose fem or admm")
+
+
+def tangent_for(name: str):
+    """tangent(case, u) -> CSR K (P1, node-major, Case numbering) for solver ``name``."""
+    if name == "fem":
+        from fem_reference import tangent_stiffness
+
+        return lambda case, u: tangent_stiffness(case, u).K
+    if name == "admm":
+        from solvers.admm import tangent_stiffness
+
+        return lambda case, u: tangent_stiffness(case, u)
+    raise CaseError(f"unknown plant/model solver {name!r}; choose fem or admm")
+
+
+def reference_state(case, state_pushes, *, degree=None, formulation="auto"):
+    """Reference solve at ``state_pushes`` and the exact tangent at *its own* state.
+
+    Returns (SolveResult, Tangent, plant) where plant(case, pushes, initial) re-solves with the same
+    solver instance. The tangent is taken from the solver's current dof vector right after the
+    solve: for degree 2 that is the full P2 state (edge nodes included), the state the SolveResult
+    carries too (``fem_reference.tangent_stiffness(case, res, degree=2)`` gives the same K). The
+    vertex values ``res.u`` alone do not determine it (edge nodes = mean of their end vertices is
+    *not* the solution away from rest: 17% off J_s on the phantom at A1 = 3 mm) and are refused.
+    """
+    from fem_reference import ReferenceSolver
+
+    s = ReferenceSolver(case, degree=degree, formulation=formulation)
+    res = s.solve(state_pushes)
+    if not res.converged:
+        raise CaseError(f"the state solve at pushes {state_pushes} did not converge")
+    T = s.tangent(None, pushes=state_pushes)
+
+    def plant(c, pushes, initial):
+        return s.solve(pushes, case=c, initial=initial)
+    return res, T, plant
+
+
+def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="auto", fd_h=0.02,
+            actuators=None):
+    """J_s at ``state_pushes`` from the solver's exact tangent and, when fd_h > 0, its max relative
+    error against central finite differences (step fd_h mm) of the same solver's nonlinear solve.
+    actuators: the columns (default: every actuator of the Case; the others are held)."""
+    from control.jacobian import (
+        dirichlet_jacobian,
+        fd_jacobian,
+        full_pushes,
+        max_rel_error,
+        p2_interpolation,
+        p2_region_nodes,
+    )
+
+    if degree not in (None, 1, 2):
+        raise CaseError(f"--degree must be 1 or 2, got {degree}")
+    if solver != "fem" and (degree == 2 or formulation == "mixed"):
+        raise CaseError("--degree 2 and --formulation mixed need --solver fem")
+    st = full_pushes(case, state_pushes)
+    pushed = case.with_pushes(st)
+    if solver == "fem":
+        res, T, plant = reference_state(case, st, degree=degree, formulation=formulation)
+        degree = T.degree
+        if degree == 2:
+            P = p2_interpolation(case, T.node_points)
+            jac = dirichlet_jacobian(pushed, T.K, actuators=actuators, P=P,
+                                     region_nodes=p2_region_nodes(case, T.node_points),
+                                     internal_dofs=T.internal_dofs)
+        else:
+            jac = dirichlet_jacobian(pushed, T.K, actuators=actuators)
+    else:
+        plant = plant_for(solver, degree=degree)
+        res = plant(case, st, None)
+        if not res.converged:
+            raise CaseError(f"the state solve at pushes {st} did not converge")
+        jac = dirichlet_jacobian(pushed, tangent_for(solver)(pushed, res.u), actuators=actuators)
+    out = {"actuators": list(jac.actuators), "targets": list(jac.targets),
+           "rows": jac.rows, "J": jac.J.tolist(), "state_pushes": st, "solver": solver,
+           "degree": degree or 1, "formulation": res.extra.get("discretization", {}).get(
+               "formulation", "displacement"),
+           "state_valid": bool(res.extra.get("valid", True)),
+           "state_invalid_reason": res.extra.get("invalid_reason")}
+    if fd_h and fd_h > 0:
+        # degree 2 solves start cold: a warm start from vertex values (edge nodes interpolated)
+        # is not the P2 state and can leave Newton's basin on coarse meshes
+        fd = fd_jacobian(plant, case, st, h=fd_h, actuators=jac.actuators,
+                         initial=res.u if degree == 1 else None)
+        out["fd_max_rel_error"] = max_rel_error(jac.J, fd.J)
+        out["fd_h_mm"] = fd_h
+    else:
+        out["fd_max_rel_error"] = None
+    return out
+
+
+
+
+@dataclass
+class LoopSetup:
+    """A plant (the "true" tissue) and a controller model, ready to run closed loops.
+
+    plant(case, pushes, initial) -> SolveResult on ``case``; the model is ``model_case`` solved by
+    ``model_solve`` with tangent ``model_tangent``; ``meta`` describes both and the mismatch
+    between them (what every result's JSON carries)."""
+
+    case: object
+    plant: object
+    model_case: object
+    model_solve: object
+    model_tangent: object
+    meta: dict = field(default_factory=dict)
+
+    def run(self, target: str, task: int, settings):
+        """One closed loop (and its open-loop baseline) -> control.loop.LoopResult."""
+        from .loop import LinearizedModel, run_closed_loop
+
+        model = LinearizedModel(self.model_case, self.model_solve, self.model_tangent, target)
+        return run_closed_loop(self.plant, self.case, model, target, task, settings=settings)
+
+
+def build_loop(case, *, plant: str = "fem", model: str | None = None,
+               model_E_factor: float = 1.0, model_case=None) -> LoopSetup:
+    """The plant ``plant`` (fem | admm) on ``case`` and the model ``model`` (default: the plant's
+    solver) on ``model_case`` (default: ``case``; e.g. a coarser mesh of the same body) with E
+    scaled by ``model_E_factor``. When model and plant coincide the model reuses the plant's
+    solutions."""
+    from meshes.case import E_RANGE_KPA
+
+    if not (np.isfinite(model_E_factor) and model_E_factor > 0):
+        raise CaseError(f"model E factor must be > 0, got {model_E_factor}")
+    E = case.material.E * model_E_factor
+    if not E_RANGE_KPA[0] <= E <= E_RANGE_KPA[1]:
+        raise CaseError(f"model E factor {model_E_factor:g}: the model's E would be {E:g} kPa, "
+                        f"outside the physical range [{E_RANGE_KPA[0]:g}, {E_RANGE_KPA[1]:g}] kPa")
+    mname = model or plant
+    psolve = plant_for(plant)
+    if mname == plant and model_E_factor == 1.0 and model_case is None:
+        mcase, msolve = case, psolve          # the model is the plant: reuse its solution
+    else:
+        mcase = (model_case or case)
+        mcase = mcase.with_material(E=mcase.material.E * model_E_factor)
+        msolve = plant_for(mname)
+    meta = {"case": case.name, "source": case.source, "plant": plant, "model": mname,
+            "plant_cells": case.mesh.n_cells, "model_cells": mcase.mesh.n_cells,
+            "plant_material": {"model": case.material.model, "E_kPa": case.material.E,
+                               "nu": case.material.nu},
+            "model_material": {"model": mcase.material.model, "E_kPa": mcase.material.E,
+                               "nu": mcase.material.nu},
+            "mismatch": {"E_factor": model_E_factor,
+                         "mesh": "same" if mcase.mesh is case.mesh else "different",
+                         "solver": "same" if mname == plant else "different"},
+            "actuators": {a.name: {"type": a.type, "idle": a.idle} for a in case.actuators}}
+    return LoopSetup(case, psolve, mcase, msolve, tangent_for(mname), meta)

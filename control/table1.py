@@ -1,0 +1,160 @@
+"""The Table I analog of seed 000: every target x task scenario run closed loop (push-only MPC)
+and open loop (the eq. 22 pushes of the initial J_s) on the same plant, scored by ITAE,
+steady-state error and retraction, written as JSON, Markdown and HTML (each file whole).
+
+``run_table1(case, targets, loop, settings, out)`` runs the scenarios (``loop`` from
+``control.plants.build_loop``), writing the tables after every scenario so an interrupted run
+keeps what it finished.
+"""
+from __future__ import annotations
+
+import json
+from html import escape as html_escape
+from pathlib import Path
+
+import numpy as np
+
+from meshes.errors import ConvergenceError
+from meshes.io import atomic_path
+from meshes.results import write_json
+
+__all__ = ["SSE_GOAL_MM", "run_table1", "table1_row", "table1_summary", "write_table1"]
+
+
+def _fmt(v, spec):
+    return "" if v is None else format(v, spec)
+
+
+SSE_GOAL_MM = 0.05   # the closed-loop steady-state error every scenario must meet (mm)
+
+
+def _fmt(v, spec):
+    return "" if v is None else format(v, spec)
+
+
+def table1_row(t, task, res) -> dict:
+    """One scenario of Table I from a LoopResult (open loop included)."""
+    d = res.to_json_dict()
+    ol = d["open_loop"]
+    return {"target": t, "task": task, "status": "ok", "open_loop_status": ol["status"],
+            "closed_loop_itae": d["itae"], "open_loop_itae": ol["itae"],
+            "closed_loop_sse_mm": d["steady_state_error_mm"],
+            "open_loop_sse_mm": ol["steady_state_error_mm"],
+            "open_loop_converged": ol.get("converged", True),
+            "open_loop_failed_at_step": ol.get("failed_at_step"),
+            "open_loop_failed_pushes_mm": ol.get("failed_pushes_mm"),
+            "open_loop_last_error_mm": ol.get("last_error_mm"),
+            "u_open_mm": ol.get("u_open_mm"),
+            "final_pushes_mm": d["actuator_positions_mm"][-1],
+            "max_retraction_mm": d["max_retraction_mm"],
+            "mpc_step_median_ms": d["mpc_step_median_ms"], "wall_time_s": res.wall_time_s,
+            "closed_loop_s": res.extra.get("closed_loop_s"),
+            "model_time_s": res.extra.get("model_time_s"),
+            "open_loop_s": res.extra.get("open_loop_s"),
+            "cold_retries": {"plant": len(res.extra.get("plant_retries", [])),
+                             "model": len(res.extra.get("model_retries", [])),
+                             "open_loop_plant": len((res.open_loop or {}).get("retries", []))}}
+
+
+def table1_summary(rows, n_expected) -> dict:
+    """The closed-loop criteria over the rows: sse <= 0.05 mm, closed ITAE < open ITAE (an open-loop
+    ITAE cut short by a plant failure is a lower bound, so closed < it still proves the claim),
+    zero retraction -- each counted over the scenarios that ran."""
+    ok = [r for r in rows if r["status"] == "ok"]
+    sse = [r for r in ok if r["closed_loop_sse_mm"] <= SSE_GOAL_MM]
+    # wherever the open loop is feasible: an infeasible (clamped) baseline is reported, not
+    # counted
+    feasible = [r for r in ok if r.get("open_loop_status") != "infeasible"]
+    itae = [r for r in feasible if r["closed_loop_itae"] < r["open_loop_itae"]]
+    retr = [r for r in ok if r["max_retraction_mm"] == 0.0]
+    return {"scenarios": n_expected, "ran": len(ok),
+            "unreachable": sum(r["status"] == "unreachable" for r in rows),
+            "failed": sum(r["status"] == "failed" for r in rows),
+            "sse_le_0.05mm": len(sse), "closed_itae_lt_open": len(itae),
+            "open_loop_feasible": len(feasible),
+            "zero_retraction": len(retr),
+            "open_loop_plant_failures": sum(not r["open_loop_converged"] for r in ok),
+            "worst_closed_loop_sse_mm": max((r["closed_loop_sse_mm"] for r in ok), default=None),
+            "all_met": (len(ok) == n_expected and len(sse) == len(retr) == n_expected
+                        and len(itae) == len(feasible))}
+
+
+def write_table1(out, meta, rows, n_expected):
+    """table1.json, table1.md and table1.html in ``out`` (each written whole)."""
+    out = Path(out)
+    summ = table1_summary(rows, n_expected)
+    write_json({"meta": meta, "summary": summ, "rows": rows}, out / "table1.json")
+    hdr = ["Target", "Task", "Open-loop ITAE", "Closed-loop ITAE", "Open-loop SSE (mm)",
+           "Closed-loop SSE (mm)", "Max retraction (mm)", "Final pushes (mm)", "Note"]
+    body = []
+    for r in rows:
+        if r["status"] != "ok":
+            body.append([r["target"], str(r["task"]), "", "", "", "", "", "",
+                         f"{r['status']}: {r['error']}"])
+            continue
+        note = ""
+        oitae = _fmt(r["open_loop_itae"], ".2f")
+        if not r["open_loop_converged"]:
+            oitae = ">= " + oitae
+            note = (f"open loop: plant failed at step {r['open_loop_failed_at_step']} (pushes "
+                    f"{[round(v, 2) for v in r['open_loop_failed_pushes_mm']]} mm; error "
+                    f"{r['open_loop_last_error_mm']:.3f} mm at the last step solved)")
+        body.append([r["target"], str(r["task"]), oitae, f"{r['closed_loop_itae']:.2f}",
+                     _fmt(r["open_loop_sse_mm"], ".4f") or "not reached",
+                     f"{r['closed_loop_sse_mm']:.2e}", f"{r['max_retraction_mm']:.3g}",
+                     " ".join(f"{v:.2f}" for v in r["final_pushes_mm"]), note])
+    verdict = (f"{summ['ran']}/{summ['scenarios']} scenarios ran; closed-loop SSE <= "
+               f"{SSE_GOAL_MM} mm in {summ['sse_le_0.05mm']}, closed ITAE < open ITAE in "
+               f"{summ['closed_itae_lt_open']} of {summ['open_loop_feasible']} with a feasible "
+               f"open loop, zero retraction in {summ['zero_retraction']}; "
+               f"worst closed-loop SSE {_fmt(summ['worst_closed_loop_sse_mm'], '.2e')} mm")
+    title = f"Table I analog: {json.dumps(meta)}"
+    md = [title, "", verdict, "", "| " + " | ".join(hdr) + " |", "|" + "---|" * len(hdr)]
+    md += ["| " + " | ".join(b) + " |" for b in body]
+    with atomic_path(out / "table1.md") as tmp:
+        tmp.write_text("\n".join(md) + "\n")
+    esc = html_escape
+    html = ["<html><body><table border='1'>", f"<caption>{esc(title)}<br>{esc(verdict)}</caption>",
+            "<tr>" + "".join(f"<th>{esc(h)}</th>" for h in hdr) + "</tr>"]
+    html += ["<tr>" + "".join(f"<td>{esc(c)}</td>" for c in b) + "</tr>" for b in body]
+    html.append("</table></body></html>")
+    with atomic_path(out / "table1.html") as tmp:
+        tmp.write_text("\n".join(html) + "\n")
+    return summ
+
+
+def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
+               plots: bool = True) -> dict:
+    """Every target x task (1, 2, 3) on ``loop`` (``control.plants.LoopSetup``); returns the
+    summary. ``progress(line)`` gets one line per scenario; ``plots``: a time-response PNG per
+    scenario in ``out``."""
+    from control.controllability import UnreachableGoalError
+    from control.loop import plot_response
+
+    rows = []
+    n = 3 * len(targets)
+    summ = table1_summary(rows, n)
+    for t in targets:
+        for task in (1, 2, 3):
+            try:
+                res = loop.run(t, task, settings)
+            except UnreachableGoalError as exc:
+                rows.append({"target": t, "task": task, "status": "unreachable", "error": str(exc),
+                             "closest_reachable_mm": np.asarray(exc.closest).tolist()})
+                progress(f"{t} task {task}: unreachable: {exc}")
+            except ConvergenceError as exc:
+                rows.append({"target": t, "task": task, "status": "failed", "error": str(exc)})
+                progress(f"{t} task {task}: closed loop failed: {exc}")
+            else:
+                row = table1_row(t, task, res)
+                rows.append(row)
+                progress(f"{t} task {task}: itae closed {row['closed_loop_itae']:.2f} open "
+                         f"{'' if row['open_loop_converged'] else '>= '}"
+                         f"{_fmt(row['open_loop_itae'], '.2f')} ({row['open_loop_status']})"
+                         f"  sse closed {row['closed_loop_sse_mm']:.2e} open "
+                         f"{_fmt(row['open_loop_sse_mm'], '.4f') or 'not reached'} mm  "
+                         f"retraction {row['max_retraction_mm']}  ({res.wall_time_s:.1f} s)")
+                if plots:
+                    plot_response(res, Path(out) / f"response_{t}_task{task}.png")
+            summ = write_table1(out, meta or {}, rows, n)   # after every scenario
+    return summ

@@ -1,0 +1,96 @@
+"""One actuator convention for every solve, the control Jacobians and the loop: a patch that is
+not pushed is held where it is (glued) unless the case or --free-actuators frees it."""
+import json
+
+import numpy as np
+import pytest
+
+import fem_reference as fr
+from control.plants import jacobian_at
+from meshes.case import load_case
+from meshes.errors import CaseError
+
+CASE = "meshes/cases/phantom.toml"
+
+
+@pytest.fixture(scope="module")
+def case():
+    return load_case(CASE, size=14.0)
+
+
+def _region_dofs(case, name):
+    v = case.mesh.region_vertices(case.actuator(name).region)
+    return (3 * v[:, None] + np.arange(3)).ravel()
+
+
+def test_unpushed_patches_are_held_unless_freed(case):
+    pushed = case.with_pushes({"A1": 3.0})
+    con = dict(zip(pushed.constraints.dofs.tolist(), pushed.constraints.values.tolist()))
+    for name in ("A2", "A3", "A4"):
+        dofs = _region_dofs(case, name)
+        assert all(k in con and con[k] == 0.0 for k in dofs.tolist())
+    free = case.with_free_actuators().with_pushes({"A1": 3.0})
+    held = set(free.constraints.dofs.tolist())
+    assert not held & set(_region_dofs(case, "A2").tolist())
+    # "where it is": a later push of another actuator keeps A1 at its 3 mm
+    again = pushed.with_pushes({"A2": 1.0})
+    con = dict(zip(again.constraints.dofs.tolist(), again.constraints.values.tolist()))
+    d = np.asarray(case.actuator("A1").direction)
+    v = case.mesh.region_vertices(case.actuator("A1").region)[0]
+    assert np.allclose([con[3 * v + c] for c in range(3)], 3.0 * d)
+
+
+def test_the_jacobian_equals_central_differences_of_the_plain_solve(case):
+    """J_s of A1 at a 5 mm pre-push against central differences of fem_reference.solve with
+    only A1 named (what `tissue solve --push A1=...` runs): the same convention, 1e-4."""
+    out = jacobian_at(case, {"A1": 5.0}, fd_h=0)
+    J = np.asarray(out["J"])
+    col = out["actuators"].index("A1")
+    h = 0.01
+    plus = fr.solve(case, pushes={"A1": 5.0 + h}).probes
+    minus = fr.solve(case, pushes={"A1": 5.0 - h}).probes
+    fd = np.concatenate([(plus[t] - minus[t]) / (2 * h) for t in out["targets"]])
+    assert np.max(np.abs(J[:, col] - fd)) / np.max(np.abs(fd)) < 1e-4
+
+
+def test_a_case_file_may_free_its_patches_and_indenters_take_no_idle(tmp_path):
+    text = open(CASE).read()
+    free = tmp_path / "free.toml"
+    free.write_text(text.replace('direction = [-1.0, 0.0, 0.0]',
+                                 'direction = [-1.0, 0.0, 0.0]\nidle = "free"', 1)
+                    .replace("size = 6.0", "size = 14.0", 1))
+    c = load_case(free)
+    assert c.actuator("A1").idle == "free"
+    assert [a.idle for a in c.actuators][1:] == ["held"] * 3
+    from meshes.case import Actuator
+
+    with pytest.raises(CaseError, match="idle only for a patch"):
+        Actuator("I", "skin", (1, 0, 0), type="indenter", tip="sphere", radius=5.0, idle="free")
+
+
+def test_cli_free_actuators_changes_the_answer(tmp_path, capsys):
+    from tissue.cli import main
+
+    runs = {}
+    for flag in ([], ["--free-actuators"]):
+        js = tmp_path / f"s{len(flag)}.json"
+        assert main(["solve", CASE, "--size", "14", "--push", "A1=4", "-q", "--json", str(js),
+                     *flag]) == 0
+        runs[bool(flag)] = json.loads(js.read_text())["probes"]["T1"]["displacement"]
+    assert np.linalg.norm(np.subtract(runs[True], runs[False])) > 1e-3
+
+
+def test_mpc_json_is_complete_and_an_infeasible_open_loop_is_named(tmp_path, capsys):
+    from tissue.cli import main
+
+    js = tmp_path / "m.json"
+    rc = main(["mpc", CASE, "--size", "14", "--target", "T1", "--task", "1", "--steps", "4",
+               "--max-travel", "0.5", "--model-E-factor", "1.2", "--json", str(js)])
+    out = capsys.readouterr().out
+    assert rc == 0 and "open loop infeasible" in out
+    d = json.loads(js.read_text())
+    assert {"case", "target", "task", "plant", "model", "mismatch", "settings", "open_loop",
+            "time_s", "actuator_positions_mm", "target_position_mm", "status"} <= set(d)
+    assert d["mismatch"]["E_factor"] == 1.2 and d["settings"]["max_travel_mm"] == 0.5
+    assert d["open_loop"]["status"] == "infeasible"
+    assert max(d["open_loop"]["u_open_mm"]) <= 0.5 < max(d["open_loop"]["u_open_unclamped_mm"])
