@@ -1,4 +1,5 @@
-"""``tissue solve CASE --solver fem|admm|mass-tensor [--degree 1|2] [--push A1=15 ...]``."""
+"""``tissue solve CASE --solver fem|admm|mass-tensor [--degree 1|2] [--push A1=15 ...]
+[--device cpu|gpu]``."""
 from __future__ import annotations
 
 import sys
@@ -63,6 +64,12 @@ def run(args) -> int:
         for stem in STEMS:
             for suffix in (".xdmf", ".h5", ".vtu"):
                 check_output_file(Path(args.out) / f"{stem}{suffix}", "--out")
+    if args.device != "cpu":
+        if args.solver != "admm":
+            raise CaseError(f"--device {args.device} applies to the ADMM solver (--solver admm)")
+        from solvers.admm import require_device
+
+        require_device(args.device)  # no CuPy / no GPU: a one-line error before the mesh is built
     pushes = parse_pushes(args.push)
     case = case_from_args(args)
     check_pushes(case, pushes)
@@ -75,7 +82,8 @@ def run(args) -> int:
         else:
             res = run_solver(args.solver, case, degree=args.degree, formulation=args.formulation,
                              pushes=pushes, progress=not args.quiet,
-                             **({"estimate": True} if args.estimate else {}))
+                             **({"estimate": True} if args.estimate else {}),
+                             **({"device": args.device} if args.solver == "admm" else {}))
     except AccuracyNotReached as exc:
         if exc.result is not None:
             write_outputs(case.with_pushes(pushes), exc.result.result, args.out, args.json)
@@ -167,5 +175,9 @@ def add_parser(sub):
                    "probe's estimated error is within REL of its value, e.g. 0.01")
     p.add_argument("--max-dofs", type=integer(1), default=500_000,
                    help="with --accuracy: stop (exit 1) before a system larger than this")
+    p.add_argument("--device", choices=("cpu", "gpu"), default="cpu",
+                   help="where the ADMM iterations run (--solver admm): cpu (default) or gpu "
+                        "(CuPy, float64; needs an NVIDIA GPU and pip install "
+                        "'tissue-reference[gpu]')")
     p.add_argument("-q", "--quiet", action="store_true", help="no per-step progress")
     p.set_defaults(func=run)

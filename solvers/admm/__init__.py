@@ -1,0 +1,177 @@
+"""ADMM fast solver of seed 000 (eqs. 5-10; Overby et al. 2017, "ADMM ⊇ Projective Dynamics").
+
+Problem (seed eq. 5/6), P1 simplices, displacement u (mm) node-major (dof = gdim*v + c):
+
+    min_u  1/(2 dt^2) ||u - u_tilde||_M^2 + sum_e V_e psi(I + H_e) - f_ext . u,   H_e = D_e u = grad u
+
+(the mass term only for implicit-Euler dynamics; quasi-static equilibrium drops it). ADMM splits
+z_e ~ H_e with the constraint W (D u - z) = 0, W_e = w_e I, and iterates (scaled dual lam):
+
+    x-step (eq. 7):  (M/dt^2 + D^T W^2 D) u = M u_tilde/dt^2 + D^T W^2 (z - lam) + f_ext
+    z-step (eq. 8/10, every element at once):
+                     z_e = argmin_z V_e psi(I + z) + w_e^2/2 |z - (D_e u + lam_e)|^2
+    dual (eq. 9):    lam_e += D_e u - z_e
+
+Weights: w_e^2 = rho * V_e (V_e the reference volume, mm^3; rho in kPa), i.e. one penalty
+stiffness per unit volume for the whole mesh. D^T W^2 D is then rho times the P1 vector
+Laplacian, set up once per Case and reused by every iteration, every load value and every warm
+start. Default rho = kappa + 4 mu / 3 = lambda + 2 mu (the P-wave modulus) for both materials;
+overridable (``rho=``).
+
+Material (seed eq. 14, ``case.material``): psi = mu/2 (J^(-2/3) I1 - 3) + kappa/2 (J - 1)^2,
+or linear elasticity psi = mu eps:eps + lambda/2 tr(eps)^2. 2D meshes are plane strain (F33 = 1).
+
+z-step: linear elasticity in closed form. Neo-Hookean: one safeguarded model-Newton step per
+ADMM iteration for every element, warm-started from the previous z (``kernel_array._ZStep``); at
+a fixed point the z-step gradient vanishes, so the fixed point is exact whatever the model. The
+element work of an iteration (gather of D u, z-step, dual update, residuals, scatter of the next
+x-step data) runs in one compiled pass (``kernel_c``, built on first use) or on numpy/CuPy arrays
+(``kernel_array``, the same arithmetic). Elements and vertices are ordered internally by reverse
+Cuthill-McKee rank (locality on large meshes; element numbers in error messages are the mesh's).
+One iteration at ~1.8k tets takes about 0.17-0.32 ms on the shared 2-core development machine,
+depending on its load (``bench/bench_admm.py``).
+
+Devices (``solve(..., device=)``, ``backends``): "cpu" (default) runs the compiled element pass
+and the x-step by SuperLU (AMG-preconditioned CG on large meshes, ``operators``); "gpu" runs the
+element pass and a Jacobi-preconditioned CG x-step on a GPU with CuPy, float64 (optional extra
+``gpu``; ``GpuUnavailableError`` without CuPy or a GPU). Setup, lifts, the polish and the final
+checks stay on the host either way.
+
+Stopping rule and rho adaptation: ``loop``. ADMM converges linearly, so by default a "Newton
+polish" follows (``polish``): Newton steps on the same P1 energy with this package's exact
+tangent until the largest Newton step is below ``polish_tol_mm``. With the polish, ADMM only has
+to bring each load step near Newton's basin: it hands over at ``handoff_mm`` (0.01 mm) or after
+``max_iter`` iterations (default 20 with the polish, 20000 without); on the phantom with all four
+actuators pushed 15 mm (1782 tets) this cut the solve from 6486 ADMM iterations + 10 Newton
+(about 12.6 s in ``make demo``) to 86 ADMM + 14 Newton iterations, same answer (to 1e-11 mm).
+Both iteration counts are reported (``extra["admm_iterations"]``, ``extra["newton_iterations"]``);
+``history["admm_clock_s"]`` holds the wall-clock time (s, from the start of the solve) at the end
+of every ADMM iteration.
+
+Large prescribed motions (e.g. 15 mm pushes) are applied in load steps of at most ``step_mm``;
+each step moves the boundary and carries the interior along (tangent or harmonic lift), runs
+ADMM (``max_iter`` per step) and, with ``polish``, Newton. When the ADMM state of a step is
+outside Newton's basin (inverted elements along the Newton path), the polish restarts from the
+step's lifted start state; such restarts are listed in ``extra["polish_restarts"]`` (then that
+step's equilibrium is Newton's, not ADMM's, work).
+
+Boundary conditions (``constraints``): prescribed dofs (fixed, displacement, affine,
+axis-aligned sliding) are eliminated; oblique sliding u.n = g by a per-vertex change of basis
+(exact). Tractions and gravity enter as external forces (``case.external_forces``) in the x-step.
+
+Modules: ``mechanics`` (kinematics, material laws, energy, forces, tangent), ``constraints``,
+``operators`` (D, weights, mass, x-step matrix and its CPU solver), ``factor`` and ``amg``
+(x-step and tangent solvers), ``kernel_c`` and ``kernel_array`` (the element pass per
+backend), ``backends`` (devices), ``loop`` (iterations, stopping, history), ``polish``
+(Newton, lifts), ``dynamics`` (implicit Euler), ``driver`` (``solve``).
+
+Tunables (PCG_MIN, XSTEP_TOL, CHUNK, USE_CKERNEL, ARRAY_XSTEP_RTOL, ...) may be set on this
+package: the new value reaches the module that uses it.
+
+Units: mm, kPa, mN, kg, s; energy uJ = kPa mm^3 = mN mm.
+"""
+# ruff: noqa: F401  (the names of the former single module are re-exported from their modules)
+from __future__ import annotations
+
+import sys
+import types
+
+from meshes.errors import CaseError, SolverDivergedError
+from meshes.mesh import deformation_state
+from meshes.results import SolveResult
+from solvers import _ckernel
+
+from . import (
+    amg,
+    backends,
+    constraints,
+    driver,
+    dynamics,
+    factor,
+    kernel_array,
+    kernel_c,
+    loop,
+    mechanics,
+    operators,
+    polish,
+)
+from .amg import PCG_RTOL, _aggregate, _AmgPcg
+from .backends import (
+    ARRAY_XSTEP_MAXIT,
+    ARRAY_XSTEP_RTOL,
+    DEVICES,
+    GpuUnavailableError,
+    array_module,
+    require_device,
+)
+from .constraints import _Reduction, _reduction, _vertex_rank
+from .driver import _reactions, solve
+from .dynamics import ImplicitEuler
+from .factor import _CoupledSolver, _Direct, _spd_splu, _sym_splu
+from .kernel_array import CHUNK, ROUNDS, _aos, _NumpyElements, _soa, _ZStep
+from .kernel_c import USE_CKERNEL, _KernelElements, use_kernel
+from .loop import _admm, _check_J, _diverged
+from .mechanics import (
+    ElementKinematics,
+    _as_u,
+    _assemble,
+    _case_parts,
+    _det,
+    _det_cof,
+    _element_K,
+    _grad,
+    _Law,
+    _scatter,
+    element_kinematics,
+    internal_forces,
+    strain_energy,
+    tangent_stiffness,
+)
+from .operators import (
+    _CACHE,
+    PCG_ITERS,
+    PCG_MIN,
+    XSTEP_TOL,
+    AdmmOperators,
+    _ComponentSolver,
+    _particular,
+    _scalar_laplacian,
+    _structure_key,
+    _vertex_norm_max,
+    prepare,
+)
+from .polish import _energy, _newton, _residual, _tangent_lift
+
+__all__ = [
+    "AdmmOperators",
+    "GpuUnavailableError",
+    "ImplicitEuler",
+    "element_kinematics",
+    "internal_forces",
+    "prepare",
+    "solve",
+    "strain_energy",
+    "tangent_stiffness",
+]
+
+_PARTS = (mechanics, constraints, factor, kernel_c, amg, operators, kernel_array, backends, loop,
+          polish, dynamics, driver)
+_UNSET = object()
+
+
+class _Package(types.ModuleType):
+    """This package as a module object whose attribute assignments also reach the submodules:
+    a tunable set here (``admm.PCG_MIN = 0``) or a helper replaced (``admm._newton``, e.g. by a
+    test's monkeypatch) is set in every submodule that holds the same object under that name."""
+
+    def __setattr__(self, name, value):
+        old = self.__dict__.get(name, _UNSET)
+        super().__setattr__(name, value)
+        if old is _UNSET:
+            return
+        for mod in _PARTS:
+            if mod.__dict__.get(name, _UNSET) is old:
+                setattr(mod, name, value)
+
+
+sys.modules[__name__].__class__ = _Package

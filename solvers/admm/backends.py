@@ -1,0 +1,210 @@
+"""Where the ADMM iterations run (``solve(..., device=...)``):
+
+* ``"cpu"`` (default): the element pass in the compiled kernel (``kernel_c``; numpy's
+  ``kernel_array`` without a C compiler) and the x-step by the operators' factorization (SuperLU,
+  or AMG-preconditioned CG on large meshes).
+* ``"gpu"``: the array backend on CuPy, float64: element pass (``kernel_array``) and x-step on
+  the GPU. A prefactored sparse Cholesky is not available on CuPy in general, so the x-step is
+  conjugate gradients with a Jacobi preconditioner on the reduced x-step matrix
+  K = Z^T (D^T W^2 D + M/dt^2) Z (cuSPARSE products), warm-started from the previous iterate and
+  stopped at a relative residual |K q - b| <= ARRAY_XSTEP_RTOL |b| (1e-10). The data stay on
+  the device between iterations; only the residual maxima (one number each) come back. Setup
+  (operators, boundary lift, start state), the Newton polish and the final checks run on the
+  host. Needs the optional extra ``gpu`` (``pip install 'tissue-reference[gpu]'``, CuPy for
+  CUDA 12) and an NVIDIA GPU; without them ``GpuUnavailableError`` says so.
+* ``"array-cpu"``: the same array backend on numpy (for tests and benchmarks: it runs the GPU
+  code path on a machine without a GPU).
+
+The x-step matrix of the array backend is the exact one, so its fixed point (the answer) is the
+CPU path's; with the default tolerance the iterates agree with the CPU path's to about 1e-9
+relative after 100 iterations on the phantom (``tests/test_admm_backend.py``)."""
+from __future__ import annotations
+
+import numpy as np
+
+from meshes.errors import CaseError, TissueError
+
+from .kernel_array import _ArrayElements, _NumpyElements, _ZStep
+from .kernel_c import _KernelElements, use_kernel
+from .operators import XSTEP_TOL
+
+DEVICES = ("cpu", "gpu")  # the choices offered to users ("array-cpu": tests and benchmarks)
+ARRAY_XSTEP_RTOL = 1e-10  # array backend x-step: CG to |K q - b| <= this * |b|
+ARRAY_XSTEP_MAXIT = 20000  # array backend x-step: CG iterations at most
+GPU_EXTRA = "pip install 'tissue-reference[gpu]'"
+
+
+class GpuUnavailableError(TissueError, RuntimeError):
+    """``device="gpu"`` was asked for, but CuPy or a usable CUDA GPU is missing."""
+
+
+def _no_gpu(why: str) -> GpuUnavailableError:
+    return GpuUnavailableError(
+        f"device 'gpu': no GPU found for the ADMM solver ({why}); install the optional extra "
+        f"'gpu' (CuPy for CUDA 12: {GPU_EXTRA}) on a machine with an NVIDIA GPU, or use "
+        f"device 'cpu'")
+
+
+def array_module(device: str):
+    """The array module of ``device``: numpy for "array-cpu", cupy for "gpu" (checked: CuPy
+    importable and at least one CUDA device), None for "cpu". GpuUnavailableError when "gpu"
+    cannot run here, CaseError for an unknown device."""
+    if device == "cpu":
+        return None
+    if device == "array-cpu":
+        return np
+    if device != "gpu":
+        raise CaseError(f"unknown ADMM device {device!r}; devices: {', '.join(DEVICES)}")
+    try:
+        import cupy
+        import cupyx.scipy.sparse  # noqa: F401
+    except Exception as exc:  # noqa: BLE001  (not installed, or its CUDA libraries missing)
+        raise _no_gpu(f"CuPy is not importable: {type(exc).__name__}: {exc}") from None
+    try:
+        count = int(cupy.cuda.runtime.getDeviceCount())
+    except Exception as exc:  # noqa: BLE001  (no driver, no device)
+        raise _no_gpu(f"CuPy {cupy.__version__} sees no CUDA device: {exc}") from None
+    if count < 1:
+        raise _no_gpu(f"CuPy {cupy.__version__} sees no CUDA device")
+    return cupy
+
+
+def require_device(device: str) -> str:
+    """``device`` when it can run here; else GpuUnavailableError / CaseError (see
+    ``array_module``)."""
+    array_module(device)
+    return device
+
+
+def backend(ops, device: str = "cpu"):
+    """The backend of ``device`` for the operators ``ops``."""
+    xp = array_module(device)
+    return _HostBackend(ops) if xp is None else _ArrayBackend(ops, xp, device)
+
+
+class _HostBackend:
+    """``device="cpu"``: host arrays, the compiled element pass (numpy without a compiler) and
+    the operators' x-step solver."""
+
+    xp = np
+    device = "cpu"
+    cg_iterations = None
+
+    def __init__(self, ops):
+        self.ops = ops
+
+    put = staticmethod(np.asarray)
+    get = staticmethod(np.asarray)
+
+    def harmonic(self, rhs):
+        """Exact solve Mx q = rhs on the reduced unknowns (host in, host out)."""
+        return self.ops.lu.solve(rhs)
+
+    def zstep(self, rho):
+        return _ZStep(self.ops, rho)
+
+    def elements(self, zstep, up, F, lam):
+        return (_KernelElements if use_kernel() else _NumpyElements)(self.ops, zstep, up, F, lam)
+
+    def xstep(self, rhs, q, tol_mm):
+        return self.ops.lu.step(rhs, q, XSTEP_TOL * tol_mm)
+
+    def step_norm(self, dq):
+        return self.ops.step_norm(dq)
+
+    @property
+    def inexactness(self):
+        return self.ops.lu.inexactness
+
+
+class _DeviceOperators:
+    """The operators the array backend needs, in the arrays of ``xp``: DZ, DZtW and Z (CSR), the
+    reduced x-step matrix K = Z^T Mx Z (CSR) and its inverse diagonal; ``h`` stays on the host
+    (the element pass copies h^2)."""
+
+    def __init__(self, ops, xp):
+        self.xp = xp
+        if xp is np:
+            from scipy import sparse
+
+            self.put, self.get = np.asarray, np.asarray
+        else:
+            from cupyx.scipy import sparse
+
+            self.put, self.get = xp.asarray, xp.asnumpy
+        red = ops.red
+        K = (red.ZT @ ops.Mx @ red.Z).tocsr()
+        self.DZ = sparse.csr_matrix(ops.DZ)
+        self.DZtW = sparse.csr_matrix(ops.DZtW)
+        self.Z = sparse.csr_matrix(red.Z.tocsr())
+        self.K = sparse.csr_matrix(K)
+        self.dinv = self.put(1.0 / K.diagonal())
+        self.h = ops.h
+        self.nbytes = sum(12 * M.nnz + 4 * M.shape[0] for M in (ops.DZ, ops.DZtW, red.Z, K)) \
+            + 8 * K.shape[0]
+
+
+class _ArrayBackend:
+    """The array backend (``device`` "gpu" or "array-cpu"): element pass ``_ArrayElements`` and
+    a Jacobi-preconditioned CG x-step, both on the arrays of ``xp``."""
+
+    def __init__(self, ops, xp, device):
+        self.ops, self.xp, self.device = ops, xp, device
+        dev = ops.device_data.get(device)
+        if dev is None:
+            dev = ops.device_data[device] = _DeviceOperators(ops, xp)
+        self.dev = dev
+        self.put, self.get = dev.put, dev.get
+        self.cg_iterations = 0
+        self.inexactness = 0.0  # largest vertex update (mm) of the last CG iteration
+
+    def harmonic(self, rhs):
+        q = self._pcg(self.put(rhs), self.xp.zeros(len(rhs)))
+        return self.get(q)
+
+    def zstep(self, rho):
+        return _ZStep(self.ops, rho, xp=self.xp)
+
+    def elements(self, zstep, up, F, lam):
+        return _ArrayElements(self.ops, zstep, up, F, lam, dev=self.dev)
+
+    def xstep(self, rhs, q, tol_mm):
+        """The x-step from the previous iterate q; ``tol_mm`` is not used: the relative
+        residual ARRAY_XSTEP_RTOL decides."""
+        return self._pcg(rhs, q.copy())
+
+    def step_norm(self, dq):
+        """Largest vertex displacement (mm) of the reduced increment dq."""
+        xp = self.xp
+        du = (self.dev.Z @ dq).reshape(-1, self.ops.d)
+        return float(xp.sqrt(xp.einsum("ij,ij->i", du, du).max()))
+
+    def _pcg(self, b, x):
+        """Jacobi-preconditioned conjugate gradients on K x = b from x (updated in place) to
+        |b - K x| <= ARRAY_XSTEP_RTOL |b| (recursive residual), at most ARRAY_XSTEP_MAXIT
+        iterations; zero iterations when x already satisfies it."""
+        K, dinv = self.dev.K, self.dev.dinv
+        r = b - K @ x
+        stop2 = ARRAY_XSTEP_RTOL ** 2 * float(b @ b)
+        rr = float(r @ r)
+        dx, it = None, 0
+        if rr > stop2:
+            z = dinv * r
+            p = z.copy()
+            rz = r @ z
+            for it in range(1, ARRAY_XSTEP_MAXIT + 1):
+                Kp = K @ p
+                alpha = rz / (p @ Kp)
+                dx = alpha * p
+                x += dx
+                r -= alpha * Kp
+                if float(r @ r) <= stop2:
+                    break
+                z = dinv * r
+                rzn = r @ z
+                p *= rzn / rz
+                p += z
+                rz = rzn
+        self.cg_iterations += it
+        self.inexactness = 0.0 if dx is None else self.step_norm(dx)
+        return x

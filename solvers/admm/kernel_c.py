@@ -1,0 +1,108 @@
+"""The element pass of an ADMM iteration in the compiled kernel (``admm_kernel.c``, built on first
+use by ``solvers._ckernel``): gather of D u, z-step, dual update, residuals and the scatter of
+the next x-step data, in one pass over the element arrays. This is the default (``device="cpu"``)
+element pass; ``kernel_array`` holds the same arithmetic on numpy/CuPy arrays."""
+from __future__ import annotations
+
+import numpy as np
+
+from solvers import _ckernel
+
+from .constraints import _vertex_rank
+
+USE_CKERNEL = True  # compiled element loop when a C compiler is usable (see use_kernel)
+
+
+def use_kernel() -> bool:
+    """Whether the ADMM loop runs its element-local work (z-step, dual update, residuals) in the
+    compiled kernel (``admm_kernel.c``, built on first use; see ``solvers._ckernel``). False
+    (the numpy loop, same arithmetic) when no C compiler is usable, when USE_CKERNEL is False
+    or with the environment variable TISSUE_NO_CKERNEL=1."""
+    return USE_CKERNEL and _ckernel.load() is not None
+
+
+class _KernelElements:
+    """The same element work in one call of the compiled ``admm_iteration`` (admm_kernel.c):
+    gather of D u from the full displacement, z-step, dual update, residuals and the scatter of
+    D^T W (z - lam + I) into a node vector, in one pass over the element arrays. F and lam live
+    in the kernel's blocked layout (``_to_blocks``) and are updated in place; the ``F`` and
+    ``lam`` properties give them back as (d, d, m)."""
+
+    def __init__(self, ops, zstep, up, F, lam):
+        self.ffi, self.lib = _ckernel.load()
+        d, m = ops.d, ops.m
+        self.ops, self.zstep, self.d, self.m, self.up = ops, zstep, d, m, up
+        self.blk = int(self.lib.admm_block_size())
+        kd = getattr(ops, "_kernel_data", None)
+        if kd is None:
+            # vertices renumbered by their reverse Cuthill-McKee rank (the elements are sorted by
+            # it too), so that the gather of u and the scatter of f stay local in memory
+            eo, rank = ops.elem_order, _vertex_rank(ops.mesh)
+            plain = ops.red.plain_dofs
+            kd = ops._kernel_data = (
+                np.ascontiguousarray(rank[ops.mesh.cells[eo]], dtype=np.int32),
+                np.ascontiguousarray(ops.kin.G[eo]), np.ascontiguousarray(ops.rho * ops.kin.V[eo]),
+                np.ascontiguousarray(ops.h ** 2), rank, np.argsort(rank),
+                d * rank[plain // d] + plain % d if ops.red.separable else None)
+        self.cells, self.G, self.wv, self.h2, self.rank, self.order, self.idx = kd
+        self.Fb, self.lamb = self._to_blocks(F), self._to_blocks(lam)
+        self.r, self.dsq = np.empty(m), np.empty(m)
+        self.u = np.ascontiguousarray(up.reshape(-1, d)[self.order]).reshape(-1)  # internal order
+        self.f = np.zeros(ops.N)
+        self.model = 0 if ops.law.model == "linear-elastic" else 1
+        self._data = None
+        p = self._ptr
+        self._args = (p(self.cells, "int *"), p(self.G), p(self.wv), p(self.h2), p(self.u),
+                      p(self.Fb), p(self.lamb), p(self.r), p(self.dsq), p(self.f))
+
+    def _to_blocks(self, A):
+        """(d, d, m) -> the kernel's (ceil(m / blk), d*d, blk) layout (padding never read)."""
+        dd, m, blk = self.d * self.d, self.m, self.blk
+        nb = -(-m // blk)
+        out = np.zeros((dd, nb * blk))
+        out[:, :m] = A.reshape(dd, m)
+        return np.ascontiguousarray(out.reshape(dd, nb, blk).transpose(1, 0, 2))
+
+    def _from_blocks(self, B):
+        d, m = self.d, self.m
+        return np.ascontiguousarray(B.transpose(1, 0, 2).reshape(d * d, -1)[:, :m]).reshape(d, d, m)
+
+    @property
+    def F(self):
+        return self._from_blocks(self.Fb)
+
+    @property
+    def lam(self):
+        return self._from_blocks(self.lamb)
+
+    def _ptr(self, a, kind="double *"):
+        if not a.flags.c_contiguous:
+            raise TypeError("ADMM kernel: arrays must be C-contiguous")
+        return self.ffi.cast(kind, a.ctypes.data)
+
+    def xdata(self):
+        if self._data is None:  # first iteration, or after a rho change
+            self._data = self.ops.DZtW @ (self.F - self.lam).reshape(-1)
+        return self._data
+
+    def halve_dual(self):
+        self.lamb *= 0.5
+        self._data = None
+
+    def update(self, q):
+        ops, zs = self.ops, self.zstep
+        d = self.d
+        if self.idx is not None:  # u = up + Z q, Z a selection of plain dofs
+            self.u[self.idx] = q
+        else:
+            self.u.reshape(-1, d)[...] = (self.up + ops.red.Z @ q).reshape(-1, d)[self.order]
+        self.f[...] = 0.0
+        self.lib.admm_iteration(
+            self.model, self.d, self.m, ops.law.mu, ops.law.kappa, zs.rho,
+            getattr(zs, "f_dev", 0.0), getattr(zs, "f_vol", 0.0), zs.rounds, zs.small_step,
+            *self._args)
+        if self.idx is not None:
+            self._data = self.f[self.idx]
+        else:
+            self._data = ops.red.ZT @ self.f.reshape(-1, d)[self.rank].reshape(-1)
+        return self.r, self.dsq

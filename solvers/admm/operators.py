@@ -1,0 +1,303 @@
+"""Operators of the ADMM solver, precomputed once per Case structure (mesh, material,
+constrained dof set, rho, dt): the per-element gather matrix D (H = D u, structure-of-arrays
+rows), the weights w_e^2 = rho V_e, the lumped mass of implicit-Euler dynamics, the x-step
+matrix Mx = D^T W^2 D (+ M/dt^2) and, for the CPU x-step, its factorization.
+
+x-step solver of the CPU path: without oblique sliding, D^T W^2 D (+ M/dt^2) is a scalar matrix
+times I_d in node-major order, so one scalar SuperLU factorization per distinct free-vertex set
+serves all components (multi-column solves; the reduced unknowns are ordered component-major,
+so the right-hand side is a view, no gather); with oblique sliding the reduced coupled matrix is
+factorized. From PCG_MIN (4000) free vertices on (about 20k tets) the scalar matrix is not
+factorized (a direct factor's fill and solve time grow like n^1.4-1.5 on these 3D meshes: 28M
+factor entries, 320 MiB and 130 ms per solve at 185k tets; at 50k tets SuperLU's solve took 12 ms,
+CG 6 ms) but solved by conjugate gradients preconditioned with an aggregation AMG V-cycle
+(``amg``): the x-step is then inexact, warm-started from the previous iterate and stopped when
+its largest vertex update is below PCG_RTOL (0.3) times the first one or below XSTEP_TOL (0.1)
+times the ADMM tolerance; the ADMM stopping rule also requires the last CG update below
+``tol_mm``. The x-step matrix is constant, so at an ADMM fixed point the warm start solves it
+exactly and the fixed point (the answer) is unchanged. The factorization is built with the
+operators (``factor=True``, the CPU path) or on first use of ``AdmmOperators.lu``."""
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+
+import numpy as np
+import scipy.sparse as sp
+
+from meshes.errors import CaseError
+
+from .amg import _AmgPcg
+from .constraints import _reduction, _vertex_rank
+from .factor import _CoupledSolver, _Direct
+from .mechanics import _assemble, _case_parts, _element_K
+
+PCG_MIN = 4000  # free vertices from which the x-step is solved by AMG-preconditioned CG
+PCG_ITERS = 1  # least warm-started PCG iterations per ADMM x-step
+XSTEP_TOL = 0.1  # PCG x-step: largest vertex update (mm) below XSTEP_TOL * tol_mm
+
+
+def _vertex_norm_max(du, d):
+    """Largest vertex norm (mm) of a node-major displacement du."""
+    du = du.reshape(-1, d)
+    return float(np.sqrt(np.einsum("ij,ij->i", du, du).max(initial=0.0)))
+
+
+def _scalar_laplacian(kin, rho, n):
+    """sum_e rho V_e G_e G_e^T (n, n): D^T W^2 D = this (x) I_d in node-major order."""
+    k = kin.G.shape[1]
+    Ke = rho * kin.V[:, None, None] * np.einsum("maj,mbj->mab", kin.G, kin.G)
+    cells = kin.dofs[:, ::kin.d] // kin.d
+    rows = np.repeat(cells, k, axis=1).ravel()
+    cols = np.tile(cells, (1, k)).ravel()
+    return sp.csr_matrix((Ke.ravel(), (rows, cols)), shape=(n, n))
+
+
+class _ComponentSolver:
+    """Solves the reduced x-step system when it is block diagonal per displacement component:
+    one scalar solver per distinct free-vertex set (SuperLU, or AMG-preconditioned CG from
+    PCG_MIN free vertices on), the components sharing a set solved together as a multi-column
+    right-hand side. ``step(rhs, q0)`` is the x-step (warm-started from q0 for CG)."""
+
+    def __init__(self, Ls, plain_dofs, d):
+        comp = plain_dofs % d
+        groups = {}
+        for c in range(d):
+            pos = np.flatnonzero(comp == c)
+            verts = plain_dofs[pos] // d
+            groups.setdefault(verts.tobytes(), (verts, []))[1].append(pos)
+        self.groups = []
+        for verts, poss in groups.values():
+            A = Ls[verts][:, verts]
+            sol = _AmgPcg(A, PCG_ITERS) if len(verts) >= PCG_MIN else _Direct(A)
+            self.groups.append((sol, np.stack(poss, axis=1)))
+        self.nnz = sum(g.nnz for g, _ in self.groups)
+        self.bytes = sum(g.bytes for g, _ in self.groups)
+        self.untracked_bytes = sum(g.untracked_bytes for g, _ in self.groups)
+        self.kind = "+".join(sorted({type(g).__name__.strip("_") for g, _ in self.groups}))
+        # one group over all components in component-major order: no gather/scatter
+        self.whole = None
+        if len(self.groups) == 1:
+            pos = self.groups[0][1]
+            if pos.size == len(plain_dofs) and np.array_equal(
+                    pos, np.arange(pos.size).reshape(pos.shape[1], -1).T):
+                self.whole = pos.shape
+
+    def solve(self, rhs, q0=None, tol_mm=0.0):
+        if self.whole is not None:
+            nv, nc = self.whole
+            g = self.groups[0][0]
+            B = rhs.reshape(nc, nv).T
+            X = g.solve(B) if q0 is None else g.step(B, q0.reshape(nc, nv).T, tol_mm)
+            return np.ascontiguousarray(X.T).reshape(-1)
+        out = np.empty_like(rhs)
+        for g, pos in self.groups:
+            out[pos] = g.solve(rhs[pos]) if q0 is None else g.step(rhs[pos], q0[pos], tol_mm)
+        return out
+
+    def step(self, rhs, q0, tol_mm):
+        """The ADMM x-step: exact (SuperLU) or warm-started from q0 to vertex updates below
+        tol_mm (mm) (CG)."""
+        return self.solve(rhs, q0, tol_mm)
+
+    @property
+    def inexactness(self):
+        """Error proxy (mm) of the last x-step: the largest vertex update of the last CG
+        iteration (0 for SuperLU)."""
+        return max((getattr(g, "last_update", 0.0) for g, _ in self.groups), default=0.0)
+
+
+class AdmmOperators:
+    """Everything precomputed once per Case structure (mesh, material, constrained dof set,
+    rho, dt): D, the x-step matrix (and, ``factor``: its factorization now, else on first use
+    of ``lu``), the reduction u = up + Z q. ``device_data``: per-backend copies of the
+    operators (e.g. on a GPU), kept by ``backends``."""
+
+    def __init__(self, case, *, rho: float | None = None, dt: float | None = None,
+                 factor: bool = True):
+        t0 = time.perf_counter()
+        self.mesh = case.mesh
+        kin, law = _case_parts(case)
+        self.kin, self.law = kin, law
+        n, d = case.mesh.n_vertices, kin.d
+        self.n, self.d, self.N, self.m = n, d, n * d, len(kin.V)
+        mat = case.material
+        if rho is None:
+            rho = mat.kappa + 4.0 * mat.mu / 3.0  # = lambda + 2 mu, the P-wave modulus
+        if not (np.isfinite(rho) and rho > 0):
+            raise CaseError(f"ADMM rho must be > 0 kPa, got {rho!r}")
+        self.rho = float(rho)
+        self.red = _reduction(case)
+        Z = self.red.Z
+        m = self.m
+        # the ADMM loop's element order: by the reverse Cuthill-McKee rank of their first
+        # vertex (memory locality of the products with D on large meshes); internal element k
+        # is mesh element elem_order[k]
+        self.elem_order = eo = np.argsort(_vertex_rank(case.mesh)[case.mesh.cells].min(axis=1),
+                                          kind="stable")
+        self.h = kin.V[eo] ** (1.0 / d)
+        # D: (m*d*d, N) with H_flat = D u, rows in structure-of-arrays order (i, J, k): H_iJ of
+        # (internal) element k at (d i + J) m + k
+        rows = (np.arange(m)[:, None, None, None] + np.arange(d)[None, None, :, None] * d * m
+                + np.arange(d)[None, None, None, :] * m)  # (m, a, i, J)
+        rows = np.broadcast_to(rows, (m, d + 1, d, d))
+        cols = np.broadcast_to(kin.dofs[eo].reshape(m, d + 1, d)[:, :, :, None],
+                               (m, d + 1, d, d))
+        vals = np.broadcast_to(kin.G[eo][:, :, None, :], (m, d + 1, d, d))
+        D = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(m * d * d, self.N))
+        self.D = D
+        w2 = self.rho * np.tile(kin.V[eo], d * d)
+        self.w2 = w2
+        self.DZ = (D @ Z).tocsr()
+        self.eye_soa = np.repeat(np.eye(d).ravel(), m)  # I of every element, (d, d, m) flat
+        self.DZtW = (self.DZ.T.multiply(w2[None, :])).tocsr()
+        self.DZtW_I = self.DZtW @ self.eye_soa  # the identity's share of the x-step data
+        L = (D.T.multiply(w2[None, :]) @ D).tocsr()
+        self.L = L
+        self.dt = dt
+        self.mass = None
+        Mx = L
+        if dt is not None:
+            mv = np.zeros(n)
+            np.add.at(mv, case.mesh.cells.ravel(), np.repeat(mat.density * kin.V / (d + 1), d + 1))
+            self.mass = np.repeat(mv, d)
+            Mx = L + sp.diags(self.mass / dt ** 2)
+        self.Mx = Mx.tocsr()
+        self.nq = Z.shape[1]
+        self._kpat = None  # reduced tangent's CSR pattern (built on first use)
+        self._Dm = None  # gradient operator in mesh element order (built on first use)
+        self.factor_cache = {}  # kept by ``factorize`` (e.g. a symbolic analysis)
+        self.device_data = {}
+        self._lu = None
+        self.setup_s = time.perf_counter() - t0
+        if factor:
+            self._lu = self._factor_xstep()
+
+    def _factor_xstep(self):
+        """The CPU x-step solver (its setup time is added to ``setup_s``)."""
+        t0 = time.perf_counter()
+        if self.red.separable:
+            # no oblique sliding: the x-step matrix is (rho scalar P1 Laplacian [+ M/dt^2]) x I_d;
+            # factorize the scalar matrix once per distinct set of free vertices
+            Ls = _scalar_laplacian(self.kin, self.rho, self.n)
+            if self.dt is not None:
+                Ls = Ls + sp.diags(self.mass[::self.d] / self.dt ** 2)
+            lu = _ComponentSolver(Ls.tocsr(), self.red.plain_dofs, self.d)
+        else:
+            lu = _CoupledSolver(self.red.ZT @ self.Mx @ self.red.Z)
+        self.setup_s += time.perf_counter() - t0
+        return lu
+
+    @property
+    def lu(self):
+        """The CPU x-step solver (``step``, ``solve``, ``inexactness``), built on first use."""
+        if self._lu is None:
+            self._lu = self._factor_xstep()
+        return self._lu
+
+    def reduced_tangent(self, u, diag=None):
+        """(Z^T (K(u) + diag(diag)) Z as CSC, element matrices Ke): the tangent of the P1 energy
+        on the reduced unknowns. Without oblique sliding it is assembled straight into a CSR
+        pattern computed once (the matrix is symmetric, so its CSR arrays are its CSC)."""
+        Ke = _element_K(self.kin, self.law.tangent(self.grad(u)))
+        Z = self.red.Z
+        if not self.red.separable:
+            K = _assemble(self.kin, Ke, self.N)
+            if diag is not None:
+                K = K + sp.diags(diag)
+            return (self.red.ZT @ K @ Z).tocsc(), Ke
+        if self._kpat is None:
+            nq = self.nq
+            ridx = np.full(self.N, -1, np.int64)
+            ridx[self.red.plain_dofs] = np.arange(nq)
+            R = ridx[self.kin.dofs]
+            nd = R.shape[1]
+            rows = np.repeat(R, nd, axis=1).ravel()
+            cols = np.tile(R, (1, nd)).ravel()
+            valid = (rows >= 0) & (cols >= 0)
+            ukey, pos = np.unique(rows[valid] * nq + cols[valid], return_inverse=True)
+            indptr = np.concatenate([[0], np.cumsum(np.bincount(ukey // nq, minlength=nq))])
+            dpos = np.searchsorted(ukey, np.arange(nq) * (nq + 1))
+            self._kpat = (pos.astype(np.int32 if len(ukey) < 2 ** 31 else np.int64), valid,
+                          indptr, (ukey % nq).astype(np.int32), len(ukey), dpos)
+        pos, valid, indptr, indices, nnz, dpos = self._kpat
+        data = np.bincount(pos, weights=Ke.reshape(-1)[valid], minlength=nnz)
+        if diag is not None:
+            data[dpos] += diag[self.red.plain_dofs]
+        return sp.csc_matrix((data, indices, indptr), shape=(self.nq, self.nq)), Ke
+
+    def _mesh_gradient(self):
+        """(D_m, D_m^T): the gradient operator in mesh element order with rows (k, i, J) (H of
+        element k at k d^2 + d i + J), CSR; built on first use."""
+        if self._Dm is None:
+            kin, m, d = self.kin, self.m, self.d
+            rows = np.broadcast_to((np.arange(m)[:, None, None, None] * d * d
+                                    + np.arange(d)[None, None, :, None] * d
+                                    + np.arange(d)[None, None, None, :]), (m, d + 1, d, d))
+            cols = np.broadcast_to(kin.dofs.reshape(m, d + 1, d)[:, :, :, None], (m, d + 1, d, d))
+            vals = np.broadcast_to(kin.G[:, :, None, :], (m, d + 1, d, d))
+            Dm = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())),
+                               shape=(m * d * d, self.N))
+            self._Dm = (Dm, Dm.T.tocsr())
+        return self._Dm
+
+    def grad(self, u):
+        """H_e = grad u (m, d, d), mesh element order (as ``_grad``, one sparse product)."""
+        return (self._mesh_gradient()[0] @ u.reshape(-1)).reshape(self.m, self.d, self.d)
+
+    def scatter(self, Pv):
+        """Nodal forces sum_e Pv_e : grad N_a (node-major, (N,)) of Pv (m, d, d) (as
+        ``_scatter``, one sparse product)."""
+        return self._mesh_gradient()[1] @ Pv.reshape(-1)
+
+    def apply_elements(self, Ke, v):
+        """K v (full dofs, mN) from element matrices Ke, without assembling K."""
+        fe = np.einsum("mab,mb->ma", Ke, v[self.kin.dofs])
+        return np.bincount(self.kin.dofs.ravel(), weights=fe.ravel(), minlength=self.N)
+
+    def step_norm(self, dq):
+        """Largest vertex displacement (mm) of the reduced increment dq."""
+        whole = getattr(self.lu, "whole", None)
+        if whole is not None:  # component-major plain dofs, every component on the same vertices
+            dq = dq.reshape(whole[1], whole[0])
+            return float(np.sqrt(np.einsum("ij,ij->j", dq, dq).max(initial=0.0)))
+        return _vertex_norm_max(self.red.Z @ dq, self.d)
+
+
+_CACHE: OrderedDict[tuple, AdmmOperators] = OrderedDict()
+
+
+def _structure_key(case, rho, dt):
+    c = case.constraints
+    sl = tuple((np.asarray(v).tobytes(), tuple(np.asarray(nr, float).round(14))) for v, nr, _ in
+               c.sliding)
+    return (id(case.mesh), c.dofs.tobytes(), sl, case.material, rho, dt)
+
+
+def prepare(case, *, rho: float | None = None, dt: float | None = None,
+            factor: bool = True) -> AdmmOperators:
+    """The per-Case operators (x-step factorization included unless ``factor`` is False: then
+    it is built on first use), cached for the last 4 Case structures: a Case differing only in
+    prescribed values (e.g. other pushes) reuses them."""
+    case.require_no_contact("the ADMM solver")
+    key = _structure_key(case, rho, dt)
+    ops = _CACHE.get(key)
+    if ops is not None and ops.mesh is case.mesh:
+        _CACHE.move_to_end(key)
+        return ops
+    ops = AdmmOperators(case, rho=rho, dt=dt, factor=factor)
+    _CACHE[key] = ops
+    while len(_CACHE) > 4:
+        _CACHE.popitem(last=False)
+    return ops
+
+
+def _particular(case, ops: AdmmOperators) -> np.ndarray:
+    """Prescribed part u_p (mm) of the displacement for this Case's boundary values."""
+    c = case.constraints
+    if c.sliding:
+        return _reduction(case).up
+    up = np.zeros(ops.N)
+    up[c.dofs] = c.values
+    return up
+

@@ -1,0 +1,100 @@
+"""The Newton polish and the tangent lift, on the host: Newton steps on the same P1 energy with
+the exact tangent (``AdmmOperators.reduced_tangent``, assembled into a cached CSR pattern of the
+reduced unknowns), a backtracking line search on the energy keeping J > 0; and the lift that
+carries the interior along with a boundary increment by one linear solve with the tangent."""
+from __future__ import annotations
+
+import numpy as np
+
+from .factor import _sym_splu
+from .loop import _check_J, _diverged
+from .mechanics import _det_cof
+from .operators import _vertex_norm_max
+
+
+def _tangent_lift(ops, u, up, it, factorize=None):
+    """u with its prescribed part moved to up's values and the interior moved by the linearized
+    (tangent at u) response to that boundary change."""
+    Z = ops.red.Z
+    zu = ops.red.ZT @ u
+    delta = up - (u - Z @ zu)
+    if not np.any(delta):
+        return u
+    Kr, Ke = ops.reduced_tangent(u)
+    try:
+        rhs = -(ops.red.ZT @ ops.apply_elements(Ke, delta))
+        s = _sym_splu(Kr, ops.factor_cache, factorize).solve(rhs)
+    except RuntimeError as exc:
+        raise _diverged(f"singular tangent in the boundary lift ({exc})", it, -1) from None
+    cand = up + Z @ (zu + s)
+    # keep elements valid: halve the interior part until no element inverts
+    for _ in range(20):
+        if ops.law.model == "linear-elastic":
+            return cand
+        J, _ = _det_cof(ops.grad(cand) + np.eye(ops.d))
+        if np.all(J > 0):
+            return cand
+        s = 0.5 * s
+        cand = up + Z @ (zu + s)
+    return cand
+
+
+def _energy(ops, u, fext, inertia):
+    psi, J = ops.law.psi_J(ops.grad(u))
+    e = float(ops.kin.V @ psi) - float(fext @ u)
+    if inertia is not None:
+        mdt, ut = inertia
+        e += 0.5 * float((u - ut) @ (mdt * (u - ut)))
+    return e, J
+
+
+def _residual(ops, u, fext, inertia):
+    P, _ = ops.law.stress(ops.grad(u))
+    r = ops.scatter(ops.kin.V[:, None, None] * P) - fext
+    if inertia is not None:
+        mdt, ut = inertia
+        r = r + mdt * (u - ut)
+    return r
+
+
+def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback, factorize=None):
+    """Newton on the same P1 energy (exact tangent, backtracking on the energy, J > 0)."""
+    Z, d = ops.red.Z, ops.d
+    k = 0
+    for k in range(1, max_iter + 1):
+        r = _residual(ops, u, fext, inertia)
+        rr = ops.red.ZT @ r
+        Kr, _ = ops.reduced_tangent(u, None if inertia is None else inertia[0])
+        try:
+            dq = -_sym_splu(Kr, ops.factor_cache, factorize).solve(rr)
+        except RuntimeError as exc:
+            raise _diverged(f"singular tangent in the Newton polish ({exc})", it0 + k, -1) from None
+        du = Z @ dq
+        e0, _ = _energy(ops, u, fext, inertia)
+        r0 = float(np.linalg.norm(rr))
+        alpha = 1.0
+        for _ in range(40):
+            e1, J1 = _energy(ops, u + alpha * du, fext, inertia)
+            if J1 is None or np.all(J1 > 0):
+                # merit: energy decrease, or (tangent indefinite) free residual decrease
+                if e1 <= e0 + 1e-4 * alpha * float(rr @ dq) + 1e-12 * abs(e0):
+                    break
+                r1 = float(np.linalg.norm(
+                    ops.red.ZT @ _residual(ops, u + alpha * du, fext, inertia)))
+                if r1 < (1.0 - 1e-4 * alpha) * r0:
+                    break
+            alpha *= 0.5
+        else:
+            H = ops.grad(u + du)
+            _check_J(ops, H, it0 + k, "the Newton polish")
+            raise _diverged("Newton polish line search found no energy decrease", it0 + k,
+                            int(np.argmax(np.abs(rr))) // d)
+        u = u + alpha * du
+        step = _vertex_norm_max(alpha * du, d)
+        hist["max_step_mm"].append(step)
+        hist["newton_step_mm"].append(step)
+        if callback is not None:
+            callback(it0 + k, u.reshape(-1, d))
+        if step < tol_mm:
+            break
+    return u, k
