@@ -14,8 +14,8 @@ import numpy as np
 
 from meshes.errors import CaseError
 
-__all__ = ["ADMM_CONTROL_OPTIONS", "FD_FLOOR", "LoopSetup", "build_loop", "jacobian_at",
-           "plant_for", "reference_state", "tangent_for"]
+__all__ = ["ADMM_CONTROL_OPTIONS", "FD_FLOOR", "SCENARIOS", "LoopSetup", "build_loop",
+           "jacobian_at", "plant_for", "reference_state", "scenario_loop", "tangent_for"]
 
 # ADMM as a control plant/model: the ADMM stage hands over to the Newton polish (part of
 # solvers.admm.solve, iteration budget left to the solver: 20 per load step) which finishes to
@@ -33,7 +33,7 @@ FD_FLOOR = 1e-7
 ADMM_CONTROL_OPTIONS = {"tol_mm": 1e-2, "polish": True, "polish_tol_mm": 1e-7, "lift": True}
 
 
-def plant_for(name: str, *, degree: int = 1, tight: bool = True):
+def plant_for(name: str, *, degree: int | None = None, tight: bool = True):
     """plant(case, pushes, initial_u) -> SolveResult for solver ``name`` (fem | admm).
     tight: ADMM with ``ADMM_CONTROL_OPTIONS`` (else the solver's defaults)."""
     if name == "fem":
@@ -165,11 +165,13 @@ class LoopSetup:
 
 
 def build_loop(case, *, plant: str = "fem", model: str | None = None,
-               model_E_factor: float = 1.0, model_case=None) -> LoopSetup:
-    """The plant ``plant`` (fem | admm) on ``case`` and the model ``model`` (default: the plant's
-    solver) on ``model_case`` (default: ``case``; e.g. a coarser mesh of the same body) with E
-    scaled by ``model_E_factor``. When model and plant coincide the model reuses the plant's
-    solutions."""
+               model_E_factor: float = 1.0, model_case=None, plant_case=None,
+               scenario: str | None = None) -> LoopSetup:
+    """The plant ``plant`` (fem | admm) on ``plant_case`` (default ``case``: the "true" tissue,
+    e.g. with gravity or another nu) and the model ``model`` (default: the plant's solver) on
+    ``model_case`` (default: ``case``; e.g. a coarser mesh of the same body) with E scaled by
+    ``model_E_factor``. When model and plant coincide the model reuses the plant's solutions.
+    ``scenario`` names the mismatch in the metadata."""
     from meshes.case import E_RANGE_KPA
 
     if not (np.isfinite(model_E_factor) and model_E_factor > 0):
@@ -180,20 +182,63 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
                         f"outside the physical range [{E_RANGE_KPA[0]:g}, {E_RANGE_KPA[1]:g}] kPa")
     mname = model or plant
     psolve = plant_for(plant)
-    if mname == plant and model_E_factor == 1.0 and model_case is None:
+    pcase = plant_case if plant_case is not None else case
+    if mname == plant and model_E_factor == 1.0 and model_case is None and plant_case is None:
         mcase, msolve = case, psolve          # the model is the plant: reuse its solution
     else:
         mcase = (model_case or case)
         mcase = mcase.with_material(E=mcase.material.E * model_E_factor)
         msolve = plant_for(mname)
     meta = {"case": case.name, "source": case.source, "plant": plant, "model": mname,
-            "plant_cells": case.mesh.n_cells, "model_cells": mcase.mesh.n_cells,
-            "plant_material": {"model": case.material.model, "E_kPa": case.material.E,
-                               "nu": case.material.nu},
+            "scenario": scenario,
+            "plant_cells": pcase.mesh.n_cells, "model_cells": mcase.mesh.n_cells,
+            "plant_material": {"model": pcase.material.model, "E_kPa": pcase.material.E,
+                               "nu": pcase.material.nu},
+            "plant_gravity_mm_s2": list(pcase.gravity) if pcase.gravity is not None else None,
+            "model_gravity_mm_s2": list(mcase.gravity) if mcase.gravity is not None else None,
             "model_material": {"model": mcase.material.model, "E_kPa": mcase.material.E,
                                "nu": mcase.material.nu},
             "mismatch": {"E_factor": model_E_factor,
-                         "mesh": "same" if mcase.mesh is case.mesh else "different",
-                         "solver": "same" if mname == plant else "different"},
+                         "mesh": "same" if mcase.mesh is pcase.mesh else "different",
+                         "solver": "same" if mname == plant else "different",
+                         "nu": [pcase.material.nu, mcase.material.nu]
+                         if pcase.material.nu != mcase.material.nu else "same",
+                         "gravity": "same" if pcase.gravity == mcase.gravity else "different"},
             "actuators": {a.name: {"type": a.type, "idle": a.idle} for a in case.actuators}}
-    return LoopSetup(case, psolve, mcase, msolve, tangent_for(mname), meta)
+    return LoopSetup(pcase, psolve, mcase, msolve, tangent_for(mname), meta)
+
+
+# model-plant mismatches that matter with displacement-controlled actuators (E alone does not:
+# without body forces the Neo-Hookean answer does not depend on E)
+SCENARIOS = {
+    "gravity": "the plant sags under gravity (the case's density, g along -z, the phantom "
+               "standing on its base); the model has no gravity",
+    "nu": "the plant is nearly incompressible (nu = 0.495: the reference's mixed P2/P1 "
+          "formulation); the model keeps the case's nu",
+    "mesh": "the model runs on a mesh twice as coarse as the plant's",
+}
+GRAVITY_MM_S2 = (0.0, 0.0, -9810.0)
+PLANT_NU = 0.495
+
+
+def scenario_loop(case, name: str, *, model: str = "admm", coarse_case=None) -> LoopSetup:
+    """A mismatch scenario of ``SCENARIOS``: the plant is the reference on ``case`` changed as
+    the scenario says, the model the fast solver ``model`` on ``case`` (``coarse_case``, a coarser
+    mesh of the same body, for "mesh")."""
+    if name not in SCENARIOS:
+        raise CaseError(f"unknown mismatch scenario {name!r}; scenarios: {sorted(SCENARIOS)}")
+    from dataclasses import replace
+
+    plant_case, model_case = case, case
+    if name == "gravity":
+        plant_case = replace(case, gravity=GRAVITY_MM_S2)
+    elif name == "nu":
+        plant_case = case.with_material(nu=PLANT_NU)
+    elif name == "mesh":
+        if coarse_case is None:
+            raise CaseError("the mesh scenario needs the coarse case (a coarser mesh of the body)")
+        model_case = coarse_case
+    loop = build_loop(case, plant="fem", model=model, model_case=model_case,
+                      plant_case=plant_case, scenario=name)
+    loop.meta["scenario_description"] = SCENARIOS[name]
+    return loop

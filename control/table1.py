@@ -18,7 +18,8 @@ from meshes.errors import ConvergenceError
 from meshes.io import atomic_path
 from meshes.results import write_json
 
-__all__ = ["SSE_GOAL_MM", "run_table1", "table1_row", "table1_summary", "write_table1"]
+__all__ = ["SSE_GOAL_MM", "plot_scenarios", "run_table1", "table1_row", "table1_summary",
+           "write_table1"]
 
 
 def _fmt(v, spec):
@@ -114,10 +115,21 @@ def write_table1(out, meta, rows, n_expected):
     with atomic_path(out / "table1.md") as tmp:
         tmp.write_text("\n".join(md) + "\n")
     esc = html_escape
-    html = ["<html><body><table border='1'>", f"<caption>{esc(title)}<br>{esc(verdict)}</caption>",
+    html = ["<html><head><meta charset='utf-8'><title>Table I analog</title></head><body>",
+            f"<h1>Table I analog{': ' + esc(str(meta.get('scenario'))) if meta.get('scenario') else ''}</h1>",
+            f"<p>{esc(str(meta.get('scenario_description') or ''))}</p>",
+            "<table border='1'>", f"<caption>{esc(verdict)}</caption>",
             "<tr>" + "".join(f"<th>{esc(h)}</th>" for h in hdr) + "</tr>"]
     html += ["<tr>" + "".join(f"<td>{esc(c)}</td>" for c in b) + "</tr>" for b in body]
-    html.append("</table></body></html>")
+    html.append("</table>")
+    pngs = [f"response_{r['target']}_task{r['task']}.png" for r in rows if r["status"] == "ok"]
+    pngs = [p for p in pngs if (out / p).is_file()]
+    if pngs:
+        html.append("<h2>Trajectories (closed loop, open loop, goal; actuator pushes)</h2>")
+        html += [f"<figure><img src='{esc(p)}' width='640'><figcaption>{esc(p)}</figcaption>"
+                 "</figure>" for p in pngs]
+    html.append(f"<h2>Settings</h2><pre>{esc(json.dumps(meta, indent=1, default=str))}</pre>")
+    html.append("</body></html>")
     with atomic_path(out / "table1.html") as tmp:
         tmp.write_text("\n".join(html) + "\n")
     return summ
@@ -158,3 +170,33 @@ def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
                     plot_response(res, Path(out) / f"response_{t}_task{task}.png")
             summ = write_table1(out, meta or {}, rows, n)   # after every scenario
     return summ
+
+
+def plot_scenarios(results: dict, path) -> Path:
+    """Closed- vs open-loop ITAE of every scenario (target x task), one panel per mismatch
+    scenario; ``results``: scenario -> rows of ``table1_row``. PNG written whole."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(results)
+    fig, axes = plt.subplots(1, len(names), figsize=(5.2 * len(names), 3.8), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        ok = [r for r in results[name] if r["status"] == "ok"]
+        labels = [f"{r['target']}/{r['task']}" for r in ok]
+        x = np.arange(len(ok))
+        ax.bar(x - 0.2, [r["closed_loop_itae"] for r in ok], 0.4, label="closed loop")
+        ax.bar(x + 0.2, [r["open_loop_itae"] or 0.0 for r in ok], 0.4, label="open loop",
+               color=["C1" if r.get("open_loop_status") == "completed" else "0.7" for r in ok])
+        ax.set_xticks(x, labels, rotation=90, fontsize=7)
+        ax.set_yscale("log")
+        ax.set_title(f"mismatch: {name}")
+        ax.set_ylabel("ITAE (mm s^2)")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
+    plt.close(fig)
+    return path

@@ -94,3 +94,28 @@ def test_mpc_json_is_complete_and_an_infeasible_open_loop_is_named(tmp_path, cap
     assert d["mismatch"]["E_factor"] == 1.2 and d["settings"]["max_travel_mm"] == 0.5
     assert d["open_loop"]["status"] == "infeasible"
     assert max(d["open_loop"]["u_open_mm"]) <= 0.5 < max(d["open_loop"]["u_open_unclamped_mm"])
+
+
+def test_table1_runs_mismatch_scenarios_with_trajectories(tmp_path, capsys):
+    """Gravity on the plant only and a coarser model mesh: each scenario completes (or stops
+    with a named reason), writes its table, trajectories and the combined summary and plot."""
+    from tissue.cli import main
+
+    out = tmp_path / "t1"
+    rc = main(["table1", CASE, "--size", "14", "--targets", "T1", "--steps", "3",
+               "--scenarios", "gravity", "mesh", "--out", str(out)])
+    assert rc == 0
+    combined = json.loads((out / "table1_scenarios.json").read_text())
+    assert set(combined["scenarios"]) == {"gravity", "mesh"}
+    for name in ("gravity", "mesh"):
+        t = json.loads((out / name / "table1.json").read_text())
+        assert t["meta"]["scenario"] == name and len(t["rows"]) == 3
+        assert t["meta"]["mismatch"]["gravity" if name == "gravity" else "mesh"] == "different"
+        page = (out / name / "table1.html").read_text()
+        for r in t["rows"]:
+            if r["status"] == "ok":
+                assert f"response_{r['target']}_task{r['task']}.png" in page
+    assert (out / "table1_scenarios.png").read_bytes()[:4] == b"\x89PNG"
+    # gravity moves the plant's targets before any push: the model (no gravity) cannot know
+    g = json.loads((out / "gravity" / "table1.json").read_text())["meta"]
+    assert g["plant_gravity_mm_s2"] == [0.0, 0.0, -9810.0] and g["model_gravity_mm_s2"] is None
