@@ -367,7 +367,8 @@ class OutputsMixin:
                    "factorizations": self.timings.factorizations,
                    "krylov_iterations": self.timings.krylov_iterations, **state,
                    **self.contact.extra(),
-                   **deformation_state(case.mesh, u_v, degree=self.degree)})
+                   **deformation_state(case.mesh, u_v, degree=self.degree),
+                   "warnings": case.glued_patch_warnings(u_v)})
 
     # ------------------------------------------------------------------ residual / tangent
     def _out_permutation(self):

@@ -119,3 +119,14 @@ def test_table1_runs_mismatch_scenarios_with_trajectories(tmp_path, capsys):
     # gravity moves the plant's targets before any push: the model (no gravity) cannot know
     g = json.loads((out / "gravity" / "table1.json").read_text())["meta"]
     assert g["plant_gravity_mm_s2"] == [0.0, 0.0, -9810.0] and g["model_gravity_mm_s2"] is None
+
+
+def test_a_glued_patch_that_crushes_its_rim_is_named():
+    """All four patches at 15 mm on the default mesh compress rim cells below J = 0.2 (the
+    regime where the glued-patch answer does not converge); 2 mm pushes do not."""
+    c = load_case(CASE)
+    far = fr.solve(c, pushes={a: 15.0 for a in ("A1", "A2", "A3", "A4")})
+    assert far.extra["warnings"] and all("J = " in w for w in far.extra["warnings"])
+    assert any("'A3'" in w for w in far.extra["warnings"])
+    near = fr.solve(c, pushes={"A1": 2.0})
+    assert near.extra["warnings"] == []

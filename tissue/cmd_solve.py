@@ -110,6 +110,9 @@ def run(args) -> int:
             print(f"  discretization: {disc['formulation']} P{disc['degree']}{p}, "
                   f"{disc['dofs']} dofs")
         print_answer(res)
+        for line in res.extra.get("warnings") or \
+                case.with_pushes(pushes).glued_patch_warnings(res.u):
+            print(f"tissue solve: warning: {line}", file=sys.stderr)
         return report_validity("solve", res)
     return 0 if res.extra.get("valid", True) else 1
 
