@@ -1,0 +1,106 @@
+"""Mass Tensor Method (seed 001 section 2.4; Cotin, Delingette & Ayache 2000), numpy/scipy only.
+
+Equation: linear elasticity, P1 simplices, K u = f (stiffness K in mN/mm, u in mm, f in mN),
+psi = mu eps:eps + lambda/2 tr(eps)^2 (mu, lambda in kPa = mN/mm^2). The stiffness is stored the
+Cotin way, as one d x d tensor per vertex and one per edge, precomputed once:
+
+    T_ii = sum_{cells c of i}  K^c_ii,      T_ij = sum_{cells c of edge ij} K^c_ij,
+    K^c_ab = V_c [ lambda g_a g_b^T + mu g_b g_a^T + mu (g_a . g_b) I ]
+
+(g_a: gradient of the barycentric coordinate of local vertex a, 1/mm; V_c: cell volume, mm^3,
+or area x 1 mm in 2D plane strain). The elastic force of the tissue on vertex i is -F_i with
+
+    F_i = T_ii u_i + sum_{j ~ i} T_ij u_j          (mN; T_ji = T_ij^T),
+
+which ``MassTensorModel.forces`` computes edge by edge. At equilibrium the force balance
+F_i = f_ext_i holds at every free direction of every point.
+
+Point types (seed 001): every vertex is one of
+
+* free     -- moves with its force;
+* border   -- does not move (u_i = 0);
+* target   -- placed at a prescribed position (mm) regardless of its force;
+* sliding  -- stays on a plane (``Plane(point, normal)``) or on a triangulated surface
+  (``TriSurface(points, triangles)``) and moves with the tangential part of its force; on a
+  surface it is projected to the closest surface point after each move;
+* target -> sliding: a target point given ``then_slide=surface`` is switched to sliding on that
+  plane/surface once it has reached its target (phase 1 = equilibrium with the target held,
+  phase 2 = the same point released onto the surface, starting from that state).
+
+A vertex may also carry partial linear prescriptions ``u_i . n = g`` (one component, or an
+oblique plane: that is how the Case's axis-aligned / oblique ``sliding`` and ``components``
+displacements arrive). Prescriptions on one vertex are combined; two that disagree (e.g. target
+and border with different values, two targets, a plane the target does not lie on) are rejected
+when the ``PointTypes`` is built, with a ``CaseError`` naming the vertex.
+
+Iterations (both use the same tensors and the same stopping rule: stop when the largest
+displacement of any vertex in one iteration is below ``stop_mm``, seed value 0.01 mm):
+
+* ``method="descent"`` -- the seed's quasi-static steepest descent: every free point moves along
+  its (projected) force times its own step h_i = alpha / ||T_ii||_2, where the common factor
+  alpha is the exact line search along that direction (the energy decreases every iteration,
+  no step to tune). ``step_scale=s`` instead uses the fixed step h_i = s / ||T_ii||_2 (stable for
+  s < 2 / lambda_max(diag(||T_ii||)^-1 K); larger values diverge and are reported).
+* ``method="pcg"`` (default) -- beyond the seed: preconditioned conjugate gradients on the
+  same tensors, block-Jacobi preconditioner T_ii^-1 (restricted to each point's free
+  directions). Same stopping rule; on the phantom (3.3k tets, 4 x 15 mm pushes, E = 48 kPa)
+  34 iterations against descent's 267 at 0.01 mm, and within 0.1 mm of the exact solution there
+  (descent needs 0.001 mm for that: see bench/bench_mass_tensor.py).
+
+Inside the iterations the tensors are applied as one CSR matrix P K P (P: per-vertex projector on
+the free directions; ``MassTensorModel.matrix`` holds exactly T_ii / T_ij), which is the same
+arithmetic as the edge loop of ``forces`` but one compiled sparse product per iteration.
+
+Surface sliding is nonlinear (the tangent plane moves): descent projects and refreshes the
+tangent planes every iteration; pcg solves with frozen tangent planes, projects, refreshes and
+repeats until one such pass moves no vertex by ``stop_mm`` or more.
+
+Lower-level API (for the implant-planning code)::
+
+    model = MassTensorModel(points, cells, mu=..., lmbda=...)     # or material=Material(...)
+    pts = PointTypes(model.n_vertices, model.gdim)
+    pts.border(base_ids)
+    pts.target(ids, positions, then_slide=Plane(p0, n))            # positions (k, d), mm
+    pts.sliding(other_ids, TriSurface(surf_pts, surf_tris))
+    sol = model.solve(pts, f_ext=None, method="pcg", stop_mm=0.01)  # -> MTSolution
+    x_new = model.points + sol.u
+
+Case-level API: ``solve(case, ...) -> meshes.results.SolveResult`` (solver "mass-tensor").
+Divergence (NaN, growth, non-positive curvature) raises ``SolverDivergedError`` naming the
+iteration and the vertex.
+
+Modules: ``tensors`` (stiffness tensors, block-sparse helpers), ``surfaces`` (Plane,
+TriSurface), ``point_types`` (PointTypes), ``iterations`` (PCG, descent, surface-sliding rounds,
+divergence checks), ``model`` (MassTensorModel, MTSolution), ``driver`` (Case-level ``solve``).
+"""
+# ruff: noqa: F401  (the names of the former single module are re-exported from their modules)
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from meshes.errors import CaseError, SolverDivergedError
+from meshes.mesh import deformation_state
+from meshes.results import SolveResult
+
+from .driver import _MODELS, _axis_of, _model_for, _reactions, case_point_types, solve
+from .iterations import _State, log
+from .model import MassTensorModel, MTSolution
+from .point_types import PointTypes
+from .surfaces import Plane, TriSurface, _check_surface, _closest_on_segment, _closest_on_triangles
+from .tensors import _blockdiag, _bsr_from_blocks, _gradients, stiffness_tensors
+
+__all__ = [
+    "MTSolution",
+    "MassTensorModel",
+    "Plane",
+    "PointTypes",
+    "TriSurface",
+    "case_point_types",
+    "solve",
+    "stiffness_tensors",
+]

@@ -1,0 +1,190 @@
+"""The iterations of one Mass Tensor solve: preconditioned conjugate gradients ("pcg") and the
+seed's steepest descent ("descent", exact line search or a fixed ``step_scale``) on P K P, the
+common stopping rule (largest per-vertex move of one iteration below ``stop_mm``), the rounds of
+surface sliding (solve on frozen tangent planes, project, refresh) and the divergence checks."""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from meshes.errors import SolverDivergedError
+
+from .tensors import _blockdiag
+
+log = logging.getLogger("tissue.mass_tensor")
+
+
+class _State:
+    """Iteration bookkeeping shared by the phases of one solve."""
+
+    def __init__(self, model, f, stop_mm, max_iter, callback, step_scale):
+        self.model, self.f, self.stop = model, f, float(stop_mm)
+        self.max_iter, self.callback, self.step_scale = int(max_iter), callback, step_scale
+        self.K = model.matrix()
+        self.it = 0
+        self.steps: list = []
+        self.residual = float("nan")
+        self.ok = True
+        self.hnorm = np.linalg.norm(model.T_ii, ord=2, axis=(1, 2))   # ||T_ii||_2, mN/mm
+        ext = np.ptp(model.points, axis=0).max() if len(model.points) else 1.0
+        self.blowup = 1e6 * max(1.0, ext)
+
+    # linear algebra on (n, d) arrays
+    def Kx(self, x):
+        return (self.K @ x.reshape(-1)).reshape(x.shape)
+
+    def _prec(self, types, P, method):
+        """Per-vertex preconditioner blocks (n, d, d), restricted to the free directions."""
+        if method == "descent":
+            return P / self.hnorm[:, None, None]
+        T = self.model.T_ii
+        c = np.trace(T, axis1=1, axis2=2)[:, None, None] / self.model.gdim
+        NN = np.einsum("nla,nlb->nab", types.N, types.N)         # rows beyond m are zero
+        Minv = np.linalg.inv(T + c * NN)
+        return np.einsum("nab,nbc,ncd->nad", P, Minv, P)
+
+    def _planes(self, types, u):
+        """Refresh tangent planes of surface-sliding vertices at their closest surface point."""
+        if not types.surface_of:
+            return types, 0.0
+        X = self.model.points
+        t = types.copy()
+        moved = 0.0
+        for surf in {id(s): s for s in types.surface_of.values()}.values():
+            vs = np.array([v for v, s in types.surface_of.items() if s is surf], np.int64)
+            y, nrm = surf.closest(X[vs] + u[vs])
+            moved = max(moved, float(np.max(np.linalg.norm(y - X[vs] - u[vs], axis=1))))
+            u[vs] = y - X[vs]
+            t.N[vs] = 0.0
+            t.N[vs, 0] = nrm
+            t.m[vs] = 1
+            t.g[vs] = 0.0
+            t.g[vs, 0] = np.einsum("kd,kd->k", u[vs], nrm)
+        return t, moved
+
+    # surface sliding (pcg): rounds of (solve on fixed tangent planes, re-project) stop as
+    # stalled when the largest move of a round has not shrunk by 1% over this many rounds
+    # (a vertex at a crease of the surface can cycle between two triangles' planes)
+    STALL_ROUNDS = 20
+
+    def run(self, types, u, method):
+        nonlinear = bool(types.surface_of)
+        lin, _ = self._planes(types, u)
+        best, since = np.inf, 0
+        while True:
+            start = u.copy()
+            it0 = self.it
+            u = self._linear(lin, u, method, refresh=types if (nonlinear and method == "descent")
+                             else None)
+            if not nonlinear or method == "descent" or self.it >= self.max_iter:
+                return u
+            lin, _ = self._planes(types, u)
+            move = float(np.max(np.linalg.norm(u - start, axis=1)))
+            if move < self.stop or self.it == it0:
+                return u
+            if move < 0.99 * best:
+                best, since = move, 0
+            else:
+                since += 1
+            if since >= self.STALL_ROUNDS:
+                self.ok = False   # reported as not converged, with the state reached
+                log.warning("mass-tensor: surface sliding stalled after %d iterations: a round "
+                            "still moves a vertex %.3g mm (stopping rule %.3g mm)", self.it, move,
+                            self.stop)
+                return u
+
+    def _operators(self, types, method, fold):
+        """Projector P, preconditioner M and projected stiffness P K P as block-diagonal / CSR
+        matrices acting on (n, d) arrays (fold: precompute P K P once for the phase)."""
+        P = types.projector()
+        Pm = _blockdiag(P)
+        Mm = _blockdiag(self._prec(types, P, method))
+        shape = (self.model.n_vertices, self.model.gdim)
+        KP = (Pm @ self.K @ Pm).tocsr() if fold else None
+
+        def proj(x):
+            return (Pm @ x.reshape(-1)).reshape(shape)
+
+        def applyM(x):
+            return (Mm @ x.reshape(-1)).reshape(shape)
+
+        def Kproj(x):   # x is in the free subspace: P K P x = P K x
+            if KP is not None:
+                return (KP @ x.reshape(-1)).reshape(shape)
+            return proj(self.Kx(x))
+
+        return proj, applyM, Kproj
+
+    def _linear(self, types, u, method, refresh=None):
+        """Iterate on u = u_c + P w until the stopping rule (refresh: re-project surfaces each
+        iteration, descent only)."""
+        proj, applyM, Kproj = self._operators(types, method, fold=refresh is None)
+        u = types.prescribed_part() + proj(u)
+        r = proj(self.f - self.Kx(u))
+        z = applyM(r)
+        p = z.copy()
+        rz = float(np.vdot(r, z))
+        r0 = max(float(np.abs(r).max(initial=0.0)), 1e-300)
+        self.residual = float(np.abs(r).max(initial=0.0))
+        while self.it < self.max_iter:
+            if rz <= 0.0:
+                if rz == 0.0:
+                    break
+                self._diverged("non-positive preconditioned residual", r)
+            self.it += 1
+            if method == "pcg":
+                q = Kproj(p)
+                pq = float(np.vdot(p, q))
+                if not pq > 0.0:
+                    self._diverged(f"non-positive curvature p.Kp = {pq:g} (stiffness not positive "
+                                   f"definite)", p)
+                alpha = rz / pq
+                step = alpha * p
+            else:
+                q = Kproj(z)
+                if self.step_scale is None:
+                    zq = float(np.vdot(z, q))
+                    if not zq > 0.0:
+                        self._diverged(f"non-positive curvature z.Kz = {zq:g}", z)
+                    alpha = rz / zq
+                else:
+                    alpha = float(self.step_scale)
+                step = alpha * z
+            u = u + step
+            smax_v = np.linalg.norm(step, axis=1)
+            k = int(np.argmax(smax_v)) if len(smax_v) else 0
+            smax = float(smax_v[k]) if len(smax_v) else 0.0
+            if not np.isfinite(smax) or smax > self.blowup:
+                bad = np.flatnonzero(~np.isfinite(smax_v))
+                v = int(bad[0]) if bad.size else k
+                raise SolverDivergedError(
+                    f"mass-tensor {method}: diverged at iteration {self.it}: vertex {v} moved "
+                    f"{smax_v[v]:g} mm in one iteration")
+            self.steps.append(smax)
+            if refresh is not None:
+                types, _ = self._planes(refresh, u)
+                proj, applyM, Kproj = self._operators(types, method, fold=False)
+                r = proj(self.f - self.Kx(u))
+            else:
+                r = r - alpha * q
+            rmax = float(np.abs(r).max(initial=0.0))
+            self.residual = rmax
+            if not np.isfinite(rmax) or rmax > 1e12 * r0:
+                self._diverged(f"residual grew from {r0:g} to {rmax:g} mN", r)
+            if self.callback is not None:
+                self.callback(self.it, u)
+            if smax < self.stop:
+                break
+            z = applyM(r)
+            rz_new = float(np.vdot(r, z))
+            if method == "pcg":
+                p = z + (rz_new / rz) * p
+            rz = rz_new
+        self.residual = float(np.abs(proj(self.f - self.Kx(u))).max(initial=0.0))
+        return u
+
+    def _diverged(self, why, field_):
+        a = np.linalg.norm(np.nan_to_num(field_, nan=np.inf), axis=1)
+        v = int(np.argmax(a)) if len(a) else 0
+        raise SolverDivergedError(f"mass-tensor: diverged at iteration {self.it}, vertex {v}: {why}")
