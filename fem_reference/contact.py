@@ -80,6 +80,24 @@ DEFAULT_CONTACT_PENALTY = 1e3
 """beta in k = beta E / h: the penetration is (p_c / E + 1 / 2) h / beta (mm)."""
 
 
+SLIP_FRACTION = 0.05
+"""A contact facet deeper inside a tip than this fraction of its radius (and than 10x the
+nodal penetration) means the tip passed between the surface's nodes: the state is invalid."""
+SURFACE_SAMPLES = 4
+"""Sampling of each contact facet for that check: points per facet edge."""
+
+
+def _facet_samples(nv: int) -> np.ndarray:
+    """Barycentric sample points (s, nv) of a facet with nv vertices (2: edge, 3: triangle)."""
+    n = SURFACE_SAMPLES
+    if nv == 2:
+        t = np.linspace(0.0, 1.0, n + 1)
+        return np.stack([1 - t, t], axis=1)
+    pts = [(i / n, j / n) for i in range(n + 1) for j in range(n + 1 - i)]
+    a = np.array(pts)
+    return np.stack([1 - a.sum(axis=1), a[:, 0], a[:, 1]], axis=1)
+
+
 STEP_FRACTION = 0.1
 """A load step moves an indenter by at most this fraction of its radius at first (the load
 stepping grows the increments after steps that converge quickly)."""
@@ -204,8 +222,12 @@ class _Indenter:
         self.dofs = dolfinx.fem.locate_dofs_topological(V, mesh.topology.dim - 1, facets)
         self.dofs = self.dofs[self.dofs < V.dofmap.index_map.size_local]
         self.x_nodes = V.tabulate_dof_coordinates()[self.dofs, :gdim]
+        self._X = case.mesh.points
         self.site = self._site(a, case)
         self.q0 = self._start(a)
+        # the contact surface's facets (Case vertex ids): the tip must not pass between nodes
+        self.surface = np.concatenate([case.mesh.facet_regions[r] for r in regions]) \
+            if regions else np.zeros((0, gdim), np.int64)
         # constants: tip front point (ramped by the load stepping), shape, axis
         sc = PETSc.ScalarType
         self.q = dolfinx.fem.Constant(mesh, sc(tuple(self.q0)))
@@ -269,8 +291,23 @@ class _Indenter:
         self._w_area.value = w_area
         return self.comm.allreduce(dolfinx.fem.assemble_scalar(self._report_form), op=MPI.SUM)
 
-    def report(self, u_array) -> dict:
-        """Force, area and penetration at the solver's current state (module docstring)."""
+    def surface_penetration(self, u_vertices) -> float:
+        """Deepest point (mm) of the contact surface's deformed facets inside the tip, sampled
+        at SURFACE_SAMPLES points per facet: the penalty acts at the nodes only, so a tip
+        narrower than the facets can slip between nodes; then this exceeds the nodal
+        ``max_penetration`` by far."""
+        if not len(self.surface):
+            return 0.0
+        gdim = len(self.d)
+        y = np.asarray(u_vertices, float).reshape(-1, gdim) + self._X
+        pts = np.einsum("sk,fkd->fsd", _facet_samples(self.surface.shape[1]),
+                        y[self.surface]).reshape(-1, gdim)
+        o = np.asarray(self.q.value) - self.shape.edge * self.d
+        return float(max(np.max(-self.shape.gap(pts, o, self.d), initial=0.0), 0.0))
+
+    def report(self, u_array, u_vertices=None) -> dict:
+        """Force, area and penetration at the solver's current state (module docstring);
+        ``u_vertices`` ((n, gdim), mm, Case numbering) adds the facet check."""
         gdim = len(self.d)
         eye = np.eye(gdim)
         f = np.array([self._assemble(eye[i], 0.0) for i in range(gdim)])
@@ -284,7 +321,15 @@ class _Indenter:
                 "max_penetration": pen, "penalty_beta": self.beta,
                 "penalty": [float(self.beta * self.E.value / h) for h in self.h_range[::-1]],
                 "tip": self.actuator.tip, "contact": self.actuator.contact,
-                "tip_start": [float(v) for v in self.q0]}
+                "tip_start": [float(v) for v in self.q0],
+                **self._slip_check(u_vertices, pen)}
+
+    def _slip_check(self, u_vertices, nodal_pen) -> dict:
+        if u_vertices is None:
+            return {}
+        deep = self.surface_penetration(u_vertices)
+        through = deep > max(SLIP_FRACTION * self.shape.radius, 10.0 * nodal_pen)
+        return {"surface_penetration": deep, "tip_through_surface": bool(through)}
 
 
 class Contact:
@@ -386,9 +431,11 @@ class Contact:
             return True
         return False
 
-    def extra(self) -> dict:
-        """{"indenters": {name: report}} at the solver's current state; {} without indenters."""
+    def extra(self, u_vertices=None) -> dict:
+        """{"indenters": {name: report}} at the solver's current state; {} without indenters.
+        With the vertex field ``u_vertices`` each report has the facet check, and a tip that
+        passed between the surface's nodes makes the state invalid (``through_surface``)."""
         if not self.indenters:
             return {}
         arr = self.solver.u.x.array
-        return {"indenters": {ind.name: ind.report(arr) for ind in self.indenters}}
+        return {"indenters": {ind.name: ind.report(arr, u_vertices) for ind in self.indenters}}

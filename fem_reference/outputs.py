@@ -42,6 +42,22 @@ class Tangent:
 
 
 
+def _through_surface(state: dict, contact: dict) -> dict:
+    """The deformation state, made invalid where a tip passed between the contact surface's
+    nodes (the node-to-surface penalty cannot see it; the answer is then not a contact
+    solution at all)."""
+    bad = [n for n, r in (contact.get("indenters") or {}).items() if r.get("tip_through_surface")]
+    if not bad:
+        return state
+    why = "; ".join(
+        f"indenter {n!r} passed between the nodes of its contact surface (a facet "
+        f"{contact['indenters'][n]['surface_penetration']:.3g} mm inside the tip): the surface's "
+        f"cells are too coarse for the tip; refine the mesh under it (cells <= radius / 3)"
+        for n in bad)
+    reason = "; ".join(r for r in (state.get("invalid_reason"), why) if r)
+    return {**state, "valid": False, "invalid_reason": reason}
+
+
 class OutputsMixin:
     """State I/O and exported quantities of a ReferenceSolver."""
 
@@ -354,6 +370,7 @@ class OutputsMixin:
             state = {"node_u": nodes, "node_points": self._output_node_points()}
         if self.Q is not None:
             state["pressure"] = self._pressure_vertex_field()
+        contact = self.contact.extra(u_v)
         return SolveResult(
             u=u_v, converged=converged, iterations=iters, residual=float(residual),
             wall_time_s=wall, solver="fem", probes=self._probes(case, u_v),
@@ -366,8 +383,9 @@ class OutputsMixin:
                    "linear_solver": self.linear_solver,
                    "factorizations": self.timings.factorizations,
                    "krylov_iterations": self.timings.krylov_iterations, **state,
-                   **self.contact.extra(),
-                   **deformation_state(case.mesh, u_v, degree=self.degree),
+                   **contact,
+                   **_through_surface(deformation_state(case.mesh, u_v, degree=self.degree),
+                                      contact),
                    "warnings": case.glued_patch_warnings(u_v)})
 
     # ------------------------------------------------------------------ residual / tangent

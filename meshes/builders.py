@@ -120,8 +120,16 @@ def _finish(gmsh, dim: int, out, *, curved: bool = False) -> MeshData:
         return read_msh(p, overlap_check=False)
 
 
-def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANTOM) -> MeshData:
+SITE_REACH = 15.0
+"""Radius (mm) around each actuator site inside which ``site_size`` applies; the cells grow to
+``size`` over the next SITE_REACH mm."""
+
+
+def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANTOM,
+             site_size: float | None = None) -> MeshData:
     g = geometry
+    if site_size is not None and not (math.isfinite(site_size) and 0 < site_size):
+        raise CaseError(f"site_size must be a positive length in mm, got {site_size!r}")
     with _gmsh_session("phantom", size) as gmsh:
         occ = gmsh.model.occ
         s = occ.addSphere(0, 0, 0, g.radius)
@@ -184,17 +192,39 @@ def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANT
         # finer patches so each actuator touches several vertices
         gmsh.model.mesh.setSize(gmsh.model.getBoundary([(2, s) for g_ in patches.values() for s in g_],
                                                        recursive=True), min(size, g.patch_radius))
+        if site_size is not None and site_size < size:
+            _refine_sites(gmsh, [g.side_point(az) for _, az in actuators], site_size, size)
         return _finish(gmsh, 3, out, curved=True)
 
 
-def phantom(size: float = 6.0, *, out=None) -> MeshData:
-    """Seed 000 breast phantom with four side actuators (see module docstring). size in mm."""
-    return _phantom(size, ACTUATORS_4, out)
+def _refine_sites(gmsh, sites, fine: float, coarse: float):
+    """Cells of size ``fine`` within SITE_REACH of every site, growing linearly to ``coarse``
+    over the next SITE_REACH mm (a gmsh Distance + Threshold background field)."""
+    f = gmsh.model.mesh.field
+    pts = [gmsh.model.occ.addPoint(*p) for p in sites]
+    gmsh.model.occ.synchronize()
+    dist = f.add("Distance")
+    f.setNumbers(dist, "PointsList", pts)
+    th = f.add("Threshold")
+    f.setNumber(th, "InField", dist)
+    f.setNumber(th, "SizeMin", fine)
+    f.setNumber(th, "SizeMax", coarse)
+    f.setNumber(th, "DistMin", SITE_REACH)
+    f.setNumber(th, "DistMax", 2 * SITE_REACH)
+    f.setAsBackgroundMesh(th)
+    gmsh.option.setNumber("Mesh.CharacteristicLengthMin", fine)
 
 
-def phantom3(size: float = 6.0, *, out=None) -> MeshData:
+def phantom(size: float = 6.0, *, out=None, site_size: float | None = None) -> MeshData:
+    """Seed 000 breast phantom with four side actuators (see module docstring). size in mm;
+    site_size: the cell size (mm) near each actuator site (``SITE_REACH``), e.g. a third of an
+    indenter's radius."""
+    return _phantom(size, ACTUATORS_4, out, site_size=site_size)
+
+
+def phantom3(size: float = 6.0, *, out=None, site_size: float | None = None) -> MeshData:
     """Seed 000 phantom with three actuators 120 deg apart (minimal positive basis)."""
-    return _phantom(size, ACTUATORS_3, out)
+    return _phantom(size, ACTUATORS_3, out, site_size=site_size)
 
 
 def _axis_block(kind: str, size: float, lengths, out) -> MeshData:
@@ -413,7 +443,7 @@ MAX_CELLS = 2_000_000
 command line's ``--max-cells`` raise it."""
 
 
-def estimate_cells(name: str, size: float) -> int | None:
+def estimate_cells(name: str, size: float, *, site_size: float | None = None) -> int | None:
     """Estimated cells (tetrahedra, or triangles for the rectangle) of builder ``name`` at
     characteristic length ``size`` (mm): about CELLS_PER_VOLUME * V / size^d, within ~10 %
     above a few thousand cells; None for a builder whose body volume is not in BODY_VOLUMES."""
@@ -431,6 +461,15 @@ def estimate_cells(name: str, size: float) -> int | None:
     d = BODY_DIMENSIONS.get(name, 3)
     with np.errstate(over="ignore"):
         est = CELLS_PER_VOLUME[d] * BODY_VOLUMES[name] / float(size) ** d
+        if site_size is not None and name in SITE_BUILDERS and site_size < size:
+            # each site: a half ball of radius SITE_REACH at site_size, a graded shell to
+            # 2 SITE_REACH (cells of about the mean size), at most the whole body
+            n_sites = 4 if name == "phantom" else 3
+            half = 2.0 / 3.0 * math.pi * SITE_REACH ** 3
+            shell = 7.0 * half
+            mid = (site_size + size) / 2.0
+            local = n_sites * (half / site_size ** 3 + shell / mid ** 3)
+            est += CELLS_PER_VOLUME[d] * min(local, BODY_VOLUMES[name] / site_size ** 3)
     return int(min(est, 1e18)) if math.isfinite(est) else 10 ** 18
 
 
@@ -446,12 +485,26 @@ def check_cell_budget(name: str, size: float, max_cells: int | None = MAX_CELLS)
     return est
 
 
-def build(name: str, size: float, *, out=None, max_cells: int | None = MAX_CELLS) -> MeshData:
+SITE_BUILDERS = ("phantom", "phantom-3")
+"""The builders that take ``site_size`` (finer cells at the actuator sites)."""
+
+
+def build(name: str, size: float, *, out=None, max_cells: int | None = MAX_CELLS,
+          site_size: float | None = None) -> MeshData:
     """Build a named mesh (see ``BUILDERS``) with characteristic length ``size`` (mm).
 
     max_cells: refuse (CaseError with the estimate, before gmsh starts) a mesh whose estimated
-    cell count (``estimate_cells``) exceeds it; None: no limit."""
+    cell count (``estimate_cells``) exceeds it; None: no limit. site_size: finer cells at the
+    actuator sites (``SITE_BUILDERS`` only)."""
     if name not in BUILDERS:
         raise CaseError(f"unknown mesh builder {name!r}; builders: {sorted(BUILDERS)}")
-    check_cell_budget(name, size, max_cells)
-    return BUILDERS[name](size, out=out)
+    if site_size is None:
+        check_cell_budget(name, size, max_cells)
+        return BUILDERS[name](size, out=out)
+    if name not in SITE_BUILDERS:
+        raise CaseError(f"site_size applies to the builders {list(SITE_BUILDERS)}, not {name!r}")
+    est = estimate_cells(name, size, site_size=site_size)
+    if max_cells is not None and est > max_cells:
+        raise CaseError(f"builtin mesh {name!r} at size {size:g} mm, site_size {site_size:g} mm: "
+                        f"about {est:,} cells (estimate), more than the limit {max_cells:,}")
+    return BUILDERS[name](size, out=out, site_size=site_size)

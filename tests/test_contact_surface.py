@@ -1,0 +1,64 @@
+"""A tip narrower than the skin's cells can pass between the surface's nodes (the contact acts
+at the nodes): the solve must say so (an invalid state), never report it as a contact answer.
+Checked on a coarse box with a sphere placed so that the facet under its axis is inside it,
+against a fine-enough mesh where the same check stays quiet."""
+import numpy as np
+import pytest
+
+import fem_reference as fr
+from meshes.builders import box, estimate_cells
+from meshes.case import Actuator, Boundary, Case, Material
+from meshes.errors import CaseError
+
+R = 1.0
+
+
+def tip_case(mesh, point):
+    return Case(mesh=mesh, material=Material("neo-hookean", E=6.0, nu=0.3), name="tip",
+                boundaries=(Boundary("zmin", "fixed"),),
+                actuators=(Actuator("I", "zmax", (0.0, 0.0, -1.0), type="indenter",
+                                    tip="sphere", radius=R, point=tuple(point)),))
+
+
+def lonely_axis(mesh):
+    """A point of the top face whose nearest top node is 0.9 R from it, every other node
+    farther than R: the sphere touches that one node and its front sits inside the facet."""
+    top = np.unique(mesh.facet_regions["zmax"])
+    xy = mesh.points[top, :2]
+    for p in xy:
+        for ang in np.linspace(0, 2 * np.pi, 24, endpoint=False):
+            q = p + 0.9 * R * np.array([np.cos(ang), np.sin(ang)])
+            if not (1.5 < q[0] < 8.5 and 1.5 < q[1] < 8.5):
+                continue
+            d = np.sort(np.linalg.norm(xy - q, axis=1))
+            if d[0] > 0.89 * R and d[1] > 1.2 * R:
+                return (q[0], q[1], 10.0)
+    pytest.skip("no such point on this mesh")
+
+
+def test_a_tip_between_coarse_nodes_gives_an_invalid_state():
+    mesh = box(5.0)
+    res = fr.solve(tip_case(mesh, lonely_axis(mesh)), pushes={"I": 0.1})
+    rep = res.extra["indenters"]["I"]
+    # the sphere's front sits R (1 - sqrt(1 - 0.81)) = 0.56 R below the node it touches
+    assert rep["surface_penetration"] > 0.4 * R and rep["tip_through_surface"]
+    assert res.extra["valid"] is False
+    assert "passed between the nodes of its contact surface" in res.extra["invalid_reason"]
+
+
+def test_the_check_is_quiet_where_the_surface_resolves_the_tip():
+    mesh = box(0.35)
+    top = np.unique(mesh.facet_regions["zmax"])
+    node = mesh.points[top][np.argmin(np.linalg.norm(mesh.points[top, :2] - 5.0, axis=1))]
+    res = fr.solve(tip_case(mesh, node), pushes={"I": 0.3})
+    rep = res.extra["indenters"]["I"]
+    assert rep["force"] > 0 and not rep["tip_through_surface"] and res.extra["valid"]
+    assert rep["surface_penetration"] < 0.05 * R
+
+
+def test_site_size_refines_only_the_phantom_builders():
+    assert estimate_cells("phantom", 6.0, site_size=1.6) > 5 * estimate_cells("phantom", 6.0)
+    from meshes.builders import build
+
+    with pytest.raises(CaseError, match="site_size applies to the builders"):
+        build("box", 5.0, site_size=1.0)
