@@ -159,11 +159,13 @@ def phantom12():
     return load_case(CASE_TOML, size=12.0)
 
 
-def test_admm_matches_fem_reference_on_phantom(phantom12):
+@pytest.mark.parametrize("device", ["cpu", "array-cpu"])
+def test_admm_matches_fem_reference_on_phantom(phantom12, device):
+    """Both backends (the C kernel, and the array code of the GPU path run on numpy)."""
     from fem_reference import solve as fem_solve
     pushes = {"A1": 5.0, "A2": 5.0, "A3": 5.0, "A4": 5.0}
     ref = fem_solve(phantom12, degree=1, pushes=pushes)
-    res = admm.solve(phantom12, pushes=pushes, max_iter=300)
+    res = admm.solve(phantom12, pushes=pushes, max_iter=300, device=device)
     assert res.converged
     assert np.abs(res.u - ref.u).max() < 1e-6
     for k in ref.probes:
