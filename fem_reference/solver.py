@@ -35,6 +35,7 @@ from .contact import DEFAULT_CONTACT_PENALTY, Contact, contact_key
 from .dolfinx_mesh import DolfinxMesh, to_dolfinx
 from .forms import mixed_energy_density, strain_energy_density
 from .linalg import LAGGED_ABOVE_DOFS, LinearSolveMixin, _has_cholmod
+from .logs import install_log_filters
 from .newton import NewtonMixin, NewtonSettings, _Timings
 from .outputs import OutputsMixin, Tangent
 
@@ -51,8 +52,7 @@ __all__ = [
 ]
 
 log = logging.getLogger("tissue.fem")
-for _name in ("UFL", "FFCx", "ffcx", "root"):
-    logging.getLogger(_name).setLevel(logging.WARNING)
+install_log_filters()
 
 # Quadrature degree per Lagrange degree. P1: F is constant per cell, degree 1 integrates the
 # energy and the body-force term exactly. P2: F is linear; psi is not polynomial, degree 4 is

@@ -1,14 +1,14 @@
-"""Mesh I/O: gmsh ``.msh`` with named physical groups in, XDMF / VTU / ``.msh`` out.
+"""Mesh I/O: gmsh ``.msh`` with named physical groups in; XDMF / VTU / ``.msh`` out (the
+writers live in ``meshes.writers`` and are re-exported here).
 
-Writers are registered by suffix in ``WRITERS``; every writer writes to a temporary file in the
-target folder and renames it, so a file is written whole or not at all, and no temporary is left
-behind after an error or an interrupt. ``check_output_file`` / ``check_output_dir`` refuse a path
+Every output is written to a temporary file in the target folder and renamed (``atomic_path``),
+so a file is written whole or not at all, and no temporary is left behind after an error or an
+interrupt. ``check_output_file`` / ``check_output_dir`` refuse a path
 that cannot be written before any work starts.
 """
 from __future__ import annotations
 
 import os
-import shutil
 import tempfile
 from pathlib import Path
 
@@ -17,8 +17,8 @@ import numpy as np
 from .errors import ReadError, WriteError
 from .mesh import MeshData, check_tangles
 
-__all__ = ["WRITERS", "atomic_path", "check_output_dir", "check_output_file", "read_mesh",
-           "read_msh", "write_mesh", "write_point_data"]
+__all__ = ["REGION", "WRITERS", "atomic_path", "check_output_dir", "check_output_file",
+           "read_mesh", "read_msh", "region_tags", "write_mesh", "write_point_data"]
 
 _CELL = {3: "tetra", 2: "triangle"}
 _FACET = {3: "triangle", 2: "line"}
@@ -252,104 +252,5 @@ def check_output_dir(path, what: str = "output folder") -> Path:
     return path
 
 
-def _meshio_mesh(mesh: MeshData, point_data=None, cell_data=None):
-    import meshio
-
-    pts = mesh.points if mesh.gdim == 3 else np.column_stack([mesh.points, np.zeros(mesh.n_vertices)])
-    pd = {}
-    for k, v in (point_data or {}).items():
-        v = np.asarray(v, dtype=np.float64)
-        if v.ndim == 2 and v.shape[1] == 2:
-            v = np.column_stack([v, np.zeros(len(v))])
-        pd[k] = v
-    cd = {k: [np.asarray(v)] for k, v in (cell_data or {}).items()}
-    return meshio.Mesh(pts, [(_CELL[mesh.gdim], mesh.cells)], point_data=pd, cell_data=cd)
-
-
-def _write_vtu(mesh, path, point_data=None, cell_data=None):
-    import meshio
-
-    with atomic_path(path) as tmp:
-        meshio.write(str(tmp), _meshio_mesh(mesh, point_data, cell_data), file_format="vtu")
-
-
-def _write_xdmf(mesh, path, point_data=None, cell_data=None):
-    """XDMF + HDF5 pair (ParaView). Both files are written to temporaries and then renamed."""
-    import meshio
-
-    path = Path(path)
-    h5 = path.with_suffix(".h5")
-    if path.is_dir() or h5.is_dir():
-        raise WriteError(f"cannot write {str(path)!r}: it or its .h5 is a directory")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmpdir = Path(tempfile.mkdtemp(prefix=".xdmf-", dir=path.parent))
-    except OSError as exc:
-        raise WriteError(f"cannot write {str(path)!r}: {_why(exc)}") from None
-    try:
-        tmp_x = tmpdir / path.name
-        meshio.write(str(tmp_x), _meshio_mesh(mesh, point_data, cell_data), file_format="xdmf")
-        os.replace(tmp_x.with_suffix(".h5"), h5)
-        os.replace(tmp_x, path)
-    except Exception as exc:
-        raise WriteError(f"cannot write {str(path)!r}: {exc}") from None
-    finally:
-        shutil.rmtree(tmpdir, ignore_errors=True)
-
-
-def _write_msh(mesh, path, point_data=None, cell_data=None):
-    """gmsh 2.2 ASCII with the named regions as physical groups."""
-    import meshio
-
-    d = mesh.gdim
-    blocks, phys, field = [], [], {}
-    tag = 1
-    regions = mesh.cell_regions or {"volume": np.arange(mesh.n_cells)}
-    for name, ids in regions.items():
-        blocks.append((_CELL[d], mesh.cells[ids]))
-        phys.append(np.full(len(ids), tag))
-        field[name] = np.array([tag, d])
-        tag += 1
-    for name, f in mesh.facet_regions.items():
-        blocks.append((_FACET[d], f))
-        phys.append(np.full(len(f), tag))
-        field[name] = np.array([tag, d - 1])
-        tag += 1
-    for name, v in mesh.point_regions.items():
-        blocks.append(("vertex", np.asarray(v).reshape(-1, 1)))
-        phys.append(np.full(len(v), tag))
-        field[name] = np.array([tag, 0])
-        tag += 1
-    pts = mesh.points if d == 3 else np.column_stack([mesh.points, np.zeros(mesh.n_vertices)])
-    m = meshio.Mesh(pts, blocks, cell_data={"gmsh:physical": phys, "gmsh:geometrical": phys},
-                    field_data=field)
-    with atomic_path(path) as tmp:
-        meshio.write(str(tmp), m, file_format="gmsh22", binary=False)
-
-
-WRITERS = {".vtu": _write_vtu, ".xdmf": _write_xdmf, ".msh": _write_msh}
-
-
-def write_mesh(mesh: MeshData, path, *, point_data=None, cell_data=None) -> Path:
-    """Write a mesh (and optional point / cell fields) by suffix: .vtu, .xdmf (+ .h5), .msh."""
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in WRITERS:
-        raise WriteError(f"{str(path)!r}: unsupported output format {suffix!r}; "
-                         f"supported: {sorted(WRITERS)}")
-    try:
-        WRITERS[suffix](mesh, path, point_data, cell_data)
-    except WriteError:
-        raise
-    except Exception as exc:
-        raise WriteError(f"cannot write {str(path)!r}: {exc}") from exc
-    return path
-
-
-def write_point_data(mesh: MeshData, out_dir, stem: str, point_data: dict,
-                     cell_data: dict | None = None) -> list[Path]:
-    """Write ``stem.xdmf`` and ``stem.vtu`` with the given vertex (and cell) fields
-    (ParaView-readable)."""
-    out_dir = Path(out_dir)
-    return [write_mesh(mesh, out_dir / f"{stem}{s}", point_data=point_data, cell_data=cell_data)
-            for s in (".xdmf", ".vtu")]
+# the writers, re-exported (imported last: they use atomic_path and the cell names above)
+from .writers import REGION, WRITERS, region_tags, write_mesh, write_point_data

@@ -1,5 +1,9 @@
 """``tissue mesh BUILDER --size MM -o FILE [--max-cells N]``: build a gmsh mesh and report its
-size and quality. The output path and the estimated cell count are checked before gmsh starts."""
+size and quality. The output path and the estimated cell count are checked before gmsh starts.
+
+Every format keeps the named regions: .msh as gmsh physical groups; .vtu and .xdmf as the
+integer cell field ``region`` over the cells, the boundary facets and (.vtu) the point regions'
+vertices, with the names as field data (name -> [tag, dim]; see ``meshes.io.write_mesh``)."""
 from __future__ import annotations
 
 from meshes.builders import BUILDERS, MAX_CELLS, build
@@ -15,8 +19,8 @@ def run(args) -> int:
     announce_build("mesh", args.builder, args.size, args.max_cells)
     mesh = build(args.builder, args.size, out=out if suffix == ".msh" else None,
                  max_cells=args.max_cells if args.max_cells is not None else MAX_CELLS)
-    if suffix != ".msh":
-        write_mesh(mesh, out)
+    if suffix != ".msh":  # the regions as in the .msh: cells, facets (and points in .vtu)
+        write_mesh(mesh, out, all_regions=True)
     q = quality(mesh)
     kind = "tetrahedra" if mesh.gdim == 3 else "triangles"
     print(f"{out}: {q.n_vertices} vertices, {q.n_cells} {kind}")
