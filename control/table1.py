@@ -9,6 +9,7 @@ keeps what it finished.
 from __future__ import annotations
 
 import json
+import textwrap
 from html import escape as html_escape
 from pathlib import Path
 
@@ -186,6 +187,14 @@ def plot_scenarios(results: dict, path) -> Path:
     fig, axes = plt.subplots(1, len(names), figsize=(5.2 * len(names), 3.8), squeeze=False)
     for ax, name in zip(axes[0], names):
         ok = [r for r in results[name] if r["status"] == "ok"]
+        if not ok:
+            why = next((r.get("error", "") for r in results[name]), "")
+            ax.text(0.5, 0.5, "no scenario ran\n" + textwrap.fill(why[:300], 50),
+                    ha="center", va="center", fontsize=7, transform=ax.transAxes, wrap=True)
+            ax.set_title(f"mismatch: {name}")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            continue
         labels = [f"{r['target']}/{r['task']}" for r in ok]
         x = np.arange(len(ok))
         ax.bar(x - 0.2, [r["closed_loop_itae"] for r in ok], 0.4, label="closed loop")
