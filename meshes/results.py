@@ -61,6 +61,12 @@ class SolveResult:
             "reactions": {k: np.asarray(v, float).tolist() for k, v in self.reactions.items()},
             "strain_energy": float(self.strain_energy),
         }
+        if case is not None:   # what was solved: the material and every actuator's position
+            m = case.material
+            d["material"] = {"model": m.model, "E_kPa": float(m.E), "nu": float(m.nu),
+                             "density_kg_mm3": float(m.density)}
+            d["pushes_mm"] = {a.name: float(a.push) for a in case.actuators}
+            d["actuators"] = {a.name: {"type": a.type, "idle": a.idle} for a in case.actuators}
         d.update({k: v for k, v in self.extra.items() if _jsonable(v)})
         est = self.extra.get("probe_error_estimates") or {}
         for k, e in est.items():

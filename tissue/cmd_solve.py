@@ -97,7 +97,7 @@ def run(args) -> int:
                 print(f"tissue solve: last converged state (load fraction {exc.load_fraction:.4f})"
                       f" written to {Path(args.out) / 'last_converged.xdmf'}", file=sys.stderr)
         raise
-    write_outputs(case, res, args.out, args.json)
+    write_outputs(case.with_pushes(pushes), res, args.out, args.json)
     if _rank() == 0:
         print(f"{case.name}: {args.solver} converged={res.converged} "
               f"iterations={res.iterations} load_steps={res.load_steps} "
