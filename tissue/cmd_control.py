@@ -32,7 +32,8 @@ MAX_MAP_POINTS = 20_000
 
 
 def _loop_args(p):
-    p.add_argument("--plant", choices=("fem", "admm"), default="fem")
+    p.add_argument("--plant", choices=("fem", "admm"), default="fem",
+                   help="the solver playing the tissue (the \"true\" plant)")
     p.add_argument("--model", choices=("fem", "admm"), default=None,
                    help="controller's model solver (default: the plant's)")
     p.add_argument("--model-E-factor", type=real("positive"), default=1.0,
@@ -41,12 +42,16 @@ def _loop_args(p):
                    help="the model's mesh size (mm; default: the plant's mesh)")
     p.add_argument("--noise", type=real("nonneg", "mm"), default=0.0,
                    help="measurement noise std (mm)")
-    p.add_argument("--seed", type=integer(0, 2 ** 32 - 1), default=0)
-    p.add_argument("--steps", type=integer(1, 100_000), default=60)
+    p.add_argument("--seed", type=integer(0, 2 ** 32 - 1), default=0,
+                   help="seed of the measurement noise")
+    p.add_argument("--steps", type=integer(1, 100_000), default=60, help="MPC steps")
     p.add_argument("--dt", type=real("positive", "s"), default=1.0, help="time per MPC step (s)")
-    p.add_argument("--horizon", type=integer(1, 1000), default=5)
-    p.add_argument("--q", type=real("positive", "1/mm^2"), default=3.0)
-    p.add_argument("--r", type=real("positive", "1/mm^2"), default=2.0)
+    p.add_argument("--horizon", type=integer(1, 1000), default=5,
+                   help="MPC prediction horizon Np (steps)")
+    p.add_argument("--q", type=real("positive", "1/mm^2"), default=3.0,
+                   help="MPC tracking weight Q = q I (1/mm^2)")
+    p.add_argument("--r", type=real("positive", "1/mm^2"), default=2.0,
+                   help="MPC push-increment weight R = r I (1/mm^2)")
     p.add_argument("--max-travel", type=real("positive", "mm"), default=None,
                    help="push limit per actuator (mm)")
     p.add_argument("--qp-solver", default="qpoases", help="casadi conic plugin")
@@ -242,8 +247,9 @@ def add_parser(sub):
     p = sub.add_parser("mpc", help="closed-loop push-only MPC of one target (seed 000)",
                        description=__doc__)
     add_case_args(p)
-    p.add_argument("--target", required=True)
-    p.add_argument("--task", type=int, required=True, choices=(1, 2, 3))
+    p.add_argument("--target", required=True, help="the probe to steer, e.g. T1")
+    p.add_argument("--task", type=int, required=True, choices=(1, 2, 3),
+                   help="1: -x 5 mm (y free); 2: -y 5 mm (x free); 3: +x and +y 5 mm")
     _loop_args(p)
     p.add_argument("--out", help="folder for the time-response PNG")
     p.add_argument("--json", help="write the result here")
@@ -252,22 +258,24 @@ def add_parser(sub):
     p = sub.add_parser("table1", help="5 targets x 3 tasks, open vs closed loop (seed Table I)")
     add_case_args(p)
     _loop_args(p)
-    p.add_argument("--targets", nargs="*", default=None)
+    p.add_argument("--targets", nargs="*", default=None,
+                   help="probes to steer (default: every probe of the case)")
     p.add_argument("--scenarios", nargs="+", choices=("gravity", "nu", "mesh"), default=None,
                    help="run the table once per model-plant mismatch (plant: the reference; "
                         "model: --model, default admm): gravity on the plant only, a nearly "
                         "incompressible plant (nu 0.495, mixed), a model mesh twice as coarse")
-    p.add_argument("--out", required=True)
+    p.add_argument("--out", required=True, help="folder for the tables, trajectories and plots")
     p.set_defaults(func=run_table1)
 
     p = sub.add_parser("manipulability", help="manipulability maps over the z = 15 mm section")
     add_case_args(p)
     p.add_argument("--compare", nargs="*", default=["meshes/cases/phantom-3.toml"],
                    help="other cases to map side by side (default: the 3-actuator phantom)")
-    p.add_argument("--solver", choices=("fem", "admm"), default="fem")
+    p.add_argument("--solver", choices=("fem", "admm"), default="fem",
+                   help="whose tangent stiffness the maps use")
     p.add_argument("--plane-z", type=real("finite", "mm"), default=15.0,
                    help="height of the mapped section (mm)")
     p.add_argument("--spacing", type=real("positive", "mm"), default=3.0,
                    help="grid spacing (mm)")
-    p.add_argument("--out", required=True)
+    p.add_argument("--out", required=True, help="folder for the maps (PNG) and their JSON")
     p.set_defaults(func=run_manipulability)

@@ -83,8 +83,10 @@ def add_parser(sub):
                                                   "takes three"), default=3,
                    help="number of meshes: the coarsest and levels-1 uniform refinements "
                         "(>= 3; 4 or more to confirm the observed order)")
-    p.add_argument("--degrees", type=int, nargs="+", default=[1], choices=(1, 2, 3))
-    p.add_argument("--push", action="append", metavar="NAME=MM", default=None)
+    p.add_argument("--degrees", type=int, nargs="+", default=[1], choices=(1, 2, 3),
+                   help="Lagrange degrees to study, one refinement study each")
+    p.add_argument("--push", action="append", metavar="NAME=MM", default=None,
+                   help="push an actuator along its direction (repeatable)")
     p.add_argument("--formulation", choices=("auto", "displacement", "mixed"), default="auto",
                    help="reference formulation (auto: mixed u-p for nu >= 0.49, which needs "
                         "--degrees 2 or 3)")

@@ -169,7 +169,7 @@ def run(args) -> int:
 
 def add_parser(sub):
     p = sub.add_parser("demo", help="build the phantom, solve, verify, write a report")
-    p.add_argument("--out", default="out")
+    p.add_argument("--out", default="out", help="folder for the report and every output")
     p.add_argument("--size", type=real("positive", "mm"), default=6.0,
                    help="phantom mesh size for the reference (mm)")
     p.add_argument("--verify-size", type=real("positive", "mm"), default=10.0,
@@ -177,5 +177,6 @@ def add_parser(sub):
     p.add_argument("--verify-push", type=real("finite", "mm"), default=15.0,
                    help="push of all four actuators (mm)")
     add_max_cells(p, what="phantom mesh")
-    p.add_argument("--skip-verify", action="store_true")
+    p.add_argument("--skip-verify", action="store_true",
+                   help="leave out the verification of the fast solvers")
     p.set_defaults(func=run)

@@ -115,7 +115,8 @@ def add_parser(sub):
     p.add_argument("--dt", type=real("positive", "s"), required=True, help="time step (s)")
     p.add_argument("--steps", type=integer(1, MAX_STEPS), required=True,
                    help="number of time steps")
-    p.add_argument("--solver", choices=("fem", "admm"), default="fem")
+    p.add_argument("--solver", choices=("fem", "admm"), default="fem",
+                   help="the reference or ADMM (same lumped mass)")
     add_discretization_args(p)
     p.add_argument("--mass", choices=("lumped", "consistent"), default="lumped",
                    help="reference mass: lumped (P1 vertex mass, the ADMM's) or consistent")

@@ -41,8 +41,9 @@ def add_parser(sub) -> None:
                    help="x (mm) of the three thickness planes (default: from the skin's extent)")
     p.add_argument("--volume", type=real("positive", "cc"), default=245.0,
                    help="implant volume (cc)")
-    p.add_argument("--shape", choices=["round", "anatomical"], default="round")
-    p.add_argument("--side", choices=["left", "right"], default="left")
+    p.add_argument("--shape", choices=["round", "anatomical"], default="round",
+                   help="implant shape from the library")
+    p.add_argument("--side", choices=["left", "right"], default="left", help="breast side")
     p.add_argument("--at", type=real("finite", "mm", magnitude=1e4), nargs=2,
                    metavar=("X", "Y"),
                    help="implant centre seen from the front (mm); default under the breast")

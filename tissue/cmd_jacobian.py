@@ -65,7 +65,8 @@ def add_parser(sub):
     add_case_args(p)
     p.add_argument("--state-push", action="append", default=[], metavar="NAME=MM",
                    help="state at which to linearize (repeatable); other actuators held at 0")
-    p.add_argument("--solver", choices=("fem", "admm"), default="fem")
+    p.add_argument("--solver", choices=("fem", "admm"), default="fem",
+                   help="whose tangent and solves: the reference or ADMM")
     add_discretization_args(p)
     p.add_argument("--fd-h", type=real("nonneg", "mm"), default=0.02,
                    help="central FD step (mm); 0 skips")

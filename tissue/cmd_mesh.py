@@ -32,7 +32,7 @@ def run(args) -> int:
 
 def add_parser(sub):
     p = sub.add_parser("mesh", help="build a phantom / box / rectangle mesh with gmsh")
-    p.add_argument("builder", choices=sorted(BUILDERS))
+    p.add_argument("builder", choices=sorted(BUILDERS), help="the builtin geometry to mesh")
     p.add_argument("--size", type=real("positive", "mm"), default=6.0,
                    help="characteristic length (mm)")
     add_max_cells(p)

@@ -164,7 +164,8 @@ def print_answer(res):
 def add_parser(sub):
     p = sub.add_parser("solve", help="solve a case with the reference or a fast solver")
     add_case_args(p)
-    p.add_argument("--solver", choices=SOLVER_NAMES, default="fem")
+    p.add_argument("--solver", choices=SOLVER_NAMES, default="fem",
+                   help="fem: the reference; admm, mass-tensor: the fast solvers (P1)")
     add_discretization_args(p)
     p.add_argument("--push", action="append", metavar="NAME=MM",
                    help="push an actuator's region rigidly along its direction (repeatable)")

@@ -1,0 +1,64 @@
+"""The command-line reference (docs/cli.md) rendered from the parser itself, so that it cannot
+drift from what the commands accept: every command, its options, their defaults and help."""
+from __future__ import annotations
+
+import argparse
+
+__all__ = ["cli_markdown", "options_without_help"]
+
+EXIT_CODES = """Exit status (every command): 0 done; 1 an answer was computed but is not valid
+(inverted cells, runaway growth, a tip through the skin) or a tolerance was not met (`verify
+--tol`, `suite --strict`, `solve --accuracy` at `--max-dofs`): the outputs are written and
+marked; 2 bad input (an option, a case or mesh file, an output path), one line naming the
+option, file or value; 130 interrupted."""
+
+
+def _commands(parser):
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    helps = {a.dest: a.help for a in sub._choices_actions}
+    return [(name, helps.get(name, ""), p) for name, p in sub.choices.items()]
+
+
+def _options(p):
+    return [a for a in p._actions if not isinstance(a, argparse._HelpAction)]
+
+
+def options_without_help(parser) -> list:
+    """(command, option) of every option that has no help text."""
+    return [(name, "/".join(a.option_strings) or a.dest) for name, _, p in _commands(parser)
+            for a in _options(p) if not a.help or a.help == argparse.SUPPRESS]
+
+
+def _default(a) -> str:
+    if a.required or isinstance(a, argparse._StoreTrueAction) or a.default in (None,
+                                                                               argparse.SUPPRESS):
+        return "required" if a.required else ""
+    d = a.default
+    return " ".join(map(str, d)) if isinstance(d, (list, tuple)) else str(d)
+
+
+def _cell(text) -> str:
+    return str(text).replace("|", "\\|").replace("\n", " ")
+
+
+def cli_markdown(parser=None) -> str:
+    """docs/cli.md as text."""
+    if parser is None:
+        from .cli import build_parser
+
+        parser = build_parser()
+    out = ["<!-- generated from the tissue parser by tools/cli_doc.py; do not edit -->", "",
+           "# Command-line reference", "",
+           ("`tissue COMMAND [options]` (or `python -m tissue`); `tissue --version`. Global "
+            "options, before or after the command: `-v/--verbose`, `-q/--quiet`."), "",
+           EXIT_CODES, ""]
+    for name, help_, p in _commands(parser):
+        out += [f"## tissue {name}", "", _cell(help_), "", "| option | default | meaning |",
+                "|---|---|---|"]
+        for a in _options(p):
+            names = ", ".join(f"`{o}`" for o in a.option_strings) or f"`{a.dest}` (positional)"
+            if a.choices:
+                names += " {" + ", ".join(map(str, a.choices)) + "}"
+            out.append(f"| {_cell(names)} | {_cell(_default(a))} | {_cell(a.help or '')} |")
+        out.append("")
+    return "\n".join(out)
