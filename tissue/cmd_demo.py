@@ -28,18 +28,25 @@ def _say(msg):
 
 def reference_series(case, out: Path, pushes_mm=(5.0, 10.0, 15.0)) -> dict:
     """A1 pushed 5, 10, 15 mm (each warm-started from the previous): fields + summary + plot."""
+    import dataclasses
+
     import fem_reference as fr
-    from fem_reference.estimate import estimate as with_estimate
+    from fem_reference.estimate import error_estimate
 
     solver = fr.ReferenceSolver(case, degree=1)
-    rows, prev = [], None
+    rows, prev, views = [], None, []
     for push in pushes_mm:
         res = solver.solve({"A1": push}, initial=prev, progress=False)
         prev = res.u
+        err_field = None
         try:  # the P1 answer's discretization error, by one P2 solve on the same mesh
-            res = with_estimate(case, res, pushes={"A1": push})
+            est = error_estimate(case, res, pushes={"A1": push})
+            res = dataclasses.replace(res, extra={**res.extra, **est.extras()})
+            err_field = np.linalg.norm(np.asarray(est.enriched.u) - res.u, axis=1)
         except ConvergenceError as exc:
             _say(f"reference A1={push:g} mm: no error estimate (the P2 solve failed: {exc})")
+        if push == 10.0:
+            views = _views(case, res, err_field, out / "fem", push)
         stem = f"A1_{push:g}mm"
         write_point_data(case.mesh, out / "fem", stem,
                          {"displacement": res.u,
@@ -58,7 +65,27 @@ def reference_series(case, out: Path, pushes_mm=(5.0, 10.0, 15.0)) -> dict:
              f"{res.wall_time_s:.2f} s, T1 u_x = {res.probes['T1'][0]:+.3f} mm{bar}")
     _plot_series(rows, out / "fem" / "probes_vs_push.png")
     return {"case": case.name, "n_vertices": case.mesh.n_vertices, "n_cells": case.mesh.n_cells,
-            "series": rows}
+            "series": rows, "views": views}
+
+
+def _views(case, res, err_field, folder: Path, push: float) -> list:
+    """3D pictures of the deformed phantom: coloured by the displacement magnitude, and by the
+    estimated discretization error (|u_P2 - u_P1| at the vertices, mm) where there is one."""
+    from .views import render
+
+    folder.mkdir(parents=True, exist_ok=True)
+    pics = [render(case.mesh, res.u, np.linalg.norm(res.u, axis=1),
+                   folder / f"view_A1_{push:g}mm.png", label="displacement (mm)",
+                   title=f"Reference P1, A1 pushed {push:g} mm: displacement magnitude (mm)")]
+    if err_field is not None:
+        pics.append(render(case.mesh, res.u, err_field, folder / f"error_A1_{push:g}mm.png",
+                           label="estimated error (mm)",
+                           title=f"Where the P1 answer is wrong: |u_P2 - u_P1| (mm), A1 = "
+                                 f"{push:g} mm"))
+    for p in pics:
+        if p["method"] != "pyvista":
+            _say(f"3D view drawn with matplotlib ({p.get('why') or 'pyvista unavailable'})")
+    return pics
 
 
 def _plot_series(rows, path):
@@ -129,7 +156,11 @@ def run(args) -> int:
                      "<table border=1 cellpadding=4><tr><th>A1 push (mm)</th><th>Newton its</th>"
                      "<th>load steps</th><th>time (s)</th><th>T1 u_x (mm)</th><th>A1 force (mN)</th>"
                      f"</tr>{rows}</table><p>Fields (ParaView): <code>fem/A1_*mm.xdmf</code>, "
-                     "<code>.vtu</code></p><img src='fem/probes_vs_push.png' width=800>"))
+                     "<code>.vtu</code></p><img src='fem/probes_vs_push.png' width=800>"
+                     + "".join(f"<figure><img src='fem/{Path(v['path']).name}' width=640>"
+                               f"<figcaption>{html.escape(Path(v['path']).stem)} "
+                               f"({v['method']})</figcaption></figure>"
+                               for v in summary["reference"].get("views", []))))
     if not args.skip_verify and _have("tissue.verify"):
         from tissue.verify import verify
 

@@ -1,0 +1,25 @@
+"""3D report pictures: the boundary of a tet mesh, drawn with pyvista off screen or matplotlib."""
+import numpy as np
+
+from meshes.builders import box
+from tissue.views import boundary_faces, render
+
+
+def test_boundary_faces_are_the_faces_of_one_cell_only():
+    one = np.array([[0, 1, 2, 3]])
+    assert len(boundary_faces(one)) == 4
+    two = np.array([[0, 1, 2, 3], [1, 2, 3, 4]])      # sharing the face (1, 2, 3)
+    faces = {tuple(sorted(f)) for f in boundary_faces(two)}
+    assert len(faces) == 6 and (1, 2, 3) not in faces
+
+
+def test_render_writes_a_png_either_way(tmp_path):
+    m = box(5.0)
+    u = 0.1 * m.points
+    for use in (True, False):
+        out = render(m, u, np.linalg.norm(u, axis=1), tmp_path / f"v{use}.png", title="t",
+                     label="|u| (mm)", use_pyvista=use)
+        data = (tmp_path / f"v{use}.png").read_bytes()
+        assert data[:4] == b"\x89PNG" and len(data) > 5000
+        assert out["method"] in (("pyvista", "matplotlib") if use else ("matplotlib",))
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
