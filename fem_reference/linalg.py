@@ -1,7 +1,8 @@
 """Linear algebra of the reference's Newton: the factorizing KSPs (CHOLMOD in serial, MUMPS
-LDL^T for indefinite tangents, saddle-point systems and MPI), the lagged-factor GMRES, and the
-CG + GAMG iterative mode. Mixed into ReferenceSolver; units are those of the assembled tangent
-(mN/mm) and residual (mN)."""
+LDL^T for indefinite tangents, saddle-point systems and MPI), the lagged-factor GMRES, the
+CG + GAMG iterative mode and the fieldsplit (Schur complement) FGMRES of the mixed formulation
+(``saddle``). Mixed into ReferenceSolver; units are those of the assembled tangent (mN/mm) and
+residual (mN)."""
 from __future__ import annotations
 
 import functools
@@ -13,12 +14,17 @@ import dolfinx
 import dolfinx.fem
 from petsc4py import PETSc
 
+from .saddle import SaddleSolveMixin
+
 log = logging.getLogger("tissue.fem")
 
 # linear_solver="auto": above this many dofs Newton reuses a MUMPS factorization as the GMRES
 # preconditioner of later tangents instead of refactorizing every iteration (measured faster from
 # 1.8k tets up: 0.97 vs 1.27 s; at 26.6k tets 9.7 vs 22 s, bench/bench_reference.py).
 LAGGED_ABOVE_DOFS = 1000
+# linear_solver="auto" with the mixed formulation: above this many dofs Newton solves the
+# saddle-point tangent by fieldsplit FGMRES (``saddle``) instead of the lagged MUMPS factor.
+FIELDSPLIT_ABOVE_DOFS = 100_000
 
 
 @functools.cache
@@ -61,7 +67,7 @@ class _quiet_c_output:
 
 
 
-class LinearSolveMixin:
+class LinearSolveMixin(SaddleSolveMixin):
     """The ReferenceSolver's linear solves (needs self.A, self.b, self.du, self.comm, ...)."""
 
     def _rigid_body_nullspace(self):
@@ -174,7 +180,10 @@ class LinearSolveMixin:
         lagged = self.linear_solver == "lagged"
         self.b.scale(-1.0)
         try:
-            if self.linear_solver == "iterative":
+            if self.linear_solver == "fieldsplit":
+                its = self._saddle_solve(eta)
+                ksp = self.saddle_ksp if self.saddle_ksp.getConvergedReason() > 0 else self.ksp
+            elif self.linear_solver == "iterative":
                 ksp = self.ksp
                 ksp.solve(self.b, self.du.vector)
                 its = ksp.getIterationNumber()

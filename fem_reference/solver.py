@@ -34,7 +34,7 @@ from .boundary import BoundaryMixin
 from .contact import DEFAULT_CONTACT_PENALTY, Contact, contact_key
 from .dolfinx_mesh import DolfinxMesh, to_dolfinx
 from .forms import mixed_energy_density, strain_energy_density
-from .linalg import LAGGED_ABOVE_DOFS, LinearSolveMixin, _has_cholmod
+from .linalg import FIELDSPLIT_ABOVE_DOFS, LAGGED_ABOVE_DOFS, LinearSolveMixin, _has_cholmod
 from .logs import install_log_filters
 from .newton import NewtonMixin, NewtonSettings, _Timings
 from .outputs import OutputsMixin, Tangent
@@ -96,7 +96,11 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
             exact tangent, preconditioned by the factor of an earlier tangent, which is
             refactorized only when GMRES needs more than ``settings.lag_max_its`` iterations),
             "iterative" (CG + GAMG with rigid-body near null space, MUMPS fallback; displacement
-            formulation only) or "auto" ("lagged" above LAGGED_ABOVE_DOFS dofs, "direct" below).
+            formulation only), "fieldsplit" (FGMRES with a Schur-complement fieldsplit
+            preconditioner: AMG on the displacement block, the scaled pressure mass matrix on the
+            Schur complement; MUMPS fallback; mixed formulation only) or "auto" ("lagged" above
+            LAGGED_ABOVE_DOFS dofs, "direct" below; the mixed formulation "fieldsplit" above
+            FIELDSPLIT_ABOVE_DOFS).
         curved: isoparametric (second-order) geometry from the mesh's curved edges (the builtin
             curved bodies and any order-2 .msh carry them). None: curved at degree >= 2 when the
             mesh has them (at degree 1 the straight cells the fast solvers use); False: straight.
@@ -199,12 +203,18 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
         n_dofs = self.W.dofmap.index_map.size_global * self.W.dofmap.index_map_bs
         if linear_solver == "auto":
             linear_solver = "lagged" if n_dofs > LAGGED_ABOVE_DOFS else "direct"
-        if linear_solver not in ("direct", "lagged", "iterative"):
-            raise CaseError(f"linear_solver must be 'auto', 'direct', 'lagged' or 'iterative', "
-                            f"got {linear_solver!r}")
+            if self.formulation == "mixed" and n_dofs > FIELDSPLIT_ABOVE_DOFS:
+                linear_solver = "fieldsplit"
+        if linear_solver not in ("direct", "lagged", "iterative", "fieldsplit"):
+            raise CaseError(f"linear_solver must be 'auto', 'direct', 'lagged', 'iterative' or "
+                            f"'fieldsplit', got {linear_solver!r}")
         if linear_solver == "iterative" and self.formulation == "mixed":
             raise CaseError("linear_solver='iterative' (CG + GAMG) needs a positive definite "
-                            "tangent: use 'direct' or 'lagged' with the mixed formulation")
+                            "tangent: use 'direct', 'lagged' or 'fieldsplit' with the mixed "
+                            "formulation")
+        if linear_solver == "fieldsplit" and self.formulation != "mixed":
+            raise CaseError("linear_solver='fieldsplit' splits the mixed formulation's "
+                            "displacement and pressure: use 'iterative' for the displacement one")
         self.linear_solver = linear_solver
         # The tangent A is assembled as BAIJ (node blocks: about 2x faster insertion than AIJ)
         # and converted to SBAIJ, the upper half MUMPS's LDL^T reads, whenever it is factorized.
@@ -225,6 +235,9 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
             self.ksp.getPC().setType("gamg")
             self.A.setNearNullSpace(self._rigid_body_nullspace())
             self.direct_ksp = self._factor_ksp("mumps")
+        elif linear_solver == "fieldsplit":
+            # FGMRES + Schur-complement fieldsplit (``saddle``), MUMPS as the fallback
+            self._use_fieldsplit()
         else:
             # serial "lagged": CHOLMOD's supernodal LL^T (METIS ordering) factorizes ~1.6x and
             # solves ~3x faster than MUMPS here; a tangent that is not positive definite switches
