@@ -9,26 +9,12 @@ import tomllib
 from pathlib import Path
 
 import pytest
+from test_cli_fuzz import BOX as CLI_BOX  # the small box case of the CLI tests
 
 from tissue.cli import build_parser, main
 
 ROOT = Path(__file__).resolve().parents[1]
-BOX = """name = "box"
-[mesh]
-builtin = "box"
-size = 5.0
-[material]
-model = "neo-hookean"
-E = 6.0
-nu = 0.45
-[[boundary]]
-region = "xmin"
-type = "fixed"
-[[actuator]]
-name = "A1"
-region = "xmax"
-direction = [-1.0, 0.0, 0.0]
-"""
+BOX = CLI_BOX.format(model="neo-hookean")
 
 
 def project_version() -> str:

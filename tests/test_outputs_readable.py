@@ -9,28 +9,14 @@ import meshio
 import numpy as np
 import pytest
 import pyvista
+from test_cli_fuzz import BOX as CLI_BOX  # the small box case of the CLI tests
 
 from meshes.builders import build
 from meshes.writers import REGION, XDMF_TIME, region_tags, write_mesh, write_point_data
 from tissue.cli import main
 from tissue.scoring import load_field
 
-BOX = """name = "box"
-[mesh]
-builtin = "box"
-size = 5.0
-[material]
-model = "linear-elastic"
-E = 6.0
-nu = 0.45
-[[boundary]]
-region = "xmin"
-type = "fixed"
-[[actuator]]
-name = "A1"
-region = "xmax"
-direction = [-1.0, 0.0, 0.0]
-"""
+BOX = CLI_BOX.format(model="linear-elastic")
 
 
 @pytest.fixture(scope="module")

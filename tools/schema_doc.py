@@ -5,30 +5,17 @@
 """
 from __future__ import annotations
 
-import argparse
 import sys
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-DOC = ROOT / "docs" / "case-file.md"
+from docgen import ROOT, run
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--check", action="store_true", help="only compare, write nothing")
-    args = parser.parse_args(argv)
-    sys.path.insert(0, str(ROOT))
+def _text():
     from meshes.case_doc import case_file_markdown
 
-    text = case_file_markdown()
-    if args.check:
-        same = DOC.is_file() and DOC.read_text(encoding="utf-8") == text
-        print(f"{DOC}: {'up to date' if same else 'out of date, run tools/schema_doc.py'}")
-        return 0 if same else 1
-    DOC.write_text(text, encoding="utf-8")
-    print(f"wrote {DOC}")
-    return 0
+    return case_file_markdown()
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run(ROOT / "docs" / "case-file.md", _text, "schema_doc.py",
+                 __doc__.splitlines()[0]))
