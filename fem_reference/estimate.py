@@ -41,9 +41,11 @@ converges slowly and its estimate is low (0.36 on the thick sphere's inner surfa
 estimates are not affected.
 
 Cost: one solve at degree p + 1 on the same mesh, stopped at a residual reduction of
-ESTIMATE_RTOL; for a degree-2 answer warm-started (one load step, a few Newton iterations), or,
-when Newton does not converge from there within WARM_ITERATIONS (large strains on a coarse
-mesh), solved along the load path from rest (``estimate_warm_start`` False).
+ESTIMATE_RTOL; for a degree-2 answer warm-started (one load step, a few Newton iterations, a
+correction taken only when it lowers the residual norm: ``transfer.warm_newton``), or, when
+Newton does not converge from there within WARM_ITERATIONS (large strains on a coarse mesh),
+solved along the load path from rest (``estimate_warm_start`` False; ``from_rest=False`` raises
+ConvergenceError instead).
 ``estimate_cost_ratio`` is the estimate's wall time (the enriched solver's set-up included when it
 was built for this call) over the degree-p solve's wall time. The enriched problem has 3-7x the
 dofs in 3D and a denser, costlier tangent: measured 2-7 for degree-2 answers (0.4-0.9 of a
@@ -78,9 +80,10 @@ ESTIMATE_RTOL = 1e-6
 """Newton of the enriched solve stops once its residual has fallen by this factor within the
 final load step (from the warm start's, for a degree-2 answer): the Newton error left is then
 about this fraction of the estimate itself."""
-WARM_ITERATIONS = 6
+WARM_ITERATIONS = 16
 """Newton iterations allowed from the interpolated answer before the enriched problem is solved
-from rest instead."""
+from rest instead (2-5 on smooth problems; 8-11 on the phantom once its patch rims are refined:
+a damped start, then quadratic convergence)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -96,6 +99,8 @@ class ErrorEstimate:
     wall_time_s: the estimate's wall time (s), set-up included; setup_s: the part spent building
         the enriched solver (about 0 when it was cached).
     cost_ratio: wall_time_s over the degree-p solve's wall time.
+    solver: the enriched ReferenceSolver (its spaces and mesh; per-cell indicators use them,
+        ``fem_reference.indicators``).
     """
 
     method: str
@@ -109,6 +114,7 @@ class ErrorEstimate:
     wall_time_s: float
     setup_s: float
     cost_ratio: float
+    solver: object = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
     def probe_norms(self) -> dict:
@@ -140,13 +146,17 @@ class ErrorEstimate:
 
 
 def error_estimate(case: Case, result: SolveResult, *, pushes=None, progress: bool = False,
-                   rtol: float | None = ESTIMATE_RTOL, **solver_options) -> ErrorEstimate:
+                   rtol: float | None = ESTIMATE_RTOL, from_rest: bool = True,
+                   **solver_options) -> ErrorEstimate:
     """Estimate the discretization error of ``result``, a reference solve of ``case`` with
     ``pushes`` (actuator name -> mm), by one solve at degree ``result.degree + 1`` on the same
     mesh (module docstring).
 
     rtol: residual reduction at which the enriched Newton stops (None: the solver settings' own,
         1e-10: a fully converged degree-(p+1) answer, e.g. to be used as an answer itself).
+    from_rest: when Newton from the interpolated degree-2 answer does not converge, solve along
+        the load path from rest (True), or raise ConvergenceError (False: a caller with a
+        cheaper way out, e.g. ``solve_to_accuracy`` keeping its previous level's answer).
     solver_options: the ReferenceSolver options of the degree-p solve (formulation, curved,
         settings, sliding_penalty, body_force, linear_solver); the formulation defaults to the
         one recorded in ``result.extra["discretization"]``; a quadrature_degree is not passed
@@ -157,6 +167,7 @@ def error_estimate(case: Case, result: SolveResult, *, pushes=None, progress: bo
     """
     from .newton import NewtonSettings
     from .solver import _solver_for
+    from .transfer import warm_newton
 
     t0 = time.perf_counter()
     if result.solver != "fem":
@@ -191,20 +202,23 @@ def error_estimate(case: Case, result: SolveResult, *, pushes=None, progress: bo
     # tens of percent, and Newton from rest along the load path needs fewer iterations).
     warm = p >= 2
     if warm:
-        settings = enriched.settings
-        # one try (with nothing to ramp, cut-backs would repeat it) of WARM_ITERATIONS
-        enriched.settings = dataclasses.replace(settings, min_fraction=0.75,
-                                                max_iterations=WARM_ITERATIONS)
+        # one try (with nothing to ramp, cut-backs would repeat it) of WARM_ITERATIONS, with a
+        # line search on the residual norm (``transfer.warm_newton``)
         try:
-            res = enriched.solve(pushes, case=case, initial=_lift(enriched, result),
-                                 progress=progress)
-        except ConvergenceError:
+            with warm_newton(enriched, WARM_ITERATIONS):
+                res = enriched.solve(pushes, case=case, initial=_lift(enriched, result),
+                                     progress=progress)
+        except ConvergenceError as exc:
             warm = False
+            if not from_rest:
+                raise ConvergenceError(
+                    f"{case.source or case.name}: the degree-{p + 1} estimate did not converge "
+                    f"within {WARM_ITERATIONS} Newton iterations from the degree-{p} answer "
+                    f"({case.mesh.n_cells:,} cells)", load_fraction=exc.load_fraction,
+                    last_converged=exc.last_converged) from exc
             if progress:
                 print("tissue fem: error estimate: Newton from the interpolated answer did not "
                       "converge, solving from rest", file=sys.stderr, flush=True)
-        finally:
-            enriched.settings = settings
     if not warm:
         res = enriched.solve(pushes, case=case, progress=progress)
     probes = {k: np.asarray(res.probes[k], float) - np.asarray(v, float)
@@ -215,7 +229,7 @@ def error_estimate(case: Case, result: SolveResult, *, pushes=None, progress: bo
     wall = time.perf_counter() - t0
     ratio = wall / result.wall_time_s if result.wall_time_s > 0 else float("inf")
     return ErrorEstimate(ESTIMATE_METHOD, p, p + 1, probes, reactions, res,
-                         geo > disc.get("geometry_order", 1), warm, wall, setup, ratio)
+                         geo > disc.get("geometry_order", 1), warm, wall, setup, ratio, enriched)
 
 
 def estimate(case: Case, result: SolveResult | None = None, *, pushes=None,

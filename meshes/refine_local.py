@@ -1,16 +1,21 @@
 """Local (conforming) refinement of simplex meshes by longest-edge bisection, regions carried.
 
-``refine_local(mesh, marked)`` refines the ``marked`` cells: every edge of a marked cell is cut
-at its midpoint, and the cells are bisected, one edge at a time, always across their LONGEST
-edge (Rivara's longest-edge bisection; ties between edges of equal length are broken by vertex
-ids, so every cell that shares a face orders its edges the same way). A cell that holds an edge
-to be cut is bisected; its longest edge is cut too (the closure, which may spread a few cells
-beyond the marked ones), until no cell holds an edge that is cut. Each face is therefore split
-by the same sequence of longest-edge bisections from both sides: the mesh stays conforming (no
-hanging vertices) without green closures to undo. A marked cell ends with all its edges halved
-(at least 8 children in 3D, 4 in 2D, as in ``meshes.refine.refine_uniform``); longest-edge
-bisection keeps the cell shapes to a bounded set in practice (measured: the smallest scaled
-Jacobian of a block refined 5 times at one corner stays above 0.4 of the initial one, tests).
+``refine_local(mesh, marked)`` refines the ``marked`` cells by bisection of marked edges
+(Plaza and Carey's scheme, the one of ``dolfinx.mesh.refine``): every edge of a marked cell is
+to be cut at its midpoint; then, until nothing changes, every triangle (a face of a
+tetrahedron, or a triangle cell) with an edge to be cut has its LONGEST edge cut too (the
+closure; it reaches a few cells beyond the marked ones). Edges are ordered by length, ties
+broken by vertex ids, the same total order in every cell. Each cell holding cut edges is then
+bisected across its longest cut edge, its halves again, until no cell holds one (at most three
+passes: a cell with all 6 edges cut gives 8). A face is thus split first across its longest edge,
+then its pieces across the one cut edge each holds: the same triangles from both sides, so the
+mesh stays conforming (no hanging vertices) without green closures to undo. A marked cell ends
+with all its edges halved (8 children in 3D, 4 in 2D, as in ``meshes.refine.refine_uniform``).
+Quality, measured (tests, and by hand): refining the cells at one corner of a block 10 times
+keeps the worst cell's shape that of the initial mesh; with the boundary projection the moved
+vertices perturb the shapes, and near the phantom's patch rim, refined 14 times at one point,
+the worst scaled Jacobian nearby falls from 0.29 to 0.036 over the first 8 levels and stays
+there (the initial mesh's worst is 0.067).
 
 What is carried exactly: old vertices keep their ids (new ones follow, point regions keep theirs),
 every cell region lists the descendants of its cells, every facet region its facets' pieces
@@ -22,7 +27,10 @@ Curved boundaries, as in ``refine_uniform`` (and with its helpers): ``project(x,
 the new vertices on boundary edges onto the true surface (``meshes.refine.projector_for``); the
 new vertices inside one facet region follow the moves of the region borders along the surface
 (harmonic extension over the boundary facets, projected again), and the new interior vertices
-follow the boundary (harmonic extension over the cells); the cells are then checked
+follow the boundary (harmonic extension over the cells). A move that would flatten a cell
+(keep less than MIN_VOLUME_KEPT of its volume: a thin cell under a long coarse boundary edge cut
+by the closure) is halved, up to dropped, so that vertex stays between its chord and the surface
+(a geometric error of at most the chord's sagitta, there); the cells are then checked
 (MeshQualityError names the largest move). Without ``project`` a new vertex on an edge with a
 curved (second-order) node goes to that node, which lies on the true surface. A mesh with curved
 edges keeps them on every edge that was not cut, and the new boundary edges get their midpoints
@@ -37,7 +45,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import CaseError, MeshQualityError
-from .mesh import MeshData, check_cells
+from .mesh import MeshData, cell_volumes, check_cells
 from .refine import _boundary_edges, _edge_keys, _harmonic_extension
 
 __all__ = ["dorfler_mark", "refine_local"]
@@ -47,6 +55,10 @@ _TRI_EDGES = np.array([(0, 1), (0, 2), (1, 2)])
 _FACES = np.array([(1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2)])
 _KEY = np.int64(1) << 31          # edge key lo * _KEY + hi (vertex ids below 2**31)
 MAX_PASSES = 8
+MIN_VOLUME_KEPT = 0.5
+"""A new boundary vertex whose move onto the true surface leaves a cell less than this share of
+its volume before the move gets half the move (then a quarter, ..., then none: DAMPINGS)."""
+DAMPINGS = 5
 
 
 def dorfler_mark(eta, theta: float = 0.5) -> np.ndarray:
@@ -104,7 +116,7 @@ def refine_local(mesh: MeshData, marked, *, project=None, return_parents: bool =
     ``parents`` (new cells,) the old cell of each new cell.
     """
     cells = np.asarray(mesh.cells, np.int64).copy()
-    m0, k = cells.shape
+    m0 = len(cells)
     d = mesh.gdim
     marked = np.asarray(marked)
     if marked.dtype == bool:
@@ -217,7 +229,6 @@ def _place_boundary(old: MeshData, mesh: MeshData, split, mid_keys, project) -> 
     local = _TET_EDGES if d == 3 else _TRI_EDGES
     table = np.unique(_edge_keys(mesh.cells[:, local[:, 0]], mesh.cells[:, local[:, 1]], n))
     edges, regions, bf = _boundary_edges(mesh, table)
-    bkeys = table[edges]
     # a new vertex lies inside an edge that was cut: it is on the boundary when a boundary facet
     # holds it, and its regions are those of the facets holding it (those of the cut edge)
     on = np.zeros(n, bool)
@@ -252,7 +263,21 @@ def _place_boundary(old: MeshData, mesh: MeshData, split, mid_keys, project) -> 
         interior = np.zeros(n, bool)
         interior[new] = True
         interior[bnew] = False
-        points = points + _harmonic_extension(mesh.cells, delta, np.flatnonzero(interior))
+        free = np.flatnonzero(interior)
+        straight = cell_volumes(points, mesh.cells)
+        is_bnew = np.zeros(n, bool)
+        is_bnew[bnew] = True
+        for attempt in range(DAMPINGS + 1):
+            trial = points + _harmonic_extension(mesh.cells, delta, free)
+            flat = cell_volumes(trial, mesh.cells) <= MIN_VOLUME_KEPT * straight
+            ids = np.unique(mesh.cells[flat])
+            ids = ids[is_bnew[ids]]
+            if not ids.size or attempt == DAMPINGS:
+                break
+            # a move that flattens a cell (a thin cell under a long coarse edge that the
+            # closure cut) is halved, the last time dropped: that vertex stays nearer its chord
+            delta[ids] *= 0.5 if attempt < DAMPINGS - 1 else 0.0
+        points = trial
     ce, cp = None, None
     if curved:
         ce, cp = _carry_curved(old, points, table, edges, regions, n, project)

@@ -29,7 +29,7 @@ def cook(size=8.0):
 
 
 def test_solve_to_accuracy_reaches_one_percent_on_cooks_membrane(capsys):
-    ad = solve_to_accuracy(cook(), accuracy=0.01)
+    ad = solve_to_accuracy(cook(), accuracy=0.01, refine="uniform")
     assert ad.reached
     est = ad.result.extra["probe_error_estimates"]
     for name, q in ad.result.probes.items():

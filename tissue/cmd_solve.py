@@ -78,15 +78,16 @@ def run(args) -> int:
         raise CaseError("--estimate and --accuracy apply to the reference (--solver fem)")
     try:
         if args.accuracy is not None:
-            res = solve_adaptive(case, pushes, args)
+            case, res = solve_adaptive(case, pushes, args)
         else:
             res = run_solver(args.solver, case, degree=args.degree, formulation=args.formulation,
                              pushes=pushes, progress=not args.quiet,
                              **({"estimate": True} if args.estimate else {}),
                              **({"device": args.device} if args.solver == "admm" else {}))
     except AccuracyNotReached as exc:
-        if exc.result is not None:
-            write_outputs(case.with_pushes(pushes), exc.result.result, args.out, args.json)
+        if exc.result is not None:   # the last answer, on the mesh it was solved on
+            write_outputs(exc.result.case.with_pushes(pushes), exc.result.result, args.out,
+                          args.json)
         print(f"tissue solve: error: {exc}", file=sys.stderr)
         return 1
     except ConvergenceError as exc:
@@ -118,8 +119,9 @@ def run(args) -> int:
 
 
 def solve_adaptive(case, pushes, args):
-    """The reference refined until every probe's estimated error is within ``args.accuracy``
-    (relative) of its value: P1, P2, then uniform refinement (fem_reference.adapt)."""
+    """(case on the final mesh, answer): the reference refined until every probe's estimated
+    error is within ``args.accuracy`` (relative) of its value: P1, P2, then local (or, with
+    ``--refine uniform``, uniform) refinement (fem_reference.adapt)."""
     from fem_reference.adapt import solve_to_accuracy
     from meshes.refine import projector_for
 
@@ -128,8 +130,9 @@ def solve_adaptive(case, pushes, args):
     if b is not None:  # new boundary nodes of a refined builtin mesh go onto its true surface
         opts["project"] = projector_for(b[0])
     out = solve_to_accuracy(case, pushes, accuracy=args.accuracy, max_dofs=args.max_dofs,
-                            degree=args.degree, progress=not args.quiet, **opts)
-    return out.result
+                            degree=args.degree, refine=args.refine, progress=not args.quiet,
+                            **opts)
+    return out.case, out.result
 
 
 ESTIMATE_WARN = 0.02  # warn when a probe's estimated error exceeds this fraction of its value
@@ -175,8 +178,11 @@ def add_parser(sub):
                    help="estimate each probe's and reaction's discretization error (one more "
                         "solve at degree + 1 on the same mesh)")
     p.add_argument("--accuracy", type=real("positive", at_most=1.0), default=None,
-                   metavar="REL", help="refine (P1, P2, then uniform refinement) until every "
-                   "probe's estimated error is within REL of its value, e.g. 0.01")
+                   metavar="REL", help="refine (P1, P2, then mesh refinement, see --refine) "
+                   "until every probe's estimated error is within REL of its value, e.g. 0.01")
+    p.add_argument("--refine", choices=("local", "uniform"), default="local",
+                   help="with --accuracy: refine the cells with the largest error indicators "
+                        "(local, default) or every cell (uniform)")
     p.add_argument("--max-dofs", type=integer(1), default=500_000,
                    help="with --accuracy: stop (exit 1) before a system larger than this")
     p.add_argument("--device", choices=("cpu", "gpu"), default="cpu",
