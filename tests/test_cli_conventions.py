@@ -173,3 +173,26 @@ def test_a_first_solve_prints_no_compiler_lines_and_verbose_shows_them(tmp_path)
     assert "INFO root: running build_ext" in verbose.stderr and "gcc" in verbose.stderr
     assert "gcc" not in verbose.stdout
     assert verbose.stdout.splitlines()[1:] == quiet.stdout.splitlines()[1:]  # same answer
+
+
+def test_quiet_silences_the_progress_of_a_convergence_study(box, tmp_path, capsys):
+    argv = ["converge", box, "--levels", "3", "--degrees", "1", "--push", "A1=1", "--json",
+            tmp_path / "c.json"]
+    rc, out, err = run(argv, capsys)
+    assert rc == 0 and err.count("tissue converge: degree 1, level") == 3
+    rc, out, err = run(["-q", *argv], capsys)
+    assert rc == 0 and "tissue converge:" not in err and "level" in out   # the table stays
+
+
+def test_quiet_silences_the_progress_of_the_table1_runs(monkeypatch):
+    """The Table I command hands a no-op progress callback to its runs under -q."""
+    from types import SimpleNamespace
+
+    from tissue import cmd_control
+
+    lines = []
+    monkeypatch.setattr("builtins.print", lambda *a, **k: lines.append(a))
+    cmd_control._progress(SimpleNamespace(quiet=True))("a line")
+    assert lines == []
+    cmd_control._progress(SimpleNamespace(quiet=False))("a line")
+    assert lines == [("a line",)]

@@ -147,9 +147,16 @@ def run_table1(args) -> int:
     if args.scenarios:
         return _run_scenarios(args, case, targets, settings, loop.meta)
     summ = run_all(case, targets, loop, settings, args.out, meta=loop.meta,
-                   progress=lambda line: print(line, flush=True))
+                   progress=_progress(args))
     print(f"table1: {json.dumps(summ)}")
     return 0
+
+
+def _progress(args):
+    """Where the per-run progress lines go: stdout, or nowhere with -q/--quiet."""
+    if args.quiet:
+        return lambda line: None
+    return lambda line: print(line, flush=True)
 
 
 def _run_scenarios(args, case, targets, settings, base_meta) -> int:
@@ -168,9 +175,9 @@ def _run_scenarios(args, case, targets, settings, base_meta) -> int:
     for name in args.scenarios:
         loop = scenario_loop(case, name, model=args.model or "admm", coarse_case=coarse)
         loop.meta["settings"] = base_meta.get("settings")
-        print(f"== scenario {name}: {loop.meta['scenario_description']}", flush=True)
+        _progress(args)(f"== scenario {name}: {loop.meta['scenario_description']}")
         summaries[name] = run_all(loop.case, targets, loop, settings, out / name,
-                                  meta=loop.meta, progress=lambda line: print(line, flush=True))
+                                  meta=loop.meta, progress=_progress(args))
         rows[name] = json.loads((out / name / "table1.json").read_text())["rows"]
         write_json({"scenarios": summaries, "settings": base_meta.get("settings")},
                    out / "table1_scenarios.json")

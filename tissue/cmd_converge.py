@@ -53,7 +53,7 @@ def run(args) -> int:
                 f"limit")
         announce_build("converge", *b, args.max_cells)
     studies = run_study(args.case, size=args.size, degrees=args.degrees, levels=args.levels,
-                        pushes=pushes, max_cells=args.max_cells or MAX_CELLS, progress=True,
+                        pushes=pushes, max_cells=args.max_cells or MAX_CELLS, progress=not args.quiet,
                         formulation=args.formulation)
     out = {"case": studies[0].case_name, "pushes_mm": pushes, "levels": args.levels,
            "refinement_ratio": 2,
