@@ -1,9 +1,12 @@
-"""What the reference hands out: states in and out (Case vertex numbering, degree-2 nodal
-states), probes, reactions, the SolveResult, internal forces and the exact tangent as scipy
-matrices. Units: mm, mN, mN/mm. Mixed into ReferenceSolver."""
-from __future__ import annotations
+"""What the reference hands out: the SolveResult of a solve (vertex displacements, probes,
+reactions, strain energy, the deformation state and the contact report) and the
+discretization it was solved with. Units: mm, mN, uJ (energy). Mixed into ReferenceSolver.
 
-from dataclasses import dataclass
+``OutputsMixin`` also carries the state in and out (``outputs_state.StateMixin``: Case vertex
+numbering, degree-2 nodal states) and the exact tangent and internal forces as scipy matrices
+(``outputs_tangent``: ``Tangent``, ``TangentMixin``); ``Tangent`` is importable from here.
+"""
+from __future__ import annotations
 
 import dolfinx
 import dolfinx.fem
@@ -13,33 +16,13 @@ import numpy as np
 from petsc4py import PETSc
 
 from meshes.case import Case
-from meshes.errors import CaseError
 from meshes.mesh import deformation_state
 from meshes.results import SolveResult
 
+from .outputs_state import StateMixin
+from .outputs_tangent import Tangent, TangentMixin
 
-@dataclass(frozen=True)
-class Tangent:
-    """Exact tangent stiffness K (mN/mm), node-major (dof = gdim*node + component).
-
-    Nodes 0..n_vertices-1 are the Case's vertices in its own numbering; for degree 2 the edge
-    nodes follow, with coordinates ``node_points``. ``dirichlet_dofs`` are the prescribed dofs.
-
-    Mixed formulation: K is the saddle-point tangent of (u, p): the displacement dofs as above,
-    then ``internal_dofs`` pressure dofs (one per Case vertex, in its numbering; rows in mm^3:
-    d(volume-change residual)/d(u) and 1/kappa mass terms). They are free and unloaded: solving
-    with K eliminates them, which is the exact static condensation onto the displacements.
-    """
-
-    K: object
-    dirichlet_dofs: np.ndarray
-    node_points: np.ndarray
-    n_vertices: int
-    degree: int
-    internal_dofs: int = 0
-    formulation: str = "displacement"
-
-
+__all__ = ["OutputsMixin", "Tangent"]
 
 
 def _through_surface(state: dict, contact: dict) -> dict:
@@ -58,247 +41,8 @@ def _through_surface(state: dict, contact: dict) -> dict:
     return {**state, "valid": False, "invalid_reason": reason}
 
 
-class OutputsMixin:
+class OutputsMixin(StateMixin, TangentMixin):
     """State I/O and exported quantities of a ReferenceSolver."""
-
-    def _node_map(self):
-        """Map dolfinx (local) dof nodes of V to Case vertices / extra nodes."""
-        V, dm = self.V, self.dm
-        tdim = dm.mesh.topology.dim
-        nv = tdim + 1
-        cell_dofs = V.dofmap.list.array.reshape(-1, V.dofmap.dof_layout.num_dofs)
-        geo = dm.mesh.geometry.dofmap.array.reshape(len(cell_dofs), -1)[:, :nv]
-        imap = V.dofmap.index_map
-        n_local = imap.size_local + imap.num_ghosts
-        node_vertex = -np.ones(n_local, np.int64)
-        node_vertex[cell_dofs[:, :nv].ravel()] = dm.node_to_vertex[geo.ravel()]
-        self.n_local_nodes = imap.size_local
-        self.node_vertex = node_vertex  # -1 for edge nodes (degree 2)
-        self.global_nodes = imap.local_to_global(np.arange(n_local, dtype=np.int32))
-        self.n_global_nodes = imap.size_global
-        self.p_vertex = None
-        if self.Q is not None:  # pressure dofs at vertices (first nv per cell); -1 for others
-            qd = self.Q.dofmap.list.array.reshape(-1, self.Q.dofmap.dof_layout.num_dofs)
-            self.p_vertex = -np.ones(len(self.p.x.array), np.int64)
-            self.p_vertex[qd[:, :nv].ravel()] = dm.node_to_vertex[geo.ravel()]
-
-    # ------------------------------------------------------------------ mixed: u, p <-> x
-    def _sync_fields(self):
-        """Copy the unknown's displacement (and pressure) parts into ``u`` (and ``p``)."""
-        if self.Q is None:
-            return
-        self.u.x.array[:] = self.x.x.array[self._umap]
-        self.p.x.array[:] = self.x.x.array[self._pmap]
-
-    def _x_from_fields(self, pressure=None, *, exact=False):
-        """Set the unknown from ``u`` and a pressure: ``pressure`` (Case-vertex values, kPa) when
-        given (or a dolfinx Function on this mesh, interpolated: e.g. the P1 pressure of a P2/P1
-        answer starting a P3/P2 solve), else the discrete pressure equation solved for u (exact
-        when 1/kappa > 0), else (incompressible, or a warm start) the solver's current pressure."""
-        if self.Q is None:
-            return
-        self.x.x.array[self._umap] = self.u.x.array
-        if isinstance(pressure, dolfinx.fem.Function):
-            self.p.interpolate(pressure)
-        elif pressure is not None and np.all(self.p_vertex >= 0):
-            pressure = np.asarray(pressure, float).reshape(-1)
-            if pressure.shape != (self.case.mesh.n_vertices,):
-                raise CaseError(f"pressure state must have one value per vertex "
-                                f"({self.case.mesh.n_vertices}), got shape {pressure.shape}")
-            self.p.x.array[:] = pressure[self.p_vertex]
-        elif float(self.inv_kappa.value) > 0:
-            self._recover_pressure()
-        elif exact and np.any(self.u.x.array):
-            raise CaseError("incompressible material: the pressure is not determined by the "
-                            "displacements; pass the SolveResult of a mixed reference solve")
-        self.x.x.array[self._pmap] = self.p.x.array
-        self.x.x.scatter_forward()
-
-    def _recover_pressure(self):
-        """p solving the mixed form's pressure equation at ``u``: int (vol(u) + p/kappa) q = 0."""
-        import ufl
-
-        from .forms import mixed_energy_density
-
-        if getattr(self, "_pproj", None) is None:
-            dx = ufl.Measure("dx", domain=self.dm.mesh, metadata={"quadrature_degree": self.qdeg})
-            q, pt = ufl.TestFunction(self.Q), ufl.TrialFunction(self.Q)
-            _, vol = mixed_energy_density(self.u, 0.0, self.case.material.model, 1.0, 0.0)
-            M = dolfinx.fem.petsc.assemble_matrix(dolfinx.fem.form(pt * q * dx))
-            M.assemble()
-            ksp = PETSc.KSP().create(self.comm)
-            ksp.setOperators(M)
-            ksp.setType("preonly")
-            ksp.getPC().setType("lu")
-            ksp.getPC().setFactorSolverType("mumps")
-            self._pproj = (dolfinx.fem.form(-vol * q * dx), ksp, M)
-        L, ksp, _ = self._pproj
-        rhs = dolfinx.fem.petsc.assemble_vector(L)
-        rhs.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        ksp.solve(rhs, self.p.vector)
-        rhs.destroy()
-        self.p.x.scatter_forward()
-        self.p.x.array[:] /= float(self.inv_kappa.value)
-
-    def _pressure_vertex_field(self) -> np.ndarray:
-        """Pressure (kPa, positive in compression) at the Case vertices, on every rank."""
-        n_own = self.Q.dofmap.index_map.size_local
-        at = self.p_vertex[:n_own] >= 0
-        ids = self.comm.allgather(self.p_vertex[:n_own][at])
-        vals = self.comm.allgather(self.p.x.array[:n_own][at])
-        out = np.zeros(self.case.mesh.n_vertices)
-        for i, v in zip(ids, vals):
-            out[i] = v
-        return out
-
-    def _w_out(self) -> np.ndarray:
-        """Output index (Tangent order: node-major displacements, then the pressure dofs by Case
-        vertex) of every local dof of the unknown's space."""
-        perm = self._out_permutation()[1]
-        if self.Q is None:
-            return perm
-        out = np.empty(len(self.x.x.array), np.int64)
-        out[self._umap] = perm
-        pv = self.p_vertex.copy()
-        extra = pv < 0  # pressure dofs away from the vertices (degree >= 2): after the vertices
-        pv[extra] = self.case.mesh.n_vertices + np.arange(np.count_nonzero(extra))
-        out[self._pmap] = len(perm) + pv
-        return out
-
-
-    def _set_state(self, initial, *, exact: bool = False):
-        """Load a displacement state into the solver's field.
-
-        initial: a SolveResult of a reference solve (at degree 2 it carries the full nodal state,
-            ``extra["node_u"]`` with ``extra["node_points"]``), a (n_nodes, gdim) nodal array in
-            the ``Tangent`` node order (Case vertices first, then the edge nodes of
-            ``Tangent.node_points``), or (n_vertices, gdim) vertex values.
-        exact: the state itself is needed (tangent, internal forces), not a warm start. At degree
-            2 vertex values do not determine the edge nodes: a warm start fills them with the mean
-            of their end vertices (the P1 field), which is not the degree-2 solution away from
-            rest, so ``exact`` refuses vertex values unless they are all zero.
-        """
-        n = self.case.mesh.n_vertices
-        d = self.gdim
-        arr = self.u.x.array.reshape(-1, d)
-        if isinstance(initial, SolveResult):
-            node_u = initial.extra.get("node_u") if self.degree >= 2 else None
-            pressure = initial.extra.get("pressure") if self.Q is not None else None
-            if node_u is not None:
-                self._set_nodes(self._nodes_in_own_order(np.asarray(node_u, float),
-                                                         initial.extra.get("node_points")))
-                self._x_from_fields(pressure, exact=exact)
-                return
-            u0 = np.asarray(initial.u, float)
-            source = f"a degree-{initial.degree} {initial.solver} SolveResult without the nodal " \
-                     f"state (extra['node_u'])"
-        else:
-            u0 = np.asarray(initial, float)
-            source = "vertex values"
-            pressure = None
-            if self.degree >= 2 and u0.shape == (len(self.node_vertex), d) and u0.shape[0] != n:
-                if self.comm.size > 1:
-                    raise CaseError("a full nodal state array is accepted in serial only")
-                self._set_nodes(u0)
-                self._x_from_fields(exact=exact)
-                return
-        if u0.shape != (n, d):
-            shapes = f"{(n, d)}" if self.degree == 1 else \
-                f"{(len(self.node_vertex), d)} (all degree-{self.degree} nodes) or {(n, d)}"
-            raise CaseError(f"displacement state must have shape {shapes}, got {u0.shape}")
-        if exact and self.degree >= 2 and np.any(u0):
-            raise CaseError(
-                f"degree-{self.degree} state from {source}: the nodes off the vertices are not "
-                f"determined by the vertex values (the P1 interpolant is not the solver's state "
-                f"away from rest); pass the SolveResult of a degree-{self.degree} reference "
-                f"solve, the full nodal array "
-                f"({len(self.node_vertex)}, {d}) in Tangent node order (vertices, then edge "
-                f"nodes), or None for the solver's current state")
-        if self.degree == 1:
-            vmask = self.node_vertex >= 0
-            arr[vmask] = u0[self.node_vertex[vmask]]
-        else:  # the P1 field of the vertex values, interpolated
-            self._from_p1(u0)
-        self.u.x.scatter_forward()
-        self._x_from_fields(pressure, exact=exact)
-
-    def _set_nodes(self, nodes):
-        """Set every node from a (n_nodes, gdim) array in the Tangent node order (serial)."""
-        self.u.x.array.reshape(-1, self.gdim)[:] = nodes[self._out_permutation()[0]]
-        self.u.x.scatter_forward()
-
-    def node_points(self) -> np.ndarray:
-        """(n_nodes, gdim) reference coordinates (mm) of the displacement nodes in the Tangent
-        node order (Case vertices first, then the degree-2 edge nodes); serial."""
-        return self._output_node_points()
-
-    def _output_node_points(self) -> np.ndarray:
-        """Coordinates of the nodes in the Tangent node order (vertices first, then edge nodes)."""
-        out_node = self._out_permutation()[0]
-        pts = np.empty((len(out_node), self.gdim))
-        pts[out_node] = self.V.tabulate_dof_coordinates()[:, :self.gdim]
-        return pts
-
-    def _nodes_in_own_order(self, node_u, node_points):
-        """A nodal state of some degree-2 reference solve on this mesh, reordered to this solver's
-        node order by the node coordinates."""
-        if self.comm.size > 1:
-            raise CaseError("a degree-2 nodal state is accepted in serial only")
-        own = self._output_node_points()
-        if node_u.shape != own.shape or node_points is None or \
-                np.shape(node_points) != own.shape:
-            raise CaseError(f"nodal state of shape {node_u.shape} does not fit this degree-2 "
-                            f"solver's {own.shape[0]} nodes")
-        node_points = np.asarray(node_points, float)
-        if np.array_equal(node_points, own):
-            return node_u
-        from scipy.spatial import cKDTree
-
-        dist, idx = cKDTree(node_points).query(own)
-        if np.any(dist > 1e-9 * max(1.0, np.abs(own).max())):
-            raise CaseError("nodal state: its node points are not this solver's degree-2 nodes")
-        return node_u[idx]
-
-    def _from_p1(self, u0):
-        """u = the P1 interpolant of vertex values u0 (n_vertices, gdim), in this degree."""
-        if getattr(self, "_p1", None) is None:
-            mesh = self.dm.mesh
-            V1 = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
-            nv = mesh.topology.dim + 1
-            d1 = V1.dofmap.list.array.reshape(-1, nv)
-            geo = mesh.geometry.dofmap.array.reshape(len(d1), -1)[:, :nv]
-            vert = -np.ones(V1.dofmap.index_map.size_local + V1.dofmap.index_map.num_ghosts,
-                            np.int64)
-            vert[d1.ravel()] = self.dm.node_to_vertex[geo.ravel()]
-            self._p1 = (dolfinx.fem.Function(V1), vert)
-        u1, vert = self._p1
-        u1.x.array.reshape(-1, self.gdim)[:] = u0[vert]
-        self.u.interpolate(u1)
-
-    def gather_nodes(self, local_array) -> np.ndarray:
-        """(n_global_nodes, gdim) array of a nodal field (owned values), on every rank."""
-        n_own = self.n_local_nodes
-        vals = np.asarray(local_array).reshape(-1, self.gdim)[:n_own]
-        gidx = self.global_nodes[:n_own]
-        all_idx = self.comm.allgather(gidx)
-        all_val = self.comm.allgather(vals)
-        out = np.zeros((self.n_global_nodes, self.gdim))
-        for i, v in zip(all_idx, all_val):
-            out[i] = v
-        return out
-
-    def _vertex_field(self) -> np.ndarray:
-        """Displacement at the Case vertices (Case numbering), on every rank."""
-        n_own = self.n_local_nodes
-        arr = self.u.x.array.reshape(-1, self.gdim)[:n_own]
-        nv = self.node_vertex[:n_own]
-        mask = nv >= 0
-        ids = self.comm.allgather(nv[mask])
-        vals = self.comm.allgather(arr[mask])
-        out = np.zeros((self.case.mesh.n_vertices, self.gdim))
-        for i, v in zip(ids, vals):
-            out[i] = v
-        return out
 
     def _probes(self, case: Case, u_vertices) -> dict:
         if self.degree == 1:
@@ -387,62 +131,3 @@ class OutputsMixin:
                    **_through_surface(deformation_state(case.mesh, u_v, degree=self.degree),
                                       contact),
                    "warnings": case.glued_patch_warnings(u_v)})
-
-    # ------------------------------------------------------------------ residual / tangent
-    def _out_permutation(self):
-        nv = self.case.mesh.n_vertices
-        out_node = np.empty(len(self.node_vertex), np.int64)
-        vm = self.node_vertex >= 0
-        out_node[vm] = self.node_vertex[vm]
-        out_node[~vm] = nv + np.arange(np.count_nonzero(~vm))
-        return out_node, (out_node[:, None] * self.gdim + np.arange(self.gdim)).ravel()
-
-    def internal_forces(self, u=None) -> np.ndarray:
-        """Node-major residual f_int - f_ext (mN) at state ``u`` in the Case numbering (serial).
-
-        u: as for :meth:`tangent`."""
-        if self.comm.size > 1:
-            raise CaseError("internal_forces export runs in serial")
-        if u is not None:
-            self._set_state(u, exact=True)
-        r = dolfinx.fem.petsc.assemble_vector(self.R_int_form)
-        out = np.empty(len(r.array))
-        out[self._w_out()] = r.array
-        r.destroy()
-        return out[:len(self._umap)]
-
-    def tangent(self, u=None, *, pushes=None) -> Tangent:
-        """Exact tangent K at state ``u`` (default: the solver's current state).
-
-        u: a SolveResult of a reference solve on this mesh, or an array: (n_vertices, gdim)
-        vertex values at degree 1; at degree 2 the full (n_nodes, gdim) nodal state in the
-        Tangent node order (vertices, then the edge nodes of ``Tangent.node_points``) -- degree-2
-        vertex values alone raise CaseError unless all zero (see :meth:`_set_state`).
-        """
-        if self.comm.size > 1:
-            raise CaseError("tangent export runs in serial (it returns one scipy matrix)")
-        import scipy.sparse as sp
-
-        if u is not None:
-            self._set_state(u, exact=True)
-        case = self.case.with_pushes(pushes or {})
-        self.load.value = 1.0
-        A = dolfinx.fem.petsc.assemble_matrix(self.K_form)
-        A.assemble()
-        indptr, indices, data = A.getValuesCSR()
-        n = A.getSize()[0]
-        K = sp.csr_matrix((data, indices, indptr), shape=(n, n))
-        A.destroy()
-        # permutation: local dof -> output dof (vertices first in Case order, then edge nodes,
-        # then the pressure dofs of the mixed formulation)
-        nv = self.case.mesh.n_vertices
-        perm = self._w_out()
-        P = sp.csr_matrix((np.ones(len(perm)), (perm, np.arange(len(perm)))), shape=(n, n))
-        K = (P @ K @ P.T).tocsr()
-        node_points = self._output_node_points()
-        bc_dofs = [perm[e[2]] for e in self._bcs(case, 1.0)]
-        dd = np.unique(np.concatenate(bc_dofs)) if bc_dofs else np.zeros(0, np.int64)
-        return Tangent(K, dd, node_points, nv, self.degree, n - len(self._umap),
-                       self.formulation)
-
-

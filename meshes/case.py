@@ -6,14 +6,20 @@ Units: length mm, stress kPa (= mN/mm^2), force mN, density kg/mm^3, gravity mm/
 A Case is built once (``load_case`` from a TOML file, or ``Case(...)`` from Python) and validated
 then: unknown regions, bad material values, conflicting prescriptions on one vertex and rigid-body
 freedom are all reported here, before any solver starts.
+
+The Case's validation and vertex constraints are ``meshes.case_constraints`` (mixed in), the
+Cases derived from it (``with_pushes``, ``with_mesh``, ...) ``meshes.case_variants``; the parts
+(Material, Boundary, Probe, Actuator) are ``meshes.case_parts``, the TOML reader
+``meshes.case_file``.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
 
+from .case_constraints import CaseConstraintsMixin, _axis_of  # noqa: F401  (re-exported)
 from .case_parts import (
     ACTUATOR_TYPES,
     BOUNDARY_TYPES,
@@ -29,8 +35,9 @@ from .case_parts import (
     VertexConstraints,
     _vec,
 )
+from .case_variants import RIM_J_WARN, CaseVariantsMixin  # noqa: F401  (re-exported)
 from .errors import CaseError
-from .mesh import MeshData, cell_jacobians, cell_volumes, check_cells
+from .mesh import MeshData, cell_volumes, check_cells
 
 __all__ = [
     "ACTUATOR_TYPES",
@@ -63,18 +70,8 @@ def _closest_barycentric(verts: np.ndarray, x: np.ndarray) -> np.ndarray:
     return w / w.sum()
 
 
-def _axis_of(normal, tol=1e-12):
-    n = np.abs(normal)
-    k = int(np.argmax(n))
-    return k if np.all(np.delete(n, k) <= tol) else None
-
-
-RIM_J_WARN = 0.2
-"""Smallest volume ratio J at the rim of a pushed glued patch before the solvers warn."""
-
-
 @dataclass(frozen=True)
-class Case:
+class Case(CaseConstraintsMixin, CaseVariantsMixin):
     """One problem. ``mesh`` is a MeshData; the rest as in the module docstring."""
 
     mesh: MeshData
@@ -120,143 +117,6 @@ class Case:
             object.__setattr__(self, "gravity", tuple(_vec(self.gravity, gdim, f"{where}: gravity")))
         _ = self.constraints  # validates the prescriptions (raises on conflicts)
         self._check_rigid_body(where)
-
-    # ----------------------------------------------------------------- validation
-    def _check_boundary(self, b: Boundary, gdim: int, where: str):
-        try:
-            self.mesh.region_vertices(b.region)
-        except CaseError as exc:
-            raise CaseError(f"{where}: boundary {b.type!r}: {exc}") from None
-        what = f"{where}: boundary {b.type!r} on {b.region!r}"
-        if b.type == "displacement":
-            if b.value is None:
-                raise CaseError(f"{what} needs value = [ux, uy{', uz' if gdim == 3 else ''}] (mm)")
-            _vec(b.value, gdim, f"{what}: value")
-            if b.components is not None:
-                comps = list(b.components)
-                if not comps or any(not isinstance(c, int) or not 0 <= c < gdim for c in comps):
-                    raise CaseError(f"{what}: components must be a list of indices in "
-                                    f"0..{gdim - 1}, got {b.components!r}")
-        elif b.type == "affine":
-            g = np.asarray(b.gradient if b.gradient is not None else np.zeros((gdim, gdim)), float)
-            if g.shape != (gdim, gdim) or not np.all(np.isfinite(g)):
-                raise CaseError(f"{what}: gradient must be a {gdim}x{gdim} matrix, got {b.gradient!r}")
-            _vec(b.offset if b.offset is not None else np.zeros(gdim), gdim, f"{what}: offset")
-        elif b.type == "sliding":
-            if b.normal is None:
-                raise CaseError(f"{what} needs normal = [nx, ny{', nz' if gdim == 3 else ''}]")
-            n = _vec(b.normal, gdim, f"{what}: normal")
-            if np.linalg.norm(n) == 0:
-                raise CaseError(f"{what}: normal must be non-zero")
-            float(b.value or 0.0)
-        elif b.type == "traction":
-            if b.region not in self.mesh.facet_regions:
-                raise CaseError(f"{what}: traction needs a boundary (facet) region; facet regions: "
-                                f"{sorted(self.mesh.facet_regions)}")
-            _vec(b.value, gdim, f"{what}: value (kPa)")
-
-    def _check_rigid_body(self, where):
-        """Rank of the constraints restricted to rigid-body modes must be full (6 in 3D, 3 in 2D)."""
-        c = self.constraints
-        d = self.mesh.gdim
-        modes = self.rigid_body_modes()
-        rows = [modes[c.dofs]]
-        for verts, n, _ in c.sliding:
-            rows.append(np.einsum("vcm,c->vm", modes.reshape(-1, d, modes.shape[1])[verts], n))
-        mat = np.concatenate(rows) if rows else np.zeros((0, modes.shape[1]))
-        need = modes.shape[1]
-        rank = np.linalg.matrix_rank(mat, tol=1e-9 * max(1.0, np.abs(mat).max(initial=0.0))) \
-            if len(mat) else 0
-        if rank < need:
-            raise CaseError(
-                f"{where}: the boundary conditions leave {need - rank} rigid-body mode(s) free "
-                f"(constraints fix {rank} of {need}); add a fixed, displacement or sliding region")
-
-    # ----------------------------------------------------------------- derived data
-    def rigid_body_modes(self) -> np.ndarray:
-        """(gdim*n, 6|3) node-major translations and infinitesimal rotations about the centroid."""
-        x = self.mesh.points - self.mesh.points.mean(axis=0)
-        n, d = x.shape
-        if d == 3:
-            m = np.zeros((n, 3, 6))
-            for k in range(3):
-                m[:, k, k] = 1.0
-            m[:, 1, 3], m[:, 2, 3] = -x[:, 2], x[:, 1]
-            m[:, 0, 4], m[:, 2, 4] = x[:, 2], -x[:, 0]
-            m[:, 0, 5], m[:, 1, 5] = -x[:, 1], x[:, 0]
-        else:
-            m = np.zeros((n, 2, 3))
-            m[:, 0, 0] = m[:, 1, 1] = 1.0
-            m[:, 0, 2], m[:, 1, 2] = -x[:, 1], x[:, 0]
-        return m.reshape(n * d, -1)
-
-    @cached_property
-    def constraints(self) -> VertexConstraints:
-        """Prescribed dofs at full load; CaseError when two regions prescribe one dof differently."""
-        d = self.mesh.gdim
-        X = self.mesh.points
-        val: dict[int, float] = {}
-        own: dict[int, str] = {}
-        sliding = []
-        oblique_names = []
-
-        def put(verts, comp, values, region):
-            for v, x in zip(verts.tolist(), np.broadcast_to(values, len(verts)).tolist()):
-                k = d * v + comp
-                if k in val and abs(val[k] - x) > 1e-9 * max(1.0, abs(x)):
-                    raise CaseError(
-                        f"{self.source or self.name}: conflicting prescriptions on vertex {v} "
-                        f"(component {comp}): region {own[k]!r} sets {val[k]:g} mm, region "
-                        f"{region!r} sets {x:g} mm")
-                val[k] = x
-                own.setdefault(k, region)
-
-        for b in self.boundaries:
-            verts = self.mesh.region_vertices(b.region)
-            if b.type == "fixed":
-                for c in range(d):
-                    put(verts, c, 0.0, b.region)
-            elif b.type == "displacement":
-                v = np.asarray(b.value, float)
-                for c in (b.components if b.components is not None else range(d)):
-                    put(verts, c, v[c], b.region)
-            elif b.type == "affine":
-                g = np.asarray(b.gradient if b.gradient is not None else np.zeros((d, d)), float)
-                off = np.asarray(b.offset if b.offset is not None else np.zeros(d), float)
-                u = X[verts] @ g.T + off
-                for c in range(d):
-                    put(verts, c, u[:, c], b.region)
-            elif b.type == "sliding":
-                n = np.asarray(b.normal, float)
-                n = n / np.abs(n).max()
-                n = n / np.linalg.norm(n)
-                g = float(b.value or 0.0)
-                k = _axis_of(n)
-                if k is not None:
-                    put(verts, k, g * np.sign(n[k]), b.region)
-                else:
-                    sliding.append((verts, n, g))
-                    oblique_names.append(b.region)
-        # an oblique sliding vertex whose every component is also prescribed elsewhere must agree
-        for (verts, n, g), region in zip(sliding, oblique_names):
-            for v in verts.tolist():
-                ks = [d * v + c for c in range(d)]
-                if all(k in val for k in ks):
-                    un = sum(val[k] * n[c] for c, k in enumerate(ks))
-                    if abs(un - g) > 1e-9 * max(1.0, abs(g)):
-                        raise CaseError(
-                            f"{self.source or self.name}: conflicting prescriptions on vertex {v}: "
-                            f"region {own[ks[0]]!r} fixes its displacement, so u.n = {un:g} mm, "
-                            f"but sliding region {region!r} sets u.n = {g:g} mm")
-        dofs = np.array(sorted(val), dtype=np.int64)
-        return VertexConstraints(dofs, np.array([val[k] for k in dofs.tolist()]), tuple(sliding),
-                                 tuple(own[k] for k in dofs.tolist()))
-
-    def free_dofs(self) -> np.ndarray:
-        """Node-major dofs not prescribed by a Dirichlet-type condition (sliding ones included)."""
-        mask = np.ones(self.mesh.n_vertices * self.mesh.gdim, bool)
-        mask[self.constraints.dofs] = False
-        return np.flatnonzero(mask)
 
     def external_forces(self, scale: float = 1.0) -> np.ndarray:
         """Consistent P1 nodal forces (mN), node-major (n*gdim,), of tractions and gravity."""
@@ -327,62 +187,6 @@ class Case:
         raise CaseError(f"{self.source or self.name}: unknown probe/target {name!r}; probes: "
                         f"{[p.name for p in self.probes]}")
 
-    def with_pushes(self, pushes: dict | None) -> Case:
-        """A new Case where each named patch actuator's region is displaced rigidly by
-        ``push * direction`` (mm; pushes replace any condition already on that region), each
-        patch not named and ``idle = "held"`` is held where it is (at its current ``push``: 0
-        on a Case no push was applied to), and each actuator records its position ``push``
-        (mm; an indenter gets no condition: the reference solves its contact). One convention
-        for every solver, the control Jacobians and the loop; ``with_free_actuators()`` first
-        makes the idle patches free."""
-        pushes = dict(pushes or {})
-        acts = {name: self.actuator(name) for name in pushes}
-        held = {a.name: a for a in self.actuators
-                if a.type == "patch" and a.name not in pushes and a.idle == "held"}
-        if not pushes and not held:
-            return self
-        patches = {n: a for n, a in acts.items() if a.type == "patch"}
-        patches.update(held)
-        values = {n: float(pushes[n]) if n in pushes else float(a.push)
-                  for n, a in patches.items()}
-        regions = {a.region for a in patches.values()}
-        kept = [b for b in self.boundaries if b.region not in regions]
-        added = [Boundary(a.region, "displacement",
-                          value=tuple((values[n] * np.asarray(a.direction)).tolist()))
-                 for n, a in patches.items()]
-        actuators = tuple(replace(a, push=float(pushes[a.name])) if a.name in acts else a
-                          for a in self.actuators)
-        return replace(self, boundaries=tuple(kept + added), actuators=actuators)
-
-    def glued_patch_warnings(self, u) -> list[str]:
-        """One line per pushed patch actuator whose cells (those touching its region) fall
-        below J = RIM_J_WARN in the displacement ``u`` ((n, gdim) mm): the rim of a glued
-        patch is singular, and past that compression its answer no longer converges under
-        refinement (about 5 mm pushes on the phantom); an indenter actuator has no such rim."""
-        out = []
-        pushed = [a for a in self.actuators if a.type == "patch" and a.push != 0.0]
-        if not pushed:
-            return out
-        J = cell_jacobians(self.mesh.points, self.mesh.cells, np.asarray(u, float))
-        for a in pushed:
-            verts = self.mesh.region_vertices(a.region)
-            mask = np.isin(self.mesh.cells, verts).any(axis=1)
-            if not mask.any():
-                continue
-            jmin = float(np.min(J[mask]))
-            if jmin < RIM_J_WARN:
-                out.append(f"glued patch {a.name!r} (push {a.push:g} mm) compresses the cells at "
-                           f"its rim to J = {jmin:.3g} (< {RIM_J_WARN}): beyond the range in "
-                           f"which a glued patch's answer converges under refinement; an "
-                           f"indenter actuator (type = \"indenter\") has no singular rim")
-        return out
-
-    def with_free_actuators(self) -> Case:
-        """The same Case with every patch actuator ``idle = "free"``: a patch a solve does not
-        push moves with the tissue."""
-        return replace(self, actuators=tuple(replace(a, idle="free") if a.type == "patch" else a
-                                             for a in self.actuators))
-
     def indenters(self) -> tuple:
         """The actuators of type "indenter"."""
         return tuple(a for a in self.actuators if a.type == "indenter")
@@ -393,35 +197,6 @@ class Case:
         for a in self.indenters():
             raise CaseError(f"{who} does not model contact: actuator {a.name!r} is an indenter "
                             f"(the reference solves it: fem_reference.solve)")
-
-    def with_material(self, **changes) -> Case:
-        return replace(self, material=replace(self.material, **changes))
-
-    def with_mesh(self, mesh: MeshData) -> Case:
-        return replace(self, mesh=mesh)
-
-    def dirichlet_regions(self) -> list[str]:
-        """Regions with a Dirichlet-type condition (fixed, displacement, affine, sliding)."""
-        return [b.region for b in self.boundaries if b.type != "traction"]
-
-    @cached_property
-    def _owner_index(self):
-        names = list(dict.fromkeys(self.constraints.owner))
-        pos = {n: k for k, n in enumerate(names)}
-        return names, np.array([pos[o] for o in self.constraints.owner], dtype=np.int64)
-
-    def prescribed_reactions(self, r) -> dict:
-        """Region -> (gdim,) sum of r (mN, node-major (n*gdim,) or (n, gdim)) over the dofs that
-        region prescribes; every Dirichlet region is present (zeros where it prescribes no
-        dof, e.g. an oblique sliding one, whose share the solver adds)."""
-        d = self.mesh.gdim
-        c = self.constraints
-        names, idx = self._owner_index
-        sums = np.zeros((len(names), d))
-        np.add.at(sums, (idx, c.dofs % d), np.asarray(r, float).reshape(-1)[c.dofs])
-        out = {reg: np.zeros(d) for reg in self.dirichlet_regions()}
-        out.update(zip(names, sums))
-        return out
 
 
 def load_case(path, *, mesh: MeshData | None = None, size: float | None = None,

@@ -229,7 +229,7 @@ def test_the_cell_estimate_is_within_fifteen_percent_of_a_real_build(name, size)
 
 
 def test_a_build_above_the_limit_is_refused_before_gmsh_starts(monkeypatch):
-    import meshes.builders as b
+    import meshes.builders_gmsh as b
 
     monkeypatch.setattr(b, "_gmsh_session", lambda *a, **k: pytest.fail("gmsh started"))
     with pytest.raises(CaseError, match=r"about 40,726,426 cells, more than the limit of "

@@ -1,0 +1,197 @@
+"""Curved gmsh bodies, meshed at second order (mid-edge nodes on the true geometry). Lengths
+in mm.
+
+``phantom`` and ``phantom3``: the seed 000 breast phantom, a half-ellipsoid dome on a flat base
+(``PhantomGeometry``: base radius 50 mm, height 45 mm) with four or three actuator patches on
+its side and the targets T1..T5 as mesh vertices; the regions are listed in the
+``meshes.builders`` module docstring. ``site_size`` gives finer cells within ``SITE_REACH`` mm
+of each actuator site.
+
+``shell_octant``: one octant of a thick spherical shell (radii 10 and 20 mm by default).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import builders_gmsh
+from .builders_gmsh import _finish
+from .errors import CaseError
+from .mesh import MeshData
+
+__all__ = [
+    "ACTUATORS_3",
+    "ACTUATORS_4",
+    "PHANTOM",
+    "SITE_REACH",
+    "PhantomGeometry",
+    "phantom",
+    "phantom3",
+    "shell_octant",
+]
+
+
+@dataclass(frozen=True)
+class PhantomGeometry:
+    radius: float = 50.0
+    height: float = 45.0
+    actuator_height: float = 15.0
+    patch_radius: float = 5.0
+    targets: tuple = (("T1", (0.0, 0.0, 15.0)), ("T2", (12.0, 0.0, 15.0)),
+                      ("T3", (0.0, 12.0, 15.0)), ("T4", (-12.0, 0.0, 15.0)),
+                      ("T5", (0.0, -12.0, 15.0)))
+
+    def side_point(self, azimuth_deg: float) -> np.ndarray:
+        """Point of the dome surface at the actuator height and the given azimuth."""
+        z = self.actuator_height
+        r = self.radius * math.sqrt(1.0 - (z / self.height) ** 2)
+        a = math.radians(azimuth_deg)
+        return np.array([r * math.cos(a), r * math.sin(a), z])
+
+
+PHANTOM = PhantomGeometry()
+ACTUATORS_4 = (("act_px", 0.0), ("act_py", 90.0), ("act_nx", 180.0), ("act_ny", 270.0))
+ACTUATORS_3 = (("act_a", 0.0), ("act_b", 120.0), ("act_c", 240.0))
+
+
+SITE_REACH = 15.0
+"""Radius (mm) around each actuator site inside which ``site_size`` applies; the cells grow to
+``size`` over the next SITE_REACH mm."""
+
+
+def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANTOM,
+             site_size: float | None = None) -> MeshData:
+    g = geometry
+    if site_size is not None and not (math.isfinite(site_size) and 0 < site_size):
+        raise CaseError(f"site_size must be a positive length in mm, got {site_size!r}")
+    with builders_gmsh._gmsh_session("phantom", size) as gmsh:
+        occ = gmsh.model.occ
+        s = occ.addSphere(0, 0, 0, g.radius)
+        occ.dilate([(3, s)], 0, 0, 0, 1, 1, g.height / g.radius)
+        cut = occ.addBox(-2 * g.radius, -2 * g.radius, -2 * g.height, 4 * g.radius, 4 * g.radius,
+                         2 * g.height)
+        dome, _ = occ.cut([(3, s)], [(3, cut)])
+        # actuator plugs: short cylinders along the inward radial direction at each patch,
+        # intersected with the dome; fragmenting imprints their outer faces on the skin.
+        plugs = []
+        depth = 3.0 * g.patch_radius
+        for _, az in actuators:
+            p = g.side_point(az)
+            d = -p / np.linalg.norm(p)
+            d[2] = 0.0
+            d /= np.linalg.norm(d)
+            start = p - 2.0 * g.patch_radius * d
+            c = occ.addCylinder(*start, *(d * (depth + 2.0 * g.patch_radius)), g.patch_radius)
+            plugs.append(c)
+        occ.synchronize()
+        inter = []
+        for c in plugs:
+            dcopy = occ.copy(dome)
+            r, _ = occ.intersect(dcopy, [(3, c)])
+            inter.extend(r)
+        out_map = occ.fragment(dome, inter)[0]
+        occ.synchronize()
+        vols = [t for d, t in out_map if d == 3]
+        # targets embedded as mesh vertices
+        pts = [occ.addPoint(*xyz, size) for _, xyz in g.targets]
+        occ.synchronize()
+        main = max(vols, key=lambda v: gmsh.model.occ.getMass(3, v))
+        gmsh.model.mesh.embed(0, pts, 3, main)
+        gmsh.model.addPhysicalGroup(3, vols, 1)
+        gmsh.model.setPhysicalName(3, 1, "tissue")
+        # classify boundary surfaces
+        bnd = gmsh.model.getBoundary([(3, v) for v in vols], combined=True, oriented=False)
+        surfs = sorted({t for _, t in bnd})
+        base, skin, patches = [], [], {n: [] for n, _ in actuators}
+        centres = {n: g.side_point(az) for n, az in actuators}
+        for sf in surfs:
+            c = np.array(gmsh.model.occ.getCenterOfMass(2, sf))
+            if abs(c[2]) < 1e-6 * g.height:
+                base.append(sf)
+                continue
+            near = [n for n, pc in centres.items() if np.linalg.norm(c - pc) < 1.5 * g.patch_radius]
+            (patches[near[0]] if near else skin).append(sf)
+        tag = 10
+        for name, group in [("base", base), ("skin", skin), *patches.items()]:
+            if not group:
+                raise CaseError(f"phantom geometry: no surface found for region {name!r} at "
+                                f"size {size}")
+            gmsh.model.addPhysicalGroup(2, group, tag)
+            gmsh.model.setPhysicalName(2, tag, name)
+            tag += 1
+        for (name, _), p in zip(g.targets, pts):
+            gmsh.model.addPhysicalGroup(0, [p], tag)
+            gmsh.model.setPhysicalName(0, tag, name)
+            tag += 1
+        # finer patches so each actuator touches several vertices
+        gmsh.model.mesh.setSize(gmsh.model.getBoundary([(2, s) for g_ in patches.values() for s in g_],
+                                                       recursive=True), min(size, g.patch_radius))
+        if site_size is not None and site_size < size:
+            _refine_sites(gmsh, [g.side_point(az) for _, az in actuators], site_size, size)
+        return _finish(gmsh, 3, out, curved=True)
+
+
+def _refine_sites(gmsh, sites, fine: float, coarse: float):
+    """Cells of size ``fine`` within SITE_REACH of every site, growing linearly to ``coarse``
+    over the next SITE_REACH mm (a gmsh Distance + Threshold background field)."""
+    f = gmsh.model.mesh.field
+    pts = [gmsh.model.occ.addPoint(*p) for p in sites]
+    gmsh.model.occ.synchronize()
+    dist = f.add("Distance")
+    f.setNumbers(dist, "PointsList", pts)
+    th = f.add("Threshold")
+    f.setNumber(th, "InField", dist)
+    f.setNumber(th, "SizeMin", fine)
+    f.setNumber(th, "SizeMax", coarse)
+    f.setNumber(th, "DistMin", SITE_REACH)
+    f.setNumber(th, "DistMax", 2 * SITE_REACH)
+    f.setAsBackgroundMesh(th)
+    gmsh.option.setNumber("Mesh.CharacteristicLengthMin", fine)
+
+
+def phantom(size: float = 6.0, *, out=None, site_size: float | None = None) -> MeshData:
+    """Seed 000 breast phantom with four side actuators (see module docstring). size in mm;
+    site_size: the cell size (mm) near each actuator site (``SITE_REACH``), e.g. a third of an
+    indenter's radius."""
+    return _phantom(size, ACTUATORS_4, out, site_size=site_size)
+
+
+def phantom3(size: float = 6.0, *, out=None, site_size: float | None = None) -> MeshData:
+    """Seed 000 phantom with three actuators 120 deg apart (minimal positive basis)."""
+    return _phantom(size, ACTUATORS_3, out, site_size=site_size)
+
+
+def shell_octant(size: float = 2.5, *, inner: float = 10.0, outer: float = 20.0,
+                 out=None) -> MeshData:
+    """One octant (x, y, z >= 0) of a thick spherical shell, radii ``inner`` < ``outer`` (mm):
+    the classic pressurized / inflated thick sphere, with closed-form (incompressible) and radial-
+    ODE (compressible) answers. Facet regions: inner, outer, and the symmetry planes xsym (x = 0),
+    ysym, zsym; cell group tissue."""
+    if not (0 < inner < outer):
+        raise CaseError(f"shell radii must satisfy 0 < inner < outer, got {inner!r}, {outer!r}")
+    with builders_gmsh._gmsh_session("shell-octant", size) as gmsh:
+        occ = gmsh.model.occ
+        big = occ.addSphere(0, 0, 0, outer)
+        small = occ.addSphere(0, 0, 0, inner)
+        shell, _ = occ.cut([(3, big)], [(3, small)])
+        clip = occ.addBox(0, 0, 0, 2 * outer, 2 * outer, 2 * outer)
+        octant, _ = occ.intersect(shell, [(3, clip)])
+        occ.synchronize()
+        vols = [t for d, t in octant if d == 3]
+        gmsh.model.addPhysicalGroup(3, vols, 1)
+        gmsh.model.setPhysicalName(3, 1, "tissue")
+        groups = {"inner": [], "outer": [], "xsym": [], "ysym": [], "zsym": []}
+        for _, f in gmsh.model.getBoundary([(3, v) for v in vols], oriented=False):
+            c = np.array(occ.getCenterOfMass(2, f))
+            planar = [k for k in range(3) if abs(c[k]) < 1e-9 * outer]
+            if planar:
+                groups["xyz"[planar[0]] + "sym"].append(f)
+            else:
+                groups["inner" if np.linalg.norm(c) < 0.5 * (inner + outer) else "outer"].append(f)
+        for i, (name, fs) in enumerate(groups.items()):
+            gmsh.model.addPhysicalGroup(2, fs, 10 + i)
+            gmsh.model.setPhysicalName(2, 10 + i, name)
+        return _finish(gmsh, 3, out, curved=True)
+
