@@ -15,7 +15,8 @@ import numpy as np
 from meshes.errors import CaseError
 
 __all__ = ["ADMM_CONTROL_OPTIONS", "FD_FLOOR", "SCENARIOS", "LoopSetup", "build_loop",
-           "jacobian_at", "plant_for", "reference_state", "scenario_loop", "tangent_for"]
+           "jacobian_at", "material_json", "plant_for", "reference_state", "scenario_loop",
+           "solver_description", "tangent_for"]
 
 # ADMM as a control plant/model: the ADMM stage hands over to the Newton polish (part of
 # solvers.admm.solve, iteration budget left to the solver: 20 per load step) which finishes to
@@ -31,6 +32,39 @@ FD_FLOOR = 1e-7
 """Smallest central-difference step, relative to the body's diameter: the solves agree to about
 1e-10 mm, so a smaller step differences round-off."""
 ADMM_CONTROL_OPTIONS = {"tol_mm": 1e-2, "polish": True, "polish_tol_mm": 1e-7, "lift": True}
+
+
+def material_json(material) -> dict:
+    """A Material as the JSON outputs write it (E in kPa, density in kg/mm^3)."""
+    return {"model": material.model, "E_kPa": float(material.E), "nu": float(material.nu),
+            "density_kg_mm3": float(material.density)}
+
+
+def solver_description(name: str, case, *, degree: int | None = None,
+                       formulation: str = "auto") -> dict:
+    """What solver ``name`` (fem | admm) computes on ``case`` as a plant, a model or a Jacobian's
+    solver, JSON-ready: ``discretization`` (formulation, degrees, cells; the reference's default
+    degree is resolved as ``fem_reference`` resolves it) and ``settings`` (the reference's Newton
+    controls, which the control layer leaves at their defaults, or ``ADMM_CONTROL_OPTIONS``)."""
+    import dataclasses
+
+    if name == "fem":
+        from fem_reference.newton import NewtonSettings
+        from fem_reference.solver import resolve_formulation
+
+        form = resolve_formulation(formulation, case.material)
+        p = degree if degree is not None else (2 if form == "mixed" else 1)
+        disc = {"formulation": form, "degree": p,
+                "pressure_degree": p - 1 if form == "mixed" else None,
+                "cells": case.mesh.n_cells}
+        return {"solver": name, "discretization": disc,
+                "settings": {"newton": dataclasses.asdict(NewtonSettings())}}
+    if name == "admm":
+        return {"solver": name,
+                "discretization": {"formulation": "displacement", "degree": 1,
+                                   "pressure_degree": None, "cells": case.mesh.n_cells},
+                "settings": dict(ADMM_CONTROL_OPTIONS)}
+    raise CaseError(f"unknown plant/model solver {name!r}; choose fem or admm")
 
 
 def plant_for(name: str, *, degree: int | None = None, tight: bool = True):
@@ -121,10 +155,13 @@ def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="a
         if not res.converged:
             raise CaseError(f"the state solve at pushes {st} did not converge")
         jac = dirichlet_jacobian(pushed, tangent_for(solver)(pushed, res.u), actuators=actuators)
-    out = {"actuators": list(jac.actuators), "targets": list(jac.targets),
+    described = solver_description(solver, case, degree=degree, formulation=formulation)
+    disc = res.extra.get("discretization") or described["discretization"]
+    out = {"case": case.name, "source": case.source, "material": material_json(case.material),
+           "actuators": list(jac.actuators), "targets": list(jac.targets),
            "rows": jac.rows, "J": jac.J.tolist(), "state_pushes": st, "solver": solver,
-           "degree": degree or 1, "formulation": res.extra.get("discretization", {}).get(
-               "formulation", "displacement"),
+           "degree": degree or 1, "formulation": disc.get("formulation", "displacement"),
+           "discretization": disc, "solver_settings": described["settings"],
            "state_valid": bool(res.extra.get("valid", True)),
            "state_invalid_reason": res.extra.get("invalid_reason")}
     if fd_h and fd_h > 0:
@@ -136,6 +173,7 @@ def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="a
         out["fd_h_mm"] = fd_h
     else:
         out["fd_max_rel_error"] = None
+        out["fd_h_mm"] = 0.0
     return out
 
 
@@ -192,19 +230,19 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
     meta = {"case": case.name, "source": case.source, "plant": plant, "model": mname,
             "scenario": scenario,
             "plant_cells": pcase.mesh.n_cells, "model_cells": mcase.mesh.n_cells,
-            "plant_material": {"model": pcase.material.model, "E_kPa": pcase.material.E,
-                               "nu": pcase.material.nu},
+            "plant_material": material_json(pcase.material),
             "plant_gravity_mm_s2": list(pcase.gravity) if pcase.gravity is not None else None,
             "model_gravity_mm_s2": list(mcase.gravity) if mcase.gravity is not None else None,
-            "model_material": {"model": mcase.material.model, "E_kPa": mcase.material.E,
-                               "nu": mcase.material.nu},
+            "model_material": material_json(mcase.material),
             "mismatch": {"E_factor": model_E_factor,
                          "mesh": "same" if mcase.mesh is pcase.mesh else "different",
                          "solver": "same" if mname == plant else "different",
                          "nu": [pcase.material.nu, mcase.material.nu]
                          if pcase.material.nu != mcase.material.nu else "same",
                          "gravity": "same" if pcase.gravity == mcase.gravity else "different"},
-            "actuators": {a.name: {"type": a.type, "idle": a.idle} for a in case.actuators}}
+            "actuators": {a.name: {"type": a.type, "idle": a.idle} for a in case.actuators},
+            "plant_solver": solver_description(plant, pcase),
+            "model_solver": solver_description(mname, mcase)}
     return LoopSetup(pcase, psolve, mcase, msolve, tangent_for(mname), meta)
 
 

@@ -171,16 +171,18 @@ def _run_scenarios(args, case, targets, settings, base_meta) -> int:
     if "mesh" in args.scenarios:
         h = args.size if args.size is not None else 6.0
         coarse = case_from_args(args, size=2.0 * h)
-    summaries, rows = {}, {}
+    summaries, rows, metas = {}, {}, {}
     for name in args.scenarios:
         loop = scenario_loop(case, name, model=args.model or "admm", coarse_case=coarse)
         loop.meta["settings"] = base_meta.get("settings")
+        metas[name] = loop.meta
         _progress(args)(f"== scenario {name}: {loop.meta['scenario_description']}")
         summaries[name] = run_all(loop.case, targets, loop, settings, out / name,
                                   meta=loop.meta, progress=_progress(args))
         rows[name] = json.loads((out / name / "table1.json").read_text())["rows"]
-        write_json({"scenarios": summaries, "settings": base_meta.get("settings")},
-                   out / "table1_scenarios.json")
+        write_json({"case": case.name, "source": case.source, "targets": list(targets),
+                    "scenarios": summaries, "meta": metas,
+                    "settings": base_meta.get("settings")}, out / "table1_scenarios.json")
     plot_scenarios(rows, out / "table1_scenarios.png")
     for name, s in summaries.items():
         print(f"table1 {name}: {json.dumps(s)}")
@@ -194,6 +196,7 @@ def run_manipulability(args) -> int:
     import matplotlib.pyplot as plt
 
     from control.controllability import manipulability_map
+    from control.plants import material_json, solver_description
 
     paths = [args.case] + list(args.compare or [])
     out = check_output_dir(args.out, "--out")
@@ -207,8 +210,13 @@ def run_manipulability(args) -> int:
         K = tangent_for(args.solver)(case, np.zeros((case.mesh.n_vertices, case.mesh.gdim)))
         mp = manipulability_map(case, K, plane_z=args.plane_z, spacing=args.spacing)
         maps.append((case.name, mp))
-        data = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in mp.items()
-                if not k.startswith("task")}
+        described = solver_description(args.solver, case)
+        data = {"case": case.name, "source": case.source, "solver": args.solver,
+                "material": material_json(case.material),
+                "pushes_mm": {a.name: 0.0 for a in case.actuators},   # maps of the rest state
+                "discretization": described["discretization"], "spacing_mm": args.spacing}
+        data.update({k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in mp.items()
+                     if not k.startswith("task")})
         for t in (1, 2, 3):
             data[f"task{t}"] = {k: np.where(np.isnan(v), None, v).tolist() if v.dtype.kind == "f"
                                 else v.tolist() for k, v in mp[f"task{t}"].items()}

@@ -3,10 +3,14 @@
 refinements of the case mesh (``fem_reference.convergence``). Lengths mm, forces mN."""
 from __future__ import annotations
 
+import dataclasses
 import sys
+import tomllib
 from pathlib import Path
 
+from control.plants import material_json
 from meshes.builders import BODY_DIMENSIONS, estimate_cells
+from meshes.case import Material
 from meshes.errors import CaseError
 from meshes.results import write_json
 
@@ -22,6 +26,12 @@ from .common import (
 PRECHECK_FROM_CELLS = 20_000
 
 
+def _material_of(path) -> Material:
+    """The material of a case file (read after the study has loaded the same file)."""
+    data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    return Material(**data.get("material", {}))
+
+
 def run(args) -> int:
     from fem_reference.convergence import (
         MAX_CELLS,
@@ -30,6 +40,8 @@ def run(args) -> int:
         run_study,
         study_to_json,
     )
+    from fem_reference.newton import NewtonSettings
+    from fem_reference.solver import resolve_formulation
 
     check_outputs(args, files=("json",), dirs=("out",))
     pushes = parse_pushes(args.push)
@@ -55,10 +67,19 @@ def run(args) -> int:
     studies = run_study(args.case, size=args.size, degrees=args.degrees, levels=args.levels,
                         pushes=pushes, max_cells=args.max_cells or MAX_CELLS, progress=not args.quiet,
                         formulation=args.formulation)
-    out = {"case": studies[0].case_name, "pushes_mm": pushes, "levels": args.levels,
-           "refinement_ratio": 2,
+    material = _material_of(args.case)
+    form = resolve_formulation(args.formulation, material)
+    out = {"case": studies[0].case_name, "source": str(args.case),
+           "size_mm": b[1] if b is not None else None,
+           "pushes_mm": pushes, "material": material_json(material), "formulation": form,
+           "degrees": list(args.degrees), "levels": args.levels, "refinement_ratio": 2,
            "h_definition": "mean edge length of the coarsest mesh, halved per level (mm)",
-           "studies": [study_to_json(st) for st in studies]}
+           "max_cells": limit,
+           "solver_settings": {"newton": dataclasses.asdict(NewtonSettings())},
+           # every level straight-sided (fem_reference.convergence): geometry order 1
+           "studies": [{**study_to_json(st), "formulation": form,
+                        "pressure_degree": st.degree - 1 if form == "mixed" else None,
+                        "geometry_order": 1} for st in studies]}
     for st in studies:
         print(format_study(st))
         print()

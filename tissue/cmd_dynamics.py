@@ -46,6 +46,33 @@ def _write_trajectory(case, traj, out_dir):
         tmp.write_text(text)
 
 
+def trajectory_json(case, traj, args) -> dict:
+    """The JSON summary: the trajectory (``DynamicsResult.to_json_dict``) with what was solved:
+    the pushes (mm), the material, gravity (mm/s^2), the discretization (reference) and the
+    solver settings; ``final`` is the last step's summary with the Case's material and pushes."""
+    from control.plants import material_json
+
+    from .cmd_solve import solver_settings
+
+    d = traj.to_json_dict()
+    if traj.final is not None:
+        d["final"] = traj.final.to_json_dict(case)
+    d.update({"source": case.source,
+              "pushes_mm": {a.name: float(a.push) for a in case.actuators},
+              "material": material_json(case.material),
+              "gravity_mm_s2": list(map(float, case.gravity)) if case.gravity is not None
+              else None})
+    if args.solver == "fem":
+        disc = (traj.final.extra.get("discretization") if traj.final is not None else None)
+        if disc is not None:
+            d["discretization"] = disc
+        d["solver_settings"] = solver_settings("fem", mass=args.mass,
+                                               ramp_steps=args.ramp_steps)
+    else:
+        d["solver_settings"] = solver_settings("admm")
+    return d
+
+
 def run(args) -> int:
     from .cmd_solve import write_outputs
 
@@ -95,7 +122,7 @@ def run(args) -> int:
         write_outputs(pushed, traj.final, args.out, None)
         _write_trajectory(pushed, traj, args.out)
     if args.json:
-        write_json(traj.to_json_dict(), args.json)
+        write_json(trajectory_json(pushed, traj, args), args.json)
     print(f"{case.name}: {args.solver} dynamics dt={traj.dt:g}s steps={traj.steps} "
           f"converged={bool(traj.converged.all())} time={traj.wall_time_s:.2f}s "
           f"vertices={case.mesh.n_vertices} mass={traj.total_mass_kg:.4g}kg")

@@ -158,7 +158,24 @@ def run(args) -> int:
            "sliding": settings.sliding, "free_ring_mm": settings.free_ring,
            "implant_dimensions_mm": list(settings.spec.dimensions()),
            "placement_centre_mm": plan.placement.centre.tolist(),
-           "timings_s": plan.timings}
+           "timings_s": plan.timings,
+           # what was computed: the input, the implant, the material and the solver settings
+           "case": "synthetic" if args.skin is None else str(args.skin),
+           "input": {"skin": None if args.skin is None else str(args.skin),
+                     "synthetic": args.skin is None,
+                     "thickness_mm": list(args.thickness) if args.thickness else None,
+                     "thickness_x_mm": list(args.thickness_x) if args.thickness_x else None,
+                     "postop": None if args.postop is None else str(args.postop)},
+           "implant": {"shape": settings.shape, "side": settings.side,
+                       "volume_cc": float(settings.volume_cc),
+                       "at_mm": list(settings.at) if settings.at else None,
+                       "width_mm": settings.width, "projection_mm": settings.projection},
+           "material": {"model": "linear-elastic", "E_kPa": float(settings.E),
+                        "nu": float(settings.nu)},
+           "solver_settings": {"method": settings.method, "stop_mm": float(settings.stop_mm),
+                               "free_ring_mm": settings.free_ring,
+                               "sliding": settings.sliding,
+                               "tissue_size_mm": settings.tissue_size}}
     dist = None
     if not args.no_reference:
         t0 = time.perf_counter()

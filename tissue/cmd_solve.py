@@ -40,10 +40,11 @@ def _rank():
         return 0
 
 
-def write_outputs(case, res, out_dir=None, json_file=None, stem="displacement"):
+def write_outputs(case, res, out_dir=None, json_file=None, stem="displacement", settings=None):
     """Fields (XDMF + VTU: displacement, its magnitude, pressure for the mixed formulation, and
     per cell J = det F and ``inverted`` = 1 where J <= 0) and the JSON summary (with ``valid``
-    and ``invalid_reason``); rank 0 writes, each file whole or not at all."""
+    and ``invalid_reason``, and ``settings`` as its ``solver_settings`` when given); rank 0
+    writes, each file whole or not at all."""
     if _rank() != 0:
         return
     if out_dir:
@@ -55,7 +56,49 @@ def write_outputs(case, res, out_dir=None, json_file=None, stem="displacement"):
         write_point_data(case.mesh, out_dir, stem, fields,
                          cell_data={"J": J, "inverted": (~(J > 0)).astype(float)})
     if json_file:
-        write_json(res.to_json_dict(case), json_file)
+        data = res.to_json_dict(case)
+        if settings is not None:
+            data["solver_settings"] = settings
+        write_json(data, json_file)
+
+
+# keyword arguments of a fast solver's solve() that are inputs or hooks, not settings
+_NOT_SETTINGS = {"case", "pushes", "initial", "callback", "progress", "factorize", "dynamics"}
+
+
+def solver_settings(name: str, **given) -> dict:
+    """The settings a solve by ``name`` ran with, JSON-ready: for the reference its Newton and
+    load-stepping controls (``fem_reference.newton.NewtonSettings``, which the command line
+    leaves at their defaults), for a fast solver the defaults of its ``solve`` keywords (null:
+    the solver picks the value itself); ``given`` (what the command chose) goes over them."""
+    import dataclasses
+    import inspect
+
+    if name == "fem":
+        from fem_reference.newton import NewtonSettings
+
+        return {"newton": dataclasses.asdict(NewtonSettings()), **given}
+    if name == "admm":
+        from solvers.admm import solve
+    else:
+        from solvers.mass_tensor import solve
+    out = {k: p.default for k, p in inspect.signature(solve).parameters.items()
+           if p.kind is inspect.Parameter.KEYWORD_ONLY and k not in _NOT_SETTINGS
+           and (p.default is None or isinstance(p.default, (bool, int, float, str)))}
+    return {**out, **given}
+
+
+def _settings_of(args) -> dict:
+    """solver_settings of ``tissue solve``'s options."""
+    if args.solver == "fem":
+        given = {"estimate": bool(args.estimate)}
+        if args.accuracy is not None:
+            given.update({"accuracy_rel": args.accuracy, "refine": args.refine,
+                          "max_dofs": args.max_dofs})
+        return solver_settings("fem", **given)
+    if args.solver == "admm":
+        return solver_settings("admm", device=args.device)
+    return solver_settings(args.solver)
 
 
 def run(args) -> int:
@@ -76,6 +119,7 @@ def run(args) -> int:
     check_prescribed(case, pushes)
     if (args.estimate or args.accuracy is not None) and args.solver != "fem":
         raise CaseError("--estimate and --accuracy apply to the reference (--solver fem)")
+    settings = _settings_of(args)
     try:
         if args.accuracy is not None:
             case, res = solve_adaptive(case, pushes, args)
@@ -87,18 +131,18 @@ def run(args) -> int:
     except AccuracyNotReached as exc:
         if exc.result is not None:   # the last answer, on the mesh it was solved on
             write_outputs(exc.result.case.with_pushes(pushes), exc.result.result, args.out,
-                          args.json)
+                          args.json, settings=settings)
         print(f"tissue solve: error: {exc}", file=sys.stderr)
         return 1
     except ConvergenceError as exc:
         if exc.last_converged is not None:
             write_outputs(case.with_pushes(pushes), exc.last_converged, args.out, args.json,
-                          stem="last_converged")
+                          stem="last_converged", settings=settings)
             if _rank() == 0 and args.out:
                 print(f"tissue solve: last converged state (load fraction {exc.load_fraction:.4f})"
                       f" written to {Path(args.out) / 'last_converged.xdmf'}", file=sys.stderr)
         raise
-    write_outputs(case.with_pushes(pushes), res, args.out, args.json)
+    write_outputs(case.with_pushes(pushes), res, args.out, args.json, settings=settings)
     if _rank() == 0:
         print(f"{case.name}: {args.solver} converged={res.converged} "
               f"iterations={res.iterations} load_steps={res.load_steps} "

@@ -36,6 +36,7 @@ from functools import cached_property
 
 import numpy as np
 
+from control.plants import material_json
 from meshes.errors import CaseError, TissueError
 from meshes.results import write_json
 
@@ -164,8 +165,25 @@ def _value(problem, probes) -> float:
     return float(v[comp])
 
 
+def _options(solver, problem) -> dict:
+    """The settings ``solver`` runs ``problem`` with (JSON-ready): the reference's options and
+    Newton controls (left at their defaults), a built-in fast solver's options, {} for a
+    plugin."""
+    if solver == "fem":
+        import dataclasses
+
+        from fem_reference.newton import NewtonSettings
+
+        return {**problem.reference, "newton": dataclasses.asdict(NewtonSettings())}
+    from .verify import FAST_SOLVERS
+
+    if isinstance(solver, str) and solver in FAST_SOLVERS:
+        return dict(FAST_SOLVERS[solver][1])
+    return {}
+
+
 def _run_one(solver, problem):
-    """(value, iterations, converged, wall s) of ``solver`` on ``problem``."""
+    """(value, iterations, converged, wall s, discretization) of ``solver`` on ``problem``."""
     case = problem.case
     if solver == "fem":
         from fem_reference import solve
@@ -215,7 +233,7 @@ def run_suite(solvers=("fem",), problems=None, *, json_file=None, out_dir=None,
     for p in chosen:
         row = {"name": p.name, "description": p.description, "expected_mm": p.expected,
                "source": p.source, "tolerance_rel": p.tol, "reference_options": p.reference,
-               "results": {}}
+               **_what(p), "results": {}}
         for s, n in zip(solvers, names):
             if progress:
                 print(f"  {p.name}: {n} ...", flush=True)
@@ -236,7 +254,7 @@ def run_suite(solvers=("fem",), problems=None, *, json_file=None, out_dir=None,
             ok = bool(err <= p.tol and conv is not False)
             row["results"][n] = {"value_mm": val, "error_rel": err, "passed": ok,
                                  "converged": conv, "iterations": its, "wall_time_s": wall,
-                                 "discretization": disc}
+                                 "discretization": disc, "options": _options(s, p)}
             out["summary"][n]["passed" if ok else "failed"] += 1
         out["problems"].append(row)
     if json_file is not None:
@@ -246,6 +264,17 @@ def run_suite(solvers=("fem",), problems=None, *, json_file=None, out_dir=None,
 
         out["report"] = str(write_scorecard(out, out_dir))
     return out
+
+
+def _what(problem) -> dict:
+    """The problem's case: its name, mesh size in cells and vertices, material, and the probe
+    and component scored; the loads are its boundary values (no actuator is pushed)."""
+    case = problem.case
+    name, comp = problem.quantity
+    return {"case": case.name, "n_cells": case.mesh.n_cells, "n_vertices": case.mesh.n_vertices,
+            "material": material_json(case.material),
+            "quantity": {"probe": name,
+                         "component": comp if comp == "radial" else "xyz"[comp]}}
 
 
 def _problem(name):

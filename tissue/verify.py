@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from control.plants import material_json
 from meshes.errors import CaseError
 from meshes.results import write_json
 from solvers import SOLVERS, get_solver
@@ -109,6 +110,18 @@ class _References:
         return fem_solve(c, degree=degree, formulation=formulation, pushes=self.pushes,
                          progress=self.progress)
 
+    def _settings(self, degree, formulation):
+        """The reference's settings for the JSON: the options asked of it and its Newton
+        controls (left at their defaults); None for a caller's own reference_solve."""
+        if self.user is not None:
+            return None
+        import dataclasses
+
+        from fem_reference.newton import NewtonSettings
+
+        return {"degree": degree, "formulation": formulation,
+                "newton": dataclasses.asdict(NewtonSettings())}
+
     def get(self, rcase, degree, formulation, *, warm: bool = True):
         """(case, SolveResult) of the reference; ``warm``: timed on a second call (the first,
         with form compilation, is reported as first_call_wall_time_s)."""
@@ -125,7 +138,9 @@ class _References:
             name = model if (degree, formulation) == (1, "displacement") else \
                 f"{model} ({formulation}, degree {degree or 'default'})"
             self.json[name] = {
-                **res.to_json_dict(rcase), "E_kPa": rcase.material.E, "nu": rcase.material.nu,
+                **res.to_json_dict(rcase.with_pushes(self.pushes)),
+                "solver_settings": self._settings(degree, formulation),
+                "E_kPa": rcase.material.E, "nu": rcase.material.nu,
                 "newton_iterations": int(res.iterations),
                 "first_call_wall_time_s": float(first.wall_time_s),
                 "timed_call": "second (warm)" if warm else "first (includes form compilation)"}
@@ -193,8 +208,10 @@ def verify(case, pushes=None, solvers=DEFAULT_SOLVERS, out_dir=None, *, json_fil
     elif field is not None and not isinstance(field, Field):
         field = field_from_array(field)
     refs = _References(case, pushes, reference_solve, progress, estimate)
-    out = {"reference": {"case": case.name, "degree": 1, "n_vertices": case.mesh.n_vertices,
+    out = {"reference": {"case": case.name, "source": case.source, "degree": 1,
+                         "n_vertices": case.mesh.n_vertices,
                          "n_cells": case.mesh.n_cells, "pushes_mm": pushes,
+                         "material": material_json(case.material),
                          "runs": refs.json},
            "solvers": {}, "skipped": {}}
     traces = {}
