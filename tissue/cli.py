@@ -4,9 +4,11 @@ Global options go before or after the command: -v/--verbose (debug logging, with
 compiler's lines while forms are first compiled), -q/--quiet (no progress lines; warnings and
 errors are still printed); --version prints the version.
 
-Exit status: 0 done; 1 an answer was computed but is not valid (inverted cells, runaway
-growth: the outputs are written and marked); 2 bad input (an option, a case or mesh file, an
-output path), one line naming the option, file or value; 130 interrupted.
+Exit status: 0 done; 1 an answer was computed but is not valid or not good enough (inverted
+cells, runaway growth, a tolerance or accuracy not met: the outputs are written and say so); 2 an
+error named in one line: bad input (an option, a case or mesh file, an output path) or a failure
+during the work (a solve that does not converge, its last converged state written; a fast solver
+that diverges; an unreachable goal); 130 interrupted. Details: docs/outputs.md.
 """
 from __future__ import annotations
 
