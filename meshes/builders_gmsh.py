@@ -63,7 +63,9 @@ def _finish(gmsh, dim: int, out, *, curved: bool = False) -> MeshData:
     if curved:
         gmsh.model.mesh.setOrder(2)
     gmsh.option.setNumber("Mesh.SaveAll", 0)
-    gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
+    # a file the user keeps is gmsh 2.2: pyvista opens it (its reading of a 4.1 file fails on
+    # the bounding-entity sets meshio makes); the temporary one stays 4.1
+    gmsh.option.setNumber("Mesh.MshFileVersion", 2.2 if out is not None else 4.1)
     if out is not None:
         with atomic_path(out, suffix=".msh") as tmp:
             gmsh.write(str(tmp))
