@@ -25,12 +25,15 @@ reachable displacement.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linprog, nnls
 
 from meshes.errors import CaseError, TissueError
+
+log = logging.getLogger("tissue.control")
 
 __all__ = [
     "TASKS",
@@ -151,12 +154,18 @@ def inverse_push(Js, p, *, solver="highs", tol=1e-7):
         if solver not in ("highs", "highs-ds", "highs-ipm"):
             raise CaseError(f"unknown solver {solver!r}: highs, highs-ds, highs-ipm, "
                             f"casadi:<plugin>")
-        out = linprog(np.ones(r), A_eq=Js, b_eq=p_star, bounds=[(0, None)] * r, method=solver,
-                      options={"primal_feasibility_tolerance": 1e-10,
-                               "dual_feasibility_tolerance": 1e-10})
-        if out.status != 0:
-            raise RuntimeError(f"least-travel LP failed ({solver}): {out.message}")
-        u = np.maximum(out.x, 0.0)
+        # the LP on the scaled rows (the same feasible set, entries of order 1)
+        out = linprog(np.ones(r), A_eq=Js / scale, b_eq=p_star / scale, bounds=[(0, None)] * r,
+                      method=solver, options={"primal_feasibility_tolerance": 1e-10,
+                                              "dual_feasibility_tolerance": 1e-10})
+        if out.status == 0:
+            u = np.maximum(out.x, 0.0)
+        else:
+            # p* = J_s u0 with u0 >= 0, so the LP is feasible and only its tolerances failed:
+            # keep the non-negative least-squares pushes, without the least-travel tie-break
+            log.warning("least-travel LP (%s) did not solve (%s): using the non-negative "
+                        "least-squares pushes", solver, out.message)
+            u = u0 / scale
     return u, p_star, residual
 
 

@@ -129,3 +129,23 @@ def test_map_matches_pointwise_index_at_centre(phantom_J):
     ref = manipulability(J.block("T1")[mask], goal[mask]).index
     assert mp["task1"]["index"][iy, ix] == pytest.approx(ref, rel=1e-9)
     assert not mp["inside"][0, 0]       # corner of the bounding box lies outside the dome
+
+
+def test_manipulability_maps_of_a_box_complete_without_a_traceback(tmp_path, capsys):
+    """A small box whose third task is reachable nowhere on the grid: the command writes its maps
+    and says so (the least-travel LP on unscaled rows once failed here with a traceback)."""
+    import json
+
+    from test_cli_fuzz import BOX
+    from tissue.cli import main
+
+    case = tmp_path / "box.toml"
+    case.write_text(BOX.format(model="neo-hookean"))
+    out = tmp_path / "maps"
+    assert main(["manipulability", str(case), "--compare", "--plane-z", "5", "--spacing", "2.5",
+                 "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "task 1 median index" in text and "nan" not in text
+    d = json.loads(next(out.glob("manipulability_*.json")).read_text())
+    assert all(v is None or v >= 0 for row in d["task1"]["index"] for v in np.ravel(row))
+    assert (out / "manipulability.png").is_file()

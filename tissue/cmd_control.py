@@ -152,6 +152,16 @@ def run_table1(args) -> int:
     return 0
 
 
+def _median_text(task, index) -> str:
+    """'task T median index M' over the grid points where the task is reachable (NaN elsewhere),
+    or what it is when none is."""
+    v = np.asarray(index, float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return f"task {task}: reachable nowhere on the grid"
+    return f"task {task} median index {np.median(v):.4f}"
+
+
 def _progress(args):
     """Where the per-run progress lines go: stdout, or nowhere with -q/--quiet."""
     if args.quiet:
@@ -221,7 +231,9 @@ def run_manipulability(args) -> int:
             data[f"task{t}"] = {k: np.where(np.isnan(v), None, v).tolist() if v.dtype.kind == "f"
                                 else v.tolist() for k, v in mp[f"task{t}"].items()}
         write_json(data, out / f"manipulability_{case.name}.json")
-    vmax = max(np.nanmax(mp[f"task{t}"]["index"]) for _, mp in maps for t in (1, 2, 3))
+    finite = [v for _, mp in maps for t in (1, 2, 3)
+              for v in np.ravel(mp[f"task{t}"]["index"]) if np.isfinite(v)]
+    vmax = max(finite, default=1.0)
     fig, axes = plt.subplots(len(maps), 3, figsize=(12, 3.8 * len(maps)), squeeze=False)
     for i, (name, mp) in enumerate(maps):
         for j, t in enumerate((1, 2, 3)):
@@ -237,9 +249,8 @@ def run_manipulability(args) -> int:
         fig.savefig(tmp, format="png", dpi=100)
     plt.close(fig)
     for name, mp in maps:
-        med = [np.nanmedian(mp[f"task{t}"]["index"]) for t in (1, 2, 3)]
-        print(name + ": " + ", ".join(f"task {t} median index {m:.4f}"
-                                      for t, m in zip((1, 2, 3), med)))
+        print(name + ": " + ", ".join(_median_text(t, mp[f"task{t}"]["index"])
+                                      for t in (1, 2, 3)))
     return 0
 
 
