@@ -214,3 +214,17 @@ def test_a_value_of_the_wrong_type_is_named_with_its_path(outputs):
         validate("solve", data)
     assert err.value.path == "$.probes.T1.displacement[1]"
     assert "'0.5' is not of type 'number'" in err.value.reason
+
+
+@pytest.mark.slow
+def test_the_demo_writes_its_reference_solves_as_tissue_solve_does(tmp_path, capsys):
+    """The demo's per-push JSON files (out/fem/A1_*mm.json) are solve outputs: they match
+    solve.schema.json, settings included."""
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--size", "14", "--skip-verify", "-q"]) == 0
+    capsys.readouterr()
+    files = sorted((out / "fem").glob("A1_*mm.json"))
+    assert len(files) == 3
+    for f in files:
+        validate_file("solve", f)
+        assert json.loads(f.read_text())["solver_settings"]["estimate"] is True

@@ -12,10 +12,11 @@ from pathlib import Path
 import numpy as np
 
 from meshes.errors import CaseError, ConvergenceError
-from meshes.io import atomic_path, write_point_data
+from meshes.io import atomic_path
 from meshes.mesh import quality
 from meshes.results import write_json
 
+from .cmd_solve import solver_settings, write_outputs
 from .common import add_max_cells, announce_build, check_outputs, check_pushes, real
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -48,10 +49,10 @@ def reference_series(case, out: Path, pushes_mm=(5.0, 10.0, 15.0)) -> dict:
         if push == 10.0:
             views = _views(case, res, err_field, out / "fem", push)
         stem = f"A1_{push:g}mm"
-        write_point_data(case.mesh, out / "fem", stem,
-                         {"displacement": res.u,
-                          "displacement_magnitude": np.linalg.norm(res.u, axis=1)})
-        write_json(res.to_json_dict(case.with_pushes({"A1": push})), out / "fem" / f"{stem}.json")
+        # the fields and the JSON as `tissue solve` writes them (solve.schema.json)
+        write_outputs(case.with_pushes({"A1": push}), res, out / "fem",
+                      out / "fem" / f"{stem}.json", stem=stem,
+                      settings=solver_settings("fem", estimate=True))
         rows.append({"push_mm": push, "converged": res.converged, "newton_iterations": res.iterations,
                      "load_steps": res.load_steps, "wall_time_s": res.wall_time_s,
                      "probes_mm": {k: np.asarray(v).tolist() for k, v in res.probes.items()},
