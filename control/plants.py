@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from meshes.errors import CaseError
+from meshes.results import material_json  # noqa: F401  (re-exported)
 
 __all__ = ["ADMM_CONTROL_OPTIONS", "FD_FLOOR", "SCENARIOS", "LoopSetup", "build_loop",
            "jacobian_at", "material_json", "plant_for", "reference_state", "scenario_loop",
@@ -32,12 +33,6 @@ FD_FLOOR = 1e-7
 """Smallest central-difference step, relative to the body's diameter: the solves agree to about
 1e-10 mm, so a smaller step differences round-off."""
 ADMM_CONTROL_OPTIONS = {"tol_mm": 1e-2, "polish": True, "polish_tol_mm": 1e-7, "lift": True}
-
-
-def material_json(material) -> dict:
-    """A Material as the JSON outputs write it (E in kPa, density in kg/mm^3)."""
-    return {"model": material.model, "E_kPa": float(material.E), "nu": float(material.nu),
-            "density_kg_mm3": float(material.density)}
 
 
 def solver_description(name: str, case, *, degree: int | None = None,
@@ -160,7 +155,8 @@ def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="a
     out = {"case": case.name, "source": case.source, "material": material_json(case.material),
            "actuators": list(jac.actuators), "targets": list(jac.targets),
            "rows": jac.rows, "J": jac.J.tolist(), "state_pushes": st, "solver": solver,
-           "degree": degree or 1, "formulation": disc.get("formulation", "displacement"),
+           "degree": disc.get("degree", degree or 1),
+           "formulation": disc.get("formulation", "displacement"),
            "discretization": disc, "solver_settings": described["settings"],
            "state_valid": bool(res.extra.get("valid", True)),
            "state_invalid_reason": res.extra.get("invalid_reason")}

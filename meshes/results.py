@@ -9,7 +9,13 @@ import numpy as np
 
 from .io import atomic_path
 
-__all__ = ["DynamicsResult", "SolveResult", "write_json"]
+__all__ = ["DynamicsResult", "SolveResult", "material_json", "write_json"]
+
+
+def material_json(material) -> dict:
+    """A Material as the JSON outputs write it (E in kPa, density in kg/mm^3)."""
+    return {"model": material.model, "E_kPa": float(material.E), "nu": float(material.nu),
+            "density_kg_mm3": float(material.density)}
 
 
 @dataclass(frozen=True)

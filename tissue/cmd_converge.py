@@ -8,11 +8,10 @@ import sys
 import tomllib
 from pathlib import Path
 
-from control.plants import material_json
 from meshes.builders import BODY_DIMENSIONS, estimate_cells
 from meshes.case import Material
 from meshes.errors import CaseError
-from meshes.results import write_json
+from meshes.results import material_json, write_json
 
 from .common import (
     announce_build,

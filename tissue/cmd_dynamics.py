@@ -50,7 +50,7 @@ def trajectory_json(case, traj, args) -> dict:
     """The JSON summary: the trajectory (``DynamicsResult.to_json_dict``) with what was solved:
     the pushes (mm), the material, gravity (mm/s^2), the discretization (reference) and the
     solver settings; ``final`` is the last step's summary with the Case's material and pushes."""
-    from control.plants import material_json
+    from meshes.results import material_json
 
     from .cmd_solve import solver_settings
 

@@ -36,9 +36,8 @@ from functools import cached_property
 
 import numpy as np
 
-from control.plants import material_json
 from meshes.errors import CaseError, TissueError
-from meshes.results import write_json
+from meshes.results import material_json, write_json
 
 from . import closed_forms as cf
 

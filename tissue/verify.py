@@ -34,9 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from control.plants import material_json
 from meshes.errors import CaseError
-from meshes.results import write_json
+from meshes.results import material_json, write_json
 from solvers import SOLVERS, get_solver
 
 from .plugins import resolve_solver, run_plugin
