@@ -41,10 +41,9 @@ def solver_description(name: str, case, *, degree: int | None = None,
     solver, JSON-ready: ``discretization`` (formulation, degrees, cells; the reference's default
     degree is resolved as ``fem_reference`` resolves it) and ``settings`` (the reference's Newton
     controls, which the control layer leaves at their defaults, or ``ADMM_CONTROL_OPTIONS``)."""
-    import dataclasses
 
     if name == "fem":
-        from fem_reference.newton import NewtonSettings
+        from fem_reference.newton import settings_json
         from fem_reference.solver import resolve_formulation
 
         form = resolve_formulation(formulation, case.material)
@@ -53,7 +52,7 @@ def solver_description(name: str, case, *, degree: int | None = None,
                 "pressure_degree": p - 1 if form == "mixed" else None,
                 "cells": case.mesh.n_cells}
         return {"solver": name, "discretization": disc,
-                "settings": {"newton": dataclasses.asdict(NewtonSettings())}}
+                "settings": settings_json()}
     if name == "admm":
         return {"solver": name,
                 "discretization": {"formulation": "displacement", "degree": 1,

@@ -70,6 +70,14 @@ class NewtonSettings:
             raise ValueError("NewtonSettings.line_search must be >= 0 and lag_max_its >= 1")
 
 
+def settings_json(settings: NewtonSettings | None = None) -> dict:
+    """The reference's settings as the JSON outputs record them: ``{"newton": {...}}`` with every
+    field of ``settings`` (default: the defaults, which the command line does not change)."""
+    import dataclasses
+
+    return {"newton": dataclasses.asdict(settings or NewtonSettings())}
+
+
 
 @dataclass
 class _Timings:

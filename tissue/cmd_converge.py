@@ -3,7 +3,6 @@
 refinements of the case mesh (``fem_reference.convergence``). Lengths mm, forces mN."""
 from __future__ import annotations
 
-import dataclasses
 import sys
 import tomllib
 from pathlib import Path
@@ -39,7 +38,7 @@ def run(args) -> int:
         run_study,
         study_to_json,
     )
-    from fem_reference.newton import NewtonSettings
+    from fem_reference.newton import settings_json
     from fem_reference.solver import resolve_formulation
 
     check_outputs(args, files=("json",), dirs=("out",))
@@ -64,8 +63,8 @@ def run(args) -> int:
                 f"limit")
         announce_build("converge", *b, args.max_cells)
     studies = run_study(args.case, size=args.size, degrees=args.degrees, levels=args.levels,
-                        pushes=pushes, max_cells=args.max_cells or MAX_CELLS, progress=not args.quiet,
-                        formulation=args.formulation)
+                        pushes=pushes, max_cells=args.max_cells or MAX_CELLS,
+                        progress=not args.quiet, formulation=args.formulation)
     material = _material_of(args.case)
     form = resolve_formulation(args.formulation, material)
     out = {"case": studies[0].case_name, "source": str(args.case),
@@ -74,7 +73,7 @@ def run(args) -> int:
            "degrees": list(args.degrees), "levels": args.levels, "refinement_ratio": 2,
            "h_definition": "mean edge length of the coarsest mesh, halved per level (mm)",
            "max_cells": limit,
-           "solver_settings": {"newton": dataclasses.asdict(NewtonSettings())},
+           "solver_settings": settings_json(),
            # every level straight-sided (fem_reference.convergence): geometry order 1
            "studies": [{**study_to_json(st), "formulation": form,
                         "pressure_degree": st.degree - 1 if form == "mixed" else None,

@@ -71,13 +71,12 @@ def solver_settings(name: str, **given) -> dict:
     load-stepping controls (``fem_reference.newton.NewtonSettings``, which the command line
     leaves at their defaults), for a fast solver the defaults of its ``solve`` keywords (null:
     the solver picks the value itself); ``given`` (what the command chose) goes over them."""
-    import dataclasses
     import inspect
 
     if name == "fem":
-        from fem_reference.newton import NewtonSettings
+        from fem_reference.newton import settings_json
 
-        return {"newton": dataclasses.asdict(NewtonSettings()), **given}
+        return {**settings_json(), **given}
     if name == "admm":
         from solvers.admm import solve
     else:

@@ -169,11 +169,9 @@ def _options(solver, problem) -> dict:
     Newton controls (left at their defaults), a built-in fast solver's options, {} for a
     plugin."""
     if solver == "fem":
-        import dataclasses
+        from fem_reference.newton import settings_json
 
-        from fem_reference.newton import NewtonSettings
-
-        return {**problem.reference, "newton": dataclasses.asdict(NewtonSettings())}
+        return {**problem.reference, **settings_json()}
     from .verify import FAST_SOLVERS
 
     if isinstance(solver, str) and solver in FAST_SOLVERS:

@@ -114,12 +114,9 @@ class _References:
         controls (left at their defaults); None for a caller's own reference_solve."""
         if self.user is not None:
             return None
-        import dataclasses
+        from fem_reference.newton import settings_json
 
-        from fem_reference.newton import NewtonSettings
-
-        return {"degree": degree, "formulation": formulation,
-                "newton": dataclasses.asdict(NewtonSettings())}
+        return {"degree": degree, "formulation": formulation, **settings_json()}
 
     def get(self, rcase, degree, formulation, *, warm: bool = True):
         """(case, SolveResult) of the reference; ``warm``: timed on a second call (the first,
