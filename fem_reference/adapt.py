@@ -239,14 +239,10 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
                        f"{counts[3]:,} cells) needs {n_est:,} dofs, more than "
                        f"max_dofs = {max_dofs:,}")
             else:
-                s = steps[-1]
-                name, ratio = s.worst
                 msg = (f"{case.source or case.name}: accuracy {accuracy:.3g} not reached within "
                        f"max_dofs = {max_dofs:,}: the next step (level {level}, degree {p}, "
-                       f"estimated at degree {p + 1}) needs {n_est:,} dofs; the last answer "
-                       f"({s.dofs:,} dofs, degree {s.degree}, {s.cells:,} cells) has probe "
-                       f"{name!r} at {ratio * accuracy:.3g} relative (estimate "
-                       f"{s.estimates[name]:.3g} mm)")
+                       f"estimated at degree {p + 1}) needs {n_est:,} dofs; "
+                       f"{_last_answer(steps[-1], accuracy)}")
             raise AccuracyNotReached(msg, result=done)
         ts = time.perf_counter()
         # degree-2 answers of a mesh with curved edges use them, degree-1 answers do not
@@ -262,16 +258,12 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
         except ConvergenceError as exc:
             if last is None:
                 raise
-            s = steps[-1]
-            name, ratio = s.worst
             src = f"{case.source or case.name}: "
             why = str(exc).removeprefix(src)
             raise AccuracyNotReached(
                 f"{src}accuracy {accuracy:.3g} not reached: the solves of level {level} "
-                f"({case.mesh.n_cells:,} cells, degree {p}) did not converge ({why}); the last "
-                f"answer ({s.dofs:,} dofs, degree {s.degree}, {s.cells:,} cells) has probe "
-                f"{name!r} at {ratio * accuracy:.3g} relative (estimate "
-                f"{s.estimates[name]:.3g} mm)",
+                f"({case.mesh.n_cells:,} cells, degree {p}) did not converge ({why}); "
+                f"{_last_answer(steps[-1], accuracy)}",
                 result=AdaptiveResult(last[0], last_case, tuple(steps), accuracy, False,
                                       time.perf_counter() - t0)) from exc
         finally:
@@ -330,6 +322,14 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
         case = case.with_mesh(mesh)
         answer = None
         start = (est.solver, est.enriched, parents)    # the next answer's warm start
+
+
+def _last_answer(step: AdaptiveStep, accuracy: float) -> str:
+    """What an AccuracyNotReached message says of the last answer: its size and worst probe."""
+    name, ratio = step.worst
+    return (f"the last answer ({step.dofs:,} dofs, degree {step.degree}, {step.cells:,} cells) "
+            f"has probe {name!r} at {ratio * accuracy:.3g} relative (estimate "
+            f"{step.estimates[name]:.3g} mm)")
 
 
 def _answer(case, degree, pushes, formulation, options, start):
