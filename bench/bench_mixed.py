@@ -7,13 +7,17 @@ iteration factorized), as the dolfinx demos do.
 Prints, per mesh size: tets, dofs, both wall times (solve only; forms compiled beforehand), the
 speed ratio, Newton iterations, peak memory and the largest probe difference (mm) between the two.
 
-    .venv/bin/python bench/bench_mixed.py [--sizes 6 4] [--nu 0.49] [--push 10]
+    .venv/bin/python bench/bench_mixed.py [--sizes 6 4] [--nu 0.49] [--push 10] [--np 2]
+
+--np N runs each size under ``mpirun -n N`` (both solvers distributed; peak memory summed over
+the ranks).
 """
 from __future__ import annotations
 
 import argparse
 import json
 import math
+import os
 import resource
 import subprocess
 import sys
@@ -110,7 +114,10 @@ def one(size: float, nu: float, push: float, peer: bool = True) -> dict:
     solver = fr.ReferenceSolver(case, formulation="mixed")
     t_setup = time.perf_counter() - t0
     res = solver.solve({"A1": push})
-    peak_ours = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 ** 2
+    from mpi4py import MPI
+
+    peak_ours = MPI.COMM_WORLD.allreduce(
+        resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 ** 2, op=MPI.SUM)
     steps = max(res.load_steps, math.ceil(push / solver.settings.max_step_mm))
     if peer:
         wall_tb, its_tb, steps, probes_tb = textbook(case.with_pushes({"A1": push}), push, steps,
@@ -124,7 +131,9 @@ def one(size: float, nu: float, push: float, peer: bool = True) -> dict:
             "ours_steps": res.load_steps, "factorizations": res.extra["factorizations"],
             "textbook_s": wall_tb, "textbook_newton": its_tb, "textbook_steps": steps,
             "ratio": wall_tb / res.wall_time_s, "probe_diff_mm": diff, "peak_gib": peak_ours,
-            "mesh_s": t_mesh, "setup_s": t_setup,
+            "mesh_s": t_mesh, "setup_s": t_setup, "ranks": MPI.COMM_WORLD.size,
+            "preconditioner_builds": res.extra.get("preconditioner_builds", 0),
+            "linear_solver": res.extra.get("linear_solver"),
             "T1_mm": np.asarray(res.probes["T1"]).tolist()}
 
 
@@ -135,16 +144,26 @@ def main():
     ap.add_argument("--push", type=float, default=10.0, help="A1 push, mm")
     ap.add_argument("--no-peer", action="store_true",
                     help="skip the textbook solve (large meshes: time and memory of ours only)")
+    ap.add_argument("--np", type=int, default=1, help="MPI ranks per solve (mpirun -n NP)")
     ap.add_argument("--one", type=float, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.one is not None:
-        print(json.dumps(one(args.one, args.nu, args.push, not args.no_peer)))
+        from mpi4py import MPI
+
+        out = one(args.one, args.nu, args.push, not args.no_peer)
+        if MPI.COMM_WORLD.rank == 0:
+            print(json.dumps(out))
         return
-    print(f"phantom, A1 = {args.push} mm, nu = {args.nu}, mixed P2/P1 (ours vs textbook dolfinx)")
+    launch = []
+    if args.np > 1:
+        launch = ["mpirun", "-n", str(args.np)] + \
+            (["--allow-run-as-root"] if os.geteuid() == 0 else [])
+    print(f"phantom, A1 = {args.push} mm, nu = {args.nu}, mixed P2/P1 (ours vs textbook dolfinx), "
+          f"{args.np} MPI rank(s)")
     print(f"{'size':>5} {'tets':>7} {'dofs':>8} {'ours_s':>7} {'newton':>6} {'factor':>6} "
           f"{'textbook_s':>10} {'steps':>5} {'newton':>6} {'ratio':>6} {'probe_diff_mm':>13} {'peak_GiB':>8}")
     for size in args.sizes:
-        out = subprocess.run([sys.executable, __file__, "--one", str(size), "--nu", str(args.nu),
+        out = subprocess.run(launch + [sys.executable, __file__, "--one", str(size), "--nu", str(args.nu),
                               "--push", str(args.push)] + (["--no-peer"] if args.no_peer else []),
                              capture_output=True, text=True)
         if out.returncode:
@@ -155,7 +174,8 @@ def main():
               f"{r['ours_newton']:6d} {r['factorizations']:6d} {r['textbook_s']:10.2f} "
               f"{r['textbook_steps']:5d} "
               f"{r['textbook_newton']:6d} {r['ratio']:6.2f} {r['probe_diff_mm']:13.2e} "
-              f"{r['peak_gib']:8.2f}", flush=True)
+              f"{r['peak_gib']:8.2f}  ({r['linear_solver']}, preconditioner builds "
+              f"{r['preconditioner_builds']})", flush=True)
 
 
 if __name__ == "__main__":

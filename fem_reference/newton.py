@@ -86,6 +86,7 @@ class _Timings:
     setup: float = 0.0
     factorizations: int = 0
     krylov_iterations: int = 0
+    preconditioner_builds: int = 0
 
 
 

@@ -12,6 +12,12 @@ complement S = -(1/kappa) M_p - B K_uu^-1 B^T by -(1/mu + 1/kappa) M_p (its spec
 equivalent for an inf-sup stable pair), applied by a Cholesky factorization of the pressure
 mass matrix. An indefinite K_uu (near a buckling instability) leaves GMRES valid; a solve that
 does not converge falls back to the MUMPS factorization of the whole tangent.
+
+The preconditioner is lagged as the direct solvers' factorizations are: built on one Newton
+iteration's tangent (the AMG hierarchy's Galerkin products are most of its cost), it is reused
+for the next ones while FGMRES, which always multiplies by the current tangent, needs at most
+LAG_GROWTH times the iterations it took when fresh (and at least LAG_MIN_ITS); past that, or
+when a lagged solve does not converge, it is rebuilt on the current tangent.
 Mixed into ReferenceSolver through LinearSolveMixin; units: mm, kPa, mN."""
 from __future__ import annotations
 
@@ -44,6 +50,13 @@ SADDLE_OPTIONS = {
     "fieldsplit_p_ksp_type": "preonly",
     "fieldsplit_p_pc_type": "cholesky",
 }
+
+
+LAG_GROWTH = 2.0
+"""A lagged fieldsplit preconditioner is rebuilt after a solve that needed more than this times
+the iterations of its fresh solve."""
+LAG_MIN_ITS = 30
+"""... and more than this many iterations (a fresh solve may take only a handful)."""
 
 
 class SaddleSolveMixin:
@@ -133,23 +146,42 @@ class SaddleSolveMixin:
         k.setFromOptions()
         self.saddle_ksp = k
         self._sp_key = None
+        self._fresh_its = None  # iterations of the last solve with a freshly built preconditioner
         # the fallback: MUMPS LDL^T of A itself (refactorized whenever A changed)
         self._use_factor("mumps")
         self.ksp.setOperators(self.A, self.A)
 
     def _saddle_solve(self, eta: float) -> int:
         """du = A^-1 b (b: the negated residual) by fieldsplit FGMRES at relative tolerance
-        ``eta``; a solve that does not converge is redone by the MUMPS fallback (self.ksp).
-        Returns the Krylov iterations."""
-        self._schur_preconditioner()
+        ``eta``, the preconditioner lagged (module docstring); a solve that does not converge
+        with a fresh preconditioner is redone by the MUMPS fallback (self.ksp). Returns the
+        Krylov iterations."""
+        if self._schur_preconditioner() is not getattr(self, "_lag_sp", None):
+            self._fresh_its, self._lag_sp = None, self._Sp  # a new Schur block: rebuild
         k = self.saddle_ksp
         k.setTolerances(rtol=eta, atol=1e-300)
-        k.solve(self.b, self.du.vector)
-        its = k.getIterationNumber()
-        if k.getConvergedReason() > 0:
-            return its
+        total = 0
+        while True:
+            fresh = self._fresh_its is None
+            k.getPC().setReusePreconditioner(not fresh)
+            k.solve(self.b, self.du.vector)
+            its = k.getIterationNumber()
+            total += its
+            if k.getConvergedReason() > 0:
+                if fresh:
+                    self.timings.preconditioner_builds += 1
+                    self._fresh_its = its
+                elif its > max(LAG_GROWTH * self._fresh_its, LAG_MIN_ITS):
+                    self._fresh_its = None  # too far from this tangent: rebuild next time
+                return total
+            if fresh:
+                break
+            log.debug("lagged fieldsplit preconditioner: no convergence in %d iterations, "
+                      "rebuilding it on the current tangent", its)
+            self._fresh_its = None
+        self._fresh_its = None
         log.info("fieldsplit FGMRES did not converge (reason %d after %d iterations): "
                  "solving with the MUMPS factorization", k.getConvergedReason(), its)
         self.ksp.solve(self.b, self.du.vector)
         self.timings.factorizations += 1
-        return its
+        return total
