@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import fem_reference as fr
-from fem_reference.estimate import ESTIMATE_METHOD, error_estimate, estimate
+from fem_reference.estimate import ESTIMATE_METHOD, auto_estimate, error_estimate, estimate
 from meshes.builders import box, cook_membrane, shell_octant
 from meshes.case import Actuator, Boundary, Case, Material, Probe
 from meshes.errors import CaseError
@@ -232,3 +232,72 @@ def test_phantom_estimate_effectivity_against_an_independent_converged_value(deg
         assert value - truth > 0.1 * truth        # the default is at least 10 % off
     # the estimate flags it: far above the 2 % at which the command line warns
     assert np.linalg.norm(est.probes[k]) > 0.05 * np.linalg.norm(res.probes[k])
+
+
+# --------------------------------------------------------------------------- automatic estimate
+def p2_unknowns(mesh) -> int:
+    """Unknowns of a P2 vector field on ``mesh``: 3 per vertex and per edge (counted here)."""
+    edges = {tuple(sorted((int(c[i]), int(c[j])))) for c in mesh.cells
+             for i in range(4) for j in range(i + 1, 4)}
+    return 3 * (mesh.n_vertices + len(edges))
+
+
+def test_auto_estimate_runs_up_to_its_size_limit_and_says_why_not_above(block):
+    push = {"A1": 1.0}
+    res = fr.solve(block, pushes=push)
+    n = p2_unknowns(block.mesh)
+    at = auto_estimate(block, res, pushes=push, max_dofs=n)
+    assert "estimate_note" not in at.extra
+    assert at.extra["estimate_discretization"]["dofs"] == n
+    assert at.extra["probe_error_estimates"]["T"] == pytest.approx(
+        estimate(block, res, pushes=push).extra["probe_error_estimates"]["T"], rel=1e-6)
+    above = auto_estimate(block, res, pushes=push, max_dofs=n - 1)
+    assert "probe_error_estimates" not in above.extra
+    assert f"{n:,} unknowns" in above.extra["estimate_note"]
+    assert np.array_equal(above.u, res.u)
+
+
+def test_auto_estimate_names_what_it_cannot_estimate(block, monkeypatch):
+    import dataclasses
+
+    import fem_reference.estimate as fe
+    from meshes.errors import ConvergenceError
+
+    push = {"A1": 1.0}
+    res3 = fr.solve(block, pushes=push, degree=3)
+    assert "richest" in auto_estimate(block, res3, pushes=push).extra["estimate_note"]
+    res = fr.solve(block, pushes=push)
+    bad = dataclasses.replace(res, extra={**res.extra, "valid": False})
+    assert "not a valid" in auto_estimate(block, bad, pushes=push).extra["estimate_note"]
+
+    def diverges(*a, **k):
+        raise ConvergenceError("stuck", load_fraction=0.5)
+
+    monkeypatch.setattr(fe, "estimate", diverges)
+    out = auto_estimate(block, res, pushes=push)
+    assert "did not converge" in out.extra["estimate_note"]
+    assert np.array_equal(out.u, res.u)
+
+
+def test_tissue_solve_states_the_error_of_its_default_answer(tmp_path, capsys):
+    from test_cli_fuzz import BOX
+
+    from tissue.cli import main
+
+    case = tmp_path / "box.toml"
+    case.write_text(BOX.format(model="neo-hookean"))
+    rc = main(["solve", str(case), "--push", "A1=1", "-q", "--json", str(tmp_path / "a.json")])
+    out, err = capsys.readouterr()
+    assert rc == 0
+    d = json.loads((tmp_path / "a.json").read_text())
+    assert d["solver_settings"]["estimate"] == "auto"
+    assert d["probe_error_estimates"] and "+-" in out
+    assert d["probes"]["T1"]["error_estimate"] == d["probe_error_estimates"]["T1"]
+    worst = max(d["probe_error_estimates"][k] / np.linalg.norm(d["probes"][k]["displacement"])
+                for k in d["probe_error_estimates"])
+    assert ("estimated discretization error up to" in err) == (worst > 0.02)
+    rc = main(["solve", str(case), "--push", "A1=1", "-q", "--no-estimate",
+               "--json", str(tmp_path / "b.json")])
+    d = json.loads((tmp_path / "b.json").read_text())
+    assert rc == 0 and d["solver_settings"]["estimate"] is False
+    assert "probe_error_estimates" not in d and "estimate_note" not in d

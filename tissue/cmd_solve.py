@@ -2,6 +2,7 @@
 [--device cpu|gpu]``."""
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -90,7 +91,7 @@ def solver_settings(name: str, **given) -> dict:
 def _settings_of(args) -> dict:
     """solver_settings of ``tissue solve``'s options."""
     if args.solver == "fem":
-        given = {"estimate": bool(args.estimate)}
+        given = {"estimate": "auto" if args.estimate is None else bool(args.estimate)}
         if args.accuracy is not None:
             given.update({"accuracy_rel": args.accuracy, "refine": args.refine,
                           "max_dofs": args.max_dofs})
@@ -118,6 +119,9 @@ def run(args) -> int:
     check_prescribed(case, pushes)
     if (args.estimate or args.accuracy is not None) and args.solver != "fem":
         raise CaseError("--estimate and --accuracy apply to the reference (--solver fem)")
+    if args.estimate is not None and args.accuracy is not None:
+        raise CaseError("--accuracy estimates every level itself: drop --estimate / "
+                        "--no-estimate")
     settings = _settings_of(args)
     try:
         if args.accuracy is not None:
@@ -127,6 +131,11 @@ def run(args) -> int:
                              pushes=pushes, progress=not args.quiet,
                              **({"estimate": True} if args.estimate else {}),
                              **({"device": args.device} if args.solver == "admm" else {}))
+            if args.solver == "fem" and args.estimate is None:
+                from fem_reference.estimate import auto_estimate
+
+                res = auto_estimate(case, res, pushes=pushes, progress=not args.quiet,
+                                    degree=args.degree, formulation=args.formulation)
     except AccuracyNotReached as exc:
         if exc.result is not None:   # the last answer, on the mesh it was solved on
             write_outputs(exc.result.case.with_pushes(pushes), exc.result.result, args.out,
@@ -154,6 +163,11 @@ def run(args) -> int:
             print(f"  discretization: {disc['formulation']} P{disc['degree']}{p}, "
                   f"{disc['dofs']} dofs")
         print_answer(res)
+        worst = _worst_estimate(res)
+        if worst is not None and worst > ESTIMATE_WARN:
+            print(f"tissue solve: warning: estimated discretization error up to {worst:.1%} of "
+                  f"a probe's displacement (above {ESTIMATE_WARN:.0%}): raise --degree, or "
+                  f"refine until it is within a tolerance (--accuracy 0.01)", file=sys.stderr)
         for line in res.extra.get("warnings") or \
                 case.with_pushes(pushes).glued_patch_warnings(res.u):
             print(f"tissue solve: warning: {line}", file=sys.stderr)
@@ -181,6 +195,14 @@ def solve_adaptive(case, pushes, args):
 ESTIMATE_WARN = 0.02  # warn when a probe's estimated error exceeds this fraction of its value
 
 
+def _worst_estimate(res):
+    """The largest estimated probe error relative to the probe's displacement (None: none)."""
+    pe = res.extra.get("probe_error_estimates") or {}
+    rel = [pe[k] / max(float(np.linalg.norm(v)), 1e-300) for k, v in res.probes.items()
+           if k in pe]
+    return max(rel) if rel else None
+
+
 def print_answer(res):
     """Probes and reactions, each with its estimated discretization error when there is one."""
     pe = res.extra.get("probe_error_estimates") or {}
@@ -199,6 +221,8 @@ def print_answer(res):
         if k in re_:
             line += f"  +- {re_[k]:.2g} mN"
         print(line)
+    if res.extra.get("estimate_note"):
+        print(f"  error estimate: none: {res.extra['estimate_note']}")
     if pe:
         ed = res.extra.get("estimate_discretization") or {}
         print(f"  error estimate: {res.extra.get('estimate_method')} against "
@@ -217,9 +241,11 @@ def add_parser(sub):
                    help="push an actuator's region rigidly along its direction (repeatable)")
     p.add_argument("--out", help="folder for the displacement field (XDMF + VTU)")
     p.add_argument("--json", help="JSON summary file")
-    p.add_argument("--estimate", action="store_true",
+    p.add_argument("--estimate", action=argparse.BooleanOptionalAction, default=None,
                    help="estimate each probe's and reaction's discretization error (one more "
-                        "solve at degree + 1 on the same mesh)")
+                        "solve at degree + 1 on the same mesh). Default (fem): estimated when "
+                        "that solve has at most 60,000 unknowns (a few seconds), else the "
+                        "answer says why not; --estimate always, --no-estimate never")
     p.add_argument("--accuracy", type=real("positive", at_most=1.0), default=None,
                    metavar="REL", help="refine (P1, P2, then mesh refinement, see --refine) "
                    "until every probe's estimated error is within REL of its value, e.g. 0.01")
