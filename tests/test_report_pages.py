@@ -166,6 +166,32 @@ def test_vertex_J_is_the_smallest_of_the_cells_around_a_vertex(work):
     assert np.allclose(vertex_min_J(case.mesh, u), 0.5)
 
 
+# --------------------------------------------------------------------------- mpc, table1
+def test_an_mpc_page_compares_the_closed_and_the_open_loop(work):
+    out = work / "mpc"
+    _run(["mpc", work / "box.toml", "--target", "T1", "--task", "1", "--steps", "3", "-q",
+          "--out", out, "--json", work / "m.json"])
+    d = json.loads((work / "m.json").read_text())
+    found = check_page(out / "mpc_T1_task1.html")
+    assert found["images"] == ["mpc_T1_task1.png", "mpc_T1_task1_error.png"]
+    page = (out / "mpc_T1_task1.html").read_text()
+    closed = re.search(r"<tr><td>closed loop \(MPC\)</td>(.*?)</tr>", page).group(1)
+    opened = re.search(r"<tr><td>open loop \(eq. 22\)</td>(.*?)</tr>", page).group(1)
+    assert f"<td>{d['itae']:.4g}</td>" in closed
+    assert f"<td>{d['open_loop']['status']}</td><td>{d['open_loop']['itae']:.4g}</td>" in opened
+    assert _cells(page, "horizon") == "5" and _cells(page, "dt (s)") == "1"
+    assert _cells(page, "plant material: E (kPa)") == "6"
+
+
+def test_an_unreachable_goal_gets_a_page_that_says_so(work):
+    out = work / "mpc2"
+    _run(["mpc", work / "box.toml", "--target", "T1", "--task", "2", "--steps", "3", "-q",
+          "--out", out], status=2)
+    check_page(out / "mpc_T1_task2.html")
+    page = (out / "mpc_T1_task2.html").read_text()
+    assert "<b>Unreachable goal</b>" in page and "positive span" in page
+
+
 # --------------------------------------------------------------------------- verify, suite
 def test_the_verify_and_suite_pages_are_well_formed(work):
     _run(["verify", work / "box.toml", "--push", "A1=1", "-q", "--out", work / "v"])
