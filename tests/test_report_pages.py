@@ -192,6 +192,22 @@ def test_an_unreachable_goal_gets_a_page_that_says_so(work):
     assert "<b>Unreachable goal</b>" in page and "positive span" in page
 
 
+def test_table1_pages_show_settings_as_a_table_and_every_plot(work):
+    out = work / "t"
+    _run(["table1", work / "box.toml", "--steps", "3", "-q", "--scenarios", "gravity", "--out",
+          out])
+    found = check_page(out / "table1_scenarios.html")
+    assert found["images"] == ["table1_scenarios.png"]
+    assert found["links"] == ["gravity/table1.html"]
+    found = check_page(out / "gravity" / "table1.html")
+    pngs = sorted(p.name for p in (out / "gravity").glob("*.png"))
+    assert pngs and sorted(found["images"]) == pngs      # every plot written is on the page
+    page = (out / "gravity" / "table1.html").read_text()
+    assert "<pre>" not in page and _cells(page, "settings: horizon") == "5"
+    assert _cells(page, "settings: q (1/mm²)") == "3"
+    assert "<th>Closed-loop ITAE (mm·s²)</th>" in page
+
+
 # --------------------------------------------------------------------------- verify, suite
 def test_the_verify_and_suite_pages_are_well_formed(work):
     _run(["verify", work / "box.toml", "--push", "A1=1", "-q", "--out", work / "v"])

@@ -185,7 +185,7 @@ def _run_scenarios(args, case, targets, settings, base_meta) -> int:
     """The Table I analog once per mismatch scenario, each in ``--out``/NAME, with a combined
     summary (table1_scenarios.json) and the ITAE plot."""
     from control.plants import scenario_loop
-    from control.table1 import plot_scenarios
+    from control.table1 import plot_scenarios, write_scenarios_page
     from control.table1 import run_table1 as run_all
 
     out = Path(args.out)
@@ -206,6 +206,8 @@ def _run_scenarios(args, case, targets, settings, base_meta) -> int:
                     "scenarios": summaries, "meta": metas,
                     "settings": base_meta.get("settings")}, out / "table1_scenarios.json")
     plot_scenarios(rows, out / "table1_scenarios.png")
+    write_scenarios_page(out, summaries, metas, base_meta.get("settings"),
+                         plot="table1_scenarios.png")
     for name, s in summaries.items():
         print(f"table1 {name}: {json.dumps(s)}")
     return 0
