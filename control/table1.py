@@ -16,15 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from meshes.errors import ConvergenceError
+from meshes.html_page import Raw, image, kv_table, page, table, write_page
 from meshes.io import atomic_path
 from meshes.results import write_json
 
 __all__ = ["SSE_GOAL_MM", "plot_scenarios", "run_table1", "table1_row", "table1_summary",
-           "write_table1"]
-
-
-def _fmt(v, spec):
-    return "" if v is None else format(v, spec)
+           "write_scenarios_page", "write_table1"]
 
 
 SSE_GOAL_MM = 0.05   # the closed-loop steady-state error every scenario must meet (mm)
@@ -117,24 +114,17 @@ def write_table1(out, meta, rows, n_expected):
     md += ["| " + " | ".join(b) + " |" for b in body]
     with atomic_path(out / "table1.md") as tmp:
         tmp.write_text("\n".join(md) + "\n")
-    esc = html_escape
-    html = ["<html><head><meta charset='utf-8'><title>Table I analog</title></head><body>",
-            f"<h1>Table I analog{': ' + esc(str(meta.get('scenario'))) if meta.get('scenario') else ''}</h1>",
-            f"<p>{esc(str(meta.get('scenario_description') or ''))}</p>",
-            "<table border='1'>", f"<caption>{esc(verdict)}</caption>",
-            "<tr>" + "".join(f"<th>{esc(h)}</th>" for h in hdr) + "</tr>"]
-    html += ["<tr>" + "".join(f"<td>{esc(c)}</td>" for c in b) + "</tr>" for b in body]
-    html.append("</table>")
-    pngs = [f"response_{r['target']}_task{r['task']}.png" for r in rows if r["status"] == "ok"]
-    pngs = [p for p in pngs if (out / p).is_file()]
-    if pngs:
-        html.append("<h2>Trajectories (closed loop, open loop, goal; actuator pushes)</h2>")
-        html += [f"<figure><img src='{esc(p)}' width='640'><figcaption>{esc(p)}</figcaption>"
-                 "</figure>" for p in pngs]
-    html.append(f"<h2>Settings</h2><pre>{esc(json.dumps(meta, indent=1, default=str))}</pre>")
-    html.append("</body></html>")
-    with atomic_path(out / "table1.html") as tmp:
-        tmp.write_text("\n".join(html) + "\n")
+    png = [f"response_{r['target']}_task{r['task']}.png" for r in rows if r["status"] == "ok"]
+    png = [p for p in png if (out / p).is_file()]
+    scen = meta.get("scenario")
+    parts = [Raw(f"<h1>Table I analog{': ' + html_escape(str(scen)) if scen else ''}</h1>"),
+             meta.get("scenario_description") or "",
+             table([h.replace("ITAE", "ITAE (mm·s²)") for h in hdr], body, caption=verdict)]
+    if png:
+        parts.append(Raw("<h2>Trajectories (closed loop, open loop, goal; actuator pushes)</h2>"))
+        parts += [image(p, f"time response {p}", p, 640) for p in png]
+    parts += [Raw("<h2>Settings</h2>"), kv_table(meta)]
+    write_page(out / "table1.html", page("Table I analog", parts))
     return summ
 
 
@@ -211,3 +201,25 @@ def plot_scenarios(results: dict, path) -> Path:
         fig.savefig(tmp, format="png", dpi=100)
     plt.close(fig)
     return path
+
+
+def write_scenarios_page(out, summaries: dict, metas: dict, settings: dict | None,
+                         plot: str | None = None) -> Path:
+    """``out``/table1_scenarios.html: per mismatch scenario its summary and a link to its own
+    table (``NAME/table1.html``), the ITAE plot ``plot`` (a PNG in ``out``) and the settings."""
+    out = Path(out)
+    rows = [(Raw(f"<a href='{html_escape(n)}/table1.html'>{html_escape(n)}</a>"),
+             metas.get(n, {}).get("scenario_description", ""), f"{v['ran']}/{v['scenarios']}",
+             v["sse_le_0.05mm"], f"{v['closed_itae_lt_open']}/{v['open_loop_feasible']}",
+             v["zero_retraction"], _fmt(v["worst_closed_loop_sse_mm"], ".2e"),
+             "yes" if v["all_met"] else "no") for n, v in summaries.items()]
+    parts = [Raw("<h1>Table I analog per model-plant mismatch</h1>"),
+             table(["scenario", "mismatch", "ran", f"SSE <= {SSE_GOAL_MM} mm (count)",
+                    "closed ITAE < open ITAE (count of feasible)", "zero retraction (count)",
+                    "worst closed-loop SSE (mm)", "all met"], rows)]
+    if plot and (out / plot).is_file():
+        parts.append(image(plot, "closed- and open-loop ITAE per scenario",
+                           "closed- against open-loop ITAE (mm·s²) of every target and task; "
+                           "grey: open loop not feasible", 900))
+    parts += [Raw("<h2>Settings</h2>"), kv_table(settings or {})]
+    return write_page(out / "table1_scenarios.html", page("Table I analog: scenarios", parts))

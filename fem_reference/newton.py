@@ -133,11 +133,12 @@ class NewtonMixin:
         self.timings.assemble += time.perf_counter() - t0
 
 
-    def _newton(self, bcs, progress, label, rtol=None, atol_mm=None):
+    def _newton(self, bcs, progress, label, rtol=None, atol_mm=None, trace=None):
         """Newton iterations at fixed load; returns (converged, iterations, residual).
 
         Residual first, tangent only when another correction is needed. A correction that
         inverts an element (non-finite residual) is halved up to ``settings.line_search`` times.
+        ``trace`` (a list) gets the residual norm of every iterate.
         """
         s = self.settings
         rtol = s.rtol if rtol is None else rtol
@@ -147,6 +148,8 @@ class NewtonMixin:
         r0 = rprev = None
         rnorm = self._assemble_residual(bcs)
         for it in range(1, s.max_iterations + 1):
+            if trace is not None:
+                trace.append(rnorm)
             if not math.isfinite(rnorm):
                 return False, it, rnorm
             if r0 is None:
@@ -248,7 +251,10 @@ class NewtonMixin:
         steps = iters = 0
         last_good = self.x.x.array.copy()
         residual = 0.0
-        history = {"load_fraction": [], "newton_iterations": [], "residual": []}
+        # per load step reached; and per Newton iterate (failed steps too) its residual norm
+        # and the load fraction it was tried at
+        history = {"load_fraction": [], "newton_iterations": [], "residual": [],
+                   "iterate_residual": [], "iterate_load": []}
         prev_good, prev_lam = None, 0.0
         predict = s.predictor == "secant"
         while lam < 1.0 - 1e-14:
@@ -262,14 +268,17 @@ class NewtonMixin:
                 self.x.x.scatter_forward()
             final = trial >= 1.0 - 1e-14
             tol = {} if final else {"rtol": s.intermediate_rtol, "atol_mm": s.intermediate_atol_mm}
-            ok, it, res = self._newton(bcs, progress, f"load {trial:6.3f}", **tol)
+            trace = history["iterate_residual"]
+            ok, it, res = self._newton(bcs, progress, f"load {trial:6.3f}", trace=trace, **tol)
             iters += it
             if not ok and predict and prev_good is not None:
                 # retry the same step from the last converged state, without the predictor
                 self.x.x.array[:] = last_good
                 self.x.x.scatter_forward()
-                ok, it, res = self._newton(bcs, progress, f"load {trial:6.3f}", **tol)
+                ok, it, res = self._newton(bcs, progress, f"load {trial:6.3f}", trace=trace,
+                                           **tol)
                 iters += it
+            history["iterate_load"] += [trial] * (len(trace) - len(history["iterate_load"]))
             if ok:
                 prev_good, prev_lam = last_good.copy(), lam
                 lam = trial

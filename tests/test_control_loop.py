@@ -172,7 +172,10 @@ def test_table1_files_and_summary(setup, tmp_path):
     assert md.count("\n| T1 | 3 |") == 2 and ">= " in md and "plant failed at step 5" in md
     assert "unreachable: goal outside" in md
     html = (tmp_path / "table1.html").read_text()
-    assert html.count("<tr>") == 4 and "&gt;= " in html
+    table, settings = html.split("<h2>Settings</h2>")
+    assert table.count("<tr>") == 4 and "&gt;= " in table
+    # the settings as a key/value table, not JSON
+    assert "<th scope='row'>case</th><td>phantom</td>" in settings and "<pre>" not in html
 
 
 class StaleBoundary:

@@ -67,6 +67,9 @@ RUNS = {
                                           "OUT/m"], 0, ["m/manipulability_phantom.json"]),
     "implant": ("implant", ["implant", "--synthetic", "--no-reference", "-q", "--json",
                             "OUT/i.json"], 0, ["i.json"]),
+    # the smallest phantom the demo builds at both of its sizes (~13 s with the verification)
+    "demo": ("demo", ["demo", "--out", "OUT/d", "--size", "14", "--verify-size", "14", "-q"], 0,
+             ["d/summary.json"]),
 }
 
 
@@ -183,6 +186,8 @@ MISSING = [
     ("dynamics", ("discretization",)),
     ("dynamics", ("final", "pushes_mm")),
     ("implant", ("material",)),
+    ("demo", ("reference", "series", 0, "probe_error_estimates_mm")),
+    ("demo", ("verify", "reference", "material")),   # the verify schema, inside the demo's
 ]
 
 
@@ -214,6 +219,19 @@ def test_a_value_of_the_wrong_type_is_named_with_its_path(outputs):
         validate("solve", data)
     assert err.value.path == "$.probes.T1.displacement[1]"
     assert "'0.5' is not of type 'number'" in err.value.reason
+
+
+def test_the_demo_summary_says_what_was_run_and_its_page_is_well_formed(outputs):
+    from page_checks import check_page
+
+    _, [summary] = outputs.get("demo")
+    assert summary["mesh"]["size_mm"] == 14.0
+    assert [r["push_mm"] for r in summary["reference"]["series"]] == [5.0, 10.0, 15.0]
+    assert set(summary["verify"]["solvers"]) == {"admm", "admm-plain", "mass-tensor"}
+    out = outputs.folder("demo") / "d"
+    found = check_page(out / "report.html")
+    assert "verify/report.html" in found["links"] and "fem/probes_vs_push.png" in found["images"]
+    check_page(out / "verify" / "report.html")
 
 
 @pytest.mark.slow

@@ -23,3 +23,14 @@ def test_render_writes_a_png_either_way(tmp_path):
         assert data[:4] == b"\x89PNG" and len(data) > 5000
         assert out["method"] in (("pyvista", "matplotlib") if use else ("matplotlib",))
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_a_2d_mesh_is_drawn_as_its_deformed_triangles(tmp_path):
+    from meshes.builders_blocks import rectangle
+
+    m = rectangle(2.5)
+    u = np.zeros_like(m.points)
+    u[:, 0] = 0.05 * m.points[:, 1]
+    out = render(m, u, np.linalg.norm(u, axis=1), tmp_path / "flat.png", label="|u| (mm)")
+    data = (tmp_path / "flat.png").read_bytes()
+    assert data[:4] == b"\x89PNG" and out["method"] == "matplotlib" and out["why"] == "a 2D mesh"

@@ -14,7 +14,7 @@ import numpy as np
 
 from control.plants import tangent_for
 from meshes.errors import CaseError, ConvergenceError
-from meshes.io import atomic_path, check_output_dir
+from meshes.io import atomic_path, check_output_dir, check_output_file
 from meshes.results import write_json
 
 from .common import (
@@ -26,6 +26,7 @@ from .common import (
     integer,
     real,
 )
+from .mpc_report import mpc_stem, write_mpc_report
 
 MAX_MAP_POINTS = 20_000
 """Grid points of one manipulability map at most (each is a small linear program)."""
@@ -89,11 +90,23 @@ def _fmt(v, spec):
     return "" if v is None else format(v, spec)
 
 
+def _write_mpc(args, d: dict, png: Path | None = None):
+    """--json and, with --out, the loop's page (tissue.mpc_report)."""
+    if args.json:
+        write_json(d, args.json)
+    if args.out:
+        write_mpc_report(d, args.out, response_png=png.name if png else None)
+
+
 def run_mpc(args) -> int:
     from control.controllability import UnreachableGoalError
     from control.loop import plot_response
 
     check_outputs(args, files=("json",), dirs=("out",))
+    if args.out and Path(args.out).is_dir():
+        for suffix in (".html", ".png", "_error.png"):
+            check_output_file(Path(args.out) / f"{mpc_stem(args.target, args.task)}{suffix}",
+                              "--out")
     case = case_from_args(args)
     case.probe(args.target)   # a missing target is named before any solve
     loop, settings = _setup(args, case)
@@ -101,20 +114,19 @@ def run_mpc(args) -> int:
     try:
         res = loop.run(args.target, args.task, settings)
     except UnreachableGoalError as exc:
-        if args.json:
-            write_json({**meta, "status": "unreachable", "reachable": False, "error": str(exc),
-                        "closest_reachable_mm": np.asarray(exc.closest).tolist(),
-                        "pushes_mm": np.asarray(exc.pushes).tolist()}, args.json)
+        _write_mpc(args, {**meta, "status": "unreachable", "reachable": False, "error": str(exc),
+                          "closest_reachable_mm": np.asarray(exc.closest).tolist(),
+                          "pushes_mm": np.asarray(exc.pushes).tolist()})
         raise
     except ConvergenceError as exc:
-        if args.json:
-            write_json({**meta, "status": "failed", "error": str(exc)}, args.json)
+        _write_mpc(args, {**meta, "status": "failed", "error": str(exc)})
         raise
     d = res.to_json_dict({**meta, "status": "completed"})
-    if args.json:
-        write_json(d, args.json)
+    png = None
     if args.out:
-        plot_response(res, Path(args.out) / f"mpc_{args.target}_task{args.task}.png")
+        png = Path(args.out) / f"{mpc_stem(args.target, args.task)}.png"
+        plot_response(res, png)
+    _write_mpc(args, d, png)
     ol = d["open_loop"]
     if ol["status"] == "completed":
         open_txt = f"itae={ol['itae']:.2f} sse={ol['steady_state_error_mm']:.4f} mm"
@@ -173,7 +185,7 @@ def _run_scenarios(args, case, targets, settings, base_meta) -> int:
     """The Table I analog once per mismatch scenario, each in ``--out``/NAME, with a combined
     summary (table1_scenarios.json) and the ITAE plot."""
     from control.plants import scenario_loop
-    from control.table1 import plot_scenarios
+    from control.table1 import plot_scenarios, write_scenarios_page
     from control.table1 import run_table1 as run_all
 
     out = Path(args.out)
@@ -194,6 +206,8 @@ def _run_scenarios(args, case, targets, settings, base_meta) -> int:
                     "scenarios": summaries, "meta": metas,
                     "settings": base_meta.get("settings")}, out / "table1_scenarios.json")
     plot_scenarios(rows, out / "table1_scenarios.png")
+    write_scenarios_page(out, summaries, metas, base_meta.get("settings"),
+                         plot="table1_scenarios.png")
     for name, s in summaries.items():
         print(f"table1 {name}: {json.dumps(s)}")
     return 0
@@ -277,7 +291,8 @@ def add_parser(sub):
     p.add_argument("--task", type=int, required=True, choices=(1, 2, 3),
                    help="1: -x 5 mm (y free); 2: -y 5 mm (x free); 3: +x and +y 5 mm")
     _loop_args(p)
-    p.add_argument("--out", help="folder for the time-response PNG")
+    p.add_argument("--out", help="folder for the time-response PNGs and the loop's page "
+                                 "(mpc_TARGET_taskN.html)")
     p.add_argument("--json", help="write the result here")
     p.set_defaults(func=run_mpc)
 

@@ -28,8 +28,11 @@ from .common import (
     report_validity,
     run_solver,
 )
+from .solve_report import ESTIMATE_WARN, REPORT
 
 STEMS = ("displacement", "last_converged")
+# what --out gets besides report.html: per stem, the fields and the report's pictures
+SUFFIXES = (".xdmf", ".h5", ".vtu", "_view_u.png", "_view_J.png", "_history.png")
 
 
 def _rank():
@@ -41,11 +44,13 @@ def _rank():
         return 0
 
 
-def write_outputs(case, res, out_dir=None, json_file=None, stem="displacement", settings=None):
+def write_outputs(case, res, out_dir=None, json_file=None, stem="displacement", settings=None,
+                  report=False):
     """Fields (XDMF + VTU: displacement, its magnitude, pressure for the mixed formulation, and
     per cell J = det F and ``inverted`` = 1 where J <= 0) and the JSON summary (with ``valid``
-    and ``invalid_reason``, and ``settings`` as its ``solver_settings`` when given); rank 0
-    writes, each file whole or not at all."""
+    and ``invalid_reason``, and ``settings`` as its ``solver_settings`` when given); with
+    ``report`` also ``out_dir``/report.html (tissue.solve_report); rank 0 writes, each file
+    whole or not at all."""
     if _rank() != 0:
         return
     if out_dir:
@@ -56,11 +61,15 @@ def write_outputs(case, res, out_dir=None, json_file=None, stem="displacement", 
         J = cell_jacobians(case.mesh.points, case.mesh.cells, u)
         write_point_data(case.mesh, out_dir, stem, fields,
                          cell_data={"J": J, "inverted": (~(J > 0)).astype(float)})
+    data = res.to_json_dict(case)
+    if settings is not None:
+        data["solver_settings"] = settings
     if json_file:
-        data = res.to_json_dict(case)
-        if settings is not None:
-            data["solver_settings"] = settings
         write_json(data, json_file)
+    if out_dir and report:
+        from .solve_report import write_solve_report
+
+        write_solve_report(case, res, out_dir, data=data, stem=stem)
 
 
 # keyword arguments of a fast solver's solve() that are inputs or hooks, not settings
@@ -104,8 +113,9 @@ def _settings_of(args) -> dict:
 def run(args) -> int:
     check_outputs(args, files=("json",), dirs=("out",))
     if args.out and Path(args.out).is_dir():
+        check_output_file(Path(args.out) / REPORT, "--out")
         for stem in STEMS:
-            for suffix in (".xdmf", ".h5", ".vtu"):
+            for suffix in SUFFIXES:
                 check_output_file(Path(args.out) / f"{stem}{suffix}", "--out")
     if args.device != "cpu":
         if args.solver != "admm":
@@ -139,18 +149,19 @@ def run(args) -> int:
     except AccuracyNotReached as exc:
         if exc.result is not None:   # the last answer, on the mesh it was solved on
             write_outputs(exc.result.case.with_pushes(pushes), exc.result.result, args.out,
-                          args.json, settings=settings)
+                          args.json, settings=settings, report=True)
         print(f"tissue solve: error: {exc}", file=sys.stderr)
         return 1
     except ConvergenceError as exc:
         if exc.last_converged is not None:
             write_outputs(case.with_pushes(pushes), exc.last_converged, args.out, args.json,
-                          stem="last_converged", settings=settings)
+                          stem="last_converged", settings=settings, report=True)
             if _rank() == 0 and args.out:
                 print(f"tissue solve: last converged state (load fraction {exc.load_fraction:.4f})"
                       f" written to {Path(args.out) / 'last_converged.xdmf'}", file=sys.stderr)
         raise
-    write_outputs(case.with_pushes(pushes), res, args.out, args.json, settings=settings)
+    write_outputs(case.with_pushes(pushes), res, args.out, args.json, settings=settings,
+                  report=True)
     if _rank() == 0:
         print(f"{case.name}: {args.solver} converged={res.converged} "
               f"iterations={res.iterations} load_steps={res.load_steps} "
@@ -190,9 +201,6 @@ def solve_adaptive(case, pushes, args):
                             degree=args.degree, refine=args.refine, progress=not args.quiet,
                             **opts)
     return out.case, out.result
-
-
-ESTIMATE_WARN = 0.02  # warn when a probe's estimated error exceeds this fraction of its value
 
 
 def _worst_estimate(res):
@@ -239,7 +247,8 @@ def add_parser(sub):
     add_discretization_args(p)
     p.add_argument("--push", action="append", metavar="NAME=MM",
                    help="push an actuator's region rigidly along its direction (repeatable)")
-    p.add_argument("--out", help="folder for the displacement field (XDMF + VTU)")
+    p.add_argument("--out", help="folder for the displacement field (XDMF + VTU) and "
+                                 "report.html (3D views, convergence plot)")
     p.add_argument("--json", help="JSON summary file")
     p.add_argument("--estimate", action=argparse.BooleanOptionalAction, default=None,
                    help="estimate each probe's and reaction's discretization error (one more "

@@ -3,9 +3,10 @@
 One schema per output, ``tissue/schemas/<name>.schema.json`` (docs/outputs.md describes each):
 solve, verify, suite, converge, jacobian, mpc, table1 (``table1.json``), table1_scenarios
 (``table1_scenarios.json`` of ``table1 --scenarios``), manipulability
-(``manipulability_<case>.json``), dynamics and implant. The parts they share (material,
-probes, discretization, a solve result, ...) are ``common.schema.json``, referred to by its
-``$id`` (``urn:tissue-reference:output:common``); ``validate`` resolves it.
+(``manipulability_<case>.json``), dynamics, implant and demo (``summary.json``). The parts they
+share (material, probes, discretization, a solve result, ...) are ``common.schema.json``,
+referred to by its ``$id`` (``urn:tissue-reference:output:common``); ``validate`` resolves it,
+and an output's ``$id`` (``urn:tissue-reference:output:verify``) in another's schema.
 
     import json
     from tissue.output_schema import validate
@@ -63,8 +64,10 @@ def _validator(command: str):
     from jsonschema import Draft202012Validator
     from referencing import Registry, Resource
 
-    common = _load(COMMON)
-    registry = Registry().with_resource(common["$id"], Resource.from_contents(common))
+    # every schema by its $id: the shared parts, and an output that holds another's (the demo
+    # summary holds a verify output)
+    registry = Registry().with_resources(
+        (_load(n)["$id"], Resource.from_contents(_load(n))) for n in [COMMON, *names()])
     s = _load(command)
     Draft202012Validator.check_schema(s)
     return Draft202012Validator(s, registry=registry)

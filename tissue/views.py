@@ -1,7 +1,8 @@
 """3D pictures for the reports: the deformed tissue coloured by a vertex field.
 
 ``render`` draws the boundary of a tetrahedral mesh moved by a displacement (mm) and coloured by
-a scalar per vertex, as a PNG written whole or not at all. It renders with pyvista off screen in
+a scalar per vertex, as a PNG written whole or not at all (a triangle mesh in 2D: the deformed
+triangles themselves, with matplotlib). It renders with pyvista off screen in
 a child process (a crashed or hanging OpenGL context cannot take the report down with it) and
 falls back to matplotlib's 3D polygons where no GL is available; ``method`` in the result says
 which one drew the picture.
@@ -83,6 +84,27 @@ def _matplotlib(points, cells, u, scalar, path, title, label):
     plt.close(fig)
 
 
+def _matplotlib_2d(points, cells, u, scalar, path, title, label):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    X = points + u
+    fig, ax = plt.subplots(figsize=(7.5, 5))
+    art = ax.tripcolor(X[:, 0], X[:, 1], cells[:, :3], scalar, shading="gouraud",
+                       cmap="viridis")
+    ax.triplot(points[:, 0], points[:, 1], cells[:, :3], color="0.6", lw=0.2, alpha=0.5)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_title(title, fontsize=9)
+    fig.colorbar(art, ax=ax, shrink=0.8, label=label)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
+    plt.close(fig)
+
+
 def render(mesh, u, scalar, path, *, title: str = "", label: str = "value",
            use_pyvista: bool = True) -> dict:
     """Draw ``mesh`` (MeshData, tetrahedra) moved by ``u`` ((n, 3) mm) and coloured by
@@ -94,6 +116,9 @@ def render(mesh, u, scalar, path, *, title: str = "", label: str = "value",
     u = np.asarray(u, float).reshape(points.shape)
     scalar = np.asarray(scalar, float).reshape(-1)
     why = None
+    if points.shape[1] == 2:
+        _matplotlib_2d(points, cells, u, scalar, path, title, label)
+        return {"path": str(path), "method": "matplotlib", "why": "a 2D mesh"}
     if use_pyvista and points.shape[1] == 3:
         with tempfile.TemporaryDirectory() as d:
             npz, png = Path(d) / "view.npz", Path(d) / "view.png"

@@ -1,0 +1,244 @@
+"""The HTML pages the command line writes are well-formed (page_checks: balanced tags, PNG
+images that exist, relative links that exist, units in the headers of numbers) and show what
+the run computed: validity, discretization, probes with their error estimates, reactions,
+indenters, 3D views and the convergence history of a solve; the closed against the open loop of
+mpc; the settings of table1 as a key/value table; the verification report."""
+import dataclasses
+import html
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from page_checks import PageError, check_page
+from test_cli_fuzz import BOX
+
+from meshes.case import load_case
+from tissue.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    d = tmp_path_factory.mktemp("pages")
+    (d / "box.toml").write_text(BOX.format(model="neo-hookean"))
+    (d / "lin.toml").write_text(BOX.format(model="linear-elastic"))
+    return d
+
+
+def _run(argv, status=0):
+    assert main([str(a) for a in argv]) == status, argv
+
+
+def _cells(page: str, header: str) -> str:
+    """The text of the table row whose row header is ``header``."""
+    m = re.search(rf"<th scope='row'>{re.escape(header)}</th><td>([^<]*)</td>", page)
+    assert m, header
+    return m.group(1)
+
+
+# --------------------------------------------------------------------------- the checker
+def test_the_page_checker_finds_what_is_wrong(tmp_path):
+    def bad(body, match):
+        p = tmp_path / "p.html"
+        p.write_text(f"<!DOCTYPE html><html><head><title>t</title></head><body>{body}"
+                     "</body></html>")
+        with pytest.raises(PageError, match=match):
+            check_page(p)
+
+    bad("<div><p>x</div>", r"</div> at line 1 closes \('p'")
+    bad("<div>", "<div> opened at line 1 is never closed")
+    bad("<img src='missing.png'>", "no such file beside the page")
+    (tmp_path / "fake.png").write_text("not a png")
+    bad("<img src='fake.png'>", "not a PNG")
+    bad("<img src='data:image/png;base64,aGVsbG8='>", "is not a base64 PNG")
+    bad("<a href='nowhere.json'>x</a>", "no such file")
+    bad("<table><tr><th>push</th></tr><tr><td>5.0</td></tr></table>",
+        r"headers of numbers without a unit: \['push'\]")
+    bad("<table><tr><th>k</th><th>v</th></tr><tr><th scope='row'>wall time</th><td>1.5</td>"
+        "</tr></table>", r"\['wall time'\]")
+    good = tmp_path / "good.html"
+    png = "iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAAAAAA6fptVAAAACklEQVR4nGNgAAAAAgABSK+kcQAAAABJRU5E" \
+          "rkJggg=="
+    good.write_text("<!DOCTYPE html><html><head><title>t</title></head><body>"
+                    f"<img src='data:image/png;base64,{png}'><br><table><tr><th>push (mm)</th>"
+                    "<th>solver</th></tr><tr><td>5</td><td>fem</td></tr></table></body></html>")
+    assert check_page(good)["tables"] == 1
+
+
+# --------------------------------------------------------------------------- tissue solve
+def test_a_solve_page_shows_the_answer_its_error_bars_and_pictures(work):
+    out = work / "solve"
+    _run(["solve", work / "box.toml", "--push", "A1=2", "--estimate", "-q", "--out", out,
+          "--json", work / "solve.json"])
+    d = json.loads((work / "solve.json").read_text())
+    found = check_page(out / "report.html")
+    assert found["images"] == ["displacement_view_u.png", "displacement_view_J.png",
+                               "displacement_history.png"]
+    page = (out / "report.html").read_text()
+    assert "<div class='valid'><b>Valid answer</b>" in page
+    disc = d["discretization"]
+    assert _cells(page, "dofs") == str(disc["dofs"]) and _cells(page, "degree") == "P1"
+    assert _cells(page, "E (kPa)") == "6" and _cells(page, "formulation") == "displacement"
+    # the probe's value and its estimated error as in the JSON
+    ux = d["probes"]["T1"]["displacement"][0]
+    est = d["probe_error_estimates"]["T1"]
+    row = re.search(r"<tr><td>T1</td>(.*?)</tr>", page).group(1)
+    assert f"<td>{ux:+.4f}</td>" in row and f"<td>{est:.2g}</td>" in row
+    assert "<th>estimated error (mN)</th>" in page and "reaction" in page.lower()
+    # the settings as a key/value table
+    assert _cells(page, "newton: max step (mm)") == f"{d['solver_settings']['newton']['max_step_mm']:g}"
+
+
+def test_a_solve_page_says_why_an_answer_has_no_error_bar(work):
+    out = work / "solve_p3"
+    _run(["solve", work / "box.toml", "--push", "A1=1", "--degree", "3", "-q", "--out", out,
+          "--json", work / "solve_p3.json"])
+    d = json.loads((work / "solve_p3.json").read_text())
+    assert "probe_error_estimates" not in d and "richest" in d["estimate_note"]
+    check_page(out / "report.html")
+    assert f"No error estimate: {html.escape(d['estimate_note'], quote=False)}" in \
+        (out / "report.html").read_text()
+
+
+def test_a_folder_in_the_place_of_the_page_is_refused_before_any_work(work, capsys):
+    out = work / "clash"
+    (out / "report.html").mkdir(parents=True)
+    assert main(["solve", str(work / "box.toml"), "--push", "A1=1", "-q", "--out",
+                 str(out)]) == 2
+    assert "report.html" in capsys.readouterr().err
+    assert not (out / "displacement.vtu").exists()
+
+
+def test_an_invalid_answer_is_shown_as_such(work):
+    out = work / "invalid"
+    _run(["solve", work / "lin.toml", "--solver", "mass-tensor", "--push", "A1=9", "-q",
+          "--out", out], status=1)
+    check_page(out / "report.html")
+    page = (out / "report.html").read_text()
+    assert "<div class='invalid'><b>Not valid</b>: " in page and "inverted cell" in page
+    assert "<div class='valid'>" not in page
+
+
+def test_an_admm_page_plots_the_iterations(work):
+    out = work / "admm"
+    _run(["solve", work / "box.toml", "--push", "A1=1", "--solver", "admm", "-q", "--out", out])
+    found = check_page(out / "report.html")
+    assert "displacement_history.png" in found["images"]
+    assert (out / "displacement_history.png").stat().st_size > 5000
+
+
+def test_not_converged_indenters_and_warnings_are_on_the_page(work, tmp_path):
+    """A last converged state (load fraction below 1), its indenters and warnings, drawn from a
+    real solve's result with those entries (the library call the CLI makes)."""
+    import fem_reference as fr
+    from tissue.solve_report import write_solve_report
+
+    case = load_case(work / "box.toml").with_pushes({"A1": 1.0})
+    res = fr.solve(case, pushes={"A1": 1.0})
+    last = dataclasses.replace(res, converged=False, extra={
+        **res.extra, "load_fraction": 0.5, "warnings": ["patch A1 is glued"],
+        "indenters": {"I1": {"push": 3.0, "force": 12.5, "contact_area": 4.25,
+                             "max_penetration": 0.01}}})
+    path = write_solve_report(case, last, tmp_path, stem="last_converged", use_pyvista=False)
+    check_page(path)
+    page = path.read_text()
+    assert "<b>Not converged</b>: the last converged state at load fraction 0.5000" in page
+    assert "<li>patch A1 is glued</li>" in page
+    assert "<th>contact area (mm²)</th>" in page and "<td>4.25</td>" in page
+    assert (tmp_path / "last_converged_view_J.png").is_file()
+
+
+def test_the_page_is_written_whole_or_not_at_all(work, tmp_path, monkeypatch):
+    import fem_reference as fr
+    import tissue.solve_report as sr
+
+    case = load_case(work / "box.toml")
+    res = fr.solve(case, pushes={"A1": 1.0})
+
+    def broken(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sr, "_history_plot", broken)
+    with pytest.raises(KeyboardInterrupt):
+        sr.write_solve_report(case.with_pushes({"A1": 1.0}), res, tmp_path, use_pyvista=False)
+    assert not (tmp_path / "report.html").exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_vertex_J_is_the_smallest_of_the_cells_around_a_vertex(work):
+    from tissue.solve_report import vertex_min_J
+
+    case = load_case(work / "box.toml")
+    assert np.allclose(vertex_min_J(case.mesh, np.zeros_like(case.mesh.points)), 1.0)
+    u = np.zeros_like(case.mesh.points)
+    u[:, 0] = -0.5 * case.mesh.points[:, 0]                  # x halved everywhere: J = 0.5
+    assert np.allclose(vertex_min_J(case.mesh, u), 0.5)
+
+
+# --------------------------------------------------------------------------- mpc, table1
+def test_an_mpc_page_compares_the_closed_and_the_open_loop(work):
+    out = work / "mpc"
+    _run(["mpc", work / "box.toml", "--target", "T1", "--task", "1", "--steps", "3", "-q",
+          "--out", out, "--json", work / "m.json"])
+    d = json.loads((work / "m.json").read_text())
+    found = check_page(out / "mpc_T1_task1.html")
+    assert found["images"] == ["mpc_T1_task1.png", "mpc_T1_task1_error.png"]
+    page = (out / "mpc_T1_task1.html").read_text()
+    closed = re.search(r"<tr><td>closed loop \(MPC\)</td>(.*?)</tr>", page).group(1)
+    opened = re.search(r"<tr><td>open loop \(eq. 22\)</td>(.*?)</tr>", page).group(1)
+    assert f"<td>{d['itae']:.4g}</td>" in closed
+    assert f"<td>{d['open_loop']['status']}</td><td>{d['open_loop']['itae']:.4g}</td>" in opened
+    assert _cells(page, "horizon") == "5" and _cells(page, "dt (s)") == "1"
+    assert _cells(page, "plant material: E (kPa)") == "6"
+
+
+def test_an_unreachable_goal_gets_a_page_that_says_so(work):
+    out = work / "mpc2"
+    _run(["mpc", work / "box.toml", "--target", "T1", "--task", "2", "--steps", "3", "-q",
+          "--out", out], status=2)
+    check_page(out / "mpc_T1_task2.html")
+    page = (out / "mpc_T1_task2.html").read_text()
+    assert "<b>Unreachable goal</b>" in page and "positive span" in page
+
+
+def test_table1_pages_show_settings_as_a_table_and_every_plot(work):
+    out = work / "t"
+    _run(["table1", work / "box.toml", "--steps", "3", "-q", "--scenarios", "gravity", "--out",
+          out])
+    found = check_page(out / "table1_scenarios.html")
+    assert found["images"] == ["table1_scenarios.png"]
+    assert found["links"] == ["gravity/table1.html"]
+    found = check_page(out / "gravity" / "table1.html")
+    pngs = sorted(p.name for p in (out / "gravity").glob("*.png"))
+    assert pngs and sorted(found["images"]) == pngs      # every plot written is on the page
+    page = (out / "gravity" / "table1.html").read_text()
+    assert "<pre>" not in page and _cells(page, "settings: horizon") == "5"
+    assert _cells(page, "settings: q (1/mm²)") == "3"
+    assert "<th>Closed-loop ITAE (mm·s²)</th>" in page
+
+
+# --------------------------------------------------------------------------- verify, suite
+def test_the_verify_and_suite_pages_are_well_formed(work):
+    _run(["verify", work / "box.toml", "--push", "A1=1", "-q", "--out", work / "v"])
+    found = check_page(work / "v" / "report.html")
+    assert found["images"] and found["tables"] >= 3
+    _run(["suite", "--solvers", "fem", "--problems", "shear-patch", "-q", "--out",
+          work / "s"])
+    check_page(work / "s" / "suite.html")
+
+
+def test_the_reference_records_every_newton_iterate_for_the_plot():
+    import fem_reference as fr
+
+    case = load_case(ROOT / "meshes" / "cases" / "phantom.toml", size=14)
+    h = fr.solve(case, pushes={"A1": 15.0}).history      # several load steps
+    assert len(h["load_fraction"]) > 1
+    assert len(h["iterate_residual"]) == len(h["iterate_load"]) >= sum(h["newton_iterations"])
+    assert h["iterate_residual"][-1] == h["residual"][-1]
+    assert h["iterate_load"][-1] == 1.0 and set(h["load_fraction"]) <= set(h["iterate_load"])
+    # the residual falls within each load step
+    first = h["iterate_load"].index(1.0)
+    assert h["iterate_residual"][-1] < 1e-6 * h["iterate_residual"][first]
