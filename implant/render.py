@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+import tissue_reference
 from meshes.errors import WriteError
 from meshes.io import atomic_path
 
@@ -84,9 +85,10 @@ def render_distance_png(points, triangles, values, path, *, title: str = "distan
         np.savez(npz, points=np.asarray(points, float), triangles=np.asarray(triangles),
                  values=vals, clim=np.asarray(clim, float), title=np.asarray(title))
         try:
-            r = subprocess.run([sys.executable, "-m", "implant.render", str(npz), str(path)],
-                               capture_output=True, text=True, timeout=120,
-                               cwd=str(Path(__file__).resolve().parents[1]))
+            child = [sys.executable, "-m", "implant.render", str(npz), str(path)]
+            # run from the folder that holds the package (site-packages, or the repository)
+            r = subprocess.run(child, capture_output=True, text=True, timeout=120, check=False,
+                               cwd=str(Path(tissue_reference.__file__).resolve().parents[1]))
             if r.returncode == 0:
                 return "pyvista"
             tail = (r.stderr.strip().splitlines() or ["?"])[-1]

@@ -199,7 +199,7 @@ def test_schema_defaults_are_the_code_defaults():
 
 def test_schema_ships_as_package_data():
     pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    assert SCHEMA_PATH.name in pyproject["tool"]["setuptools"]["package-data"]["meshes"]
+    assert SCHEMA_PATH.name in pyproject["tool"]["setuptools"]["package-data"]["tissue_reference.meshes"]
     assert "jsonschema" in " ".join(pyproject["project"]["dependencies"])
 
 

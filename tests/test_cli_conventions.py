@@ -1,6 +1,6 @@
-"""The ``tissue`` command line follows the usual conventions: ``--version``, ``python -m
-tissue``, global -v/--verbose and -q/--quiet before or after the command, and a quiet first run
-(no C compiler lines while forms are compiled, unless -v)."""
+"""The ``tissue`` command line follows the usual conventions: ``--version``,
+``python -m tissue``, global -v/--verbose and -q/--quiet before or after the command,
+and a quiet first run (no C compiler lines while forms are compiled, unless -v)."""
 import logging
 import os
 import subprocess
@@ -44,11 +44,11 @@ def test_version_is_the_package_version(capsys):
 
 def test_python_dash_m_tissue_runs_the_command_line():
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    p = subprocess.run([sys.executable, "-m", "tissue", "--version"], capture_output=True,
-                       text=True, timeout=120, check=False, cwd=ROOT, env=env)
+    p = subprocess.run([sys.executable, "-m", "tissue", "--version"],
+                       capture_output=True, text=True, timeout=120, check=False, cwd=ROOT, env=env)
     assert p.returncode == 0 and p.stdout.strip() == f"tissue {project_version()}", p.stderr
-    p = subprocess.run([sys.executable, "-m", "tissue", "mesh", "--bogus"], capture_output=True,
-                       text=True, timeout=120, check=False, cwd=ROOT, env=env)
+    p = subprocess.run([sys.executable, "-m", "tissue", "mesh", "--bogus"],
+                       capture_output=True, text=True, timeout=120, check=False, cwd=ROOT, env=env)
     assert p.returncode == 2 and "Traceback" not in p.stderr
     assert p.stderr.startswith("tissue mesh: error:"), p.stderr
 

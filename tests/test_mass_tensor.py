@@ -9,7 +9,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from meshes.builders import box, rectangle
-from meshes.case import Boundary, Case, Material
+from meshes.case import Boundary, Case, Material, Probe
 from meshes.errors import CaseError, SolverDivergedError
 from solvers import mass_tensor as mt
 
@@ -247,7 +247,7 @@ def test_case_with_oblique_sliding_conflicting_with_fixed_vertex_rejected_naming
 
 
 def test_callback_and_probes(cube):
-    case = Case(mesh=cube, material=MAT, probes=[__import__("meshes.case").case.Probe("P", (5, 5, 5))],
+    case = Case(mesh=cube, material=MAT, probes=[Probe("P", (5, 5, 5))],
                 boundaries=[Boundary("xmin", "fixed"), Boundary("xmax", "displacement",
                                                                  value=(1.0, 0, 0))])
     seen = []

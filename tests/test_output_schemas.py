@@ -122,7 +122,7 @@ def test_an_unknown_schema_is_refused_with_the_known_ones_named():
 def test_the_schemas_are_installed_with_the_package():
     with open(ROOT / "pyproject.toml", "rb") as f:
         data = tomllib.load(f)["tool"]["setuptools"]["package-data"]
-    assert "schemas/*.json" in data["tissue"]
+    assert "schemas/*.json" in data["tissue_reference.tissue"]
 
 
 def test_docs_describe_every_output_and_point_at_its_schema():

@@ -105,7 +105,8 @@ def test_loose_stopping_rule_gives_a_positive_error_below_the_pushes(small_case)
 
 
 def test_missing_fast_solver_module_is_skipped_with_a_message(small_case, monkeypatch, capsys):
-    monkeypatch.setitem(sys.modules, "solvers.admm", None)   # import raises ImportError
+    # importing it raises ImportError
+    monkeypatch.setitem(sys.modules, "solvers.admm", None)
     res = verify(small_case, PUSHES, solvers=("admm", "mass-tensor"),
                  options={"mass-tensor": {"stop_mm": 0.1}})
     assert "admm" in res["skipped"] and "admm" not in res["solvers"]

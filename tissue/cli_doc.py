@@ -51,8 +51,8 @@ def cli_markdown(parser=None) -> str:
         parser = build_parser()
     out = ["<!-- generated from the tissue parser by tools/cli_doc.py; do not edit -->", "",
            "# Command-line reference", "",
-           ("`tissue COMMAND [options]` (or `python -m tissue`); `tissue --version`. Global "
-            "options, before or after the command: `-v/--verbose`, `-q/--quiet`."), "",
+           ("`tissue COMMAND [options]` (or `python -m tissue`); `tissue --version`. "
+            "Global options, before or after the command: `-v/--verbose`, `-q/--quiet`."), "",
            EXIT_CODES, ""]
     for name, help_, p in _commands(parser):
         out += [f"## tissue {name}", "", _cell(help_), "", "| option | default | meaning |",

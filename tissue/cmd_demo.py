@@ -165,8 +165,10 @@ def run(args) -> int:
     if not args.skip_verify and _have("tissue.verify"):
         from tissue.verify import verify
 
-        solvers = tuple(s for s, m in (("admm", "solvers.admm"), ("admm-plain", "solvers.admm"),
-                                       ("mass-tensor", "solvers.mass_tensor")) if _have(m))
+        candidates = (("admm", "solvers.admm"),
+                      ("admm-plain", "solvers.admm"),
+                      ("mass-tensor", "solvers.mass_tensor"))
+        solvers = tuple(s for s, m in candidates if _have(m))
         pushes = {"A1": args.verify_push, "A2": args.verify_push, "A3": args.verify_push,
                   "A4": args.verify_push}
         _say(f"verification: {', '.join(solvers)} against the reference, all actuators "

@@ -33,7 +33,7 @@ import numpy as np
 
 from meshes.errors import CaseError
 
-log = logging.getLogger(__name__)
+log = logging.getLogger("tissue.scoring")
 
 __all__ = ["FIELD_NAMES", "Field", "field_from_array", "load_field", "score_field"]
 

@@ -47,7 +47,7 @@ __all__ = ["DEFAULT_SOLVERS", "FAST_SOLVERS", "VALIDITY_KEYS", "invalid_runs",
 
 VALIDITY_KEYS = ("valid", "invalid_reason", "inverted_cells", "min_J", "max_displacement_mm")
 
-log = logging.getLogger(__name__)
+log = logging.getLogger("tissue.verify")
 
 # name -> (solver in the solvers registry, keyword options, reference material model or None =
 # the Case's own)

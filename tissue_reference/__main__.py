@@ -1,0 +1,7 @@
+"""``python -m tissue_reference ...``: the ``tissue`` command line."""
+import sys
+
+from tissue_reference.tissue.cli import main
+
+if __name__ == "__main__":
+    sys.exit(main())
