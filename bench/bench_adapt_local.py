@@ -26,14 +26,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from fem_reference.adapt import (
+from tissue_reference.fem_reference.adapt import (
     AccuracyNotReached,
     _counts,
     _refined_counts,
     predicted_dofs,
     solve_to_accuracy,
 )
-from meshes.errors import ConvergenceError
+from tissue_reference.meshes.errors import ConvergenceError
 
 CASE = ROOT / "meshes/cases/phantom.toml"
 

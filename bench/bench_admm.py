@@ -23,9 +23,9 @@ import tracemalloc
 
 import numpy as np
 
-from meshes.builders import phantom
-from meshes.case import load_case
-from solvers import admm
+from tissue_reference.meshes.builders import phantom
+from tissue_reference.meshes.case import load_case
+from tissue_reference.solvers import admm
 
 CASE = "meshes/cases/phantom.toml"
 TOL = 0.01  # mm, ADMM stopping tolerance of the warm re-solve; its error to the reference printed
@@ -83,7 +83,7 @@ def peak_memory_mib(case, pushes):
 
 def accuracy():
     """Issue target: every probe within 0.05 mm, every vertex within 0.1 mm of the reference."""
-    from fem_reference import solve as fem_solve
+    from tissue_reference.fem_reference import solve as fem_solve
     case = load_case(CASE)
     fem_solve(case, degree=1, pushes={"A1": 1.0})  # form compilation outside the timing
     pushes = {"A1": 15.0, "A2": 15.0, "A3": 15.0, "A4": 15.0}
@@ -100,7 +100,7 @@ def accuracy():
     tp = time.perf_counter() - t
     if rp is not None:
         _print_plain(rp, rf, tp)
-    from fem_reference import cholmod_factor
+    from tissue_reference.fem_reference import cholmod_factor
     t = time.perf_counter()
     ra = admm.solve(case, pushes=pushes, max_iter=200, factorize=cholmod_factor)
     ta = time.perf_counter() - t
@@ -150,7 +150,7 @@ def main():
 
     # 2. warm re-solve after a 0.5 mm increment, to 0.05 mm, vs reference Newton
     if not a.skip_fem:
-        from fem_reference import solve as fem_solve
+        from tissue_reference.fem_reference import solve as fem_solve
         base = {"A1": 5.0, "A2": 5.0, "A3": 5.0, "A4": 5.0}
         inc = dict(base, A1=5.5)
         u0 = admm.solve(case10, pushes=base, max_iter=300).u

@@ -30,9 +30,9 @@ import tracemalloc
 
 import numpy as np
 
-from meshes.builders import CELLS_PER_VOLUME, box
-from meshes.case import Boundary, Case, Material
-from solvers import admm
+from tissue_reference.meshes.builders import CELLS_PER_VOLUME, box
+from tissue_reference.meshes.case import Boundary, Case, Material
+from tissue_reference.solvers import admm
 
 DEFAULT_BYTES_PER_TET = 10 * 1024  # host memory guess before a size has been measured
 

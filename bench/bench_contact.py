@@ -29,7 +29,7 @@ E, NU, R, D = 6.0, 0.45, 10.0, 0.1
 
 
 def hertz_case(mesh):
-    from meshes.case import Actuator, Boundary, Case, Material
+    from tissue_reference.meshes.case import Actuator, Boundary, Case, Material
 
     tip = Actuator("I", "tip", (0.0, 0.0, -1.0), type="indenter", tip="sphere", radius=R,
                    point=(0.0, 0.0, 0.0), contact_region="top")
@@ -41,8 +41,8 @@ def hertz_case(mesh):
 
 
 def hertz(sizes, betas):
-    import fem_reference as fr
-    from meshes.builders import indent_block
+    import tissue_reference.fem_reference as fr
+    from tissue_reference.meshes.builders import indent_block
 
     f_hertz = 4.0 / 3.0 * E / (1 - NU ** 2) * math.sqrt(R) * D ** 1.5
     print(f"Hertz: sphere R = {R:g} mm, d = {D:g} mm, E = {E:g} kPa, nu = {NU:g}, P2; "
@@ -66,9 +66,9 @@ def hertz(sizes, betas):
 
 
 def phantom(size, pushes):
-    import fem_reference as fr
-    from meshes.case import load_case
-    from meshes.errors import ConvergenceError
+    import tissue_reference.fem_reference as fr
+    from tissue_reference.meshes.case import load_case
+    from tissue_reference.meshes.errors import ConvergenceError
 
     cases = ROOT / "meshes" / "cases"
     tips = load_case(cases / "phantom-indenter.toml", size=size)

@@ -23,10 +23,15 @@ import numpy as np
 
 sys.path.insert(0, ".")
 
-from control.jacobian import dirichlet_jacobian, fd_jacobian, full_pushes, max_rel_error
-from control.loop import LinearizedModel, LoopSettings, run_closed_loop
-from control.plants import plant_for, tangent_for
-from meshes.case import load_case
+from tissue_reference.control.jacobian import (
+    dirichlet_jacobian,
+    fd_jacobian,
+    full_pushes,
+    max_rel_error,
+)
+from tissue_reference.control.loop import LinearizedModel, LoopSettings, run_closed_loop
+from tissue_reference.control.plants import plant_for, tangent_for
+from tissue_reference.meshes.case import load_case
 
 CASE = "meshes/cases/phantom.toml"
 
@@ -54,7 +59,7 @@ def main():
     if "--mismatch" in sys.argv:
         # same runs as: tissue table1 meshes/cases/phantom.toml --size 8 --plant fem --model admm
         #               --model-size 12 --model-E-factor 1.2 --out DIR
-        from control.table1 import table1_row, table1_summary
+        from tissue_reference.control.table1 import table1_row, table1_summary
 
         plant_case = load_case(CASE, size=8)
         mcase = load_case(CASE, size=12)

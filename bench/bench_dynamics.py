@@ -20,11 +20,11 @@ import time
 
 import numpy as np
 
-from fem_reference import cholmod_factor
-from fem_reference.dynamics import simulate
-from meshes.case import load_case
-from solvers import admm
-from solvers.trajectory import admm_trajectory
+from tissue_reference.fem_reference import cholmod_factor
+from tissue_reference.fem_reference.dynamics import simulate
+from tissue_reference.meshes.case import load_case
+from tissue_reference.solvers import admm
+from tissue_reference.solvers.trajectory import admm_trajectory
 
 CASE = "meshes/cases/phantom.toml"
 

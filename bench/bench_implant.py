@@ -22,9 +22,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from implant.pipeline import PlanSettings, plan_implant, synthetic_patient
-from implant.registration import RigidTransform, icp, rotation_angle_deg, surface_distances
-from implant.surface import vertex_normals
+from tissue_reference.implant.pipeline import PlanSettings, plan_implant, synthetic_patient
+from tissue_reference.implant.registration import (
+    RigidTransform,
+    icp,
+    rotation_angle_deg,
+    surface_distances,
+)
+from tissue_reference.implant.surface import vertex_normals
 
 
 def main(argv=None) -> int:
@@ -58,7 +63,7 @@ def main(argv=None) -> int:
           f"[< 3.5]; under the implant: {plan.muscle_thickness_error_mm():.2f} mm")
 
     try:
-        from tissue.cmd_implant import reference_solve
+        from tissue_reference.tissue.cmd_implant import reference_solve
         t1 = time.perf_counter()
         ref = reference_solve(plan)
         tref = time.perf_counter() - t1

@@ -25,8 +25,8 @@ import scipy.sparse.linalg as spla
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from meshes.case import load_case
-from solvers import mass_tensor as mt
+from tissue_reference.meshes.case import load_case
+from tissue_reference.solvers import mass_tensor as mt
 
 CASE = Path(__file__).resolve().parents[1] / "meshes" / "cases" / "phantom.toml"
 PUSHES = {"A1": 15.0, "A2": 15.0, "A3": 15.0, "A4": 15.0}
@@ -53,7 +53,7 @@ def direct_reference(case):
 def reference(case):
     t = time.perf_counter()
     try:
-        from fem_reference import solve as fem_solve
+        from tissue_reference.fem_reference import solve as fem_solve
         res = fem_solve(case, degree=1)
         return res.u, f"fem_reference (dolfinx P1, {res.iterations} Newton its)", \
             time.perf_counter() - t

@@ -13,8 +13,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from meshes.case import load_case
-from tissue.verify import verify
+from tissue_reference.meshes.case import load_case
+from tissue_reference.tissue.verify import verify
 
 ROOT = Path(__file__).resolve().parents[1]
 PUSHES = {"A1": 15.0, "A2": 15.0, "A3": 15.0, "A4": 15.0}

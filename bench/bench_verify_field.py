@@ -17,10 +17,10 @@ from pathlib import Path
 import meshio
 import numpy as np
 
-import fem_reference as fr
-from meshes.builders import box
-from meshes.case import Boundary, Case, Material, Probe
-from tissue.verify import verify
+import tissue_reference.fem_reference as fr
+from tissue_reference.meshes.builders import box
+from tissue_reference.meshes.case import Boundary, Case, Material, Probe
+from tissue_reference.tissue.verify import verify
 
 G = np.array([[0.05, 0.02, 0.0], [0.0, -0.02, 0.0], [0.01, 0.0, -0.02]])
 

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linprog, nnls
 
-from meshes.errors import CaseError, TissueError
+from tissue_reference.meshes.errors import CaseError, TissueError
 
 log = logging.getLogger("tissue.control")
 

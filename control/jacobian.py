@@ -34,7 +34,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from meshes.errors import CaseError, ConvergenceError
+from tissue_reference.meshes.errors import CaseError, ConvergenceError
 
 __all__ = [
     "ControlJacobian",

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshes.errors import CaseError, ConvergenceError
+from tissue_reference.meshes.errors import CaseError, ConvergenceError
 
 from .controllability import UnreachableGoalError, inverse_push, task_goal
 from .jacobian import dirichlet_jacobian
@@ -361,7 +361,7 @@ def plot_response(result: LoopResult, path, *, title=None):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from meshes.io import atomic_path
+    from tissue_reference.meshes.io import atomic_path
 
     fig, ax = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
     t = result.time_s

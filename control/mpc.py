@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from meshes.errors import CaseError, ConvergenceError
+from tissue_reference.meshes.errors import CaseError, ConvergenceError
 
 __all__ = ["MPCSettings", "MPCStep", "PushOnlyMPC"]
 

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshes.errors import CaseError
-from meshes.results import material_json  # noqa: F401  (re-exported)
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.results import material_json  # noqa: F401  (re-exported)
 
 __all__ = ["ADMM_CONTROL_OPTIONS", "FD_FLOOR", "SCENARIOS", "LoopSetup", "build_loop",
            "jacobian_at", "material_json", "plant_for", "reference_state", "scenario_loop",
@@ -43,8 +43,8 @@ def solver_description(name: str, case, *, degree: int | None = None,
     controls, which the control layer leaves at their defaults, or ``ADMM_CONTROL_OPTIONS``)."""
 
     if name == "fem":
-        from fem_reference.newton import settings_json
-        from fem_reference.solver import resolve_formulation
+        from tissue_reference.fem_reference.newton import settings_json
+        from tissue_reference.fem_reference.solver import resolve_formulation
 
         form = resolve_formulation(formulation, case.material)
         p = degree if degree is not None else (2 if form == "mixed" else 1)
@@ -65,12 +65,12 @@ def plant_for(name: str, *, degree: int | None = None, tight: bool = True):
     """plant(case, pushes, initial_u) -> SolveResult for solver ``name`` (fem | admm).
     tight: ADMM with ``ADMM_CONTROL_OPTIONS`` (else the solver's defaults)."""
     if name == "fem":
-        from fem_reference import solve
+        from tissue_reference.fem_reference import solve
 
         return lambda case, pushes, initial: solve(case, degree=degree, pushes=pushes,
                                                    initial=initial)
     if name == "admm":
-        from solvers.admm import solve
+        from tissue_reference.solvers.admm import solve
 
         kw = dict(ADMM_CONTROL_OPTIONS) if tight else {}
         return lambda case, pushes, initial: solve(case, pushes=pushes, initial=initial, **kw)
@@ -80,11 +80,11 @@ def plant_for(name: str, *, degree: int | None = None, tight: bool = True):
 def tangent_for(name: str):
     """tangent(case, u) -> CSR K (P1, node-major, Case numbering) for solver ``name``."""
     if name == "fem":
-        from fem_reference import tangent_stiffness
+        from tissue_reference.fem_reference import tangent_stiffness
 
         return lambda case, u: tangent_stiffness(case, u).K
     if name == "admm":
-        from solvers.admm import tangent_stiffness
+        from tissue_reference.solvers.admm import tangent_stiffness
 
         return lambda case, u: tangent_stiffness(case, u)
     raise CaseError(f"unknown plant/model solver {name!r}; choose fem or admm")
@@ -100,7 +100,7 @@ def reference_state(case, state_pushes, *, degree=None, formulation="auto"):
     vertex values ``res.u`` alone do not determine it (edge nodes = mean of their end vertices is
     *not* the solution away from rest: 17% off J_s on the phantom at A1 = 3 mm) and are refused.
     """
-    from fem_reference import ReferenceSolver
+    from tissue_reference.fem_reference import ReferenceSolver
 
     s = ReferenceSolver(case, degree=degree, formulation=formulation)
     res = s.solve(state_pushes)
@@ -118,7 +118,7 @@ def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="a
     """J_s at ``state_pushes`` from the solver's exact tangent and, when fd_h > 0, its max relative
     error against central finite differences (step fd_h mm) of the same solver's nonlinear solve.
     actuators: the columns (default: every actuator of the Case; the others are held)."""
-    from control.jacobian import (
+    from tissue_reference.control.jacobian import (
         dirichlet_jacobian,
         fd_jacobian,
         full_pushes,
@@ -205,7 +205,7 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
     ``model_case`` (default: ``case``; e.g. a coarser mesh of the same body) with E scaled by
     ``model_E_factor``. When model and plant coincide the model reuses the plant's solutions.
     ``scenario`` names the mismatch in the metadata."""
-    from meshes.case import E_RANGE_KPA
+    from tissue_reference.meshes.case import E_RANGE_KPA
 
     if not (np.isfinite(model_E_factor) and model_E_factor > 0):
         raise CaseError(f"model E factor must be > 0, got {model_E_factor}")

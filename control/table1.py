@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from meshes.errors import ConvergenceError
-from meshes.html_page import Raw, image, kv_table, page, table, write_page
-from meshes.io import atomic_path
-from meshes.results import write_json
+from tissue_reference.meshes.errors import ConvergenceError
+from tissue_reference.meshes.html_page import Raw, image, kv_table, page, table, write_page
+from tissue_reference.meshes.io import atomic_path
+from tissue_reference.meshes.results import write_json
 
 __all__ = ["SSE_GOAL_MM", "plot_scenarios", "run_table1", "table1_row", "table1_summary",
            "write_scenarios_page", "write_table1"]
@@ -133,8 +133,8 @@ def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
     """Every target x task (1, 2, 3) on ``loop`` (``control.plants.LoopSetup``); returns the
     summary. ``progress(line)`` gets one line per scenario; ``plots``: a time-response PNG per
     scenario in ``out``."""
-    from control.controllability import UnreachableGoalError
-    from control.loop import plot_response
+    from tissue_reference.control.controllability import UnreachableGoalError
+    from tissue_reference.control.loop import plot_response
 
     rows = []
     n = 3 * len(targets)

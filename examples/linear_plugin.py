@@ -9,7 +9,7 @@ Score it against the reference from the command line::
 
 or from Python::
 
-    from tissue.verify import verify
+    from tissue_reference.tissue.verify import verify
     from examples.linear_plugin import solve
     verify(case, {"A1": 2.0}, solvers=[solve])
 

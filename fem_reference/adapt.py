@@ -63,12 +63,12 @@ from pathlib import Path
 
 import numpy as np
 
-from meshes.case import Case
-from meshes.errors import AccuracyNotReached, CaseError, ConvergenceError
-from meshes.mesh import MeshData
-from meshes.refine import refine_uniform
-from meshes.refine_local import dorfler_mark, refine_local
-from meshes.results import SolveResult
+from tissue_reference.meshes.case import Case
+from tissue_reference.meshes.errors import AccuracyNotReached, CaseError, ConvergenceError
+from tissue_reference.meshes.mesh import MeshData
+from tissue_reference.meshes.refine import refine_uniform
+from tissue_reference.meshes.refine_local import dorfler_mark, refine_local
+from tissue_reference.meshes.results import SolveResult
 
 from .estimate import ESTIMATE_RTOL, MAX_DEGREE, error_estimate
 from .indicators import energy_indicators

@@ -7,8 +7,8 @@ import dolfinx
 import dolfinx.fem
 import numpy as np
 
-from meshes.case import Case
-from meshes.errors import CaseError
+from tissue_reference.meshes.case import Case
+from tissue_reference.meshes.errors import CaseError
 
 
 class BoundaryMixin:

@@ -74,9 +74,9 @@ import numpy as np
 import ufl
 from mpi4py import MPI
 
-from meshes.case import Case
-from meshes.errors import CaseError
-from meshes.results import SolveResult
+from tissue_reference.meshes.case import Case
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.results import SolveResult
 
 from .contact_geometry import TipShape, _gap_ufl, nodal_rule  # noqa: F401  (re-exported)
 from .contact_indenter import (  # noqa: F401  (re-exported)

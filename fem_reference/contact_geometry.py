@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import ufl
 
-from meshes.case import Actuator
+from tissue_reference.meshes.case import Actuator
 
 __all__ = ["TipShape", "nodal_rule"]
 

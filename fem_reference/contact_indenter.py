@@ -20,8 +20,8 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from meshes.case import Actuator, Case
-from meshes.errors import CaseError
+from tissue_reference.meshes.case import Actuator, Case
+from tissue_reference.meshes.errors import CaseError
 
 from .contact_geometry import TipShape, _gap_ufl
 

@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from meshes.case import Case, load_case
-from meshes.errors import CaseError, ConvergenceError
-from meshes.mesh import MeshData
-from meshes.refine import mesh_hierarchy, projector_for
+from tissue_reference.meshes.case import Case, load_case
+from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.meshes.mesh import MeshData
+from tissue_reference.meshes.refine import mesh_hierarchy, projector_for
 
 from .richardson import (
     MIN_LEVELS,
@@ -281,7 +281,7 @@ def plot_studies(studies, path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from meshes.io import atomic_path
+    from tissue_reference.meshes.io import atomic_path
 
     path = Path(path)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))

@@ -47,9 +47,9 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from meshes.case import Case
-from meshes.errors import CaseError, ConvergenceError
-from meshes.results import DynamicsResult
+from tissue_reference.meshes.case import Case
+from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.meshes.results import DynamicsResult
 
 from .solver import _solver_for, resolve_formulation
 

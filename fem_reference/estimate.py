@@ -66,9 +66,9 @@ import time
 
 import numpy as np
 
-from meshes.case import Case
-from meshes.errors import CaseError, ConvergenceError
-from meshes.results import SolveResult
+from tissue_reference.meshes.case import Case
+from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.meshes.results import SolveResult
 
 __all__ = ["AUTO_MAX_DOFS", "ESTIMATE_METHOD", "ESTIMATE_RTOL", "MAX_DEGREE", "ErrorEstimate",
            "auto_estimate", "error_estimate", "estimate"]

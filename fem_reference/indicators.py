@@ -28,9 +28,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from meshes.case import Case
-from meshes.errors import CaseError
-from meshes.results import SolveResult
+from tissue_reference.meshes.case import Case
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.results import SolveResult
 
 __all__ = ["INDICATOR", "energy_indicators"]
 

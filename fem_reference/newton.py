@@ -16,9 +16,9 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from meshes.case import Case
-from meshes.errors import CaseError, ConvergenceError
-from meshes.results import SolveResult
+from tissue_reference.meshes.case import Case
+from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.meshes.results import SolveResult
 
 
 @dataclass(frozen=True)

@@ -15,9 +15,9 @@ import dolfinx.geometry
 import numpy as np
 from petsc4py import PETSc
 
-from meshes.case import Case
-from meshes.mesh import deformation_state
-from meshes.results import SolveResult
+from tissue_reference.meshes.case import Case
+from tissue_reference.meshes.mesh import deformation_state
+from tissue_reference.meshes.results import SolveResult
 
 from .outputs_state import StateMixin
 from .outputs_tangent import Tangent, TangentMixin

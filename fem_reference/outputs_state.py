@@ -15,8 +15,8 @@ import dolfinx.fem.petsc
 import numpy as np
 from petsc4py import PETSc
 
-from meshes.errors import CaseError
-from meshes.results import SolveResult
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.results import SolveResult
 
 __all__ = ["StateMixin"]
 

@@ -13,7 +13,7 @@ import dolfinx.fem
 import dolfinx.fem.petsc
 import numpy as np
 
-from meshes.errors import CaseError
+from tissue_reference.meshes.errors import CaseError
 
 __all__ = ["Tangent", "TangentMixin"]
 

@@ -26,9 +26,9 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from meshes.case import Case, Material
-from meshes.errors import CaseError
-from meshes.results import SolveResult
+from tissue_reference.meshes.case import Case, Material
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.results import SolveResult
 
 from .boundary import BoundaryMixin
 from .contact import DEFAULT_CONTACT_PENALTY, Contact, contact_key

@@ -18,8 +18,8 @@ import dataclasses
 
 import numpy as np
 
-from meshes.errors import CaseError
-from meshes.results import SolveResult
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.results import SolveResult
 
 __all__ = ["WARM_LINE_SEARCH", "dolfinx_cells", "field", "prolong", "warm_newton"]
 

@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshes.case import Material
-from meshes.errors import CaseError
-from meshes.mesh import MeshData
+from tissue_reference.meshes.case import Material
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.mesh import MeshData
 
 from .library import ImplantSpec, implant_mesh
 from .placement import (
@@ -201,7 +201,7 @@ def build_tissue(patient: Patient, *, size: float | None = None) -> tuple[Muscle
 def plan_implant(patient: Patient, settings: PlanSettings = PlanSettings()) -> ImplantPlan:
     """Run seed 001's pipeline (see module docstring); every fit / input check happens before
     the first solve. Raises CaseError on bad input, SolverDivergedError if a solve diverges."""
-    from solvers import mass_tensor as mt
+    from tissue_reference.solvers import mass_tensor as mt
 
     t0 = time.perf_counter()
     tm = {}

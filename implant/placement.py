@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from meshes.errors import CaseError
-from meshes.mesh import MeshData, boundary_facets
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.mesh import MeshData, boundary_facets
 
 from .library import ImplantSpec
 from .surface import boundary_edges, closest_points, ray_hits, triangle_normals

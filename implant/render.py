@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 
 import tissue_reference
-from meshes.errors import WriteError
-from meshes.io import atomic_path
+from tissue_reference.meshes.errors import WriteError
+from tissue_reference.meshes.io import atomic_path
 
 __all__ = ["render_distance_png", "write_surface_vtu"]
 
@@ -85,7 +85,7 @@ def render_distance_png(points, triangles, values, path, *, title: str = "distan
         np.savez(npz, points=np.asarray(points, float), triangles=np.asarray(triangles),
                  values=vals, clim=np.asarray(clim, float), title=np.asarray(title))
         try:
-            child = [sys.executable, "-m", "implant.render", str(npz), str(path)]
+            child = [sys.executable, "-m", "tissue_reference.implant.render", str(npz), str(path)]
             # run from the folder that holds the package (site-packages, or the repository)
             r = subprocess.run(child, capture_output=True, text=True, timeout=120, check=False,
                                cwd=str(Path(tissue_reference.__file__).resolve().parents[1]))

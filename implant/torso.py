@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from meshes.errors import CaseError
-from meshes.mesh import MeshData, check_cells
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.mesh import MeshData, check_cells
 
 from .rbf import Thickness
 from .surface import TriSurface, boundary_edges, check_single_sheet
@@ -163,7 +163,7 @@ def tissue_mesh(skin: TriSurface, muscle: TriSurface, *, size: float | None = No
 
     Returns MeshData with facet regions ``skin``, ``muscle``, ``sides`` and cell region ``tissue``.
     """
-    from meshes.builders import _finish, _gmsh_session
+    from tissue_reference.meshes.builders import _finish, _gmsh_session
 
     check_single_sheet(skin)
     if skin.points.shape != muscle.points.shape or not np.array_equal(skin.triangles,

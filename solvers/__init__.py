@@ -12,8 +12,8 @@ __all__ = ["SOLVERS", "get_solver", "solver_module"]
 
 # name -> module whose ``solve`` it is
 SOLVERS = {
-    "admm": "solvers.admm",
-    "mass-tensor": "solvers.mass_tensor",
+    "admm": "tissue_reference.solvers.admm",
+    "mass-tensor": "tissue_reference.solvers.mass_tensor",
 }
 
 
@@ -22,7 +22,7 @@ def solver_module(name: str):
     try:
         modname = SOLVERS[name]
     except KeyError:
-        from meshes.errors import CaseError
+        from tissue_reference.meshes.errors import CaseError
 
         raise CaseError(f"unknown fast solver {name!r}; solvers: {sorted(SOLVERS)}") from None
     return importlib.import_module(modname)

@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from meshes.results import DynamicsResult
+from tissue_reference.meshes.results import DynamicsResult
 
 from . import admm
 

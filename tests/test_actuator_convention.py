@@ -5,10 +5,10 @@ import json
 import numpy as np
 import pytest
 
-import fem_reference as fr
-from control.plants import jacobian_at
-from meshes.case import load_case
-from meshes.errors import CaseError
+import tissue_reference.fem_reference as fr
+from tissue_reference.control.plants import jacobian_at
+from tissue_reference.meshes.case import load_case
+from tissue_reference.meshes.errors import CaseError
 
 CASE = "meshes/cases/phantom.toml"
 
@@ -62,14 +62,14 @@ def test_a_case_file_may_free_its_patches_and_indenters_take_no_idle(tmp_path):
     c = load_case(free)
     assert c.actuator("A1").idle == "free"
     assert [a.idle for a in c.actuators][1:] == ["held"] * 3
-    from meshes.case import Actuator
+    from tissue_reference.meshes.case import Actuator
 
     with pytest.raises(CaseError, match="idle only for a patch"):
         Actuator("I", "skin", (1, 0, 0), type="indenter", tip="sphere", radius=5.0, idle="free")
 
 
 def test_cli_free_actuators_changes_the_answer(tmp_path, capsys):
-    from tissue.cli import main
+    from tissue_reference.tissue.cli import main
 
     runs = {}
     for flag in ([], ["--free-actuators"]):
@@ -81,7 +81,7 @@ def test_cli_free_actuators_changes_the_answer(tmp_path, capsys):
 
 
 def test_mpc_json_is_complete_and_an_infeasible_open_loop_is_named(tmp_path, capsys):
-    from tissue.cli import main
+    from tissue_reference.tissue.cli import main
 
     js = tmp_path / "m.json"
     rc = main(["mpc", CASE, "--size", "14", "--target", "T1", "--task", "1", "--steps", "4",
@@ -99,7 +99,7 @@ def test_mpc_json_is_complete_and_an_infeasible_open_loop_is_named(tmp_path, cap
 def test_table1_runs_mismatch_scenarios_with_trajectories(tmp_path, capsys):
     """Gravity on the plant only and a coarser model mesh: each scenario completes (or stops
     with a named reason), writes its table, trajectories and the combined summary and plot."""
-    from tissue.cli import main
+    from tissue_reference.tissue.cli import main
 
     out = tmp_path / "t1"
     rc = main(["table1", CASE, "--size", "14", "--targets", "T1", "--steps", "3",

@@ -4,18 +4,18 @@ max_dofs budget stops it with AccuracyNotReached. Units: mm, kPa, mN."""
 import numpy as np
 import pytest
 
-import fem_reference as fr
-from fem_reference.adapt import (
+import tissue_reference.fem_reference as fr
+from tissue_reference.fem_reference.adapt import (
     AccuracyNotReached,
     _counts,
     _refined_counts,
     predicted_dofs,
     solve_to_accuracy,
 )
-from meshes.builders import box, cook_membrane
-from meshes.case import Actuator, Boundary, Case, Material, Probe
-from meshes.errors import CaseError
-from meshes.refine import refine_uniform
+from tissue_reference.meshes.builders import box, cook_membrane
+from tissue_reference.meshes.case import Actuator, Boundary, Case, Material, Probe
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.refine import refine_uniform
 
 
 def cook(size=8.0):
@@ -99,7 +99,7 @@ def test_command_line_estimate_and_accuracy(tmp_path, capsys):
     import json
     from pathlib import Path
 
-    from tissue.cli import main
+    from tissue_reference.tissue.cli import main
 
     case = str(Path(__file__).resolve().parents[1] / "meshes/cases/phantom.toml")
     out = tmp_path / "est.json"

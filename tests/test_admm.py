@@ -5,11 +5,11 @@ import pytest
 import scipy.sparse.linalg as spla
 from fem_checks import central_differences, linear_p1_stiffness
 
-from meshes.builders import box
-from meshes.case import Boundary, Case, Material, load_case
-from meshes.errors import SolverDivergedError
-from meshes.mesh import cell_volumes
-from solvers import admm
+from tissue_reference.meshes.builders import box
+from tissue_reference.meshes.case import Boundary, Case, Material, load_case
+from tissue_reference.meshes.errors import SolverDivergedError
+from tissue_reference.meshes.mesh import cell_volumes
+from tissue_reference.solvers import admm
 
 CASE_TOML = "meshes/cases/phantom.toml"
 
@@ -162,7 +162,7 @@ def phantom12():
 @pytest.mark.parametrize("device", ["cpu", "array-cpu"])
 def test_admm_matches_fem_reference_on_phantom(phantom12, device):
     """Both backends (the C kernel, and the array code of the GPU path run on numpy)."""
-    from fem_reference import solve as fem_solve
+    from tissue_reference.fem_reference import solve as fem_solve
     pushes = {"A1": 5.0, "A2": 5.0, "A3": 5.0, "A4": 5.0}
     ref = fem_solve(phantom12, degree=1, pushes=pushes)
     res = admm.solve(phantom12, pushes=pushes, max_iter=300, device=device)
@@ -176,7 +176,7 @@ def test_admm_matches_fem_reference_on_phantom(phantom12, device):
 
 
 def test_tangent_matches_fem_reference_tangent(phantom12):
-    from fem_reference import tangent_stiffness as fem_tangent
+    from tissue_reference.fem_reference import tangent_stiffness as fem_tangent
     pushes = {"A1": 3.0}
     u = admm.solve(phantom12, pushes=pushes, max_iter=100).u
     K = admm.tangent_stiffness(phantom12.with_pushes(pushes), u)
@@ -186,7 +186,7 @@ def test_tangent_matches_fem_reference_tangent(phantom12):
 
 def test_plain_admm_without_polish_meets_the_issue_tolerances_on_phantom(phantom12):
     """Issue 3 target (probes 0.05 mm, vertices 0.1 mm), by ADMM iterations alone."""
-    from fem_reference import solve as fem_solve
+    from tissue_reference.fem_reference import solve as fem_solve
     pushes = {"A1": 8.0, "A2": 8.0, "A3": 8.0, "A4": 8.0}
     ref = fem_solve(phantom12, degree=1, pushes=pushes)
     res = admm.solve(phantom12, pushes=pushes, polish=False, tol_mm=1e-3, max_iter=5000)

@@ -13,11 +13,11 @@ import types
 import numpy as np
 import pytest
 
-from meshes.builders import box, rectangle
-from meshes.case import Boundary, Case, Material, load_case
-from meshes.errors import CaseError
-from solvers import admm
-from tissue.cli import main
+from tissue_reference.meshes.builders import box, rectangle
+from tissue_reference.meshes.case import Boundary, Case, Material, load_case
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.solvers import admm
+from tissue_reference.tissue.cli import main
 
 CASE_TOML = "meshes/cases/phantom.toml"
 PUSHES = {"A1": 5.0, "A2": 5.0, "A3": 5.0, "A4": 5.0}
@@ -195,7 +195,7 @@ def test_gpu_gives_the_kernels_iterates_on_the_phantom(phantom):
 
 @needs_gpu
 def test_gpu_converged_answer_matches_the_reference(phantom12):
-    from fem_reference import solve as fem_solve
+    from tissue_reference.fem_reference import solve as fem_solve
     ref = fem_solve(phantom12, degree=1, pushes=PUSHES)
     res = admm.solve(phantom12, pushes=PUSHES, max_iter=300, device="gpu")
     assert res.converged

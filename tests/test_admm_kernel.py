@@ -5,9 +5,9 @@ Neo-Hookean and linear elasticity, oblique sliding, implicit-Euler dynamics)."""
 import numpy as np
 import pytest
 
-from meshes.builders import box, rectangle
-from meshes.case import Boundary, Case, Material
-from solvers import _ckernel, admm
+from tissue_reference.meshes.builders import box, rectangle
+from tissue_reference.meshes.case import Boundary, Case, Material
+from tissue_reference.solvers import _ckernel, admm
 
 
 def test_the_compiled_loop_is_built_here():
@@ -128,9 +128,9 @@ def test_polish_factorization_is_cholmod_while_definite_and_superlu_otherwise():
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
-    from fem_reference import cholmod_factor
-    from fem_reference.factor import _PetscFactor
-    from fem_reference.linalg import _has_cholmod
+    from tissue_reference.fem_reference import cholmod_factor
+    from tissue_reference.fem_reference.factor import _PetscFactor
+    from tissue_reference.fem_reference.linalg import _has_cholmod
     case = _case(box(1.5), "neo-hookean")
     ops = admm.prepare(case)
     u = admm.solve(case, polish=False, max_iter=50).u.ravel()
@@ -159,7 +159,7 @@ def test_polish_factorization_is_cholmod_while_definite_and_superlu_otherwise():
 
 
 def test_polished_solve_is_the_same_with_cholmod_and_superlu():
-    from fem_reference import cholmod_factor
+    from tissue_reference.fem_reference import cholmod_factor
     case = _case(box(1.5), "neo-hookean")
     a = admm.solve(case)
     b = admm.solve(case, factorize=cholmod_factor)

@@ -6,11 +6,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from meshes.builders import box, phantom
-from meshes.case import Boundary, Case, Material, load_case
-from meshes.errors import CaseError, ConvergenceError, MeshQualityError, ReadError
-from meshes.io import read_msh, write_mesh
-from meshes.mesh import MeshData
+from tissue_reference.meshes.builders import box, phantom
+from tissue_reference.meshes.case import Boundary, Case, Material, load_case
+from tissue_reference.meshes.errors import CaseError, ConvergenceError, MeshQualityError, ReadError
+from tissue_reference.meshes.io import read_msh, write_mesh
+from tissue_reference.meshes.mesh import MeshData
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -138,8 +138,8 @@ def test_unknown_actuator_push_is_named():
 def test_diverging_load_step_keeps_last_converged_state(tmp_path):
     """A push that crushes the phantom fails after cut-backs; the CLI writes the last converged
     state and names the load fraction reached."""
-    import fem_reference as fr
-    from fem_reference.solver import NewtonSettings
+    import tissue_reference.fem_reference as fr
+    from tissue_reference.fem_reference.solver import NewtonSettings
 
     c = load_case(ROOT / "meshes/cases/phantom.toml", size=14)
     s = fr.ReferenceSolver(c, settings=NewtonSettings(max_iterations=8, min_fraction=1 / 16,

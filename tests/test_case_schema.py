@@ -11,8 +11,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from meshes import builders
-from meshes.case import (
+from tissue_reference.meshes import builders
+from tissue_reference.meshes.case import (
     ACTUATOR_TYPES,
     BOUNDARY_TYPES,
     CONTACT_TYPES,
@@ -22,10 +22,10 @@ from meshes.case import (
     Case,
     load_case,
 )
-from meshes.case_doc import case_file_markdown
-from meshes.case_file import PROBE_TOLERANCE
-from meshes.case_schema import SCHEMA_PATH, case_schema, schema_errors
-from meshes.errors import CaseError, CaseReadError, ReadError
+from tissue_reference.meshes.case_doc import case_file_markdown
+from tissue_reference.meshes.case_file import PROBE_TOLERANCE
+from tissue_reference.meshes.case_schema import SCHEMA_PATH, case_schema, schema_errors
+from tissue_reference.meshes.errors import CaseError, CaseReadError, ReadError
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = sorted((ROOT / "meshes" / "cases").glob("*.toml"))
@@ -189,7 +189,7 @@ def test_schema_enums_follow_the_code():
 
 
 def test_schema_defaults_are_the_code_defaults():
-    from meshes.case import Boundary, Material
+    from tissue_reference.meshes.case import Boundary, Material
 
     material = case_schema()["properties"]["material"]["properties"]
     assert {k: material[k]["default"] for k in material} == vars(Material())

@@ -1,5 +1,5 @@
 """The ``tissue`` command line follows the usual conventions: ``--version``,
-``python -m tissue``, global -v/--verbose and -q/--quiet before or after the command,
+``python -m tissue_reference``, global -v/--verbose and -q/--quiet before or after the command,
 and a quiet first run (no C compiler lines while forms are compiled, unless -v)."""
 import logging
 import os
@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from test_cli_fuzz import BOX as CLI_BOX  # the small box case of the CLI tests
 
-from tissue.cli import build_parser, main
+from tissue_reference.tissue.cli import build_parser, main
 
 ROOT = Path(__file__).resolve().parents[1]
 BOX = CLI_BOX.format(model="neo-hookean")
@@ -44,10 +44,10 @@ def test_version_is_the_package_version(capsys):
 
 def test_python_dash_m_tissue_runs_the_command_line():
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    p = subprocess.run([sys.executable, "-m", "tissue", "--version"],
+    p = subprocess.run([sys.executable, "-m", "tissue_reference", "--version"],
                        capture_output=True, text=True, timeout=120, check=False, cwd=ROOT, env=env)
     assert p.returncode == 0 and p.stdout.strip() == f"tissue {project_version()}", p.stderr
-    p = subprocess.run([sys.executable, "-m", "tissue", "mesh", "--bogus"],
+    p = subprocess.run([sys.executable, "-m", "tissue_reference", "mesh", "--bogus"],
                        capture_output=True, text=True, timeout=120, check=False, cwd=ROOT, env=env)
     assert p.returncode == 2 and "Traceback" not in p.stderr
     assert p.stderr.startswith("tissue mesh: error:"), p.stderr
@@ -101,7 +101,7 @@ def test_quiet_turns_progress_off_wherever_it_is_given(box, tmp_path, capsys, wh
 
 def test_verbose_shows_debug_records_and_the_default_shows_warnings(monkeypatch, tmp_path,
                                                                      capsys):
-    from tissue import cmd_mesh
+    from tissue_reference.tissue import cmd_mesh
 
     def fake_run(args):
         log = logging.getLogger("tissue.mesh")
@@ -130,7 +130,7 @@ def toolchain_record(level=logging.INFO):
 
 
 def test_the_compiler_filter_drops_toolchain_records_unless_asked_for():
-    from fem_reference.logs import CompilerLogFilter
+    from tissue_reference.fem_reference.logs import CompilerLogFilter
 
     f = CompilerLogFilter()
     assert any(isinstance(x, CompilerLogFilter) for x in logging.getLogger().filters)
@@ -194,7 +194,7 @@ def test_quiet_silences_the_progress_of_the_table1_runs(monkeypatch):
     """The Table I command hands a no-op progress callback to its runs under -q."""
     from types import SimpleNamespace
 
-    from tissue import cmd_control
+    from tissue_reference.tissue import cmd_control
 
     lines = []
     monkeypatch.setattr("builtins.print", lambda *a, **k: lines.append(a))

@@ -1,8 +1,8 @@
 """The command-line reference is the parser's own output, and every option explains itself."""
 from pathlib import Path
 
-from tissue.cli import build_parser
-from tissue.cli_doc import cli_markdown, options_without_help
+from tissue_reference.tissue.cli import build_parser
+from tissue_reference.tissue.cli_doc import cli_markdown, options_without_help
 
 ROOT = Path(__file__).resolve().parents[1]
 

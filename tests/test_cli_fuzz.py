@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from meshes.builders import estimate_cells
-from meshes.io import atomic_path
-from tissue.cli import main
+from tissue_reference.meshes.builders import estimate_cells
+from tissue_reference.meshes.io import atomic_path
+from tissue_reference.tissue.cli import main
 
 BOX = """name = "box"
 [mesh]
@@ -255,8 +255,9 @@ def output_mistakes(work):
 
 
 def test_output_paths_are_refused_before_any_work(work, capsys, monkeypatch):
-    import meshes.builders
-    import meshes.builders_gmsh
+    import tissue_reference.meshes.builders
+    import tissue_reference.meshes.builders_gmsh
+    meshes = tissue_reference.meshes
 
     def no_meshing(*a, **k):
         raise AssertionError("meshed before the output check")
@@ -307,7 +308,7 @@ def leftovers(folder: Path):
 
 
 def test_an_interrupted_solve_leaves_no_output(tmp_path, capsys, monkeypatch):
-    import tissue.cmd_solve as cmd
+    import tissue_reference.tissue.cmd_solve as cmd
 
     (tmp_path / "lin.toml").write_text(BOX.format(model="linear-elastic"))
     real = cmd.run_solver
@@ -354,7 +355,7 @@ def test_atomic_path_removes_its_temporary_on_any_exception(tmp_path, error):
 
 
 def test_atomic_path_onto_a_directory_is_a_write_error_without_temporaries(tmp_path):
-    from meshes.errors import WriteError
+    from tissue_reference.meshes.errors import WriteError
 
     (tmp_path / "d").mkdir()
     with pytest.raises(WriteError, match="is a directory"), atomic_path(tmp_path / "d") as tmp:

@@ -26,11 +26,11 @@ import pytest
 from scipy.integrate import quad
 from scipy.optimize import brentq
 
-import fem_reference as fr
-from meshes.builders import indent_block
-from meshes.case import Actuator, Boundary, Case, Material
-from meshes.errors import CaseError
-from solvers import admm, mass_tensor
+import tissue_reference.fem_reference as fr
+from tissue_reference.meshes.builders import indent_block
+from tissue_reference.meshes.case import Actuator, Boundary, Case, Material
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.solvers import admm, mass_tensor
 
 E, NU = 6.0, 0.45
 E_STAR = E / (1 - NU ** 2)

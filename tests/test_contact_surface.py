@@ -5,10 +5,10 @@ against a fine-enough mesh where the same check stays quiet."""
 import numpy as np
 import pytest
 
-import fem_reference as fr
-from meshes.builders import box, estimate_cells
-from meshes.case import Actuator, Boundary, Case, Material
-from meshes.errors import CaseError
+import tissue_reference.fem_reference as fr
+from tissue_reference.meshes.builders import box, estimate_cells
+from tissue_reference.meshes.case import Actuator, Boundary, Case, Material
+from tissue_reference.meshes.errors import CaseError
 
 R = 1.0
 
@@ -58,7 +58,7 @@ def test_the_check_is_quiet_where_the_surface_resolves_the_tip():
 
 def test_site_size_refines_only_the_phantom_builders():
     assert estimate_cells("phantom", 6.0, site_size=1.6) > 5 * estimate_cells("phantom", 6.0)
-    from meshes.builders import build
+    from tissue_reference.meshes.builders import build
 
     with pytest.raises(CaseError, match="site_size applies to the builders"):
         build("box", 5.0, site_size=1.0)

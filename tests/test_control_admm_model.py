@@ -5,10 +5,15 @@ import numpy as np
 import pytest
 from test_control_support import column_case
 
-from control.jacobian import dirichlet_jacobian, fd_jacobian, full_pushes, max_rel_error
-from control.loop import check_prescribed
-from control.plants import plant_for
-from solvers.admm import tangent_stiffness
+from tissue_reference.control.jacobian import (
+    dirichlet_jacobian,
+    fd_jacobian,
+    full_pushes,
+    max_rel_error,
+)
+from tissue_reference.control.loop import check_prescribed
+from tissue_reference.control.plants import plant_for
+from tissue_reference.solvers.admm import tangent_stiffness
 
 
 @pytest.fixture(scope="module")
@@ -45,7 +50,7 @@ def test_admm_model_follows_the_reference_branch_under_opposing_pushes():
     pytest.importorskip("dolfinx")
     from test_control_support import phantom
 
-    import fem_reference as fr
+    import tissue_reference.fem_reference as fr
 
     case = phantom()
     case = case.with_material(E=1.2 * case.material.E)      # the mismatch runs' model

@@ -2,7 +2,7 @@
 named (before any solve), an unknown actuator in --state-push is named."""
 import pytest
 
-from tissue.cli import main
+from tissue_reference.tissue.cli import main
 
 BOX = """name = "box"
 [mesh]

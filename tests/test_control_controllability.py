@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from test_control_support import PHANTOM3, linear_p1_stiffness, phantom
 
-from control.controllability import (
+from tissue_reference.control.controllability import (
     basis_kind,
     inverse_push,
     manipulability,
@@ -13,8 +13,8 @@ from control.controllability import (
     positively_spans,
     task_goal,
 )
-from control.jacobian import dirichlet_jacobian
-from meshes.errors import CaseError
+from tissue_reference.control.jacobian import dirichlet_jacobian
+from tissue_reference.meshes.errors import CaseError
 
 AXES2 = np.array([[1.0, 0, -1, 0], [0, 1, 0, -1]])
 TRI = np.array([[np.cos(a), np.sin(a)] for a in np.radians([90, 210, 330])]).T
@@ -137,7 +137,8 @@ def test_manipulability_maps_of_a_box_complete_without_a_traceback(tmp_path, cap
     import json
 
     from test_cli_fuzz import BOX
-    from tissue.cli import main
+
+    from tissue_reference.tissue.cli import main
 
     case = tmp_path / "box.toml"
     case.write_text(BOX.format(model="neo-hookean"))

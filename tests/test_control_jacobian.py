@@ -5,7 +5,7 @@ import pytest
 import scipy.sparse as sp
 from test_control_support import LinearPlant, linear_p1_stiffness, phantom
 
-from control.jacobian import (
+from tissue_reference.control.jacobian import (
     dirichlet_jacobian,
     fd_jacobian,
     force_jacobian,
@@ -13,7 +13,7 @@ from control.jacobian import (
     point_matrix,
     probe_matrix,
 )
-from meshes.errors import CaseError
+from tissue_reference.meshes.errors import CaseError
 
 
 @pytest.fixture(scope="module")

@@ -6,10 +6,16 @@ import numpy as np
 import pytest
 from test_control_support import LinearPlant, linear_p1_stiffness, linear_tangent, phantom
 
-from control.controllability import UnreachableGoalError
-from control.loop import LinearizedModel, LoopSettings, itae, plot_response, run_closed_loop
-from control.mpc import MPCSettings
-from meshes.errors import CaseError, ConvergenceError
+from tissue_reference.control.controllability import UnreachableGoalError
+from tissue_reference.control.loop import (
+    LinearizedModel,
+    LoopSettings,
+    itae,
+    plot_response,
+    run_closed_loop,
+)
+from tissue_reference.control.mpc import MPCSettings
+from tissue_reference.meshes.errors import CaseError, ConvergenceError
 
 
 @pytest.fixture(scope="module")
@@ -153,7 +159,7 @@ def test_open_loop_plant_failure_is_reported_with_a_lower_bound_itae(setup, tmp_
 def test_table1_files_and_summary(setup, tmp_path):
     import json
 
-    from control.table1 import table1_row, write_table1
+    from tissue_reference.control.table1 import table1_row, write_table1
 
     case, K, plant = setup
     model = LinearizedModel(case, plant, linear_tangent(K), "T1")
@@ -233,11 +239,11 @@ def test_a_failed_warm_start_is_retried_cold_and_recorded(setup):
 
 def test_a_converged_but_folded_plant_state_is_not_measured():
     """A plant answer marked invalid (inverted cells) fails the step instead of being measured."""
-    from control.loop import check_prescribed
-    from meshes.builders import box
-    from meshes.case import Boundary, Case
-    from meshes.errors import ConvergenceError
-    from meshes.results import SolveResult
+    from tissue_reference.control.loop import check_prescribed
+    from tissue_reference.meshes.builders import box
+    from tissue_reference.meshes.case import Boundary, Case
+    from tissue_reference.meshes.errors import ConvergenceError
+    from tissue_reference.meshes.results import SolveResult
 
     mesh = box(5.0)
     case = Case(mesh=mesh, boundaries=[Boundary("zmin", "fixed")], name="folded")

@@ -9,9 +9,9 @@ pytest.importorskip("dolfinx")
 
 from test_control_support import column_case
 
-from control.jacobian import full_pushes, max_rel_error, p2_interpolation
-from control.plants import jacobian_at as compute
-from control.plants import reference_state
+from tissue_reference.control.jacobian import full_pushes, max_rel_error, p2_interpolation
+from tissue_reference.control.plants import jacobian_at as compute
+from tissue_reference.control.plants import reference_state
 
 
 @pytest.fixture(scope="module")

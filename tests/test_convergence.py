@@ -9,7 +9,7 @@ import pytest
 import ufl
 from scipy.integrate import quad
 
-from fem_reference.convergence import (
+from tissue_reference.fem_reference.convergence import (
     assess,
     gci,
     observed_order,
@@ -17,12 +17,12 @@ from fem_reference.convergence import (
     richardson,
     study_to_json,
 )
-from meshes.builders import PHANTOM, box, phantom, rectangle
-from meshes.case import Boundary, Case, Material, Probe
-from meshes.errors import MeshQualityError
-from meshes.mesh import MeshData
-from meshes.refine import projector_for, refine_uniform
-from tissue.cli import main
+from tissue_reference.meshes.builders import PHANTOM, box, phantom, rectangle
+from tissue_reference.meshes.case import Boundary, Case, Material, Probe
+from tissue_reference.meshes.errors import MeshQualityError
+from tissue_reference.meshes.mesh import MeshData
+from tissue_reference.meshes.refine import projector_for, refine_uniform
+from tissue_reference.tissue.cli import main
 
 
 def signed_volumes(points, cells):

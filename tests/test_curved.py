@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from meshes.builders import box, shell_octant
-from meshes.curved import p2_cells, validate
-from meshes.mesh import MeshData
+from tissue_reference.meshes.builders import box, shell_octant
+from tissue_reference.meshes.curved import p2_cells, validate
+from tissue_reference.meshes.mesh import MeshData
 
 A, B = 10.0, 20.0
 
@@ -32,7 +32,7 @@ def volume(md, order):
     import dolfinx.fem
     import ufl
 
-    from fem_reference.dolfinx_mesh import to_dolfinx
+    from tissue_reference.fem_reference.dolfinx_mesh import to_dolfinx
 
     mesh = to_dolfinx(md, MPI.COMM_WORLD, geometry_order=order).mesh
     one = dolfinx.fem.Constant(mesh, 1.0)

@@ -15,12 +15,12 @@ import pytest
 import scipy.linalg as sla
 from fem_checks import linear_p1_stiffness
 
-import fem_reference as fr
-from fem_reference.dynamics import simulate
-from meshes.builders import box
-from meshes.case import Boundary, Case, Material
-from meshes.errors import CaseError, ConvergenceError
-from solvers import admm
+import tissue_reference.fem_reference as fr
+from tissue_reference.fem_reference.dynamics import simulate
+from tissue_reference.meshes.builders import box
+from tissue_reference.meshes.case import Boundary, Case, Material
+from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.solvers import admm
 
 G = 9810.0  # mm/s^2
 RHO = 1.0e-6  # kg/mm^3
@@ -193,7 +193,7 @@ point = [5.0, 5.0, 5.0]
 def test_dynamics_command_gives_the_same_trajectory_with_fem_and_admm(tmp_path, capsys):
     import json
 
-    from tissue.cli import main
+    from tissue_reference.tissue.cli import main
 
     toml = tmp_path / "box.toml"
     toml.write_text(BOX_TOML)

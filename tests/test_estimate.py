@@ -14,12 +14,17 @@ import json
 import numpy as np
 import pytest
 
-import fem_reference as fr
-from fem_reference.estimate import ESTIMATE_METHOD, auto_estimate, error_estimate, estimate
-from meshes.builders import box, cook_membrane, shell_octant
-from meshes.case import Actuator, Boundary, Case, Material, Probe
-from meshes.errors import CaseError
-from meshes.refine import refine_uniform
+import tissue_reference.fem_reference as fr
+from tissue_reference.fem_reference.estimate import (
+    ESTIMATE_METHOD,
+    auto_estimate,
+    error_estimate,
+    estimate,
+)
+from tissue_reference.meshes.builders import box, cook_membrane, shell_octant
+from tissue_reference.meshes.case import Actuator, Boundary, Case, Material, Probe
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.refine import refine_uniform
 
 LOW, HIGH = 0.3, 3.0
 A, B, UA, E = 10.0, 20.0, 2.0, 6.0      # shell radii, inner radial push (mm), E (kPa)
@@ -131,7 +136,7 @@ def test_phantom_estimate_effectivity_at_a_small_push():
     """Phantom (1.2k tetrahedra, straight cells), A1 = 5 mm: the P1 answer estimated by P2 on the
     same cells; truth: P2 on the uniformly refined mesh (10k tetrahedra filling the same cells,
     so the same faceted dome and polygonal patch)."""
-    from meshes.case import load_case
+    from tissue_reference.meshes.case import load_case
 
     case = load_case("meshes/cases/phantom.toml", size=12.0)
     push = {"A1": 5.0}
@@ -171,7 +176,7 @@ def test_estimate_refuses_what_it_cannot_enrich(block):
     res3 = fr.solve(block, pushes={"A1": 1.0}, degree=3)
     with pytest.raises(CaseError, match="richest reference degree"):
         error_estimate(block, res3, pushes={"A1": 1.0})
-    from solvers import mass_tensor
+    from tissue_reference.solvers import mass_tensor
 
     lin = block.with_material(model="linear-elastic")
     with pytest.raises(CaseError, match="reference"):
@@ -183,8 +188,8 @@ def test_estimate_refuses_what_it_cannot_enrich(block):
 def test_estimate_solves_from_rest_when_the_warm_start_fails(block, monkeypatch):
     """Newton from the interpolated degree-2 answer can fail (large strains on a coarse mesh):
     the degree-3 problem is then solved along the load path, with the same estimate."""
-    from fem_reference.solver import ReferenceSolver
-    from meshes.errors import ConvergenceError
+    from tissue_reference.fem_reference.solver import ReferenceSolver
+    from tissue_reference.meshes.errors import ConvergenceError
 
     push = {"A1": 1.0}
     res = fr.solve(block, pushes=push, degree=2)
@@ -215,7 +220,7 @@ def test_phantom_estimate_effectivity_against_an_independent_converged_value(deg
     vertical displacement against the converged value of an independent solve refined at the
     patch rims (tests/data/phantom_reference.json: an interval, both ends checked). The default
     answers are far from converged (P1 about +57 %, P2 about +15 %), and the estimate says so."""
-    from meshes.case import load_case
+    from tissue_reference.meshes.case import load_case
 
     ref = PHANTOM_REFERENCE
     case = load_case("meshes/cases/phantom.toml")
@@ -260,8 +265,8 @@ def test_auto_estimate_runs_up_to_its_size_limit_and_says_why_not_above(block):
 def test_auto_estimate_names_what_it_cannot_estimate(block, monkeypatch):
     import dataclasses
 
-    import fem_reference.estimate as fe
-    from meshes.errors import ConvergenceError
+    import tissue_reference.fem_reference.estimate as fe
+    from tissue_reference.meshes.errors import ConvergenceError
 
     push = {"A1": 1.0}
     res3 = fr.solve(block, pushes=push, degree=3)
@@ -282,7 +287,7 @@ def test_auto_estimate_names_what_it_cannot_estimate(block, monkeypatch):
 def test_tissue_solve_states_the_error_of_its_default_answer(tmp_path, capsys):
     from test_cli_fuzz import BOX
 
-    from tissue.cli import main
+    from tissue_reference.tissue.cli import main
 
     case = tmp_path / "box.toml"
     case.write_text(BOX.format(model="neo-hookean"))

@@ -3,8 +3,8 @@ fieldsplit) gives the direct solver's answer."""
 import numpy as np
 import pytest
 
-import fem_reference as fr
-from meshes.case import load_case
+import tissue_reference.fem_reference as fr
+from tissue_reference.meshes.case import load_case
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +27,7 @@ def test_fieldsplit_matches_the_direct_mixed_solve(case):
 def test_a_lagged_preconditioner_that_stops_paying_is_rebuilt(case, monkeypatch):
     """With no growth allowed, every lagged solve that needs more iterations than its fresh one
     triggers a rebuild; the answer is the same."""
-    import fem_reference.saddle as saddle
+    import tissue_reference.fem_reference.saddle as saddle
 
     monkeypatch.setattr(saddle, "LAG_GROWTH", 0.0)
     monkeypatch.setattr(saddle, "LAG_MIN_ITS", 0)
@@ -40,7 +40,7 @@ def test_a_lagged_preconditioner_that_stops_paying_is_rebuilt(case, monkeypatch)
 
 
 def test_fieldsplit_is_for_the_mixed_formulation_only(case):
-    from meshes.errors import CaseError
+    from tissue_reference.meshes.errors import CaseError
 
     with pytest.raises(CaseError, match="fieldsplit"):
         fr.solve(case.with_material(nu=0.45), pushes={"A1": 1.0}, formulation="displacement",

@@ -5,18 +5,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from implant.library import ImplantSpec, implant_mesh, mesh_volume
-from implant.rbf import ImplicitRBF, Thickness, breast_mask, muscle_surface
-from implant.surface import (
+from tissue_reference.implant.library import ImplantSpec, implant_mesh, mesh_volume
+from tissue_reference.implant.rbf import ImplicitRBF, Thickness, breast_mask, muscle_surface
+from tissue_reference.implant.surface import (
     TriSurface,
     check_single_sheet,
     closest_points,
     read_surface,
     vertex_normals,
 )
-from implant.torso import SyntheticTorso, grid_triangles, tissue_mesh
-from meshes.errors import CaseError, ReadError
-from meshes.mesh import cell_volumes
+from tissue_reference.implant.torso import SyntheticTorso, grid_triangles, tissue_mesh
+from tissue_reference.meshes.errors import CaseError, ReadError
+from tissue_reference.meshes.mesh import cell_volumes
 
 
 @pytest.fixture(scope="module")

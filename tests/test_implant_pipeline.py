@@ -7,13 +7,24 @@ import json
 import numpy as np
 import pytest
 
-from implant.library import ImplantSpec
-from implant.pipeline import PlanSettings, patient_from_file, plan_implant, synthetic_patient
-from implant.placement import place_implant
-from implant.registration import RigidTransform, icp, kabsch, rotation_angle_deg, surface_distances
-from implant.surface import closest_points
-from implant.torso import SyntheticTorso, grid_triangles
-from meshes.errors import CaseError
+from tissue_reference.implant.library import ImplantSpec
+from tissue_reference.implant.pipeline import (
+    PlanSettings,
+    patient_from_file,
+    plan_implant,
+    synthetic_patient,
+)
+from tissue_reference.implant.placement import place_implant
+from tissue_reference.implant.registration import (
+    RigidTransform,
+    icp,
+    kabsch,
+    rotation_angle_deg,
+    surface_distances,
+)
+from tissue_reference.implant.surface import closest_points
+from tissue_reference.implant.torso import SyntheticTorso, grid_triangles
+from tissue_reference.meshes.errors import CaseError
 
 
 @pytest.fixture(scope="module")
@@ -147,7 +158,7 @@ def test_mass_tensor_plan_matches_the_direct_linear_solve_with_the_same_bcs(plan
     """The seed's 'exact FEM solution': the same linear system solved directly (scipy)."""
     import scipy.sparse.linalg as spla
 
-    from solvers.mass_tensor import MassTensorModel
+    from tissue_reference.solvers.mass_tensor import MassTensorModel
 
     model = MassTensorModel(plan.tissue.points, plan.tissue.cells,
                             material=plan.settings.material)
@@ -198,7 +209,7 @@ def test_user_skin_file_plans_like_the_synthetic_one(tmp_path):
 
 
 def _cli(argv):
-    from tissue.cli import main
+    from tissue_reference.tissue.cli import main
 
     return main(argv)
 

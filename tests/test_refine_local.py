@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from meshes.builders import box, rectangle
-from meshes.errors import CaseError
-from meshes.mesh import cell_volumes, check_cells, quality
-from meshes.refine_local import dorfler_mark, refine_local
+from tissue_reference.meshes.builders import box, rectangle
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.mesh import cell_volumes, check_cells, quality
+from tissue_reference.meshes.refine_local import dorfler_mark, refine_local
 
 
 def facet_count(cells):
@@ -117,7 +117,7 @@ def test_dorfler_marking():
 
 @pytest.fixture(scope="module")
 def phantom_mesh():
-    from meshes.builders import phantom
+    from tissue_reference.meshes.builders import phantom
 
     return phantom(8.0)
 
@@ -131,8 +131,8 @@ def test_local_refinement_follows_the_curved_phantom(phantom_mesh):
     """The rim of a patch refined three times with the dome's projection: conforming, new
     boundary vertices on the true surface, the volume closer to the dome's each time, the patch's
     area closer to the true cap's, curved edges kept, quality bounded."""
-    from meshes.builders import PHANTOM
-    from meshes.refine import projector_for
+    from tissue_reference.meshes.builders import PHANTOM
+    from tissue_reference.meshes.refine import projector_for
 
     g = PHANTOM
     exact = 2.0 / 3.0 * math.pi * g.radius ** 2 * g.height
@@ -162,8 +162,8 @@ def test_local_refinement_follows_the_curved_phantom(phantom_mesh):
 
 
 def test_marking_every_cell_approaches_the_dome_like_uniform_refinement(phantom_mesh):
-    from meshes.builders import PHANTOM
-    from meshes.refine import projector_for, refine_uniform
+    from tissue_reference.meshes.builders import PHANTOM
+    from tissue_reference.meshes.refine import projector_for, refine_uniform
 
     g = PHANTOM
     exact = 2.0 / 3.0 * math.pi * g.radius ** 2 * g.height
@@ -181,8 +181,8 @@ def test_marking_every_cell_approaches_the_dome_like_uniform_refinement(phantom_
 def cook(size=8.0):
     """Cook's membrane (tests/test_adapt.py): plane stress E = 1, nu = 1/3 as plane strain,
     unit shear load; its clamped corners are singular."""
-    from meshes.builders import cook_membrane
-    from meshes.case import Boundary, Case, Material, Probe
+    from tissue_reference.meshes.builders import cook_membrane
+    from tissue_reference.meshes.case import Boundary, Case, Material, Probe
 
     return Case(mesh=cook_membrane(size), material=Material("linear-elastic", E=15 / 16, nu=0.25),
                 boundaries=[Boundary("left", "fixed"),
@@ -195,8 +195,8 @@ def test_local_adaptivity_reaches_an_accuracy_with_far_fewer_dofs_than_uniform()
     """Cook's membrane to 0.05 %: local refinement gets there with a few thousand unknowns, and
     the answer is within 0.1 % of a fine degree-3 solve (computed here, 120k unknowns); uniform
     refinement has not got there within 100,000 (its next level would need 600,000)."""
-    import fem_reference as fr
-    from fem_reference.adapt import AccuracyNotReached, solve_to_accuracy
+    import tissue_reference.fem_reference as fr
+    from tissue_reference.fem_reference.adapt import AccuracyNotReached, solve_to_accuracy
 
     local = solve_to_accuracy(cook(), accuracy=5e-4, refine="local", progress=False)
     assert local.reached and local.steps[-1].estimate_dofs < 10_000
@@ -219,7 +219,7 @@ def test_command_line_accuracy_writes_the_answer_on_its_refined_mesh(tmp_path, c
     import json
     from pathlib import Path
 
-    from tissue.cli import main
+    from tissue_reference.tissue.cli import main
 
     case = str(Path(__file__).resolve().parents[1] / "meshes/cases/phantom.toml")
     out = tmp_path / "adapt.json"
@@ -231,7 +231,7 @@ def test_command_line_accuracy_writes_the_answer_on_its_refined_mesh(tmp_path, c
     assert rc == 0 or "not reached" in err
     d = json.loads(out.read_text())
     assert (tmp_path / "fields" / "displacement.vtu").is_file()
-    from meshes.builders import phantom
+    from tissue_reference.meshes.builders import phantom
 
     assert d["n_vertices"] > phantom(14.0).n_vertices
 
@@ -241,10 +241,10 @@ def test_a_move_that_would_flatten_a_cell_is_damped(monkeypatch):
     vertices, moved onto the dome, would invert the thin cells under them. Without damping that
     is a MeshQualityError; with it the mesh stays valid, its worst cell as good as the initial
     mesh's, the damped vertices a fraction of a sagitta off the dome."""
-    import meshes.refine_local as rl
-    from meshes.builders import phantom
-    from meshes.errors import MeshQualityError
-    from meshes.refine import projector_for
+    import tissue_reference.meshes.refine_local as rl
+    from tissue_reference.meshes.builders import phantom
+    from tissue_reference.meshes.errors import MeshQualityError
+    from tissue_reference.meshes.refine import projector_for
 
     coarse = phantom(14.0)
     project = projector_for("phantom")

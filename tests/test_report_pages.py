@@ -14,8 +14,8 @@ import pytest
 from page_checks import PageError, check_page
 from test_cli_fuzz import BOX
 
-from meshes.case import load_case
-from tissue.cli import main
+from tissue_reference.meshes.case import load_case
+from tissue_reference.tissue.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -133,8 +133,8 @@ def test_an_admm_page_plots_the_iterations(work):
 def test_not_converged_indenters_and_warnings_are_on_the_page(work, tmp_path):
     """A last converged state (load fraction below 1), its indenters and warnings, drawn from a
     real solve's result with those entries (the library call the CLI makes)."""
-    import fem_reference as fr
-    from tissue.solve_report import write_solve_report
+    import tissue_reference.fem_reference as fr
+    from tissue_reference.tissue.solve_report import write_solve_report
 
     case = load_case(work / "box.toml").with_pushes({"A1": 1.0})
     res = fr.solve(case, pushes={"A1": 1.0})
@@ -152,8 +152,8 @@ def test_not_converged_indenters_and_warnings_are_on_the_page(work, tmp_path):
 
 
 def test_the_page_is_written_whole_or_not_at_all(work, tmp_path, monkeypatch):
-    import fem_reference as fr
-    import tissue.solve_report as sr
+    import tissue_reference.fem_reference as fr
+    import tissue_reference.tissue.solve_report as sr
 
     case = load_case(work / "box.toml")
     res = fr.solve(case, pushes={"A1": 1.0})
@@ -169,7 +169,7 @@ def test_the_page_is_written_whole_or_not_at_all(work, tmp_path, monkeypatch):
 
 
 def test_vertex_J_is_the_smallest_of_the_cells_around_a_vertex(work):
-    from tissue.solve_report import vertex_min_J
+    from tissue_reference.tissue.solve_report import vertex_min_J
 
     case = load_case(work / "box.toml")
     assert np.allclose(vertex_min_J(case.mesh, np.zeros_like(case.mesh.points)), 1.0)
@@ -231,7 +231,7 @@ def test_the_verify_and_suite_pages_are_well_formed(work):
 
 
 def test_the_reference_records_every_newton_iterate_for_the_plot():
-    import fem_reference as fr
+    import tissue_reference.fem_reference as fr
 
     case = load_case(ROOT / "meshes" / "cases" / "phantom.toml", size=14)
     h = fr.solve(case, pushes={"A1": 15.0}).history      # several load steps

@@ -5,10 +5,10 @@ import json
 import numpy as np
 import pytest
 
-from meshes.case import Material
-from meshes.errors import CaseError
-from tissue import closed_forms as cf
-from tissue.suite import run_suite
+from tissue_reference.meshes.case import Material
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.tissue import closed_forms as cf
+from tissue_reference.tissue.suite import run_suite
 
 
 def lame_sphere_u_outer(a, b, push, E, nu):
@@ -90,7 +90,7 @@ def test_failures_refusals_and_wrong_answers_are_scored_as_such(scorecard):
 
 
 def test_cli_suite_exit_status(tmp_path, capsys):
-    from tissue.cli import main
+    from tissue_reference.tissue.cli import main
 
     rc = main(["suite", "-q", "--solvers", "fem", "--problems", "shear-patch", "uniaxial-stretch",
                "--json", str(tmp_path / "s.json")])

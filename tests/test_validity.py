@@ -16,12 +16,12 @@ import meshio
 import numpy as np
 import pytest
 
-from meshes.builders import box, build, estimate_cells
-from meshes.case import Boundary, Case, Material, Probe, load_case
-from meshes.errors import CaseError, MeshQualityError
-from meshes.io import read_msh
-from meshes.mesh import cell_jacobians, check_tangles, deformation_state
-from tissue.cli import main
+from tissue_reference.meshes.builders import box, build, estimate_cells
+from tissue_reference.meshes.case import Boundary, Case, Material, Probe, load_case
+from tissue_reference.meshes.errors import CaseError, MeshQualityError
+from tissue_reference.meshes.io import read_msh
+from tissue_reference.meshes.mesh import cell_jacobians, check_tangles, deformation_state
+from tissue_reference.tissue.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 PHANTOM = ROOT / "meshes" / "cases" / "phantom.toml"
@@ -59,7 +59,7 @@ def phantom14():
 
 
 def test_mass_tensor_at_a_60_mm_push_converges_but_is_not_a_valid_answer(phantom14):
-    from solvers import mass_tensor
+    from tissue_reference.solvers import mass_tensor
 
     res = mass_tensor.solve(phantom14, pushes={"A1": 60.0})
     assert res.converged
@@ -100,8 +100,8 @@ value = [0.0, 0.0, -1.0e6]
 
 @pytest.mark.parametrize("solver", ["fem", "mass-tensor"])
 def test_a_huge_traction_gives_runaway_growth_reported_invalid(tmp_path, solver):
-    import fem_reference
-    from solvers import mass_tensor
+    from tissue_reference import fem_reference
+    from tissue_reference.solvers import mass_tensor
 
     (tmp_path / "t.toml").write_text(TRACTION)
     case = load_case(tmp_path / "t.toml")
@@ -114,8 +114,8 @@ def test_a_huge_traction_gives_runaway_growth_reported_invalid(tmp_path, solver)
 
 
 def test_admm_and_the_degree_2_reference_report_the_state_checks(phantom14):
-    import fem_reference
-    from solvers import admm
+    from tissue_reference import fem_reference
+    from tissue_reference.solvers import admm
 
     a = admm.solve(phantom14, pushes={"A1": 3.0})
     assert a.extra["valid"] and a.extra["inverted_cells"] == 0 and 0 < a.extra["min_J"] < 1
@@ -131,7 +131,7 @@ BOX_CASE = {"boundaries": (Boundary("zmin", "fixed"),
 
 
 def test_a_displacement_controlled_answer_does_not_depend_on_E():
-    import fem_reference
+    from tissue_reference import fem_reference
 
     m = box(5.0)
     u = {}
@@ -209,7 +209,7 @@ def test_a_left_handed_ordering_is_reoriented_not_refused(tmp_path):
     left = [[1, 0, 2, 3], [0, 1, 2, 5]]                  # the same cells, both left-handed
     a, b = read_msh(write_msh(tmp_path / "a.msh", good)), read_msh(write_msh(tmp_path / "b.msh",
                                                                              left))
-    from meshes.mesh import cell_volumes
+    from tissue_reference.meshes.mesh import cell_volumes
 
     assert np.all(cell_volumes(b.points, b.cells) > 0)
     np.testing.assert_allclose(np.sort(cell_volumes(a.points, a.cells)),
@@ -229,7 +229,7 @@ def test_the_cell_estimate_is_within_fifteen_percent_of_a_real_build(name, size)
 
 
 def test_a_build_above_the_limit_is_refused_before_gmsh_starts(monkeypatch):
-    import meshes.builders_gmsh as b
+    import tissue_reference.meshes.builders_gmsh as b
 
     monkeypatch.setattr(b, "_gmsh_session", lambda *a, **k: pytest.fail("gmsh started"))
     with pytest.raises(CaseError, match=r"about 40,726,426 cells, more than the limit of "

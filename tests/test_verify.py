@@ -5,9 +5,9 @@ import sys
 import numpy as np
 import pytest
 
-from meshes.case import load_case
-from meshes.errors import CaseError
-from tissue.verify import verify
+from tissue_reference.meshes.case import load_case
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.tissue.verify import verify
 
 CASE = "meshes/cases/phantom.toml"
 PUSHES = {"A1": 2.0, "A3": 2.0}
@@ -55,8 +55,8 @@ def test_json_has_admm_and_reference_iteration_counts(run):
 
 
 def test_solver_registry_resolves_names_and_rejects_unknown_ones():
-    import solvers
-    from solvers import admm, mass_tensor
+    from tissue_reference import solvers
+    from tissue_reference.solvers import admm, mass_tensor
 
     assert solvers.get_solver("admm") is admm.solve
     assert solvers.get_solver("mass-tensor") is mass_tensor.solve
@@ -106,7 +106,7 @@ def test_loose_stopping_rule_gives_a_positive_error_below_the_pushes(small_case)
 
 def test_missing_fast_solver_module_is_skipped_with_a_message(small_case, monkeypatch, capsys):
     # importing it raises ImportError
-    monkeypatch.setitem(sys.modules, "solvers.admm", None)
+    monkeypatch.setitem(sys.modules, "tissue_reference.solvers.admm", None)
     res = verify(small_case, PUSHES, solvers=("admm", "mass-tensor"),
                  options={"mass-tensor": {"stop_mm": 0.1}})
     assert "admm" in res["skipped"] and "admm" not in res["solvers"]
@@ -122,7 +122,7 @@ def test_unknown_solver_or_actuator_rejected_before_any_solve(small_case):
 
 
 def test_cli_verify_writes_json_and_report(tmp_path, capsys):
-    from tissue.cli import main
+    from tissue_reference.tissue.cli import main
 
     js = tmp_path / "v.json"
     rc = main(["verify", CASE, "--size", "14", "--push", "A2=1.5", "--solvers", "mass-tensor",
@@ -136,7 +136,7 @@ def test_cli_verify_writes_json_and_report(tmp_path, capsys):
 
 
 def test_cli_bad_push_reports_error_exit_code(tmp_path, capsys):
-    from tissue.cli import main
+    from tissue_reference.tissue.cli import main
 
     rc = main(["verify", CASE, "--size", "14", "--push", "A1", "--solvers", "mass-tensor"])
     assert rc == 2
@@ -146,7 +146,7 @@ def test_cli_bad_push_reports_error_exit_code(tmp_path, capsys):
 def test_plot_trace_error_is_the_distance_to_the_reference(small_case, monkeypatch):
     # the traced error of the last iteration equals the reported max vertex error (same run
     # settings, deterministic solver)
-    import tissue.verify as tv
+    import tissue_reference.tissue.verify as tv
 
     seen = {}
     real = tv._write_report

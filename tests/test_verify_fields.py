@@ -11,12 +11,12 @@ import meshio
 import numpy as np
 import pytest
 
-from meshes.builders import box
-from meshes.case import Boundary, Case, Material, Probe, load_case
-from meshes.errors import CaseError
-from tissue.plugins import PluginError
-from tissue.scoring import Field
-from tissue.verify import verify
+from tissue_reference.meshes.builders import box
+from tissue_reference.meshes.case import Boundary, Case, Material, Probe, load_case
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.tissue.plugins import PluginError
+from tissue_reference.tissue.scoring import Field
+from tissue_reference.tissue.verify import verify
 
 L = 10.0
 MAT = Material("neo-hookean", E=6.0, nu=0.45)
@@ -173,7 +173,7 @@ def test_an_independent_linear_solver_matches_the_linear_reference():
 
 
 def test_plugins_by_import_path_and_entry_point(case, monkeypatch):
-    import tissue.plugins as tp
+    import tissue_reference.tissue.plugins as tp
 
     out = verify(case, {}, solvers=["examples.linear_plugin:solve"], degree=1)
     assert "examples.linear_plugin:solve" in out["solvers"]
@@ -235,7 +235,7 @@ def test_admm_alone_and_linear_models_are_labelled(tmp_path):
 
 # --------------------------------------------------------------------------- command line
 def test_cli_scores_a_field_written_by_solve_as_zero(tmp_path, capsys):
-    from tissue.cli import main
+    from tissue_reference.tissue.cli import main
 
     case = "meshes/cases/phantom.toml"
     assert main(["solve", case, "--size", "14", "--push", "A1=2", "--out",
@@ -259,7 +259,7 @@ def test_cli_scores_a_field_written_by_solve_as_zero(tmp_path, capsys):
 
 
 def test_cli_scores_a_plugin(capsys):
-    from tissue.cli import main
+    from tissue_reference.tissue.cli import main
 
     rc = main(["verify", "meshes/cases/phantom.toml", "--size", "14", "--push", "A1=1",
                "--solvers", "examples.linear_plugin:solve", "--degree", "1"])

@@ -1,8 +1,8 @@
 """3D report pictures: the boundary of a tet mesh, drawn with pyvista off screen or matplotlib."""
 import numpy as np
 
-from meshes.builders import box
-from tissue.views import boundary_faces, render
+from tissue_reference.meshes.builders import box
+from tissue_reference.tissue.views import boundary_faces, render
 
 
 def test_boundary_faces_are_the_faces_of_one_cell_only():
@@ -26,7 +26,7 @@ def test_render_writes_a_png_either_way(tmp_path):
 
 
 def test_a_2d_mesh_is_drawn_as_its_deformed_triangles(tmp_path):
-    from meshes.builders_blocks import rectangle
+    from tissue_reference.meshes.builders_blocks import rectangle
 
     m = rectangle(2.5)
     u = np.zeros_like(m.points)

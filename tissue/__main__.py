@@ -1,4 +1,4 @@
-"""``python -m tissue ...``: the ``tissue`` command line."""
+"""``python -m tissue_reference ...``: the ``tissue`` command line."""
 import sys
 
 from .cli import main

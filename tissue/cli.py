@@ -21,7 +21,7 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
-from meshes.errors import TissueError
+from tissue_reference.meshes.errors import TissueError
 
 # Each module defines add_parser(subparsers) that registers its command(s) with set_defaults(func=...).
 COMMAND_MODULES = ["cmd_mesh", "cmd_solve", "cmd_verify", "cmd_converge", "cmd_jacobian",
@@ -78,9 +78,9 @@ def build_parser() -> argparse.ArgumentParser:
                                 parser_class=Parser)
     for name in COMMAND_MODULES:
         try:
-            mod = importlib.import_module(f"tissue.{name}")
+            mod = importlib.import_module(f"tissue_reference.tissue.{name}")
         except ModuleNotFoundError as exc:
-            if exc.name == f"tissue.{name}":
+            if exc.name == f"tissue_reference.tissue.{name}":
                 continue
             raise
         mod.add_parser(sub)

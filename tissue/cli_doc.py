@@ -51,7 +51,7 @@ def cli_markdown(parser=None) -> str:
         parser = build_parser()
     out = ["<!-- generated from the tissue parser by tools/cli_doc.py; do not edit -->", "",
            "# Command-line reference", "",
-           ("`tissue COMMAND [options]` (or `python -m tissue`); `tissue --version`. "
+           ("`tissue COMMAND [options]` (or `python -m tissue_reference`); `tissue --version`. "
             "Global options, before or after the command: `-v/--verbose`, `-q/--quiet`."), "",
            EXIT_CODES, ""]
     for name, help_, p in _commands(parser):

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from control.plants import tangent_for
-from meshes.errors import CaseError, ConvergenceError
-from meshes.io import atomic_path, check_output_dir, check_output_file
-from meshes.results import write_json
+from tissue_reference.control.plants import tangent_for
+from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.meshes.io import atomic_path, check_output_dir, check_output_file
+from tissue_reference.meshes.results import write_json
 
 from .common import (
     add_case_args,
@@ -60,9 +60,9 @@ def _loop_args(p):
 
 def _setup(args, case):
     """The loop (plant, model, mismatch) and settings named by the command line."""
-    from control.loop import LoopSettings
-    from control.mpc import MPCSettings
-    from control.plants import build_loop
+    from tissue_reference.control.loop import LoopSettings
+    from tissue_reference.control.mpc import MPCSettings
+    from tissue_reference.control.plants import build_loop
 
     check_prescribed(case)
     diam = body_diameter(case)
@@ -99,8 +99,8 @@ def _write_mpc(args, d: dict, png: Path | None = None):
 
 
 def run_mpc(args) -> int:
-    from control.controllability import UnreachableGoalError
-    from control.loop import plot_response
+    from tissue_reference.control.controllability import UnreachableGoalError
+    from tissue_reference.control.loop import plot_response
 
     check_outputs(args, files=("json",), dirs=("out",))
     if args.out and Path(args.out).is_dir():
@@ -148,7 +148,7 @@ def run_mpc(args) -> int:
 
 
 def run_table1(args) -> int:
-    from control.table1 import run_table1 as run_all
+    from tissue_reference.control.table1 import run_table1 as run_all
 
     check_outputs(args, dirs=("out",))
     case = case_from_args(args)
@@ -184,9 +184,9 @@ def _progress(args):
 def _run_scenarios(args, case, targets, settings, base_meta) -> int:
     """The Table I analog once per mismatch scenario, each in ``--out``/NAME, with a combined
     summary (table1_scenarios.json) and the ITAE plot."""
-    from control.plants import scenario_loop
-    from control.table1 import plot_scenarios, write_scenarios_page
-    from control.table1 import run_table1 as run_all
+    from tissue_reference.control.plants import scenario_loop
+    from tissue_reference.control.table1 import plot_scenarios, write_scenarios_page
+    from tissue_reference.control.table1 import run_table1 as run_all
 
     out = Path(args.out)
     coarse = None
@@ -219,8 +219,8 @@ def run_manipulability(args) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from control.controllability import manipulability_map
-    from control.plants import material_json, solver_description
+    from tissue_reference.control.controllability import manipulability_map
+    from tissue_reference.control.plants import material_json, solver_description
 
     paths = [args.case] + list(args.compare or [])
     out = check_output_dir(args.out, "--out")

@@ -7,10 +7,10 @@ import sys
 import tomllib
 from pathlib import Path
 
-from meshes.builders import BODY_DIMENSIONS, estimate_cells
-from meshes.case import Material
-from meshes.errors import CaseError
-from meshes.results import material_json, write_json
+from tissue_reference.meshes.builders import BODY_DIMENSIONS, estimate_cells
+from tissue_reference.meshes.case import Material
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.results import material_json, write_json
 
 from .common import (
     announce_build,
@@ -31,15 +31,15 @@ def _material_of(path) -> Material:
 
 
 def run(args) -> int:
-    from fem_reference.convergence import (
+    from tissue_reference.fem_reference.convergence import (
         MAX_CELLS,
         format_study,
         plot_studies,
         run_study,
         study_to_json,
     )
-    from fem_reference.newton import settings_json
-    from fem_reference.solver import resolve_formulation
+    from tissue_reference.fem_reference.newton import settings_json
+    from tissue_reference.fem_reference.solver import resolve_formulation
 
     check_outputs(args, files=("json",), dirs=("out",))
     pushes = parse_pushes(args.push)

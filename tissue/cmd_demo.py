@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
-from meshes.errors import CaseError, ConvergenceError
-from meshes.io import atomic_path
-from meshes.mesh import quality
-from meshes.results import write_json
+from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.meshes.io import atomic_path
+from tissue_reference.meshes.mesh import quality
+from tissue_reference.meshes.results import write_json
 
 from .cmd_solve import solver_settings, write_outputs
 from .common import add_max_cells, announce_build, check_outputs, check_pushes, real
@@ -31,8 +31,8 @@ def reference_series(case, out: Path, pushes_mm=(5.0, 10.0, 15.0)) -> dict:
     """A1 pushed 5, 10, 15 mm (each warm-started from the previous): fields + summary + plot."""
     import dataclasses
 
-    import fem_reference as fr
-    from fem_reference.estimate import error_estimate
+    import tissue_reference.fem_reference as fr
+    from tissue_reference.fem_reference.estimate import error_estimate
 
     solver = fr.ReferenceSolver(case, degree=1)
     rows, prev, views = [], None, []
@@ -121,8 +121,8 @@ def _have(module):
 
 
 def run(args) -> int:
-    from meshes.builders import MAX_CELLS, check_cell_budget, phantom
-    from meshes.case import load_case
+    from tissue_reference.meshes.builders import MAX_CELLS, check_cell_budget, phantom
+    from tissue_reference.meshes.case import load_case
 
     check_outputs(args, dirs=("out",))
     limit = args.max_cells if args.max_cells is not None else MAX_CELLS
@@ -162,12 +162,12 @@ def run(args) -> int:
                                f"<figcaption>{html.escape(Path(v['path']).stem)} "
                                f"({v['method']})</figcaption></figure>"
                                for v in summary["reference"].get("views", []))))
-    if not args.skip_verify and _have("tissue.verify"):
-        from tissue.verify import verify
+    if not args.skip_verify and _have("tissue_reference.tissue.verify"):
+        from tissue_reference.tissue.verify import verify
 
-        candidates = (("admm", "solvers.admm"),
-                      ("admm-plain", "solvers.admm"),
-                      ("mass-tensor", "solvers.mass_tensor"))
+        candidates = (("admm", "tissue_reference.solvers.admm"),
+                      ("admm-plain", "tissue_reference.solvers.admm"),
+                      ("mass-tensor", "tissue_reference.solvers.mass_tensor"))
         solvers = tuple(s for s, m in candidates if _have(m))
         pushes = {"A1": args.verify_push, "A2": args.verify_push, "A3": args.verify_push,
                   "A4": args.verify_push}

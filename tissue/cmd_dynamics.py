@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from meshes.errors import CaseError, ConvergenceError
-from meshes.io import atomic_path, check_output_file, write_mesh
-from meshes.results import write_json
+from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.meshes.io import atomic_path, check_output_file, write_mesh
+from tissue_reference.meshes.results import write_json
 
 from .common import (
     add_case_args,
@@ -50,7 +50,7 @@ def trajectory_json(case, traj, args) -> dict:
     """The JSON summary: the trajectory (``DynamicsResult.to_json_dict``) with what was solved:
     the pushes (mm), the material, gravity (mm/s^2), the discretization (reference) and the
     solver settings; ``final`` is the last step's summary with the Case's material and pushes."""
-    from meshes.results import material_json
+    from tissue_reference.meshes.results import material_json
 
     from .cmd_solve import solver_settings
 
@@ -98,14 +98,14 @@ def run(args) -> int:
     progress = not args.quiet
     try:
         if args.solver == "fem":
-            from fem_reference.dynamics import simulate
+            from tissue_reference.fem_reference.dynamics import simulate
 
             traj = simulate(case, dt=args.dt, steps=args.steps, pushes=pushes,
                             degree=args.degree, formulation=args.formulation, mass=args.mass,
                             ramp_steps=args.ramp_steps, progress=progress)
         else:
-            from fem_reference import cholmod_factor
-            from solvers.trajectory import admm_trajectory
+            from tissue_reference.fem_reference import cholmod_factor
+            from tissue_reference.solvers.trajectory import admm_trajectory
 
             traj = admm_trajectory(case.with_pushes(pushes), dt=args.dt, steps=args.steps,
                                    progress=progress, factorize=cholmod_factor)

@@ -77,7 +77,7 @@ def check_dimensions(spec, args):
                      if v is not None)
     if not (WIDTH_MM[0] <= w <= WIDTH_MM[1] and
             PROJECTION_RATIO[0] <= p / w <= PROJECTION_RATIO[1]):
-        from meshes.errors import CaseError
+        from tissue_reference.meshes.errors import CaseError
 
         raise CaseError(f"{given}: the implant would be {w:.4g} mm wide with a projection of "
                         f"{p:.4g} mm; expected a width of {WIDTH_MM[0]:g} to {WIDTH_MM[1]:g} mm "
@@ -89,8 +89,8 @@ def reference_case(plan, *, model: str = "linear-elastic"):
     """The Case for the reference: same mesh and material, the cut sides fixed (they are border
     points); every other border point and the targets go in through ``plan.dirichlet()`` as
     ``dirichlet_override`` (per-vertex values cannot be one region's Boundary value)."""
-    from meshes.case import Boundary, Case, Material
-    from meshes.mesh import MeshData
+    from tissue_reference.meshes.case import Boundary, Case, Material
+    from tissue_reference.meshes.mesh import MeshData
 
     t = plan.tissue
     regions = dict(t.facet_regions)
@@ -105,18 +105,23 @@ def reference_case(plan, *, model: str = "linear-elastic"):
 
 def reference_solve(plan, *, model: str = "linear-elastic"):
     """Reference displacement (n, 3) mm with exactly the plan's step-2 boundary conditions."""
-    from fem_reference import solve
+    from tissue_reference.fem_reference import solve
 
     case = reference_case(plan, model=model)
     return solve(case, dirichlet_override=plan.dirichlet())
 
 
 def run(args) -> int:
-    from implant.pipeline import PlanSettings, patient_from_file, plan_implant, synthetic_patient
-    from implant.registration import icp, surface_distances
-    from implant.surface import check_single_sheet, read_surface
-    from meshes.errors import CaseError, ReadError
-    from meshes.results import write_json
+    from tissue_reference.implant.pipeline import (
+        PlanSettings,
+        patient_from_file,
+        plan_implant,
+        synthetic_patient,
+    )
+    from tissue_reference.implant.registration import icp, surface_distances
+    from tissue_reference.implant.surface import check_single_sheet, read_surface
+    from tissue_reference.meshes.errors import CaseError, ReadError
+    from tissue_reference.meshes.results import write_json
 
     check_outputs(args, files=("json",), dirs=("out",))
     for opt, f in (("--skin", args.skin), ("--postop", args.postop)):
@@ -210,8 +215,8 @@ def run(args) -> int:
                          "icp_rms_mm": reg.rms_mm, "icp_iterations": reg.iterations}
         dist = st.distance
     if args.out is not None:
-        from implant.render import render_distance_png, write_surface_vtu
-        from meshes.io import write_mesh
+        from tissue_reference.implant.render import render_distance_png, write_surface_vtu
+        from tissue_reference.meshes.io import write_mesh
 
         args.out.mkdir(parents=True, exist_ok=True)
         labels = np.zeros(plan.tissue.n_vertices)

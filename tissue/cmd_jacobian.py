@@ -11,9 +11,9 @@ import sys
 
 import numpy as np
 
-from control.plants import FD_FLOOR, jacobian_at
-from meshes.errors import CaseError
-from meshes.results import write_json
+from tissue_reference.control.plants import FD_FLOOR, jacobian_at
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.results import write_json
 
 from .common import (
     add_case_args,

@@ -6,9 +6,9 @@ integer cell field ``region`` over the cells, the boundary facets and (.vtu) the
 vertices, with the names as field data (name -> [tag, dim]; see ``meshes.io.write_mesh``)."""
 from __future__ import annotations
 
-from meshes.builders import BUILDERS, MAX_CELLS, build
-from meshes.io import WRITERS, check_output_file, write_mesh
-from meshes.mesh import quality
+from tissue_reference.meshes.builders import BUILDERS, MAX_CELLS, build
+from tissue_reference.meshes.io import WRITERS, check_output_file, write_mesh
+from tissue_reference.meshes.mesh import quality
 
 from .common import add_max_cells, announce_build, real
 

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from meshes.errors import AccuracyNotReached, CaseError, ConvergenceError
-from meshes.io import check_output_file, write_point_data
-from meshes.mesh import cell_jacobians
-from meshes.results import write_json
+from tissue_reference.meshes.errors import AccuracyNotReached, CaseError, ConvergenceError
+from tissue_reference.meshes.io import check_output_file, write_point_data
+from tissue_reference.meshes.mesh import cell_jacobians
+from tissue_reference.meshes.results import write_json
 
 from .common import (
     SOLVER_NAMES,
@@ -84,13 +84,13 @@ def solver_settings(name: str, **given) -> dict:
     import inspect
 
     if name == "fem":
-        from fem_reference.newton import settings_json
+        from tissue_reference.fem_reference.newton import settings_json
 
         return {**settings_json(), **given}
     if name == "admm":
-        from solvers.admm import solve
+        from tissue_reference.solvers.admm import solve
     else:
-        from solvers.mass_tensor import solve
+        from tissue_reference.solvers.mass_tensor import solve
     out = {k: p.default for k, p in inspect.signature(solve).parameters.items()
            if p.kind is inspect.Parameter.KEYWORD_ONLY and k not in _NOT_SETTINGS
            and (p.default is None or isinstance(p.default, (bool, int, float, str)))}
@@ -120,7 +120,7 @@ def run(args) -> int:
     if args.device != "cpu":
         if args.solver != "admm":
             raise CaseError(f"--device {args.device} applies to the ADMM solver (--solver admm)")
-        from solvers.admm import require_device
+        from tissue_reference.solvers.admm import require_device
 
         require_device(args.device)  # no CuPy / no GPU: a one-line error before the mesh is built
     pushes = parse_pushes(args.push)
@@ -142,7 +142,7 @@ def run(args) -> int:
                              **({"estimate": True} if args.estimate else {}),
                              **({"device": args.device} if args.solver == "admm" else {}))
             if args.solver == "fem" and args.estimate is None:
-                from fem_reference.estimate import auto_estimate
+                from tissue_reference.fem_reference.estimate import auto_estimate
 
                 res = auto_estimate(case, res, pushes=pushes, progress=not args.quiet,
                                     degree=args.degree, formulation=args.formulation)
@@ -190,8 +190,8 @@ def solve_adaptive(case, pushes, args):
     """(case on the final mesh, answer): the reference refined until every probe's estimated
     error is within ``args.accuracy`` (relative) of its value: P1, P2, then local (or, with
     ``--refine uniform``, uniform) refinement (fem_reference.adapt)."""
-    from fem_reference.adapt import solve_to_accuracy
-    from meshes.refine import projector_for
+    from tissue_reference.fem_reference.adapt import solve_to_accuracy
+    from tissue_reference.meshes.refine import projector_for
 
     opts = {} if args.formulation == "auto" else {"formulation": args.formulation}
     b = builtin_of(args.case, args.size)

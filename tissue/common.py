@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from meshes.builders import MAX_CELLS, estimate_cells
-from meshes.case import Case, load_case
-from meshes.errors import CaseError
-from meshes.io import check_output_dir, check_output_file
-from meshes.mesh import RUNAWAY_FACTOR
+from tissue_reference.meshes.builders import MAX_CELLS, estimate_cells
+from tissue_reference.meshes.case import Case, load_case
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.io import check_output_dir, check_output_file
+from tissue_reference.meshes.mesh import RUNAWAY_FACTOR
 
 __all__ = ["PROGRESS_FROM_CELLS", "SOLVER_NAMES", "add_case_args", "add_discretization_args",
            "body_diameter", "case_from_args", "check_outputs", "check_prescribed",
@@ -249,7 +249,7 @@ def run_solver(name: str, case: Case, *, degree: int | None = None, formulation:
     ``formulation`` are the reference's; the fast solvers are P1 displacement solvers and refuse
     anything else."""
     if name == "fem":
-        from fem_reference import solve
+        from tissue_reference.fem_reference import solve
 
         return solve(case, degree=degree, formulation=formulation, pushes=pushes,
                      initial=initial, progress=progress, **kw)
@@ -257,13 +257,13 @@ def run_solver(name: str, case: Case, *, degree: int | None = None, formulation:
         raise CaseError(f"solver {name!r} is a P1 displacement solver: --degree and "
                         f"--formulation mixed apply to the reference (--solver fem)")
     if name == "admm":
-        from solvers.admm import solve
+        from tissue_reference.solvers.admm import solve
         if "factorize" not in kw:
-            from fem_reference import cholmod_factor
+            from tissue_reference.fem_reference import cholmod_factor
 
             kw["factorize"] = cholmod_factor  # the polish's tangents by CHOLMOD (PETSc)
     elif name == "mass-tensor":
-        from solvers.mass_tensor import solve
+        from tissue_reference.solvers.mass_tensor import solve
     else:
         raise CaseError(f"unknown solver {name!r}; solvers: {list(SOLVER_NAMES)}")
     return solve(case, pushes=pushes, initial=initial, progress=progress, **kw)

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from meshes.html_page import Raw, fmt, image, kv_table, page, table, write_page
-from meshes.io import atomic_path
+from tissue_reference.meshes.html_page import Raw, fmt, image, kv_table, page, table, write_page
+from tissue_reference.meshes.io import atomic_path
 
 __all__ = ["mpc_stem", "plot_errors", "write_mpc_report"]
 

@@ -9,7 +9,7 @@ referred to by its ``$id`` (``urn:tissue-reference:output:common``); ``validate`
 and an output's ``$id`` (``urn:tissue-reference:output:verify``) in another's schema.
 
     import json
-    from tissue.output_schema import validate
+    from tissue_reference.tissue.output_schema import validate
 
     validate("solve", json.loads(open("result.json").read()))   # OutputSchemaError if not
 """

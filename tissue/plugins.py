@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshes.errors import TissueError
+from tissue_reference.meshes.errors import TissueError
 
 __all__ = ["ENTRY_POINT_GROUP", "PluginError", "PluginRun", "SolverPlugin", "entry_point_solvers",
            "resolve_solver", "run_plugin"]

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from meshes.errors import CaseError
+from tissue_reference.meshes.errors import CaseError
 
 log = logging.getLogger("tissue.scoring")
 

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from meshes.html_page import Raw, fmt, image, kv_table, page, table, write_page
-from meshes.io import atomic_path
-from meshes.mesh import cell_jacobians
+from tissue_reference.meshes.html_page import Raw, fmt, image, kv_table, page, table, write_page
+from tissue_reference.meshes.io import atomic_path
+from tissue_reference.meshes.mesh import cell_jacobians
 
 __all__ = ["ESTIMATE_WARN", "REPORT", "vertex_min_J", "write_solve_report"]
 

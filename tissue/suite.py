@@ -36,8 +36,8 @@ from functools import cached_property
 
 import numpy as np
 
-from meshes.errors import CaseError, TissueError
-from meshes.results import material_json, write_json
+from tissue_reference.meshes.errors import CaseError, TissueError
+from tissue_reference.meshes.results import material_json, write_json
 
 from . import closed_forms as cf
 
@@ -71,14 +71,14 @@ class Problem:
 
 
 def _material(nu, model="neo-hookean", E=E_TISSUE):
-    from meshes.case import Material
+    from tissue_reference.meshes.case import Material
 
     return Material(model, E=E, nu=nu)
 
 
 def _uniaxial():
-    from meshes.builders import box
-    from meshes.case import Boundary, Case, Probe
+    from tissue_reference.meshes.builders import box
+    from tissue_reference.meshes.case import Boundary, Case, Probe
 
     return Case(mesh=box(5.0), material=_material(0.45), name="uniaxial-stretch",
                 boundaries=(Boundary("xmin", "sliding", normal=[1, 0, 0]),
@@ -94,8 +94,8 @@ def _uniaxial_expected():
 
 
 def _shear():
-    from meshes.builders import box
-    from meshes.case import Boundary, Case, Probe
+    from tissue_reference.meshes.builders import box
+    from tissue_reference.meshes.case import Boundary, Case, Probe
 
     G = [[0.0, 0.3, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
     return Case(mesh=box(5.0), material=_material(0.45), name="shear-patch",
@@ -106,8 +106,8 @@ def _shear():
 
 def _sphere(nu):
     def build():
-        from meshes.builders import shell_octant
-        from meshes.case import Boundary, Case, Probe
+        from tissue_reference.meshes.builders import shell_octant
+        from tissue_reference.meshes.case import Boundary, Case, Probe
 
         return Case(mesh=shell_octant(2.5), material=_material(nu), name=f"thick-sphere-{nu}",
                     boundaries=(Boundary("xsym", "sliding", normal=[1, 0, 0]),
@@ -125,8 +125,8 @@ def _sphere_expected(nu):
 
 
 def _cook():
-    from meshes.builders import cook_membrane
-    from meshes.case import Boundary, Case, Probe
+    from tissue_reference.meshes.builders import cook_membrane
+    from tissue_reference.meshes.case import Boundary, Case, Probe
 
     return Case(mesh=cook_membrane(2.0), material=_material(0.25, "linear-elastic", 15.0 / 16.0),
                 name="cook-membrane",
@@ -169,7 +169,7 @@ def _options(solver, problem) -> dict:
     Newton controls (left at their defaults), a built-in fast solver's options, {} for a
     plugin."""
     if solver == "fem":
-        from fem_reference.newton import settings_json
+        from tissue_reference.fem_reference.newton import settings_json
 
         return {**problem.reference, **settings_json()}
     from .verify import FAST_SOLVERS
@@ -183,7 +183,7 @@ def _run_one(solver, problem):
     """(value, iterations, converged, wall s, discretization) of ``solver`` on ``problem``."""
     case = problem.case
     if solver == "fem":
-        from fem_reference import solve
+        from tissue_reference.fem_reference import solve
 
         res = solve(case, **problem.reference)
         return _value(problem, res.probes), res.iterations, res.converged, res.wall_time_s, \
@@ -192,12 +192,12 @@ def _run_one(solver, problem):
     from .verify import FAST_SOLVERS
 
     if isinstance(solver, str) and solver in FAST_SOLVERS:
-        from solvers import get_solver
+        from tissue_reference.solvers import get_solver
 
         key, opts, _ = FAST_SOLVERS[solver]
         opts = dict(opts)
         if key == "admm":
-            from fem_reference import cholmod_factor
+            from tissue_reference.fem_reference import cholmod_factor
 
             opts["factorize"] = cholmod_factor
         res = get_solver(key)(case, **opts)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import html
 from pathlib import Path
 
-from meshes.io import atomic_path
+from tissue_reference.meshes.io import atomic_path
 
 __all__ = ["write_scorecard"]
 

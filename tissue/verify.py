@@ -34,9 +34,9 @@ from pathlib import Path
 
 import numpy as np
 
-from meshes.errors import CaseError
-from meshes.results import material_json, write_json
-from solvers import SOLVERS, get_solver
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.results import material_json, write_json
+from tissue_reference.solvers import SOLVERS, get_solver
 
 from .plugins import resolve_solver, run_plugin
 from .scoring import Field, field_from_array, load_field, score_field
@@ -104,7 +104,7 @@ class _References:
     def _solve(self, c, degree, formulation):
         if self.user is not None:
             return self.user(c.with_pushes(self.pushes))
-        from fem_reference import solve as fem_solve
+        from tissue_reference.fem_reference import solve as fem_solve
 
         return fem_solve(c, degree=degree, formulation=formulation, pushes=self.pushes,
                          progress=self.progress)
@@ -114,7 +114,7 @@ class _References:
         controls (left at their defaults); None for a caller's own reference_solve."""
         if self.user is not None:
             return None
-        from fem_reference.newton import settings_json
+        from tissue_reference.fem_reference.newton import settings_json
 
         return {"degree": degree, "formulation": formulation, **settings_json()}
 
@@ -127,7 +127,7 @@ class _References:
             first = self._solve(rcase, degree, formulation)
             res = self._solve(rcase, degree, formulation) if warm else first
             if self.estimate:
-                from fem_reference.estimate import estimate as with_estimate
+                from tissue_reference.fem_reference.estimate import estimate as with_estimate
 
                 res = with_estimate(rcase.with_pushes(self.pushes), res)
             self.runs[key] = (rcase, res)
@@ -257,7 +257,7 @@ def _score_builtin(name, case, pushes, opts, refs, out):
     model = rcase.material.model
     kw = {**defaults, **opts}
     if key == "admm" and "factorize" not in kw:
-        from fem_reference import cholmod_factor
+        from tissue_reference.fem_reference import cholmod_factor
 
         kw["factorize"] = cholmod_factor  # the polish's tangents by CHOLMOD (PETSc)
     # run 1 (traced): error to the reference and largest displacement at every iteration

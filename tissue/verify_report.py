@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from meshes.io import atomic_path
+from tissue_reference.meshes.io import atomic_path
 
 __all__ = ["write_report"]
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from meshes.io import atomic_path
+from tissue_reference.meshes.io import atomic_path
 
 __all__ = ["boundary_faces", "render"]
 

@@ -11,7 +11,7 @@ from docgen import ROOT, run
 
 
 def _text():
-    from tissue.cli_doc import cli_markdown
+    from tissue_reference.tissue.cli_doc import cli_markdown
 
     return cli_markdown()
 

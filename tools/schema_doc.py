@@ -11,7 +11,7 @@ from docgen import ROOT, run
 
 
 def _text():
-    from meshes.case_doc import case_file_markdown
+    from tissue_reference.meshes.case_doc import case_file_markdown
 
     return case_file_markdown()
 

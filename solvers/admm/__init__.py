@@ -76,10 +76,10 @@ from __future__ import annotations
 import sys
 import types
 
-from meshes.errors import CaseError, SolverDivergedError
-from meshes.mesh import deformation_state
-from meshes.results import SolveResult
-from solvers import _ckernel
+from tissue_reference.meshes.errors import CaseError, SolverDivergedError
+from tissue_reference.meshes.mesh import deformation_state
+from tissue_reference.meshes.results import SolveResult
+from tissue_reference.solvers import _ckernel
 
 from . import (
     amg,

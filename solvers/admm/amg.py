@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from solvers import _ckernel
+from tissue_reference.solvers import _ckernel
 
 from .factor import _spd_splu
 from .kernel_c import use_kernel

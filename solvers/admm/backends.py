@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from meshes.errors import CaseError, TissueError
+from tissue_reference.meshes.errors import CaseError, TissueError
 
 from .kernel_array import _ArrayElements, _NumpyElements, _ZStep
 from .kernel_c import _KernelElements, use_kernel

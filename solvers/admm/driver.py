@@ -8,9 +8,9 @@ import time
 
 import numpy as np
 
-from meshes.errors import CaseError, SolverDivergedError
-from meshes.mesh import deformation_state
-from meshes.results import SolveResult
+from tissue_reference.meshes.errors import CaseError, SolverDivergedError
+from tissue_reference.meshes.mesh import deformation_state
+from tissue_reference.meshes.results import SolveResult
 
 from .backends import backend, require_device
 from .dynamics import ImplicitEuler, _implicit_euler

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from solvers import _ckernel
+from tissue_reference.solvers import _ckernel
 
 from .constraints import _vertex_rank
 

@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from meshes.errors import SolverDivergedError
+from tissue_reference.meshes.errors import SolverDivergedError
 
 from .kernel_array import _aos, _soa
 from .mechanics import _det_cof

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from meshes.errors import CaseError
+from tissue_reference.meshes.errors import CaseError
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from collections import OrderedDict
 import numpy as np
 import scipy.sparse as sp
 
-from meshes.errors import CaseError
+from tissue_reference.meshes.errors import CaseError
 
 from .amg import _AmgPcg
 from .constraints import _reduction, _vertex_rank

@@ -83,9 +83,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from meshes.errors import CaseError, SolverDivergedError
-from meshes.mesh import deformation_state
-from meshes.results import SolveResult
+from tissue_reference.meshes.errors import CaseError, SolverDivergedError
+from tissue_reference.meshes.mesh import deformation_state
+from tissue_reference.meshes.results import SolveResult
 
 from .driver import _MODELS, _axis_of, _model_for, _reactions, case_point_types, solve
 from .iterations import _State, log

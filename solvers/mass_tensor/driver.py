@@ -6,8 +6,8 @@ import time
 
 import numpy as np
 
-from meshes.mesh import deformation_state
-from meshes.results import SolveResult
+from tissue_reference.meshes.mesh import deformation_state
+from tissue_reference.meshes.results import SolveResult
 
 from .model import MassTensorModel
 from .point_types import PointTypes

@@ -8,7 +8,7 @@ import logging
 
 import numpy as np
 
-from meshes.errors import SolverDivergedError
+from tissue_reference.meshes.errors import SolverDivergedError
 
 from .tensors import _blockdiag
 

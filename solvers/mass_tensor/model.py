@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from meshes.errors import CaseError
+from tissue_reference.meshes.errors import CaseError
 
 from .iterations import _State
 from .point_types import PointTypes
