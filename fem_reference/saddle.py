@@ -57,6 +57,9 @@ LAG_GROWTH = 2.0
 the iterations of its fresh solve."""
 LAG_MIN_ITS = 30
 """... and more than this many iterations (a fresh solve may take only a handful)."""
+LAG = True
+"""Reuse the preconditioner as above (False: build it at every Newton iteration, for
+comparisons: bench/bench_mixed.py --lag)."""
 
 
 class SaddleSolveMixin:
@@ -162,7 +165,7 @@ class SaddleSolveMixin:
         k.setTolerances(rtol=eta, atol=1e-300)
         total = 0
         while True:
-            fresh = self._fresh_its is None
+            fresh = self._fresh_its is None or not LAG
             k.getPC().setReusePreconditioner(not fresh)
             k.solve(self.b, self.du.vector)
             its = k.getIterationNumber()
