@@ -83,7 +83,7 @@ def textbook(case, push_mm: float, steps: int, qdeg: int, geometry_order: int):
                 for g, direction in moving:
                     val = push_mm * k / steps * direction
                     g.interpolate(lambda x, val=val: np.tile(val[:, None], (1, x.shape[1])))
-                n, ok = solver.solve(w)
+                n, _ = solver.solve(w)
                 its += n
             wall = time.perf_counter() - t0
             break
@@ -106,7 +106,7 @@ def rebuilt_every_iteration(case, push: float) -> float:
     """Wall time (s) of the same fieldsplit solve with the preconditioner rebuilt at every
     Newton iteration (``saddle.LAG`` off)."""
     import tissue_reference.fem_reference as fr
-    import tissue_reference.fem_reference.saddle as saddle
+    from tissue_reference.fem_reference import saddle
 
     saddle.LAG = False
     try:
@@ -182,10 +182,10 @@ def main():
     print(f"{'size':>5} {'tets':>7} {'dofs':>8} {'ours_s':>7} {'newton':>6} {'factor':>6} "
           f"{'textbook_s':>10} {'steps':>5} {'newton':>6} {'ratio':>6} {'probe_diff_mm':>13} {'peak_GiB':>8}")
     for size in args.sizes:
-        out = subprocess.run(launch + [sys.executable, __file__, "--one", str(size), "--nu", str(args.nu),
-                              "--push", str(args.push)] + (["--no-peer"] if args.no_peer else [])
-                             + (["--lag"] if args.lag else []),
-                             capture_output=True, text=True)
+        argv = [sys.executable, __file__, "--one", str(size), "--nu", str(args.nu),
+                "--push", str(args.push)] + (["--no-peer"] if args.no_peer else []) \
+            + (["--lag"] if args.lag else [])
+        out = subprocess.run(launch + argv, capture_output=True, text=True, check=False)
         if out.returncode:
             print(f"{size:5g} failed: {out.stderr.strip().splitlines()[-1:]}")
             continue

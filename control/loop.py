@@ -361,7 +361,7 @@ def plot_response(result: LoopResult, path, *, title=None):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from tissue_reference.meshes.io import atomic_path
+    from tissue_reference.meshes.io import save_figure
 
     fig, ax = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
     t = result.time_s
@@ -382,7 +382,5 @@ def plot_response(result: LoopResult, path, *, title=None):
     ax[1].legend(fontsize=8)
     fig.suptitle(title or f"target {result.target_name}, task {result.task}")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
     return path

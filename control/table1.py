@@ -17,7 +17,7 @@ import numpy as np
 
 from tissue_reference.meshes.errors import ConvergenceError
 from tissue_reference.meshes.html_page import Raw, image, kv_table, page, table, write_page
-from tissue_reference.meshes.io import atomic_path
+from tissue_reference.meshes.io import atomic_path, save_figure
 from tissue_reference.meshes.results import write_json
 
 __all__ = ["SSE_GOAL_MM", "plot_scenarios", "run_table1", "table1_row", "table1_summary",
@@ -197,9 +197,7 @@ def plot_scenarios(results: dict, path) -> Path:
         ax.legend(fontsize=7)
     fig.tight_layout()
     path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
-    plt.close(fig)
+    save_figure(fig, path)
     return path
 
 

@@ -281,7 +281,7 @@ def plot_studies(studies, path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from tissue_reference.meshes.io import atomic_path
+    from tissue_reference.meshes.io import save_figure
 
     path = Path(path)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
@@ -310,8 +310,6 @@ def plot_studies(studies, path) -> Path:
         if ax.has_data():
             ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
     return path
 

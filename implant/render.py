@@ -13,7 +13,7 @@ import numpy as np
 
 import tissue_reference
 from tissue_reference.meshes.errors import WriteError
-from tissue_reference.meshes.io import atomic_path
+from tissue_reference.meshes.io import atomic_path, save_figure
 
 __all__ = ["render_distance_png", "write_surface_vtu"]
 
@@ -65,9 +65,7 @@ def _matplotlib_png(points, triangles, values, path, title, clim):
     surf.set_clim(*clim)
     fig.colorbar(surf, ax=ax, label=title)
     ax.view_init(elev=60, azim=-90)
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=100)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def render_distance_png(points, triangles, values, path, *, title: str = "distance (mm)",

@@ -17,8 +17,8 @@ import numpy as np
 from .errors import ReadError, WriteError
 from .mesh import MeshData, check_tangles
 
-__all__ = ["REGION", "WRITERS", "atomic_path", "check_output_dir", "check_output_file",
-           "read_mesh", "read_msh", "region_tags", "write_mesh", "write_point_data"]
+__all__ = ["REGION", "WRITERS", "atomic_path", "check_output_dir", "check_output_file", "read_mesh",
+           "read_msh", "region_tags", "save_figure", "write_mesh", "write_point_data"]
 
 _CELL = {3: "tetra", 2: "triangle"}
 _FACET = {3: "triangle", 2: "line"}
@@ -193,6 +193,20 @@ class atomic_path:
             self._discard()
             raise
         return False
+
+
+def save_figure(fig, path, *, dpi: int = 100) -> Path:
+    """Write a matplotlib figure as a PNG at ``path``, whole or not at all (``atomic_path``), and
+    close it; returns the path."""
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    try:
+        with atomic_path(path, suffix=".png") as tmp:
+            fig.savefig(tmp, format="png", dpi=dpi)
+    finally:
+        plt.close(fig)
+    return path
 
 
 def _parent_folder(path: Path, what: str) -> Path:

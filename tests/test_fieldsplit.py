@@ -27,7 +27,7 @@ def test_fieldsplit_matches_the_direct_mixed_solve(case):
 def test_a_lagged_preconditioner_that_stops_paying_is_rebuilt(case, monkeypatch):
     """With no growth allowed, every lagged solve that needs more iterations than its fresh one
     triggers a rebuild; the answer is the same."""
-    import tissue_reference.fem_reference.saddle as saddle
+    from tissue_reference.fem_reference import saddle
 
     monkeypatch.setattr(saddle, "LAG_GROWTH", 0.0)
     monkeypatch.setattr(saddle, "LAG_MIN_ITS", 0)

@@ -14,7 +14,7 @@ import numpy as np
 
 from tissue_reference.control.plants import tangent_for
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
-from tissue_reference.meshes.io import atomic_path, check_output_dir, check_output_file
+from tissue_reference.meshes.io import check_output_dir, check_output_file, save_figure
 from tissue_reference.meshes.results import write_json
 
 from .common import (
@@ -259,9 +259,7 @@ def run_manipulability(args) -> int:
             ax.set_xlabel("x (mm)")
             ax.set_ylabel("y (mm)")
     fig.colorbar(im, ax=axes.ravel().tolist(), label="manipulability index (eq. 21)")
-    with atomic_path(out / "manipulability.png") as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
-    plt.close(fig)
+    save_figure(fig, out / "manipulability.png")
     for name, mp in maps:
         print(name + ": " + ", ".join(_median_text(t, mp[f"task{t}"]["index"])
                                       for t in (1, 2, 3)))

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
-from tissue_reference.meshes.io import atomic_path
+from tissue_reference.meshes.io import atomic_path, save_figure
 from tissue_reference.meshes.mesh import quality
 from tissue_reference.meshes.results import write_json
 
@@ -111,9 +111,7 @@ def _plot_series(rows, path):
     ax[1].set_title("Force-displacement of actuator A1")
     ax[1].grid(alpha=0.3)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def _have(module):

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from tissue_reference.meshes.html_page import Raw, fmt, image, kv_table, page, table, write_page
-from tissue_reference.meshes.io import atomic_path
+from tissue_reference.meshes.io import save_figure
 
 __all__ = ["mpc_stem", "plot_errors", "write_mpc_report"]
 
@@ -46,9 +46,7 @@ def plot_errors(d: dict, path) -> Path:
     ax.legend(fontsize=8)
     fig.tight_layout()
     path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
-    plt.close(fig)
+    save_figure(fig, path)
     return path
 
 

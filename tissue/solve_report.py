@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from tissue_reference.meshes.html_page import Raw, fmt, image, kv_table, page, table, write_page
-from tissue_reference.meshes.io import atomic_path
+from tissue_reference.meshes.io import save_figure
 from tissue_reference.meshes.mesh import cell_jacobians
 
 __all__ = ["ESTIMATE_WARN", "REPORT", "vertex_min_J", "write_solve_report"]
@@ -81,9 +81,7 @@ def _history_plot(history: dict, solver: str, path: Path) -> bool:
     for a in ax:
         a.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
-    plt.close(fig)
+    save_figure(fig, path)
     return True
 
 

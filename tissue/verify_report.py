@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_reference.meshes.io import atomic_path
+from tissue_reference.meshes.io import atomic_path, save_figure
 
 __all__ = ["write_report"]
 
@@ -36,9 +36,7 @@ def _plot(path: Path, name: str, trace: dict, entry: dict):
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def _table(headers, rows):

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_reference.meshes.io import atomic_path
+from tissue_reference.meshes.io import atomic_path, save_figure
 
 __all__ = ["boundary_faces", "render"]
 
@@ -79,9 +79,7 @@ def _matplotlib(points, cells, u, scalar, path, title, label):
     ax.set_title(title, fontsize=9)
     sm = plt.cm.ScalarMappable(norm=norm, cmap="viridis")
     fig.colorbar(sm, ax=ax, shrink=0.6, label=label)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def _matplotlib_2d(points, cells, u, scalar, path, title, label):
@@ -100,9 +98,7 @@ def _matplotlib_2d(points, cells, u, scalar, path, title, label):
     ax.set_ylabel("y (mm)")
     ax.set_title(title, fontsize=9)
     fig.colorbar(art, ax=ax, shrink=0.8, label=label)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def render(mesh, u, scalar, path, *, title: str = "", label: str = "value",
