@@ -9,7 +9,9 @@ nodal penetration and, with the vertex displacements, the surface-penetration ch
 penalty acts at the surface's nodes only, so a tip narrower than the facets can pass between
 them; each contact facet is sampled at ``SURFACE_SAMPLES`` points per edge, and a facet deeper
 inside the tip than ``SLIP_FRACTION`` of its radius (and than 10x the nodal penetration) marks
-the state invalid (``tip_through_surface``).
+the state invalid (``tip_through_surface``). At degree 1 the deformed facets are the flat
+triangles through the deformed vertices; at degree >= 2 they are the field's own curved
+surface (the displacement evaluated at the sample points), which bends between its vertices.
 """
 from __future__ import annotations
 
@@ -44,6 +46,22 @@ def _facet_samples(nv: int) -> np.ndarray:
     pts = [(i / n, j / n) for i in range(n + 1) for j in range(n + 1 - i)]
     a = np.array(pts)
     return np.stack([1 - a.sum(axis=1), a[:, 0], a[:, 1]], axis=1)
+
+
+def _facet_sample_points(mesh, facets, f2c):
+    """(points (n, gdim), cells (n,)): SURFACE_SAMPLES per edge of each dolfinx facet in
+    ``facets``, between the facet's vertices, and the cell each facet belongs to."""
+    gdim = mesh.geometry.dim
+    fdim = mesh.topology.dim - 1
+    if not len(facets):
+        return np.zeros((0, gdim)), np.zeros(0, np.int32)
+    geo = dolfinx.cpp.mesh.entities_to_geometry(getattr(mesh, "_mesh", mesh), fdim,
+                                                np.asarray(facets, np.int32), False)
+    corners = mesh.geometry.x[geo[:, :fdim + 1], :gdim]     # the facets' vertices first
+    bary = _facet_samples(fdim + 1)
+    pts = np.einsum("sk,fkd->fsd", bary, corners).reshape(-1, gdim)
+    cells = np.repeat([f2c.links(f)[0] for f in facets], len(bary)).astype(np.int32)
+    return pts, cells
 
 
 class _Indenter:
@@ -85,6 +103,11 @@ class _Indenter:
         # the contact surface's facets (Case vertex ids): the tip must not pass between nodes
         self.surface = np.concatenate([case.mesh.facet_regions[r] for r in regions]) \
             if regions else np.zeros((0, gdim), np.int64)
+        # degree >= 2: the facets are curved once deformed; sample points on the undeformed
+        # facets (between their vertices) and the cell of each, where the field is evaluated
+        self._u_field = solver.u if solver.degree >= 2 else None
+        if self._u_field is not None:
+            self._samples, self._sample_cells = _facet_sample_points(mesh, facets, f2c)
         # constants: tip front point (ramped by the load stepping), shape, axis
         sc = PETSc.ScalarType
         self.q = dolfinx.fem.Constant(mesh, sc(tuple(self.q0)))
@@ -153,13 +176,23 @@ class _Indenter:
         at SURFACE_SAMPLES points per facet: the penalty acts at the nodes only, so a tip
         narrower than the facets can slip between nodes; then this exceeds the nodal
         ``max_penetration`` by far."""
+        gdim = len(self.d)
+        o = np.asarray(self.q.value) - self.shape.edge * self.d
+        if self._u_field is not None:
+            # the field's own (curved) surface: u evaluated between the vertices, where a P2
+            # surface is not the chord through its vertices
+            pts = self._samples
+            if len(pts):
+                u = self._u_field.eval(np.pad(pts, ((0, 0), (0, 3 - gdim))), self._sample_cells)
+                pts = pts + np.asarray(u)[:, :gdim]
+            deep = float(np.max(-self.shape.gap(pts, o, self.d), initial=0.0)) if len(pts) \
+                else 0.0
+            return max(self.comm.allreduce(deep, op=MPI.MAX), 0.0)
         if not len(self.surface):
             return 0.0
-        gdim = len(self.d)
         y = np.asarray(u_vertices, float).reshape(-1, gdim) + self._X
         pts = np.einsum("sk,fkd->fsd", _facet_samples(self.surface.shape[1]),
                         y[self.surface]).reshape(-1, gdim)
-        o = np.asarray(self.q.value) - self.shape.edge * self.d
         return float(max(np.max(-self.shape.gap(pts, o, self.d), initial=0.0), 0.0))
 
     def report(self, u_array, u_vertices=None) -> dict:

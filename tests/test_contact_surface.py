@@ -62,3 +62,39 @@ def test_site_size_refines_only_the_phantom_builders():
 
     with pytest.raises(CaseError, match="site_size applies to the builders"):
         build("box", 5.0, site_size=1.0)
+
+
+def test_a_degree_2_surface_is_checked_where_it_bulges_between_its_vertices():
+    """A P2 field bends a facet between its vertices: the check samples that curved surface.
+    The field is quadratic (P2 holds it exactly): a paraboloid bulge rising towards the tip,
+    highest under its axis, between the top face's vertices. The expected depth is computed
+    here from the formula of the field and of the sphere at points spread over each facet."""
+    mesh = box(5.0)
+    axis = lonely_axis(mesh)
+    case = tip_case(mesh, axis)
+    solver = fr.ReferenceSolver(case, degree=2)
+    ind = solver.contact.indenters[0]
+    centre = np.asarray(ind.q.value, float) + np.array([0.0, 0.0, R])   # tip's front + R up
+    a, b = 1.0, 0.01   # apex rise (mm) and fall-off (1/mm)
+
+    def bulge(x):
+        return a - b * ((x[0] - axis[0]) ** 2 + (x[1] - axis[1]) ** 2)
+
+    solver.u.interpolate(lambda x: np.stack([0 * x[0], 0 * x[0], bulge(x)]))
+    top = mesh.facet_regions["zmax"]
+    n = 4
+    bary = np.array([(1 - (i + j) / n, i / n, j / n) for i in range(n + 1)
+                     for j in range(n + 1 - i)])
+    X = np.einsum("sk,fkd->fsd", bary, mesh.points[top]).reshape(-1, 3)
+    def depth(y):   # inside the ball-ended rod along +z from the centre (mm)
+        w = y - centre
+        rho = np.linalg.norm(w[:, :2], axis=1)
+        return np.where(w[:, 2] <= 0, R - np.linalg.norm(w, axis=1), R - rho)
+
+    Y = X + np.stack([0 * X[:, 0], 0 * X[:, 0], bulge(X.T)], axis=1)
+    expected = max(0.0, float(np.max(depth(Y))))
+    vertices = mesh.points[np.unique(top)]
+    chord = float(np.max(depth(
+        vertices + np.stack([0 * vertices[:, 0], 0 * vertices[:, 0], bulge(vertices.T)], 1))))
+    assert expected > 0.2 * R and chord < expected - 0.1 * R   # the bulge is between vertices
+    assert ind.surface_penetration(None) == pytest.approx(expected, abs=1e-9)
