@@ -119,6 +119,7 @@ def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="a
     error against central finite differences (step fd_h mm) of the same solver's nonlinear solve.
     actuators: the columns (default: every actuator of the Case; the others are held)."""
     from tissue_reference.control.jacobian import (
+        ControlJacobian,
         dirichlet_jacobian,
         fd_jacobian,
         full_pushes,
@@ -133,7 +134,27 @@ def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="a
         raise CaseError("--degree 2 and --formulation mixed need --solver fem")
     st = full_pushes(case, state_pushes)
     pushed = case.with_pushes(st)
-    if solver == "fem":
+    names = [a.name for a in case.actuators] if actuators is None else list(actuators)
+    tips = {a.name for a in case.indenters()}
+    if tips & set(names) and not set(names) <= tips:
+        raise CaseError(f"the Jacobian's actuators {names} mix indenters and glued patches: ask "
+                        f"for the columns of one kind at a time (--actuators)")
+    if solver == "fem" and tips & set(names):
+        from tissue_reference.fem_reference import ReferenceSolver
+        from tissue_reference.fem_reference.contact_jacobian import indenter_jacobian
+
+        s = ReferenceSolver(case, degree=degree, formulation=formulation)
+        res = s.solve(st)
+        if not res.converged:
+            raise CaseError(f"the state solve at pushes {st} did not converge")
+        degree = s.degree
+        J = indenter_jacobian(s, pushed, actuators=names)
+        jac = ControlJacobian(J, tuple(names), tuple(p.name for p in case.probes),
+                              kind="indenter", gdim=case.mesh.gdim)
+
+        def plant(c, pushes, initial):
+            return s.solve(pushes, case=c, initial=initial)
+    elif solver == "fem":
         res, T, plant = reference_state(case, st, degree=degree, formulation=formulation)
         degree = T.degree
         if degree == 2:
@@ -214,6 +235,13 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
         raise CaseError(f"model E factor {model_E_factor:g}: the model's E would be {E:g} kPa, "
                         f"outside the physical range [{E_RANGE_KPA[0]:g}, {E_RANGE_KPA[1]:g}] kPa")
     mname = model or plant
+    mc = model_case if model_case is not None else case
+    if mc.indenters():
+        raise CaseError(
+            f"{mc.source or mc.name}: the closed loop linearizes its model's actuators as glued "
+            f"patches, and {[a.name for a in mc.indenters()]} are indenters; their Jacobian "
+            f"comes from tissue jacobian (control.plants.jacobian_at), a loop whose model has "
+            f"indenters is not built yet")
     psolve = plant_for(plant)
     pcase = plant_case if plant_case is not None else case
     if mname == plant and model_E_factor == 1.0 and model_case is None and plant_case is None:

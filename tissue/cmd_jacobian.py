@@ -1,9 +1,10 @@
 """``tissue jacobian CASE [--state-push A1=5.0 ...] [--solver fem|admm] [--degree 1|2] --json FILE``
 
-The Dirichlet sensitivity of the targets to rigid actuator pushes (control/jacobian.py) at the
-state ``--state-push`` (every actuator held; unnamed ones at 0 mm), from the solver's exact
-tangent, checked against central finite differences of the same solver's nonlinear solve
-(``--fd-h`` mm; 0 skips).
+The sensitivity of the targets to the actuators' pushes at the state ``--state-push`` (every
+actuator held; unnamed ones at 0 mm), from the solver's exact tangent: for glued patches the
+Dirichlet sensitivity (control/jacobian.py), for rigid indenters the sensitivity to the tip's
+travel with the contact of that state (fem_reference/contact_jacobian.py); checked against central
+finite differences of the same solver's nonlinear solve (``--fd-h`` mm; 0 skips).
 """
 from __future__ import annotations
 

@@ -1,0 +1,63 @@
+"""The control Jacobian of rigid indenters (fem_reference.contact_jacobian): mm of target per mm
+of tip travel at a contact state, against central differences of the nonlinear contact solves
+themselves (every other indenter held where it is)."""
+import numpy as np
+import pytest
+
+import tissue_reference.fem_reference as fr
+from tissue_reference.control.plants import build_loop, jacobian_at
+from tissue_reference.fem_reference.contact_jacobian import indenter_jacobian
+from tissue_reference.fem_reference.newton import NewtonSettings
+from tissue_reference.meshes.builders import box
+from tissue_reference.meshes.case import Actuator, Boundary, Case, Material, Probe
+from tissue_reference.meshes.errors import CaseError
+
+STATE = {"I": 1.0, "S": 0.5}   # mm
+
+
+@pytest.fixture(scope="module")
+def case():
+    """A 10 mm block on its base, a sphere (R = 4 mm) pressing its top and another its side."""
+    return Case(mesh=box(1.25), material=Material("neo-hookean", E=6.0, nu=0.3), name="tips",
+                boundaries=(Boundary("zmin", "fixed"),),
+                actuators=(Actuator("I", "zmax", (0.0, 0.0, -1.0), type="indenter",
+                                    tip="sphere", radius=4.0, point=(5.0, 5.0, 10.0)),
+                           Actuator("S", "xmax", (-1.0, 0.0, 0.0), type="indenter",
+                                    tip="sphere", radius=4.0, point=(10.0, 5.0, 6.0))),
+                probes=(Probe("T1", (5.0, 5.0, 6.0)), Probe("T2", (7.0, 5.0, 8.0))))
+
+
+def test_indenter_jacobian_equals_central_differences_of_contact_solves(case):
+    s = fr.ReferenceSolver(case, settings=NewtonSettings(rtol=1e-13, atol=1e-14))
+    state = s.solve(STATE)
+    assert state.converged and state.extra["indenters"]["S"]["force"] > 0
+    J = indenter_jacobian(s, case.with_pushes(STATE))
+    d = 1e-3
+    fd = []
+    for name in ("I", "S"):
+        sides = [s.solve({**STATE, name: STATE[name] + sign * d}, initial=state).probes
+                 for sign in (1.0, -1.0)]
+        fd.append(np.concatenate([(sides[0][t] - sides[1][t]) / (2 * d) for t in ("T1", "T2")]))
+    fd = np.stack(fd, axis=1)
+    assert np.abs(J).max() > 0.1
+    assert np.abs(J - fd).max() < 1e-5 * np.abs(fd).max()
+    # the solver is left at its state: a solve from it needs no Newton iteration
+    again = s.solve(STATE, initial=state)
+    assert np.abs(again.u - state.u).max() < 1e-9
+
+
+def test_jacobian_at_gives_indenter_columns_checked_by_the_solves(case):
+    out = jacobian_at(case, {"I": 1.0}, fd_h=0.02)
+    assert out["actuators"] == ["I", "S"] and np.shape(out["J"]) == (6, 2)
+    assert out["fd_max_rel_error"] < 1e-4
+
+
+def test_mixing_indenters_and_patches_and_an_indenter_loop_model_are_refused(case):
+    mixed = Case(mesh=case.mesh, material=case.material, name="mixed",
+                 boundaries=case.boundaries,
+                 actuators=(case.actuators[0], Actuator("P", "xmin", (1.0, 0.0, 0.0))),
+                 probes=case.probes)
+    with pytest.raises(CaseError, match="mix indenters and glued patches"):
+        jacobian_at(mixed, {"I": 1.0}, fd_h=0)
+    with pytest.raises(CaseError, match="indenters"):
+        build_loop(case, plant="fem")
