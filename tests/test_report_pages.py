@@ -2,7 +2,8 @@
 images that exist, relative links that exist, units in the headers of numbers) and show what
 the run computed: validity, discretization, probes with their error estimates, reactions,
 indenters, 3D views and the convergence history of a solve; the closed against the open loop of
-mpc; the settings of table1 as a key/value table; the verification report."""
+mpc; the settings of table1 as a key/value table; the verification report; the values, orders,
+GCI and extrapolated values of a convergence study."""
 import dataclasses
 import html
 import json
@@ -20,11 +21,34 @@ from tissue_reference.tissue.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 
 
+# a 2D strip whose study at 4 levels has quantities inside and outside the asymptotic range
+STRIP = """name = "strip"
+[mesh]
+builtin = "rectangle"
+size = 2.5
+[material]
+model = "linear-elastic"
+E = 6.0
+nu = 0.3
+[[boundary]]
+region = "xmin"
+type = "fixed"
+[[boundary]]
+region = "xmax"
+type = "displacement"
+value = [1.0, 0.5]
+[[probe]]
+name = "M"
+point = [5.0, 5.0]
+"""
+
+
 @pytest.fixture(scope="module")
 def work(tmp_path_factory):
     d = tmp_path_factory.mktemp("pages")
     (d / "box.toml").write_text(BOX.format(model="neo-hookean"))
     (d / "lin.toml").write_text(BOX.format(model="linear-elastic"))
+    (d / "strip.toml").write_text(STRIP)
     return d
 
 
@@ -242,3 +266,60 @@ def test_the_reference_records_every_newton_iterate_for_the_plot():
     # the residual falls within each load step
     first = h["iterate_load"].index(1.0)
     assert h["iterate_residual"][-1] < 1e-6 * h["iterate_residual"][first]
+
+
+# --------------------------------------------------------------------------- converge, dynamics
+def _row(section: str, *first) -> list:
+    """The cells of the table row of ``section`` that starts with the cells ``first``."""
+    head = "".join(f"<td>{html.escape(c)}</td>" for c in first)
+    m = re.search(rf"<tr>{re.escape(head)}(.*?)</tr>", section)
+    assert m, first
+    return re.findall(r"<td>([^<]*)</td>", m.group(1))
+
+
+def test_a_convergence_page_shows_every_value_order_gci_and_extrapolation(work):
+    from tissue_reference.meshes.html_page import fmt
+    from tissue_reference.tissue.converge_report import NO_EXTRAPOLATION
+
+    out = work / "converge"
+    _run(["converge", work / "strip.toml", "--levels", "4", "--degrees", "1", "2", "-q", "--out",
+          out])
+    d = json.loads((out / "convergence.json").read_text())
+    found = check_page(out / "report.html")
+    assert found["images"] == ["convergence.png"]
+    page = (out / "report.html").read_text()
+    sections = page.split("<h2>Degree ")[1:]
+    assert len(sections) == len(d["studies"]) == 2
+    seen = {True: 0, False: 0}
+    for sec, st in zip(sections, d["studies"]):
+        assert sec.startswith(f"{st['degree']}: P{st['degree']} displacement")
+        for k, h in enumerate(st["h_mm"]):
+            assert _row(sec, str(k))[:3] == [fmt(h, 4), str(st["n_cells"][k]),
+                                            str(st["n_dofs"][k])]
+            assert f"<th>u at h = {fmt(h, 3)} mm (mm)</th>" in sec
+            assert f"<th>F at h = {fmt(h, 3)} mm (mN)</th>" in sec
+        for group, unit in (("probes", "mm"), ("reactions", "mN")):
+            for name, vec in st[group].items():
+                for comp, q in vec["components"].items():
+                    cells = _row(sec, name, comp)
+                    n = len(q[f"values_{unit}"])
+                    assert cells[:n] == [fmt(v, 6) for v in q[f"values_{unit}"]]
+                    order, _, asym, extra, g, g_rel = cells[n:]
+                    assert order == fmt(q["observed_order"], 3)
+                    assert asym == ("yes" if q["asymptotic"] else "no")
+                    assert extra == (fmt(q[f"extrapolated_{unit}"], 6) if q["asymptotic"]
+                                     else NO_EXTRAPOLATION)
+                    assert g == fmt(q[f"gci_{unit}"], 3)
+                    assert g_rel == fmt(100 * q["gci_rel"], 3)
+                    seen[q["asymptotic"]] += 1
+    assert seen[True] and seen[False]          # both kinds of row are on the page
+    assert _cells(page, "material: E (kPa)") == "6" and _cells(page, "levels") == "4"
+
+
+def test_a_folder_in_the_place_of_a_converge_or_dynamics_page_is_refused(work, capsys):
+    for argv in (["converge", work / "strip.toml", "--levels", "3"],):
+        out = work / f"clash_{argv[0]}"
+        (out / "report.html").mkdir(parents=True)
+        assert main([str(a) for a in argv] + ["-q", "--out", str(out)]) == 2, argv
+        assert "report.html" in capsys.readouterr().err
+        assert sorted(p.name for p in out.iterdir()) == ["report.html"]
