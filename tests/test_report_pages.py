@@ -3,7 +3,8 @@ images that exist, relative links that exist, units in the headers of numbers) a
 the run computed: validity, discretization, probes with their error estimates, reactions,
 indenters, 3D views and the convergence history of a solve; the closed against the open loop of
 mpc; the settings of table1 as a key/value table; the verification report; the values, orders,
-GCI and extrapolated values of a convergence study."""
+GCI and extrapolated values of a convergence study; the settings, probes against time and the
+final state of a dynamics run."""
 import dataclasses
 import html
 import json
@@ -316,8 +317,34 @@ def test_a_convergence_page_shows_every_value_order_gci_and_extrapolation(work):
     assert _cells(page, "material: E (kPa)") == "6" and _cells(page, "levels") == "4"
 
 
+def test_a_dynamics_page_shows_the_settings_the_probes_and_the_final_state(work):
+    out = work / "dynamics"
+    _run(["dynamics", work / "box.toml", "--dt", "0.01", "--steps", "3", "--push", "A1=1",
+          "--gravity", "0", "0", "-9810", "-q", "--out", out, "--json", work / "dyn.json"])
+    d = json.loads((work / "dyn.json").read_text())
+    found = check_page(out / "report.html")
+    assert found["images"] == ["dynamics_history.png", "final_view_u.png"]
+    assert found["links"] == ["trajectory.pvd", "displacement.xdmf", "displacement.vtu"]
+    for png in found["images"]:
+        assert (out / png).stat().st_size > 10_000
+    page = (out / "report.html").read_text()
+    assert "<div class='valid'><b>Valid answer</b>" in page
+    assert f"min J {d['final']['min_J']:.4g}" in page
+    assert _cells(page, "time step dt (s)") == "0.01" and _cells(page, "steps") == "3"
+    assert _cells(page, "mass") == "lumped" and _cells(page, "gravity (mm/s²)") == "[0, 0, -9810]"
+    assert _cells(page, "final time (s)") == f"{d['times_s'][-1]:.4g}"
+    assert _cells(page, "total mass (kg)") == f"{d['total_mass_kg']:.4g}"
+    assert _cells(page, "final kinetic energy (µJ)") == f"{d['kinetic_energy_uJ'][-1]:.4g}"
+    assert _cells(page, "steps converged") == "3 of 3"
+    final = np.asarray(d["probes"]["T1"][-1])
+    assert d["final"]["probes"]["T1"]["displacement"] == pytest.approx(final.tolist())
+    assert _row(page, "T1")[:4] == [*(f"{x:+.4f}" for x in final),
+                                    f"{np.linalg.norm(final):.4f}"]
+
+
 def test_a_folder_in_the_place_of_a_converge_or_dynamics_page_is_refused(work, capsys):
-    for argv in (["converge", work / "strip.toml", "--levels", "3"],):
+    for argv in (["converge", work / "strip.toml", "--levels", "3"],
+                 ["dynamics", work / "box.toml", "--dt", "0.01", "--steps", "1"]):
         out = work / f"clash_{argv[0]}"
         (out / "report.html").mkdir(parents=True)
         assert main([str(a) for a in argv] + ["-q", "--out", str(out)]) == 2, argv
