@@ -4,7 +4,8 @@ the run computed: validity, discretization, probes with their error estimates, r
 indenters, 3D views and the convergence history of a solve; the closed against the open loop of
 mpc; the settings of table1 as a key/value table; the verification report; the values, orders,
 GCI and extrapolated values of a convergence study; the settings, probes against time and the
-final state of a dynamics run."""
+final state of a dynamics run. Last, every page the module wrote is drawn in headless Chromium:
+it must load each of its pictures and not come out blank."""
 import dataclasses
 import html
 import json
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from browser_checks import BrowserError, render_page, require_browser
 from page_checks import PageError, check_page
 from test_cli_fuzz import BOX
 
@@ -155,7 +157,7 @@ def test_an_admm_page_plots_the_iterations(work):
     assert (out / "displacement_history.png").stat().st_size > 5000
 
 
-def test_not_converged_indenters_and_warnings_are_on_the_page(work, tmp_path):
+def test_not_converged_indenters_and_warnings_are_on_the_page(work):
     """A last converged state (load fraction below 1), its indenters and warnings, drawn from a
     real solve's result with those entries (the library call the CLI makes)."""
     import tissue_reference.fem_reference as fr
@@ -167,13 +169,14 @@ def test_not_converged_indenters_and_warnings_are_on_the_page(work, tmp_path):
         **res.extra, "load_fraction": 0.5, "warnings": ["patch A1 is glued"],
         "indenters": {"I1": {"push": 3.0, "force": 12.5, "contact_area": 4.25,
                              "max_penetration": 0.01}}})
-    path = write_solve_report(case, last, tmp_path, stem="last_converged", use_pyvista=False)
+    out = work / "not_converged"
+    path = write_solve_report(case, last, out, stem="last_converged", use_pyvista=False)
     check_page(path)
     page = path.read_text()
     assert "<b>Not converged</b>: the last converged state at load fraction 0.5000" in page
     assert "<li>patch A1 is glued</li>" in page
     assert "<th>contact area (mm²)</th>" in page and "<td>4.25</td>" in page
-    assert (tmp_path / "last_converged_view_J.png").is_file()
+    assert (out / "last_converged_view_J.png").is_file()
 
 
 def test_the_page_is_written_whole_or_not_at_all(work, tmp_path, monkeypatch):
@@ -350,3 +353,51 @@ def test_a_folder_in_the_place_of_a_converge_or_dynamics_page_is_refused(work, c
         assert main([str(a) for a in argv] + ["-q", "--out", str(out)]) == 2, argv
         assert "report.html" in capsys.readouterr().err
         assert sorted(p.name for p in out.iterdir()) == ["report.html"]
+
+
+# --------------------------------------------------------------------------- in a browser
+def test_the_browser_check_finds_a_blank_page_and_a_missing_picture(tmp_path, monkeypatch):
+    import browser_checks
+
+    monkeypatch.setattr(browser_checks, "browser", lambda: None)
+    monkeypatch.setenv("TISSUE_NO_BROWSER", "0")
+    with pytest.raises(pytest.fail.Exception, match="chromium is not installed"):
+        require_browser()
+    monkeypatch.setenv("TISSUE_NO_BROWSER", "1")
+    with pytest.raises(pytest.skip.Exception):
+        require_browser()
+    monkeypatch.undo()
+    exe = require_browser()
+    doc = "<!DOCTYPE html><html><head><title>t</title></head><body>{}</body></html>"
+    (tmp_path / "blank.html").write_text(doc.format(""))
+    with pytest.raises(BrowserError, match="near blank"):
+        render_page(tmp_path / "blank.html", exe, tmp_path / "blank.png")
+    table = "<h1>A heading</h1><table border=1><tr><th>push (mm)</th></tr><tr><td>5</td></tr>" \
+            "</table>"
+    (tmp_path / "missing.html").write_text(doc.format(table + "<img src='gone.png'>"))
+    with pytest.raises(BrowserError, match=r"could not load: \['gone.png'\]"):
+        render_page(tmp_path / "missing.html", exe, tmp_path / "missing.png")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(3, 2))
+    ax.plot([0, 1], [1, 0])
+    fig.savefig(tmp_path / "line.png", dpi=100)
+    plt.close(fig)
+    (tmp_path / "good.html").write_text(doc.format(table + "<img src='line.png'>"))
+    assert render_page(tmp_path / "good.html", exe, tmp_path / "good.png")["image_widths"] == [300]
+
+
+def test_every_page_renders_in_a_headless_browser(work, tmp_path):
+    """The pages the tests above wrote (run with them): each drawn without error, not blank,
+    every picture loaded."""
+    exe = require_browser()
+    pages = sorted(p for p in work.rglob("*.html") if p.is_file())
+    assert len(pages) >= 12, f"only {len(pages)} pages: run the whole module, whose tests " \
+                             "write the pages this one draws"
+    for k, page in enumerate(pages):
+        found = check_page(page)
+        drawn = render_page(page, exe, tmp_path / f"page{k}.png")
+        assert len(drawn["image_widths"]) == len(found["images"]), page
