@@ -4,14 +4,15 @@
 # Each installs what is missing (apt-get as root, the venv, pip with constraints.txt), quickly when not.
 # libopenblas0-pthread replaces Debian's reference BLAS (the default libblas3), which made every
 # MUMPS factorization about 5x slower. gcc + python3-dev compile dolfinx's forms and the ADMM
-# kernel (solvers/admm_kernel.c, built on first use).
+# kernel (solvers/admm_kernel.c, built on first use). chromium (headless) draws every report
+# page in the tests (TISSUE_NO_BROWSER=1 skips that check).
 SHELL := /bin/bash
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 APT_PKGS := python3-dolfinx python3-gmsh python3-scipy python3-matplotlib python3-mpi4py \
             python3-meshio python3-h5py python3-venv python3-dev gcc make openmpi-bin \
-            libopenblas0-pthread
+            libopenblas0-pthread chromium
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
 .PHONY: demo test system-deps venv bench lint clean
@@ -21,6 +22,7 @@ venv: $(STAMP)
 system-deps:
 	@if ! /usr/bin/python3 -c "import dolfinx, gmsh, scipy, matplotlib, meshio, h5py, ensurepip" >/dev/null 2>&1 \
 	   || ! command -v mpirun >/dev/null || ! command -v gcc >/dev/null \
+	   || ! command -v chromium >/dev/null \
 	   || ! dpkg -s libopenblas0-pthread >/dev/null 2>&1; then \
 	  echo "== installing Debian packages: $(APT_PKGS)"; \
 	  $(SUDO) apt-get update -q && \
@@ -35,6 +37,8 @@ $(STAMP): pyproject.toml constraints.txt
 	@touch $@
 
 test: $(STAMP)
+	@command -v chromium >/dev/null || [ "$${TISSUE_NO_BROWSER:-0}" != 0 ] \
+	  || $(MAKE) --no-print-directory system-deps
 	$(PY) -m pytest -q -ra tests
 
 demo: $(STAMP)

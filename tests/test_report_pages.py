@@ -2,7 +2,10 @@
 images that exist, relative links that exist, units in the headers of numbers) and show what
 the run computed: validity, discretization, probes with their error estimates, reactions,
 indenters, 3D views and the convergence history of a solve; the closed against the open loop of
-mpc; the settings of table1 as a key/value table; the verification report."""
+mpc; the settings of table1 as a key/value table; the verification report; the values, orders,
+GCI and extrapolated values of a convergence study; the settings, probes against time and the
+final state of a dynamics run. Last, every page the module wrote is drawn in headless Chromium:
+it must load each of its pictures and not come out blank."""
 import dataclasses
 import html
 import json
@@ -11,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from browser_checks import render_page, require_browser
 from page_checks import PageError, check_page
 from test_cli_fuzz import BOX
 
@@ -20,11 +24,34 @@ from tissue_reference.tissue.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 
 
+# a 2D strip whose study at 4 levels has quantities inside and outside the asymptotic range
+STRIP = """name = "strip"
+[mesh]
+builtin = "rectangle"
+size = 2.5
+[material]
+model = "linear-elastic"
+E = 6.0
+nu = 0.3
+[[boundary]]
+region = "xmin"
+type = "fixed"
+[[boundary]]
+region = "xmax"
+type = "displacement"
+value = [1.0, 0.5]
+[[probe]]
+name = "M"
+point = [5.0, 5.0]
+"""
+
+
 @pytest.fixture(scope="module")
 def work(tmp_path_factory):
     d = tmp_path_factory.mktemp("pages")
     (d / "box.toml").write_text(BOX.format(model="neo-hookean"))
     (d / "lin.toml").write_text(BOX.format(model="linear-elastic"))
+    (d / "strip.toml").write_text(STRIP)
     return d
 
 
@@ -130,7 +157,7 @@ def test_an_admm_page_plots_the_iterations(work):
     assert (out / "displacement_history.png").stat().st_size > 5000
 
 
-def test_not_converged_indenters_and_warnings_are_on_the_page(work, tmp_path):
+def test_not_converged_indenters_and_warnings_are_on_the_page(work):
     """A last converged state (load fraction below 1), its indenters and warnings, drawn from a
     real solve's result with those entries (the library call the CLI makes)."""
     import tissue_reference.fem_reference as fr
@@ -142,13 +169,14 @@ def test_not_converged_indenters_and_warnings_are_on_the_page(work, tmp_path):
         **res.extra, "load_fraction": 0.5, "warnings": ["patch A1 is glued"],
         "indenters": {"I1": {"push": 3.0, "force": 12.5, "contact_area": 4.25,
                              "max_penetration": 0.01}}})
-    path = write_solve_report(case, last, tmp_path, stem="last_converged", use_pyvista=False)
+    out = work / "not_converged"
+    path = write_solve_report(case, last, out, stem="last_converged", use_pyvista=False)
     check_page(path)
     page = path.read_text()
     assert "<b>Not converged</b>: the last converged state at load fraction 0.5000" in page
     assert "<li>patch A1 is glued</li>" in page
     assert "<th>contact area (mm²)</th>" in page and "<td>4.25</td>" in page
-    assert (tmp_path / "last_converged_view_J.png").is_file()
+    assert (out / "last_converged_view_J.png").is_file()
 
 
 def test_the_page_is_written_whole_or_not_at_all(work, tmp_path, monkeypatch):
@@ -242,3 +270,100 @@ def test_the_reference_records_every_newton_iterate_for_the_plot():
     # the residual falls within each load step
     first = h["iterate_load"].index(1.0)
     assert h["iterate_residual"][-1] < 1e-6 * h["iterate_residual"][first]
+
+
+# --------------------------------------------------------------------------- converge, dynamics
+def _row(section: str, *first) -> list:
+    """The cells of the table row of ``section`` that starts with the cells ``first``."""
+    head = "".join(f"<td>{html.escape(c)}</td>" for c in first)
+    m = re.search(rf"<tr>{re.escape(head)}(.*?)</tr>", section)
+    assert m, first
+    return re.findall(r"<td>([^<]*)</td>", m.group(1))
+
+
+def test_a_convergence_page_shows_every_value_order_gci_and_extrapolation(work):
+    from tissue_reference.meshes.html_page import fmt
+    from tissue_reference.tissue.converge_report import NO_EXTRAPOLATION
+
+    out = work / "converge"
+    _run(["converge", work / "strip.toml", "--levels", "4", "--degrees", "1", "2", "-q", "--out",
+          out])
+    d = json.loads((out / "convergence.json").read_text())
+    found = check_page(out / "report.html")
+    assert found["images"] == ["convergence.png"]
+    page = (out / "report.html").read_text()
+    sections = page.split("<h2>Degree ")[1:]
+    assert len(sections) == len(d["studies"]) == 2
+    seen = {True: 0, False: 0}
+    for sec, st in zip(sections, d["studies"]):
+        assert sec.startswith(f"{st['degree']}: P{st['degree']} displacement")
+        for k, h in enumerate(st["h_mm"]):
+            assert _row(sec, str(k))[:3] == [fmt(h, 4), str(st["n_cells"][k]),
+                                            str(st["n_dofs"][k])]
+            assert f"<th>u at h = {fmt(h, 3)} mm (mm)</th>" in sec
+            assert f"<th>F at h = {fmt(h, 3)} mm (mN)</th>" in sec
+        for group, unit in (("probes", "mm"), ("reactions", "mN")):
+            for name, vec in st[group].items():
+                for comp, q in vec["components"].items():
+                    cells = _row(sec, name, comp)
+                    n = len(q[f"values_{unit}"])
+                    assert cells[:n] == [fmt(v, 6) for v in q[f"values_{unit}"]]
+                    order, _, asym, extra, g, g_rel = cells[n:]
+                    assert order == fmt(q["observed_order"], 3)
+                    assert asym == ("yes" if q["asymptotic"] else "no")
+                    assert extra == (fmt(q[f"extrapolated_{unit}"], 6) if q["asymptotic"]
+                                     else NO_EXTRAPOLATION)
+                    assert g == fmt(q[f"gci_{unit}"], 3)
+                    assert g_rel == fmt(100 * q["gci_rel"], 3)
+                    seen[q["asymptotic"]] += 1
+    assert seen[True] and seen[False]          # both kinds of row are on the page
+    assert _cells(page, "material: E (kPa)") == "6" and _cells(page, "levels") == "4"
+
+
+def test_a_dynamics_page_shows_the_settings_the_probes_and_the_final_state(work):
+    out = work / "dynamics"
+    _run(["dynamics", work / "box.toml", "--dt", "0.01", "--steps", "3", "--push", "A1=1",
+          "--gravity", "0", "0", "-9810", "-q", "--out", out, "--json", work / "dyn.json"])
+    d = json.loads((work / "dyn.json").read_text())
+    found = check_page(out / "report.html")
+    assert found["images"] == ["dynamics_history.png", "final_view_u.png"]
+    assert found["links"] == ["trajectory.pvd", "displacement.xdmf", "displacement.vtu"]
+    for png in found["images"]:
+        assert (out / png).stat().st_size > 10_000
+    page = (out / "report.html").read_text()
+    assert "<div class='valid'><b>Valid answer</b>" in page
+    assert f"min J {d['final']['min_J']:.4g}" in page
+    assert _cells(page, "time step dt (s)") == "0.01" and _cells(page, "steps") == "3"
+    assert _cells(page, "mass") == "lumped" and _cells(page, "gravity (mm/s²)") == "[0, 0, -9810]"
+    assert _cells(page, "final time (s)") == f"{d['times_s'][-1]:.4g}"
+    assert _cells(page, "total mass (kg)") == f"{d['total_mass_kg']:.4g}"
+    assert _cells(page, "final kinetic energy (µJ)") == f"{d['kinetic_energy_uJ'][-1]:.4g}"
+    assert _cells(page, "steps converged") == "3 of 3"
+    final = np.asarray(d["probes"]["T1"][-1])
+    assert d["final"]["probes"]["T1"]["displacement"] == pytest.approx(final.tolist())
+    assert _row(page, "T1")[:4] == [*(f"{x:+.4f}" for x in final),
+                                    f"{np.linalg.norm(final):.4f}"]
+
+
+def test_a_folder_in_the_place_of_a_converge_or_dynamics_page_is_refused(work, capsys):
+    for argv in (["converge", work / "strip.toml", "--levels", "3"],
+                 ["dynamics", work / "box.toml", "--dt", "0.01", "--steps", "1"]):
+        out = work / f"clash_{argv[0]}"
+        (out / "report.html").mkdir(parents=True)
+        assert main([str(a) for a in argv] + ["-q", "--out", str(out)]) == 2, argv
+        assert "report.html" in capsys.readouterr().err
+        assert sorted(p.name for p in out.iterdir()) == ["report.html"]
+
+
+# --------------------------------------------------------------------------- in a browser
+def test_every_page_renders_in_a_headless_browser(work, tmp_path):
+    """The pages the tests above wrote (run with them): each drawn without error, not blank,
+    every picture loaded."""
+    exe = require_browser()
+    pages = sorted(p for p in work.rglob("*.html") if p.is_file())
+    assert len(pages) >= 12, f"only {len(pages)} pages: run the whole module, whose tests " \
+                             "write the pages this one draws"
+    for k, page in enumerate(pages):
+        found = check_page(page)
+        drawn = render_page(page, exe, tmp_path / f"page{k}.png")
+        assert len(drawn["image_widths"]) == len(found["images"]), page

@@ -10,6 +10,7 @@ from pathlib import Path
 from tissue_reference.meshes.builders import BODY_DIMENSIONS, estimate_cells
 from tissue_reference.meshes.case import Material
 from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.io import check_output_file
 from tissue_reference.meshes.results import material_json, write_json
 
 from .common import (
@@ -22,6 +23,7 @@ from .common import (
 )
 
 PRECHECK_FROM_CELLS = 20_000
+OUT_FILES = ("convergence.png", "convergence.json", "report.html")
 
 
 def _material_of(path) -> Material:
@@ -42,6 +44,9 @@ def run(args) -> int:
     from tissue_reference.fem_reference.solver import resolve_formulation
 
     check_outputs(args, files=("json",), dirs=("out",))
+    if args.out and Path(args.out).is_dir():
+        for name in OUT_FILES:
+            check_output_file(Path(args.out) / name, "--out")
     pushes = parse_pushes(args.push)
     limit = args.max_cells or MAX_CELLS
     b = builtin_of(args.case, args.size)
@@ -84,10 +89,13 @@ def run(args) -> int:
     if args.json:
         write_json(out, args.json)
     if args.out:
+        from .converge_report import write_converge_report
+
         png = plot_studies(studies, Path(args.out) / "convergence.png")
         write_json(out, Path(args.out) / "convergence.json")
-        print(f"wrote {png} (differences between successive levels against h, slopes 1 and 2) "
-              f"and {Path(args.out) / 'convergence.json'}", file=sys.stderr)
+        page = write_converge_report(out, args.out, plot=png.name)
+        print(f"wrote {png} (differences between successive levels against h, slopes 1 and 2), "
+              f"{Path(args.out) / 'convergence.json'} and {page}", file=sys.stderr)
     return 0
 
 
@@ -112,6 +120,7 @@ def add_parser(sub):
     p.add_argument("--max-cells", type=integer(1), default=None,
                    help="refuse a study whose finest mesh would exceed this many cells "
                         "(default 400,000; each refinement multiplies cells by 8 in 3D)")
-    p.add_argument("--out", help="folder for convergence.png and convergence.json")
+    p.add_argument("--out", help="folder for convergence.png, convergence.json and report.html "
+                                 "(the study's tables with units, and the plot)")
     p.add_argument("--json", help="JSON file")
     p.set_defaults(func=run)

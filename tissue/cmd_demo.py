@@ -139,9 +139,10 @@ def run(args) -> int:
     mesh = phantom(args.size, out=out / "phantom.msh")
     q = quality(mesh)
     case = load_case(CASE, mesh=mesh)
-    sections.append(("Phantom mesh", f"{q.n_vertices} vertices, {q.n_cells} tetrahedra, worst "
-                     f"scaled Jacobian {q.min_scaled_jacobian:.3f}, smallest dihedral angle "
-                     f"{q.min_dihedral_deg:.1f} deg: <a href='phantom.msh'>phantom.msh</a>"))
+    sections.append(("Phantom mesh", (f"{q.n_vertices} vertices, {q.n_cells} tetrahedra, worst "
+                                      f"scaled Jacobian {q.min_scaled_jacobian:.3f}, smallest "
+                                      f"dihedral angle {q.min_dihedral_deg:.1f} deg: "
+                                      f"<a href='phantom.msh'>phantom.msh</a>")))
     summary = {"mesh": {"size_mm": args.size, "n_vertices": q.n_vertices, "n_cells": q.n_cells,
                         "min_scaled_jacobian": q.min_scaled_jacobian,
                         "min_dihedral_deg": q.min_dihedral_deg}}
@@ -182,10 +183,10 @@ def run(args) -> int:
             f"<td>{d['wall_time_s']:.3f}</td><td>{d['speedup_vs_reference']:.1f}</td></tr>"
             for n, d in v["solvers"].items())
         sections.append(("Fast solvers against the reference",
-                         "<table border=1 cellpadding=4><tr><th>solver</th><th>max vertex error "
-                         "(mm)</th><th>RMS (mm)</th><th>iterations</th><th>time (s)</th>"
-                         f"<th>speed-up</th></tr>{vrows}</table>"
-                         "<p><a href='verify/report.html'>full verification report</a></p>"))
+                         ("<table border=1 cellpadding=4><tr><th>solver</th><th>max vertex "
+                          "error (mm)</th><th>RMS (mm)</th><th>iterations</th><th>time (s)</th>"
+                          f"<th>speed-up</th></tr>{vrows}</table>"
+                          "<p><a href='verify/report.html'>full verification report</a></p>")))
     summary["wall_time_s"] = time.perf_counter() - t0
     write_json(summary, out / "summary.json")
     body = "".join(f"<h2>{html.escape(t)}</h2>{b}" for t, b in sections)

@@ -27,6 +27,8 @@ from .common import (
 )
 
 STEMS = ("displacement", "last_converged", "trajectory")
+# the page and its pictures (tissue.dynamics_report)
+PAGE_FILES = ("report.html", "dynamics_history.png", "final_view_u.png")
 MAX_STEPS = 100_000
 
 
@@ -81,6 +83,8 @@ def run(args) -> int:
         for stem in STEMS:
             for suffix in (".xdmf", ".h5", ".vtu", ".pvd"):
                 check_output_file(Path(args.out) / f"{stem}{suffix}", "--out")
+        for name in PAGE_FILES:
+            check_output_file(Path(args.out) / name, "--out")
     if args.solver == "admm" and (args.degree not in (None, 1) or args.formulation == "mixed"
                                   or args.mass != "lumped" or args.ramp_steps):
         raise CaseError("solver 'admm' is P1 with the lumped mass and Dirichlet values in full "
@@ -118,11 +122,15 @@ def run(args) -> int:
                       f"{Path(args.out) / 'last_converged.xdmf'}", file=sys.stderr)
         raise
     pushed = case.with_pushes(pushes)
+    data = trajectory_json(pushed, traj, args)
     if args.out:
+        from .dynamics_report import write_dynamics_report
+
         write_outputs(pushed, traj.final, args.out, None)
         _write_trajectory(pushed, traj, args.out)
+        write_dynamics_report(pushed, data, traj.u[-1], args.out)
     if args.json:
-        write_json(trajectory_json(pushed, traj, args), args.json)
+        write_json(data, args.json)
     print(f"{case.name}: {args.solver} dynamics dt={traj.dt:g}s steps={traj.steps} "
           f"converged={bool(traj.converged.all())} time={traj.wall_time_s:.2f}s "
           f"vertices={case.mesh.n_vertices} mass={traj.total_mass_kg:.4g}kg")
@@ -154,8 +162,9 @@ def add_parser(sub):
                    metavar="G", help="override the case's gravity (mm/s^2), e.g. 0 0 -9810")
     p.add_argument("--push", action="append", metavar="NAME=MM",
                    help="push an actuator's region rigidly along its direction (repeatable)")
-    p.add_argument("--out", help="folder: final state (XDMF + VTU) and the trajectory "
-                                 "(trajectory.pvd + one VTU per step)")
+    p.add_argument("--out", help="folder: final state (XDMF + VTU), the trajectory "
+                                 "(trajectory.pvd + one VTU per step) and report.html (settings, "
+                                 "probes against time, the final state in 3D)")
     p.add_argument("--json", help="JSON summary: times, probes, energies per step")
     p.add_argument("-q", "--quiet", action="store_true", help="no per-step progress")
     p.set_defaults(func=run)

@@ -17,7 +17,7 @@ from tissue_reference.meshes.html_page import Raw, fmt, image, kv_table, page, t
 from tissue_reference.meshes.io import save_figure
 from tissue_reference.meshes.mesh import cell_jacobians
 
-__all__ = ["ESTIMATE_WARN", "REPORT", "vertex_min_J", "write_solve_report"]
+__all__ = ["ESTIMATE_WARN", "REPORT", "validity_block", "vertex_min_J", "write_solve_report"]
 
 REPORT = "report.html"
 ESTIMATE_WARN = 0.02  # warn when a probe's estimated error exceeds this fraction of its value
@@ -85,7 +85,9 @@ def _history_plot(history: dict, solver: str, path: Path) -> bool:
     return True
 
 
-def _validity(d: dict) -> Raw:
+def validity_block(d: dict) -> Raw:
+    """The box that opens a page: valid (green) or not, converged or not (red), with min J,
+    inverted cells, the largest displacement and the warnings of the solve result ``d``."""
     ok = d.get("valid", True) and d.get("converged", True)
     lf = d.get("load_fraction")
     if ok:
@@ -217,7 +219,7 @@ def write_solve_report(case, res, out_dir, *, data: dict | None = None, stem: st
              f"{case.source or case.name}; pushes (mm): "
              + (", ".join(f"{a} = {v:g}" for a, v in (d.get("pushes_mm") or {}).items() if v)
                 or "none") + ". Units: mm, mN, kPa, µJ, s.",
-             _validity(d), *_what(d), *_answer(d),
+             validity_block(d), *_what(d), *_answer(d),
              Raw("<h2>Deformed tissue</h2>"), *figs,
              Raw("<h2>Convergence</h2>"), history, links]
     if d.get("solver_settings"):
