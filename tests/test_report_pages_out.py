@@ -65,3 +65,33 @@ def test_a_folder_in_the_place_of_the_maps_page_is_refused_before_any_work(work,
                  "--out", str(out)]) == 2
     assert "report.html" in capsys.readouterr().err
     assert not list(out.glob("manipulability*"))
+
+
+# --------------------------------------------------------------------------- jacobian
+def test_a_jacobian_page_shows_J_its_check_the_state_and_the_kind(work):
+    out = work / "jac"
+    _run(["jacobian", work / "box.toml", "--state-push", "A1=1", "-q", "--json",
+          work / "j.json", "--out", out])
+    d = json.loads((work / "j.json").read_text())
+    assert json.loads((out / "jacobian.json").read_text()) == d
+    assert d["actuator_kind"] == "glued patch" and d["fd_max_rel_error"] < 1e-3
+    found = check_page(out / "report.html")
+    assert found["images"] == ["jacobian.png"]
+    page = (out / "report.html").read_text()
+    assert "<th>A1 (mm/mm)</th>" in page and "<div class='valid'>" in page
+    for name, row in zip(d["rows"], d["J"]):
+        assert _row(page, name) == [fmt(v) for v in row]
+    assert _row(page, "largest difference to central differences (relative)") == \
+        [fmt(d["fd_max_rel_error"])]
+    assert _row(page, "central-difference step (mm)") == ["0.02"]
+    assert _row(page, "A1") == ["1", "yes"]
+    assert "Actuator kind: <b>glued patch</b>" in page
+
+
+def test_jacobian_out_is_checked_before_any_work(work, capsys):
+    out = work / "jac_clash"
+    (out / "report.html").mkdir(parents=True)
+    assert main(["jacobian", str(work / "box.toml"), "--json", str(work / "j2.json"),
+                 "--out", str(out)]) == 2
+    assert "report.html" in capsys.readouterr().err
+    assert not (work / "j2.json").exists() and not (out / "jacobian.json").exists()
