@@ -95,3 +95,45 @@ def test_jacobian_out_is_checked_before_any_work(work, capsys):
                  "--out", str(out)]) == 2
     assert "report.html" in capsys.readouterr().err
     assert not (work / "j2.json").exists() and not (out / "jacobian.json").exists()
+
+
+# --------------------------------------------------------------------------- implant
+def _implant_page(d: dict, out):
+    found = check_page(out / "report.html")
+    page = (out / "report.html").read_text()
+    assert _row(page, "implant shape") == [d["implant"]["shape"]]
+    assert _row(page, "side") == [d["implant"]["side"]]
+    assert _row(page, "volume (cm³)") == [fmt(d["implant"]["volume_cc"])]
+    assert _row(page, "base width (mm)") == [fmt(d["implant_dimensions_mm"][0])]
+    assert _row(page, "tetrahedra (count)") == [str(d["n_cells"])]
+    assert _row(page, "target points (count)") == [str(d["points"]["target"])]
+    assert _row(page, "Mass Tensor iterations (count)") == [str(d["iterations"])]
+    return found, page
+
+
+def test_an_implant_page_shows_the_plan_the_solve_and_the_distances(work, monkeypatch):
+    monkeypatch.chdir(work)       # a relative --out: the picture lands beside the page
+    _run(["implant", "--synthetic", "--volume", "200", "--side", "right", "-q", "--json",
+          "i.json", "--out", "imp"])
+    d = json.loads((work / "i.json").read_text())
+    found, page = _implant_page(d, work / "imp")
+    assert found["images"] == ["skin_distance.png"]
+    assert (work / "imp" / "skin_distance.png").read_bytes()[:4] == b"\x89PNG"
+    assert _row(page, "Mass Tensor vs the linear FEM reference") == \
+        [fmt(d["d_max_mm"]), fmt(d["mean_distance_mm"]), "", ""]
+    assert "<th>d_max (mm)</th><th>mean distance (mm)</th>" in page
+    assert set(found["links"]) == {"tissue.vtu", "implant.vtu", "skin_distance.vtu"}
+
+
+def test_an_implant_page_without_the_reference_says_there_are_no_distances(work, capsys):
+    out = work / "imp_noref"
+    (out / "report.html").mkdir(parents=True)
+    assert main(["implant", "--synthetic", "--no-reference", "-q", "--json",
+                 str(work / "i2.json"), "--out", str(out)]) == 2
+    assert "report.html" in capsys.readouterr().err and not (work / "i2.json").exists()
+    (out / "report.html").rmdir()
+    _run(["implant", "--synthetic", "--no-reference", "-q", "--json", work / "i2.json",
+          "--out", out])
+    d = json.loads((work / "i2.json").read_text())
+    found, page = _implant_page(d, out)
+    assert found["images"] == [] and "No surface distances" in page
