@@ -175,6 +175,7 @@ def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="a
     out = {"case": case.name, "source": case.source, "material": material_json(case.material),
            "actuators": list(jac.actuators), "targets": list(jac.targets),
            "rows": jac.rows, "J": jac.J.tolist(), "state_pushes": st, "solver": solver,
+           "actuator_kind": "indenter" if jac.kind == "indenter" else "glued patch",
            "degree": disc.get("degree", degree or 1),
            "formulation": disc.get("formulation", "displacement"),
            "discretization": disc, "solver_settings": described["settings"],

@@ -74,6 +74,7 @@ def render_distance_png(points, triangles, values, path, *, title: str = "distan
     'pyvista' or 'matplotlib (pyvista off-screen failed: ...)'."""
     vals = np.asarray(values, float)
     clim = clim or (0.0, max(float(vals.max()), 1e-9))
+    path = Path(path).resolve()   # the child runs in another folder
     import subprocess
     import sys
     import tempfile

@@ -50,6 +50,20 @@ def test_jacobian_at_gives_indenter_columns_checked_by_the_solves(case):
     out = jacobian_at(case, {"I": 1.0}, fd_h=0.02)
     assert out["actuators"] == ["I", "S"] and np.shape(out["J"]) == (6, 2)
     assert out["fd_max_rel_error"] < 1e-4
+    assert out["actuator_kind"] == "indenter"
+
+
+def test_the_jacobian_page_of_indenters_names_their_kind(case, tmp_path):
+    from page_checks import check_page
+
+    from tissue_reference.tissue.jacobian_report import write_jacobian_report
+
+    out = jacobian_at(case, {"I": 1.0}, fd_h=0)
+    check_page(write_jacobian_report(out, tmp_path))
+    page = (tmp_path / "report.html").read_text()
+    assert "Actuator kind: <b>indenter</b> (rigid indenters" in page
+    assert "<th>I (mm/mm)</th><th>S (mm/mm)</th>" in page
+    assert "Not checked against finite differences" in page
 
 
 def test_mixing_indenters_and_patches_and_an_indenter_loop_model_are_refused(case):

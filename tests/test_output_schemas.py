@@ -177,6 +177,7 @@ MISSING = [
     ("converge", ("pushes_mm",)),
     ("converge", ("studies", 0, "n_dofs")),
     ("jacobian", ("case",)),
+    ("jacobian", ("actuator_kind",)),
     ("mpc", ("plant_material",)),
     ("mpc", ("actuator_positions_mm",)),        # required of a completed run
     ("mpc-unreachable", ("closest_reachable_mm",)),

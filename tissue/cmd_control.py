@@ -26,6 +26,7 @@ from .common import (
     integer,
     real,
 )
+from .manipulability_report import write_manipulability_report
 from .mpc_report import mpc_stem, write_mpc_report
 
 MAX_MAP_POINTS = 20_000
@@ -224,12 +225,14 @@ def run_manipulability(args) -> int:
 
     paths = [args.case] + list(args.compare or [])
     out = check_output_dir(args.out, "--out")
+    if out.is_dir():
+        check_output_file(out / "report.html", "--out")
     cases = []
     for path in paths:
         case = case_from_args(argparse.Namespace(**{**vars(args), "case": path}))
         _check_map(case, args.plane_z, args.spacing)
         cases.append(case)
-    maps = []
+    maps, datas = [], []
     for case in cases:
         K = tangent_for(args.solver)(case, np.zeros((case.mesh.n_vertices, case.mesh.gdim)))
         mp = manipulability_map(case, K, plane_z=args.plane_z, spacing=args.spacing)
@@ -245,6 +248,7 @@ def run_manipulability(args) -> int:
             data[f"task{t}"] = {k: np.where(np.isnan(v), None, v).tolist() if v.dtype.kind == "f"
                                 else v.tolist() for k, v in mp[f"task{t}"].items()}
         write_json(data, out / f"manipulability_{case.name}.json")
+        datas.append(data)
     finite = [v for _, mp in maps for t in (1, 2, 3)
               for v in np.ravel(mp[f"task{t}"]["index"]) if np.isfinite(v)]
     vmax = max(finite, default=1.0)
@@ -260,6 +264,9 @@ def run_manipulability(args) -> int:
             ax.set_ylabel("y (mm)")
     fig.colorbar(im, ax=axes.ravel().tolist(), label="manipulability index (eq. 21)")
     save_figure(fig, out / "manipulability.png")
+    write_manipulability_report(datas, out, maps_png="manipulability.png", settings={
+        "cases": [str(p) for p in paths], "solver": args.solver, "plane_z_mm": args.plane_z,
+        "spacing_mm": args.spacing, "size": args.size, "free_actuators": args.free_actuators})
     for name, mp in maps:
         print(name + ": " + ", ".join(_median_text(t, mp[f"task{t}"]["index"])
                                       for t in (1, 2, 3)))
@@ -316,5 +323,6 @@ def add_parser(sub):
                    help="height of the mapped section (mm)")
     p.add_argument("--spacing", type=real("positive", "mm"), default=3.0,
                    help="grid spacing (mm)")
-    p.add_argument("--out", required=True, help="folder for the maps (PNG) and their JSON")
+    p.add_argument("--out", required=True,
+                   help="folder for the maps (PNG), their JSON and report.html")
     p.set_defaults(func=run_manipulability)

@@ -62,7 +62,8 @@ def add_parser(sub) -> None:
     p.add_argument("--neo-hookean", action="store_true",
                    help="also solve the Neo-Hookean reference and report its distances")
     p.add_argument("--postop", type=Path, help="post-operative skin surface to validate against")
-    p.add_argument("--out", type=Path, help="folder for tissue.vtu, skin_distance.vtu/.png")
+    p.add_argument("--out", type=Path, help="folder for tissue.vtu, implant.vtu, "
+                   "skin_distance.vtu/.png and report.html")
     p.add_argument("--json", type=Path, required=True, help="result JSON")
     p.set_defaults(func=run)
 
@@ -124,6 +125,10 @@ def run(args) -> int:
     from tissue_reference.meshes.results import write_json
 
     check_outputs(args, files=("json",), dirs=("out",))
+    if args.out is not None and args.out.is_dir():
+        from tissue_reference.meshes.io import check_output_file
+
+        check_output_file(args.out / "report.html", "--out")
     for opt, f in (("--skin", args.skin), ("--postop", args.postop)):
         if f is not None and not f.is_file():
             raise ReadError(f"{opt} {str(f)!r}: "
@@ -233,6 +238,10 @@ def run(args) -> int:
                               point_data={"distance_mm": d})
             out["render_backend"] = render_distance_png(pred, skin_t, d,
                                                         args.out / "skin_distance.png")
+        from .implant_report import write_implant_report
+
+        write_implant_report(out, args.out,
+                             distance_png="skin_distance.png" if dist is not None else None)
     write_json(out, args.json)
     print(f"implant {settings.volume_cc:g} cc {settings.shape} {settings.side}: "
           f"{plan.iterations} Mass Tensor iterations, {plan.wall_time_s:.2f} s; "

@@ -1,19 +1,23 @@
-"""``tissue jacobian CASE [--state-push A1=5.0 ...] [--solver fem|admm] [--degree 1|2] --json FILE``
+"""``tissue jacobian CASE [--state-push A1=5.0 ...] [--solver fem|admm] [--degree 1|2] [--json FILE]
+[--out DIR]``
 
 The sensitivity of the targets to the actuators' pushes at the state ``--state-push`` (every
 actuator held; unnamed ones at 0 mm), from the solver's exact tangent: for glued patches the
 Dirichlet sensitivity (control/jacobian.py), for rigid indenters the sensitivity to the tip's
 travel with the contact of that state (fem_reference/contact_jacobian.py); checked against central
-finite differences of the same solver's nonlinear solve (``--fd-h`` mm; 0 skips).
+finite differences of the same solver's nonlinear solve (``--fd-h`` mm; 0 skips). ``--out DIR``
+writes ``jacobian.json`` (what ``--json`` writes), ``jacobian.png`` (|J_s|) and ``report.html``.
 """
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import numpy as np
 
 from tissue_reference.control.plants import FD_FLOOR, jacobian_at
 from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.io import check_output_file
 from tissue_reference.meshes.results import write_json
 
 from .common import (
@@ -27,10 +31,17 @@ from .common import (
     parse_pushes,
     real,
 )
+from .jacobian_report import write_jacobian_report
+
+OUT_FILES = ("jacobian.json", "jacobian.png", "report.html")
+"""What ``--out`` holds."""
 
 
 def run(args) -> int:
-    check_outputs(args, files=("json",))
+    check_outputs(args, files=("json",), dirs=("out",))
+    if args.out and Path(args.out).is_dir():
+        for name in OUT_FILES:
+            check_output_file(Path(args.out) / name, "--out")
     state = parse_pushes(args.state_push, "--state-push")
     case = case_from_args(args)
     check_pushes(case, state, "--state-push", margin=args.fd_h)
@@ -47,6 +58,9 @@ def run(args) -> int:
                   formulation=args.formulation, fd_h=args.fd_h)
     if args.json:
         write_json(out, args.json)
+    if args.out:
+        write_json(out, Path(args.out) / "jacobian.json")
+        write_jacobian_report(out, args.out)
     J = np.asarray(out["J"])
     print(f"{case.name}: J_s ({args.solver}, {out['formulation']} degree {out['degree']}) rows T.x/T.y/T.z, columns "
           f"{out['actuators']} (mm/mm); fd_max_rel_error = {out['fd_max_rel_error']}")
@@ -72,4 +86,6 @@ def add_parser(sub):
     p.add_argument("--fd-h", type=real("nonneg", "mm"), default=0.02,
                    help="central FD step (mm); 0 skips")
     p.add_argument("--json", help="write the result here")
+    p.add_argument("--out", help="folder for jacobian.json (as --json), jacobian.png (a heat map "
+                                 "of |J_s|) and report.html")
     p.set_defaults(func=run)
