@@ -17,6 +17,7 @@ import pytest
 from browser_checks import render_page, require_browser
 from page_checks import PageError, check_page
 from test_cli_fuzz import BOX
+from test_convergence import CASE_TOML
 
 from tissue_reference.meshes.case import load_case
 from tissue_reference.tissue.cli import main
@@ -24,26 +25,9 @@ from tissue_reference.tissue.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 
 
-# a 2D strip whose study at 4 levels has quantities inside and outside the asymptotic range
-STRIP = """name = "strip"
-[mesh]
-builtin = "rectangle"
-size = 2.5
-[material]
-model = "linear-elastic"
-E = 6.0
-nu = 0.3
-[[boundary]]
-region = "xmin"
-type = "fixed"
-[[boundary]]
-region = "xmax"
-type = "displacement"
-value = [1.0, 0.5]
-[[probe]]
-name = "M"
-point = [5.0, 5.0]
-"""
+# the convergence tests' 2D strip, whose study at 4 levels has quantities inside and outside
+# the asymptotic range
+STRIP = CASE_TOML.format(builtin="rectangle", size=2.5, value="[1.0, 0.5]", point="[5.0, 5.0]")
 
 
 @pytest.fixture(scope="module")
