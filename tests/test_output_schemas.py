@@ -222,7 +222,8 @@ def test_a_value_of_the_wrong_type_is_named_with_its_path(outputs):
     assert "'0.5' is not of type 'number'" in err.value.reason
 
 
-def test_the_demo_summary_says_what_was_run_and_its_page_is_well_formed(outputs):
+def test_the_demo_summary_says_what_was_run_and_its_page_is_well_formed(outputs, tmp_path):
+    from browser_checks import render_page, require_browser
     from page_checks import check_page
 
     _, [summary] = outputs.get("demo")
@@ -233,6 +234,9 @@ def test_the_demo_summary_says_what_was_run_and_its_page_is_well_formed(outputs)
     found = check_page(out / "report.html")
     assert "verify/report.html" in found["links"] and "fem/probes_vs_push.png" in found["images"]
     check_page(out / "verify" / "report.html")
+    # what make demo tells a newcomer to open, as a browser draws it: every picture loaded
+    drawn = render_page(out / "report.html", require_browser(), tmp_path / "demo.png")
+    assert len(drawn["image_widths"]) == len(found["images"]) and min(drawn["image_widths"]) > 0
 
 
 @pytest.mark.slow
