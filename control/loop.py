@@ -82,12 +82,15 @@ class LinearizedModel:
 
     solve(case, pushes, initial_u) -> SolveResult; tangent(case, u) -> CSR K (mN/mm, P1,
     node-major, Case numbering; evaluated on ``case.with_pushes(pushes)``).
-    ``jacobian(pushes)`` -> (gdim, n_act) block of the target (mm/mm) at the model's solution.
+    ``jacobian(pushes)`` -> (gdim, n_act) block of the target (mm/mm) at the model's solution:
+    the Dirichlet sensitivity of glued patches from K, or, when ``sensitivity`` is given,
+    ``sensitivity(case, pushes, u, target)`` (e.g. rigid indenters: ``control.plants``).
     """
 
-    def __init__(self, case, solve, tangent, target: str):
+    def __init__(self, case, solve, tangent, target: str, sensitivity=None):
         case.probe(target)
         self.case, self.solve, self.tangent, self.target = case, solve, tangent, target
+        self.sensitivity = sensitivity
         self._u = None
         self.solve_time_s = 0.0
         self.retries: list[str] = []
@@ -100,6 +103,10 @@ class LinearizedModel:
                               self.retries)
             u = r.u
         self._u = np.asarray(u)
+        if self.sensitivity is not None:
+            J = self.sensitivity(self.case, pushes, self._u, self.target)
+            self.solve_time_s += time.perf_counter() - t0
+            return J
         pushed = self.case.with_pushes(pushes)
         K = self.tangent(pushed, self._u)
         J = dirichlet_jacobian(pushed, K, targets=[self.target]).J

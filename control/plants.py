@@ -16,8 +16,8 @@ from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import material_json  # noqa: F401  (re-exported)
 
 __all__ = ["ADMM_CONTROL_OPTIONS", "FD_FLOOR", "SCENARIOS", "LoopSetup", "build_loop",
-           "jacobian_at", "material_json", "plant_for", "reference_state", "scenario_loop",
-           "solver_description", "tangent_for"]
+           "indenter_sensitivity", "jacobian_at", "material_json", "plant_for", "reference_state",
+           "scenario_loop", "solver_description", "tangent_for"]
 
 # ADMM as a control plant/model: the ADMM stage hands over to the Newton polish (part of
 # solvers.admm.solve, iteration budget left to the solver: 20 per load step) which finishes to
@@ -210,12 +210,14 @@ class LoopSetup:
     model_solve: object
     model_tangent: object
     meta: dict = field(default_factory=dict)
+    model_sensitivity: object = None   # the model's Jacobian when not from its tangent
 
     def run(self, target: str, task: int, settings):
         """One closed loop (and its open-loop baseline) -> control.loop.LoopResult."""
         from .loop import LinearizedModel, run_closed_loop
 
-        model = LinearizedModel(self.model_case, self.model_solve, self.model_tangent, target)
+        model = LinearizedModel(self.model_case, self.model_solve, self.model_tangent, target,
+                                self.model_sensitivity)
         return run_closed_loop(self.plant, self.case, model, target, task, settings=settings)
 
 
@@ -237,12 +239,9 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
                         f"outside the physical range [{E_RANGE_KPA[0]:g}, {E_RANGE_KPA[1]:g}] kPa")
     mname = model or plant
     mc = model_case if model_case is not None else case
-    if mc.indenters():
-        raise CaseError(
-            f"{mc.source or mc.name}: the closed loop linearizes its model's actuators as glued "
-            f"patches, and {[a.name for a in mc.indenters()]} are indenters; their Jacobian "
-            f"comes from tissue jacobian (control.plants.jacobian_at), a loop whose model has "
-            f"indenters is not built yet")
+    if mc.indenters() and len(mc.indenters()) != len(mc.actuators):
+        raise CaseError(f"{mc.source or mc.name}: the model mixes indenters and glued patches; "
+                        f"a loop's model has actuators of one kind")
     psolve = plant_for(plant)
     pcase = plant_case if plant_case is not None else case
     if mname == plant and model_E_factor == 1.0 and model_case is None and plant_case is None:
@@ -267,7 +266,28 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
             "actuators": {a.name: {"type": a.type, "idle": a.idle} for a in case.actuators},
             "plant_solver": solver_description(plant, pcase),
             "model_solver": solver_description(mname, mcase)}
-    return LoopSetup(pcase, psolve, mcase, msolve, tangent_for(mname), meta)
+    sensitivity = None
+    if mcase.indenters():
+        if mname != "fem":
+            mcase.require_no_contact(f"the {mname} model")
+        sensitivity = indenter_sensitivity()
+    return LoopSetup(pcase, psolve, mcase, msolve, tangent_for(mname), meta, sensitivity)
+
+
+def indenter_sensitivity(degree: int | None = None):
+    """sensitivity(case, pushes, u, target) -> (gdim, n_act) mm/mm: the reference's indenter
+    Jacobian (``fem_reference.contact_jacobian``) of ``target`` at the state of ``case`` with
+    ``pushes`` that starts from ``u`` (the model's answer there: the warm start is the state)."""
+    def sensitivity(case, pushes, u, target):
+        from tissue_reference.fem_reference.contact_jacobian import indenter_jacobian
+        from tissue_reference.fem_reference.solver import _solver_for
+
+        s = _solver_for(case, degree)
+        res = s.solve(pushes, case=case, initial=u)
+        if not res.converged:
+            raise CaseError(f"the model's state at pushes {pushes} did not converge")
+        return indenter_jacobian(s, case.with_pushes(pushes), targets=[target])
+    return sensitivity
 
 
 # model-plant mismatches that matter with displacement-controlled actuators (E alone does not:

@@ -66,12 +66,35 @@ def test_the_jacobian_page_of_indenters_names_their_kind(case, tmp_path):
     assert "Not checked against finite differences" in page
 
 
-def test_mixing_indenters_and_patches_and_an_indenter_loop_model_are_refused(case):
+@pytest.mark.slow
+def test_a_closed_loop_steers_a_target_with_indenters(case):
+    """The push-only MPC, its model linearized with the indenter Jacobian at every step, moves
+    T2 0.3 mm along -x on the contact plant (the same reference: no mismatch)."""
+    from tissue_reference.control.loop import LinearizedModel, LoopSettings, run_closed_loop
+
+    setup = build_loop(case, plant="fem")
+    assert setup.model_sensitivity is not None
+    model = LinearizedModel(setup.model_case, setup.model_solve, setup.model_tangent, "T2",
+                            setup.model_sensitivity)
+    res = run_closed_loop(setup.plant, setup.case, model, "T2", 1,
+                          goal=[-0.3, np.nan, np.nan],
+                          settings=LoopSettings(steps=12, open_loop=False))
+    moved = res.target[-1] - res.target[0]
+    assert abs(moved[0] + 0.3) <= 0.05 and res.steady_state_error_mm <= 0.05
+    assert res.max_retraction_mm == 0.0 and res.pushes[-1].max() > 0.1
+    # the plant's final state is a valid contact answer with the tips pressing
+    final = setup.plant(setup.case, dict(zip(res.actuators, res.pushes[-1])), None)
+    assert final.extra["valid"] and max(r["force"] for r in final.extra["indenters"].values()) > 0
+
+
+def test_mixing_indenters_and_patches_is_refused(case):
     mixed = Case(mesh=case.mesh, material=case.material, name="mixed",
                  boundaries=case.boundaries,
                  actuators=(case.actuators[0], Actuator("P", "xmin", (1.0, 0.0, 0.0))),
                  probes=case.probes)
     with pytest.raises(CaseError, match="mix indenters and glued patches"):
         jacobian_at(mixed, {"I": 1.0}, fd_h=0)
-    with pytest.raises(CaseError, match="indenters"):
-        build_loop(case, plant="fem")
+    with pytest.raises(CaseError, match="mixes indenters and glued patches"):
+        build_loop(mixed, plant="fem")
+    with pytest.raises(CaseError, match="does not model contact"):
+        build_loop(case, plant="fem", model="admm")
