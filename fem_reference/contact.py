@@ -201,11 +201,11 @@ class Contact:
             return True
         return False
 
-    def extra(self, u_vertices=None) -> dict:
+    def extra(self) -> dict:
         """{"indenters": {name: report}} at the solver's current state; {} without indenters.
-        With the vertex field ``u_vertices`` each report has the facet check, and a tip that
-        passed between the surface's nodes makes the state invalid (``through_surface``)."""
+        Each report has the facet check: a tip that passed between the surface's nodes makes
+        the state invalid (``through_surface``)."""
         if not self.indenters:
             return {}
         arr = self.solver.u.x.array
-        return {"indenters": {ind.name: ind.report(arr, u_vertices) for ind in self.indenters}}
+        return {"indenters": {ind.name: ind.report(arr) for ind in self.indenters}}

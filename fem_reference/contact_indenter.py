@@ -5,13 +5,12 @@ Units: length mm, force mN, area mm^2, penalty stiffness kPa/mm.
 
 ``_Indenter`` builds the node-to-surface penalty (``fem_reference.contact`` module docstring)
 for one actuator of type "indenter". Its ``report`` gives the push, force, contact area and
-nodal penetration and, with the vertex displacements, the surface-penetration check: the
-penalty acts at the surface's nodes only, so a tip narrower than the facets can pass between
-them; each contact facet is sampled at ``SURFACE_SAMPLES`` points per edge, and a facet deeper
+nodal penetration and the surface-penetration check: the penalty acts at the surface's nodes
+only, so a tip narrower than the facets can pass between them; each contact facet is sampled at ``SURFACE_SAMPLES`` points per edge, and a facet deeper
 inside the tip than ``SLIP_FRACTION`` of its radius (and than 10x the nodal penetration) marks
-the state invalid (``tip_through_surface``). At degree 1 the deformed facets are the flat
-triangles through the deformed vertices; at degree >= 2 they are the field's own curved
-surface (the displacement evaluated at the sample points), which bends between its vertices.
+the state invalid (``tip_through_surface``). The deformed facets are the field's own surface:
+the displacement evaluated at the sample points, flat between the vertices at degree 1, bending
+at degree >= 2.
 """
 from __future__ import annotations
 
@@ -97,17 +96,12 @@ class _Indenter:
         self.dofs = dolfinx.fem.locate_dofs_topological(V, mesh.topology.dim - 1, facets)
         self.dofs = self.dofs[self.dofs < V.dofmap.index_map.size_local]
         self.x_nodes = V.tabulate_dof_coordinates()[self.dofs, :gdim]
-        self._X = case.mesh.points
         self.site = self._site(a, case)
         self.q0 = self._start(a)
-        # the contact surface's facets (Case vertex ids): the tip must not pass between nodes
-        self.surface = np.concatenate([case.mesh.facet_regions[r] for r in regions]) \
-            if regions else np.zeros((0, gdim), np.int64)
-        # degree >= 2: the facets are curved once deformed; sample points on the undeformed
-        # facets (between their vertices) and the cell of each, where the field is evaluated
-        self._u_field = solver.u if solver.degree >= 2 else None
-        if self._u_field is not None:
-            self._samples, self._sample_cells = _facet_sample_points(mesh, facets, f2c)
+        # the tip must not pass between the contact surface's nodes: sample points on its
+        # undeformed facets and the cell of each, where the displacement is evaluated
+        self._u_field = solver.u
+        self._samples, self._sample_cells = _facet_sample_points(mesh, facets, f2c)
         # constants: tip front point (ramped by the load stepping), shape, axis
         sc = PETSc.ScalarType
         self.q = dolfinx.fem.Constant(mesh, sc(tuple(self.q0)))
@@ -171,40 +165,34 @@ class _Indenter:
         self._w_area.value = w_area
         return self.comm.allreduce(dolfinx.fem.assemble_scalar(self._report_form), op=MPI.SUM)
 
-    def surface_penetration(self, u_vertices) -> float:
+    def surface_penetration(self) -> float:
         """Deepest point (mm) of the contact surface's deformed facets inside the tip, sampled
-        at SURFACE_SAMPLES points per facet: the penalty acts at the nodes only, so a tip
+        at SURFACE_SAMPLES points per facet edge: the penalty acts at the nodes only, so a tip
         narrower than the facets can slip between nodes; then this exceeds the nodal
-        ``max_penetration`` by far."""
+        ``max_penetration`` by far. The facets are the field's own surface, the displacement
+        evaluated between the vertices (flat for P1, bending for P2)."""
         gdim = len(self.d)
-        o = np.asarray(self.q.value) - self.shape.edge * self.d
-        if self._u_field is not None:
-            # the field's own (curved) surface: u evaluated between the vertices, where a P2
-            # surface is not the chord through its vertices
-            pts = self._samples
-            if len(pts):
-                u = self._u_field.eval(np.pad(pts, ((0, 0), (0, 3 - gdim))), self._sample_cells)
-                pts = pts + np.asarray(u)[:, :gdim]
-            deep = float(np.max(-self.shape.gap(pts, o, self.d), initial=0.0)) if len(pts) \
-                else 0.0
-            return max(self.comm.allreduce(deep, op=MPI.MAX), 0.0)
-        if not len(self.surface):
-            return 0.0
-        y = np.asarray(u_vertices, float).reshape(-1, gdim) + self._X
-        pts = np.einsum("sk,fkd->fsd", _facet_samples(self.surface.shape[1]),
-                        y[self.surface]).reshape(-1, gdim)
-        return float(max(np.max(-self.shape.gap(pts, o, self.d), initial=0.0), 0.0))
+        pts = self._samples
+        deep = 0.0
+        if len(pts):
+            u = self._u_field.eval(np.pad(pts, ((0, 0), (0, 3 - gdim))), self._sample_cells)
+            y = pts + np.asarray(u)[:, :gdim]
+            deep = float(np.max(-self.shape.gap(y, self._origin(), self.d), initial=0.0))
+        return max(self.comm.allreduce(deep, op=MPI.MAX), 0.0)
 
-    def report(self, u_array, u_vertices=None) -> dict:
+    def _origin(self) -> np.ndarray:
+        """Centre (mm) of the tip's rounded end where the tip is now."""
+        return np.asarray(self.q.value) - self.shape.edge * self.d
+
+    def report(self, u_array) -> dict:
         """Force, area and penetration at the solver's current state (module docstring);
-        ``u_vertices`` ((n, gdim), mm, Case numbering) adds the facet check."""
+        with the facet check (``surface_penetration``, ``tip_through_surface``)."""
         gdim = len(self.d)
         eye = np.eye(gdim)
         f = np.array([self._assemble(eye[i], 0.0) for i in range(gdim)])
         area = self._assemble(np.zeros(gdim), 1.0)
         y = self.x_nodes + u_array.reshape(-1, gdim)[self.dofs]
-        o = np.asarray(self.q.value) - self.shape.edge * self.d
-        pen = float(np.max(-self.shape.gap(y, o, self.d), initial=0.0))
+        pen = float(np.max(-self.shape.gap(y, self._origin(), self.d), initial=0.0))
         pen = max(self.comm.allreduce(pen, op=MPI.MAX), 0.0)
         return {"push": self.push_now(), "force": float(f @ self.d),
                 "force_vector": [float(v) for v in f], "contact_area": float(area),
@@ -212,11 +200,9 @@ class _Indenter:
                 "penalty": [float(self.beta * self.E.value / h) for h in self.h_range[::-1]],
                 "tip": self.actuator.tip, "contact": self.actuator.contact,
                 "tip_start": [float(v) for v in self.q0],
-                **self._slip_check(u_vertices, pen)}
+                **self._slip_check(pen)}
 
-    def _slip_check(self, u_vertices, nodal_pen) -> dict:
-        if u_vertices is None:
-            return {}
-        deep = self.surface_penetration(u_vertices)
+    def _slip_check(self, nodal_pen) -> dict:
+        deep = self.surface_penetration()
         through = deep > max(SLIP_FRACTION * self.shape.radius, 10.0 * nodal_pen)
         return {"surface_penetration": deep, "tip_through_surface": bool(through)}

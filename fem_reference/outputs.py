@@ -114,7 +114,7 @@ class OutputsMixin(StateMixin, TangentMixin):
             state = {"node_u": nodes, "node_points": self._output_node_points()}
         if self.Q is not None:
             state["pressure"] = self._pressure_vertex_field()
-        contact = self.contact.extra(u_v)
+        contact = self.contact.extra()
         return SolveResult(
             u=u_v, converged=converged, iterations=iters, residual=float(residual),
             wall_time_s=wall, solver="fem", probes=self._probes(case, u_v),

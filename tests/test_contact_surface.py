@@ -97,4 +97,4 @@ def test_a_degree_2_surface_is_checked_where_it_bulges_between_its_vertices():
     chord = float(np.max(depth(
         vertices + np.stack([0 * vertices[:, 0], 0 * vertices[:, 0], bulge(vertices.T)], 1))))
     assert expected > 0.2 * R and chord < expected - 0.1 * R   # the bulge is between vertices
-    assert ind.surface_penetration(None) == pytest.approx(expected, abs=1e-9)
+    assert ind.surface_penetration() == pytest.approx(expected, abs=1e-9)
