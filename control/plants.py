@@ -100,17 +100,23 @@ def reference_state(case, state_pushes, *, degree=None, formulation="auto"):
     vertex values ``res.u`` alone do not determine it (edge nodes = mean of their end vertices is
     *not* the solution away from rest: 17% off J_s on the phantom at A1 = 3 mm) and are refused.
     """
+    s, res, plant = _solved_reference(case, state_pushes, degree, formulation)
+    return res, s.tangent(None, pushes=state_pushes), plant
+
+
+def _solved_reference(case, state_pushes, degree, formulation):
+    """(ReferenceSolver left at its converged state at ``state_pushes``, that SolveResult,
+    plant(case, pushes, initial) re-solving with the same solver)."""
     from tissue_reference.fem_reference import ReferenceSolver
 
     s = ReferenceSolver(case, degree=degree, formulation=formulation)
     res = s.solve(state_pushes)
     if not res.converged:
         raise CaseError(f"the state solve at pushes {state_pushes} did not converge")
-    T = s.tangent(None, pushes=state_pushes)
 
     def plant(c, pushes, initial):
         return s.solve(pushes, case=c, initial=initial)
-    return res, T, plant
+    return s, res, plant
 
 
 def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="auto", fd_h=0.02,
@@ -140,20 +146,13 @@ def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="a
         raise CaseError(f"the Jacobian's actuators {names} mix indenters and glued patches: ask "
                         f"for the columns of one kind at a time (--actuators)")
     if solver == "fem" and tips & set(names):
-        from tissue_reference.fem_reference import ReferenceSolver
         from tissue_reference.fem_reference.contact_jacobian import indenter_jacobian
 
-        s = ReferenceSolver(case, degree=degree, formulation=formulation)
-        res = s.solve(st)
-        if not res.converged:
-            raise CaseError(f"the state solve at pushes {st} did not converge")
+        s, res, plant = _solved_reference(case, st, degree, formulation)
         degree = s.degree
         J = indenter_jacobian(s, pushed, actuators=names)
         jac = ControlJacobian(J, tuple(names), tuple(p.name for p in case.probes),
                               kind="indenter", gdim=case.mesh.gdim)
-
-        def plant(c, pushes, initial):
-            return s.solve(pushes, case=c, initial=initial)
     elif solver == "fem":
         res, T, plant = reference_state(case, st, degree=degree, formulation=formulation)
         degree = T.degree
