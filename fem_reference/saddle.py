@@ -125,6 +125,7 @@ class SaddleSolveMixin:
         Mw.destroy()
         Sp.setOption(PETSc.Mat.Option.SYMMETRIC, True)
         self._Sp, self._sp_key = Sp, key
+        self._fresh_its = None  # a new Schur block: the lagged preconditioner is rebuilt
         self.saddle_ksp.getPC().setFieldSplitSchurPreType(PETSc.PC.SchurPreType.USER, Sp)
         return Sp
 
@@ -159,8 +160,7 @@ class SaddleSolveMixin:
         ``eta``, the preconditioner lagged (module docstring); a solve that does not converge
         with a fresh preconditioner is redone by the MUMPS fallback (self.ksp). Returns the
         Krylov iterations."""
-        if self._schur_preconditioner() is not getattr(self, "_lag_sp", None):
-            self._fresh_its, self._lag_sp = None, self._Sp  # a new Schur block: rebuild
+        self._schur_preconditioner()
         k = self.saddle_ksp
         k.setTolerances(rtol=eta, atol=1e-300)
         total = 0
@@ -182,7 +182,6 @@ class SaddleSolveMixin:
             log.debug("lagged fieldsplit preconditioner: no convergence in %d iterations, "
                       "rebuilding it on the current tangent", its)
             self._fresh_its = None
-        self._fresh_its = None
         log.info("fieldsplit FGMRES did not converge (reason %d after %d iterations): "
                  "solving with the MUMPS factorization", k.getConvergedReason(), its)
         self.ksp.solve(self.b, self.du.vector)
