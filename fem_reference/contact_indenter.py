@@ -6,9 +6,10 @@ Units: length mm, force mN, area mm^2, penalty stiffness kPa/mm.
 ``_Indenter`` builds the node-to-surface penalty (``fem_reference.contact`` module docstring)
 for one actuator of type "indenter". Its ``report`` gives the push, force, contact area and
 nodal penetration and the surface-penetration check: the penalty acts at the surface's nodes
-only, so a tip narrower than the facets can pass between them; each contact facet is sampled at ``SURFACE_SAMPLES`` points per edge, and a facet deeper
-inside the tip than ``SLIP_FRACTION`` of its radius (and than 10x the nodal penetration) marks
-the state invalid (``tip_through_surface``). The deformed facets are the field's own surface:
+only, so a tip narrower than the facets can pass between them; each contact facet is sampled
+at ``SURFACE_SAMPLES`` points per edge, and a facet deeper inside the tip than
+``SLIP_FRACTION`` of its radius (and than 10x the nodal penetration) marks the state invalid
+(``tip_through_surface``). The deformed facets are the field's own surface:
 the displacement evaluated at the sample points, flat between the vertices at degree 1, bending
 at degree >= 2.
 """

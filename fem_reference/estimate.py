@@ -263,8 +263,9 @@ def auto_estimate(case: Case, result: SolveResult, *, pushes=None, progress: boo
     """``result`` with its estimated discretization error (``estimate``) where that is cheap,
     else with ``extra["estimate_note"]`` saying why it has none: not a valid converged reference
     answer, a degree-3 answer (nothing richer to compare with), a run under MPI, or an enriched
-    solve of more than ``max_dofs`` (default AUTO_MAX_DOFS) unknowns. An enriched solve that does not converge leaves
-    the answer as it is, with that note. ``estimate`` itself runs whatever the cost."""
+    solve of more than ``max_dofs`` (default AUTO_MAX_DOFS) unknowns. An enriched solve that
+    does not converge leaves the answer as it is, with that note. ``estimate`` itself runs
+    whatever the cost."""
     max_dofs = AUTO_MAX_DOFS if max_dofs is None else max_dofs
     note = _no_auto_estimate(case, result, max_dofs, solver_options)
     if note is None:
