@@ -174,7 +174,7 @@ def run(args) -> int:
             print(f"  discretization: {disc['formulation']} P{disc['degree']}{p}, "
                   f"{disc['dofs']} dofs")
         print_answer(res)
-        worst = _worst_estimate(res)
+        worst = max(_relative_estimates(res).values(), default=None)
         if worst is not None and worst > ESTIMATE_WARN:
             print(f"tissue solve: warning: estimated discretization error up to {worst:.1%} of "
                   f"a probe's displacement (above {ESTIMATE_WARN:.0%}): raise --degree, or "
@@ -203,23 +203,27 @@ def solve_adaptive(case, pushes, args):
     return out.case, out.result
 
 
-def _worst_estimate(res):
-    """The largest estimated probe error relative to the probe's displacement (None: none)."""
+def _relative_estimates(res) -> dict:
+    """Probe -> its estimated error relative to its displacement (inf at a probe that did not
+    move); only the probes with an estimate."""
     pe = res.extra.get("probe_error_estimates") or {}
-    rel = [pe[k] / max(float(np.linalg.norm(v)), 1e-300) for k, v in res.probes.items()
-           if k in pe]
-    return max(rel) if rel else None
+    out = {}
+    for k, v in res.probes.items():
+        if k in pe:
+            size = float(np.linalg.norm(v))
+            out[k] = pe[k] / size if size > 0 else float("inf")
+    return out
 
 
 def print_answer(res):
     """Probes and reactions, each with its estimated discretization error when there is one."""
     pe = res.extra.get("probe_error_estimates") or {}
     re_ = res.extra.get("reaction_error_estimates") or {}
+    rels = _relative_estimates(res)
     for k, v in res.probes.items():
         line = f"  probe {k}: u = [{', '.join(f'{x:+.4f}' for x in v)}] mm"
-        if k in pe:
-            size = float(np.linalg.norm(v))
-            rel = pe[k] / size if size > 0 else float("inf")
+        if k in rels:
+            rel = rels[k]
             line += f"  +- {pe[k]:.2g} mm ({rel:.1%})"
             if rel > ESTIMATE_WARN:
                 line += "  WARNING: estimated error above 2 %"
