@@ -11,6 +11,11 @@
         T1 (0, 0), T2 (12, 0), T3 (0, 12), T4 (-12, 0), T5 (0, -12)
     volume: ``tissue``
 
+``phantom-half`` and ``phantom-quarter`` are its parts y >= 0 and x >= 0, y >= 0, with the mirror
+planes as regions ``sym_y0`` and ``sym_x0`` (patches on a plane cut in half; the targets on the
+part): with sliding planes they stand for the whole phantom under symmetric loads at a half or a
+quarter of the unknowns (meshes/cases/phantom-indenter-half.toml, -quarter.toml).
+
 ``box`` is an axis-aligned block with faces ``xmin``, ``xmax``, ``ymin``, ``ymax``, ``zmin``,
 ``zmax``; ``rectangle`` is its 2D (plane strain) analogue with edges ``xmin`` .. ``ymax``.
 
@@ -43,6 +48,8 @@ from .builders_curved import (  # noqa: F401  (re-exported)
     PhantomGeometry,
     phantom,
     phantom3,
+    phantom_half,
+    phantom_quarter,
     shell_octant,
 )
 from .builders_gmsh import _GMSH_STATE, _finish, _gmsh_session  # noqa: F401  (re-exported)
@@ -62,6 +69,8 @@ __all__ = [
     "indent_block",
     "phantom",
     "phantom3",
+    "phantom_half",
+    "phantom_quarter",
     "rectangle",
 ]
 
@@ -85,7 +94,8 @@ def _indent_block_cells(size: float, g: IndentBlock = INDENT_BLOCK) -> float:
     return 1.2 * CELLS_PER_VOLUME[3] * float(np.sum(0.5 * (f[1:] + f[:-1]) * np.diff(r)))
 
 
-BUILDERS = {"phantom": phantom, "phantom-3": phantom3, "box": box, "rectangle": rectangle,
+BUILDERS = {"phantom": phantom, "phantom-half": phantom_half, "phantom-quarter": phantom_quarter,
+            "phantom-3": phantom3, "box": box, "rectangle": rectangle,
             "shell-octant": shell_octant, "indent-block": indent_block}
 
 
@@ -93,6 +103,8 @@ BUILDERS = {"phantom": phantom, "phantom-3": phantom3, "box": box, "rectangle": 
 # dimensions, for the cell-count estimate.
 BODY_VOLUMES = {
     "phantom": 2.0 / 3.0 * math.pi * PHANTOM.radius ** 2 * PHANTOM.height,
+    "phantom-half": 1.0 / 3.0 * math.pi * PHANTOM.radius ** 2 * PHANTOM.height,
+    "phantom-quarter": 1.0 / 6.0 * math.pi * PHANTOM.radius ** 2 * PHANTOM.height,
     "phantom-3": 2.0 / 3.0 * math.pi * PHANTOM.radius ** 2 * PHANTOM.height,
     "box": 1000.0,
     "rectangle": 100.0,
@@ -130,7 +142,7 @@ def estimate_cells(name: str, size: float, *, site_size: float | None = None) ->
         if site_size is not None and name in SITE_BUILDERS and site_size < size:
             # each site: a half ball of radius SITE_REACH at site_size, a graded shell to
             # 2 SITE_REACH (cells of about the mean size), at most the whole body
-            n_sites = 4 if name == "phantom" else 3
+            n_sites = SITES[name]
             half = 2.0 / 3.0 * math.pi * SITE_REACH ** 3
             shell = 7.0 * half
             mid = (site_size + size) / 2.0
@@ -151,7 +163,10 @@ def check_cell_budget(name: str, size: float, max_cells: int | None = MAX_CELLS)
     return est
 
 
-SITE_BUILDERS = ("phantom", "phantom-3")
+SITES = {"phantom": 4, "phantom-half": 2, "phantom-quarter": 1, "phantom-3": 3}
+"""Actuator sites of each builder that takes ``site_size`` (in whole-site equivalents: a half
+site on a mirror plane counts a half)."""
+SITE_BUILDERS = tuple(SITES)
 """The builders that take ``site_size`` (finer cells at the actuator sites)."""
 
 

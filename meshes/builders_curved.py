@@ -29,6 +29,8 @@ __all__ = [
     "PhantomGeometry",
     "phantom",
     "phantom3",
+    "phantom_half",
+    "phantom_quarter",
     "shell_octant",
 ]
 
@@ -61,18 +63,43 @@ SITE_REACH = 15.0
 ``size`` over the next SITE_REACH mm."""
 
 
+SYMMETRY_PLANES = {"full": (), "half": ("sym_y0",), "quarter": ("sym_y0", "sym_x0")}
+"""The mirror planes each symmetric part of the phantom keeps as regions: ``sym_y0`` is the
+plane y = 0 (the part keeps y >= 0), ``sym_x0`` the plane x = 0 (the part keeps x >= 0)."""
+
+
 def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANTOM,
-             site_size: float | None = None) -> MeshData:
+             site_size: float | None = None, part: str = "full") -> MeshData:
     g = geometry
     if site_size is not None and not (math.isfinite(site_size) and 0 < site_size):
         raise CaseError(f"site_size must be a positive length in mm, got {site_size!r}")
+    planes = SYMMETRY_PLANES[part]
+    keep = {"sym_y0": 1, "sym_x0": 0}  # the coordinate each plane bounds from below
+    tol = 1e-6 * g.radius
+
+    def inside(p) -> bool:
+        return all(p[keep[pl]] >= -tol for pl in planes)
+
+    def strictly(p) -> bool:
+        return all(p[keep[pl]] > tol for pl in planes)
+
+    actuators = [(n, az) for n, az in actuators if inside(g.side_point(az))]
+    targets = [(n, xyz) for n, xyz in g.targets
+               if all(xyz[keep[pl]] >= -tol for pl in planes)]
     with builders_gmsh._gmsh_session("phantom", size) as gmsh:
         occ = gmsh.model.occ
         s = occ.addSphere(0, 0, 0, g.radius)
+        if planes:  # the sphere's seam (in the plane y = 0) away from the mirror planes: OCC's
+            occ.rotate([(3, s)], 0, 0, 0, 0, 0, 1, math.pi / 4)  # cut along it removes nothing
         occ.dilate([(3, s)], 0, 0, 0, 1, 1, g.height / g.radius)
         cut = occ.addBox(-2 * g.radius, -2 * g.radius, -2 * g.height, 4 * g.radius, 4 * g.radius,
                          2 * g.height)
         dome, _ = occ.cut([(3, s)], [(3, cut)])
+        for pl in planes:  # cut away the negative side of each mirror plane
+            corner = [-2 * g.radius, -2 * g.radius, -g.height]
+            extent = [4 * g.radius, 4 * g.radius, 3 * g.height]
+            corner[keep[pl]], extent[keep[pl]] = -4 * g.radius, 4 * g.radius
+            dome, _ = occ.cut(dome, [(3, occ.addBox(*corner, *extent))])
         # actuator plugs: short cylinders along the inward radial direction at each patch,
         # intersected with the dome; fragmenting imprints their outer faces on the skin.
         plugs = []
@@ -91,14 +118,20 @@ def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANT
             dcopy = occ.copy(dome)
             r, _ = occ.intersect(dcopy, [(3, c)])
             inter.extend(r)
-        out_map = occ.fragment(dome, inter)[0]
+        # targets on a mirror plane are imprinted on it (gmsh cannot embed a point in a curve)
+        on_plane = [occ.addPoint(*xyz, size) for _, xyz in targets if not strictly(xyz)]
+        out_map = occ.fragment(dome, inter + [(0, p) for p in on_plane])[0]
         occ.synchronize()
         vols = [t for d, t in out_map if d == 3]
-        # targets embedded as mesh vertices
-        pts = [occ.addPoint(*xyz, size) for _, xyz in g.targets]
+        # targets inside embedded as mesh vertices; those on a plane were imprinted above
+        inner = iter([occ.addPoint(*xyz, size) for _, xyz in targets if strictly(xyz)])
         occ.synchronize()
+        planar = iter(on_plane)
+        pts = [next(inner) if strictly(xyz) else _vertex_at(gmsh, xyz, next(planar), tol)
+               for _, xyz in targets]
         main = max(vols, key=lambda v: gmsh.model.occ.getMass(3, v))
-        gmsh.model.mesh.embed(0, pts, 3, main)
+        gmsh.model.mesh.embed(0, [p for p, (_, xyz) in zip(pts, targets) if strictly(xyz)], 3,
+                              main)
         gmsh.model.addPhysicalGroup(3, vols, 1)
         gmsh.model.setPhysicalName(3, 1, "tissue")
         # classify boundary surfaces
@@ -106,22 +139,30 @@ def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANT
         surfs = sorted({t for _, t in bnd})
         base, skin, patches = [], [], {n: [] for n, _ in actuators}
         centres = {n: g.side_point(az) for n, az in actuators}
+        mirrors = {pl: [] for pl in planes}
         for sf in surfs:
             c = np.array(gmsh.model.occ.getCenterOfMass(2, sf))
             if abs(c[2]) < 1e-6 * g.height:
                 base.append(sf)
                 continue
+            lo, hi = np.split(np.array(gmsh.model.getBoundingBox(2, sf)), 2)
+            flat = [pl for pl in planes if hi[keep[pl]] - lo[keep[pl]] <= tol
+                    and abs(c[keep[pl]]) <= tol]
+            if flat:
+                mirrors[flat[0]].append(sf)
+                continue
             near = [n for n, pc in centres.items() if np.linalg.norm(c - pc) < 1.5 * g.patch_radius]
             (patches[near[0]] if near else skin).append(sf)
         tag = 10
-        for name, group in [("base", base), ("skin", skin), *patches.items()]:
+        for name, group in [("base", base), ("skin", skin), *patches.items(),
+                            *mirrors.items()]:
             if not group:
                 raise CaseError(f"phantom geometry: no surface found for region {name!r} at "
                                 f"size {size}")
             gmsh.model.addPhysicalGroup(2, group, tag)
             gmsh.model.setPhysicalName(2, tag, name)
             tag += 1
-        for (name, _), p in zip(g.targets, pts):
+        for (name, _), p in zip(targets, pts):
             gmsh.model.addPhysicalGroup(0, [p], tag)
             gmsh.model.setPhysicalName(0, tag, name)
             tag += 1
@@ -131,6 +172,14 @@ def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANT
         if site_size is not None and site_size < size:
             _refine_sites(gmsh, [g.side_point(az) for _, az in actuators], site_size, size)
         return _finish(gmsh, 3, out, curved=True)
+
+
+def _vertex_at(gmsh, xyz, tag: int, tol: float) -> int:
+    """The tag of the geometry point at xyz after a fragment (which may renumber ``tag``)."""
+    for _, t in gmsh.model.getEntities(0):
+        if np.linalg.norm(np.array(gmsh.model.getValue(0, t, [])) - xyz) <= tol:
+            return t
+    raise CaseError(f"phantom geometry: the target at {list(xyz)} was lost on its mirror plane")
 
 
 def _refine_sites(gmsh, sites, fine: float, coarse: float):
@@ -156,6 +205,22 @@ def phantom(size: float = 6.0, *, out=None, site_size: float | None = None) -> M
     site_size: the cell size (mm) near each actuator site (``SITE_REACH``), e.g. a third of an
     indenter's radius."""
     return _phantom(size, ACTUATORS_4, out, site_size=site_size)
+
+
+def phantom_half(size: float = 6.0, *, out=None, site_size: float | None = None) -> MeshData:
+    """The part y >= 0 of ``phantom``: its mirror plane is the region ``sym_y0``, and it keeps
+    act_px, act_py and act_nx (the first and last cut in half) and T1..T4. With sliding on
+    ``sym_y0`` it is the whole phantom under loads symmetric about y = 0 (A1 or A3 alone, or
+    A2 with A4 equal), at about half the unknowns; forces on cut actuators are halves."""
+    return _phantom(size, ACTUATORS_4, out, site_size=site_size, part="half")
+
+
+def phantom_quarter(size: float = 6.0, *, out=None, site_size: float | None = None) -> MeshData:
+    """The part x >= 0, y >= 0 of ``phantom``: mirror planes ``sym_y0`` and ``sym_x0``, halves
+    of act_px and act_py, and T1..T3. With sliding on both planes it is the whole phantom under
+    loads symmetric about both (A1 = A3 and A2 = A4, e.g. all four equal), at about a quarter
+    of the unknowns."""
+    return _phantom(size, ACTUATORS_4, out, site_size=site_size, part="quarter")
 
 
 def phantom3(size: float = 6.0, *, out=None, site_size: float | None = None) -> MeshData:

@@ -328,7 +328,8 @@ class DomeProjection:
     bounded by cylinders of radius ``patch_radius`` along the inward horizontal radial direction
     at height ``actuator_height`` (mm).
 
-    A boundary edge only on ``base`` facets stays (flat); one between ``base`` and the curved
+    A boundary edge only on ``base`` and mirror-plane facets (``mirrors``: the half and quarter
+    phantoms' cuts) stays (flat); one between ``base`` and the curved
     surface goes to the base circle of radius R; one between an actuator patch and the skin goes
     to the patch rim (ellipsoid and cylinder, by minimum-norm Newton); any other boundary edge
     with a named region goes to the ellipsoid (minimum-norm Newton from the chord midpoint, close
@@ -341,6 +342,7 @@ class DomeProjection:
     patch_radius: float
     patches: tuple          # ((region name, azimuth in degrees), ...)
     base: str = "base"
+    mirrors: tuple = ("sym_y0", "sym_x0")  # flat mirror planes of the half and quarter parts
 
     def _rim(self, name):
         az = dict(self.patches)[name]
@@ -356,14 +358,16 @@ class DomeProjection:
         R, H = self.radius, self.height
         patch_names = {name for name, _ in self.patches}
         groups: dict = {}
+        flat = {self.base, *self.mirrors}
         for i, reg in enumerate(regions):
-            if not reg or reg == {self.base}:
+            if not reg or reg <= flat:
                 continue
+            curved = reg - flat
             if self.base in reg:
                 key = ("circle",)
             else:
-                rims = sorted(reg & patch_names)
-                key = ("rim", rims[0]) if rims and len(reg) > 1 else ("ellipsoid",)
+                rims = sorted(curved & patch_names)
+                key = ("rim", rims[0]) if rims and len(curved) > 1 else ("ellipsoid",)
             groups.setdefault(key, []).append(i)
         for key, idx in groups.items():
             idx = np.array(idx)
@@ -402,7 +406,8 @@ def projector_for(builder: str):
         raise CaseError(f"unknown mesh builder {builder!r}; builders: {sorted(BUILDERS)}")
     if builder == "shell-octant":
         return ShellProjection()
-    patches = {"phantom": ACTUATORS_4, "phantom-3": ACTUATORS_3}.get(builder)
+    patches = {"phantom": ACTUATORS_4, "phantom-half": ACTUATORS_4,
+               "phantom-quarter": ACTUATORS_4, "phantom-3": ACTUATORS_3}.get(builder)
     if patches is None:
         return None
     g = PHANTOM

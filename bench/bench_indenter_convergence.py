@@ -1,0 +1,158 @@
+"""Convergence of the indenter phantom's answers at the seed's pushes (5, 10, 15 mm): P2 on the
+phantom's symmetric part, remeshed with every cell size divided by sqrt 2 per level.
+
+A1 alone (``--load one``) is symmetric about y = 0: the half phantom
+(meshes/cases/phantom-indenter-half.toml); all four equal (``--load four``) about x = 0 and
+y = 0: the quarter (phantom-indenter-quarter.toml). Level k has characteristic size 6 / 2^(k/2)
+mm and sites 3.2 / 2^(k/2) mm. Each level's pushes are one warm-started load path; after every
+push the level's JSON (``--out``) is rewritten whole, so a long run keeps what it reached.
+
+Per push and level: validity (the skin may not pass inside the tip), the skin's deepest point
+inside the tip (mm), the whole phantom's A1 force (mN: twice the cut tip's), T1..T4 (mm), Newton
+iterations and wall time. The summary assesses each quantity over the levels
+(``fem_reference.richardson.assess``: observed order, asymptotic-range check, Richardson value
+only when asymptotic, GCI band otherwise) and states the finest level's value with that band.
+
+    .venv/bin/python bench/bench_indenter_convergence.py --load one --level 0 --out out/conv
+    .venv/bin/python bench/bench_indenter_convergence.py --load one --summarize --out out/conv
+    (no --level and no --summarize: every level in turn, then the summary)
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+CASES = {"one": ("phantom-indenter-half.toml", "phantom-half"),
+         "four": ("phantom-indenter-quarter.toml", "phantom-quarter")}
+SIZE, SITE = 6.0, 3.2          # level 0 (mm)
+RATIO = math.sqrt(2.0)
+LEVELS = 3
+PROBES = ("T1", "T2", "T3", "T4")
+
+
+def level_sizes(k: int) -> tuple[float, float]:
+    return SIZE / RATIO ** k, SITE / RATIO ** k
+
+
+def run_level(load: str, k: int, pushes, degree: int, out: Path) -> dict:
+    import tissue_reference.fem_reference as fr
+    from tissue_reference.meshes.builders import build
+    from tissue_reference.meshes.case import load_case
+    from tissue_reference.meshes.errors import ConvergenceError
+    from tissue_reference.meshes.results import write_json
+
+    name, builder = CASES[load]
+    size, site = level_sizes(k)
+    case = load_case(ROOT / "meshes" / "cases" / name)
+    case = dataclasses.replace(case, mesh=build(builder, size, site_size=site))
+    s = fr.ReferenceSolver(case, degree=degree)
+    actuators = ["A1"] if load == "one" else [a.name for a in case.actuators]
+    doc = {"load": load, "level": k, "size_mm": size, "site_mm": site, "degree": degree,
+           "cells": case.mesh.n_cells, "pushes": []}
+    prev = None
+    for p in pushes:
+        t0 = time.perf_counter()
+        try:
+            res, converged = s.solve({a: p for a in actuators}, initial=prev), True
+        except ConvergenceError as exc:
+            res, converged = exc.last_converged, False
+        ind = res.extra["indenters"]["A1"]
+        row = {"push": p, "reached": ind["push"], "converged": converged,
+               "valid": bool(res.extra.get("valid", True)),
+               "why": res.extra.get("invalid_reason"),
+               "surface_mm": ind["surface_penetration"], "nodal_mm": ind["max_penetration"],
+               "force_mN": 2.0 * ind["force"],  # A1 is cut in half by the plane y = 0
+               "area_mm2": 2.0 * ind["contact_area"],
+               "probes": {n: [float(v) for v in res.probes[n]] for n in PROBES
+                          if n in res.probes},
+               "dofs": res.extra["discretization"]["dofs"], "newton": res.iterations,
+               "wall_s": time.perf_counter() - t0}
+        doc["pushes"].append(row)
+        write_json(doc, out / f"{load}-level{k}.json")
+        print(f"level {k} (size {size:.2f}, site {site:.2f} mm, {doc['cells']} cells, "
+              f"{row['dofs']} dofs) push {p:g}: converged {converged}, valid {row['valid']}, "
+              f"skin inside tip {row['surface_mm']:.3f} mm, force {row['force_mN']:.2f} mN, "
+              f"T1 {np.round(row['probes']['T1'], 4).tolist()} mm, {row['newton']} Newton, "
+              f"{row['wall_s']:.0f} s", flush=True)
+        if not converged:
+            break
+        prev = res
+    return doc
+
+
+def summarize(load: str, out: Path) -> None:
+    from tissue_reference.fem_reference.richardson import assess
+
+    docs = []
+    for k in range(10):
+        f = out / f"{load}-level{k}.json"
+        if f.exists():
+            docs.append(json.loads(f.read_text()))
+    if not docs:
+        raise SystemExit(f"no level results under {out} for --load {load}")
+    print(f"indenter phantom, {'A1 alone (half model)' if load == 'one' else 'all four (quarter model)'}, "
+          f"P{docs[0]['degree']}; levels: " + ", ".join(
+              f"{d['level']}: size {d['size_mm']:.2f} / site {d['site_mm']:.2f} mm, "
+              f"{d['cells']} cells" for d in docs))
+    pushes = sorted({r["push"] for d in docs for r in d["pushes"]})
+    for p in pushes:
+        rows = [next((r for r in d["pushes"] if r["push"] == p and r["converged"]), None)
+                for d in docs]
+        have = [(d, r) for d, r in zip(docs, rows) if r is not None]
+        print(f"\npush {p:g} mm: levels reached {[d['level'] for d, _ in have]}; valid "
+              f"{[r['valid'] for _, r in have]}; skin inside the tip (mm) "
+              f"{[round(r['surface_mm'], 3) for _, r in have]}")
+        for d, r in have:
+            print(f"  level {d['level']}: {r['dofs']} dofs, {r['newton']} Newton, "
+                  f"{r['wall_s']:.0f} s")
+        if len(have) < 3 or not all(r["valid"] for _, r in have):
+            print("  no convergence assessment: needs 3 valid levels")
+            continue
+        h = [d["site_mm"] for d, _ in have]
+        quantities = [("force A1", "mN", [r["force_mN"] for _, r in have])]
+        for n in PROBES:
+            vals = np.array([r["probes"][n] for _, r in have])
+            for c, axis in enumerate("xyz"):
+                if np.abs(vals[:, c]).max() > 1e-3:
+                    quantities.append((f"{n} u{axis}", "mm", list(vals[:, c])))
+        print(f"  {'quantity':>9} {'unit':>4} " + " ".join(f"{'L' + str(d['level']):>10}"
+                                                     for d, _ in have)
+              + f" {'order':>6} {'asym':>5} {'extrap':>10} {'GCI band':>10} {'rel':>7}")
+        for qname, unit, vals in quantities:
+            a = assess(vals, h, expected_order=docs[0]["degree"] + 1, ratio=RATIO,
+                       name=qname, unit=unit)
+            order = "-" if a.observed_order is None else f"{a.observed_order:.2f}"
+            ext = "-" if a.extrapolated is None else f"{a.extrapolated:.4f}"
+            rel = "-" if a.gci_rel is None else f"{100 * a.gci_rel:.1f}%"
+            print(f"  {qname:>9} {unit:>4} " + " ".join(f"{v:10.4f}" for v in vals)
+                  + f" {order:>6} {a.asymptotic!s:>5} {ext:>10} {a.gci:10.4f} {rel:>7}")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--load", choices=sorted(CASES), default="one")
+    ap.add_argument("--pushes", type=float, nargs="+", default=[5.0, 10.0, 15.0])
+    ap.add_argument("--level", type=int, help="run this level only (0 = coarsest)")
+    ap.add_argument("--levels", type=int, default=LEVELS)
+    ap.add_argument("--degree", type=int, default=2)
+    ap.add_argument("--summarize", action="store_true", help="only print the summary")
+    ap.add_argument("--out", type=Path, default=ROOT / "out" / "indenter-convergence")
+    args = ap.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    if not args.summarize:
+        for k in ([args.level] if args.level is not None else range(args.levels)):
+            run_level(args.load, k, args.pushes, args.degree, args.out)
+    if args.level is None:
+        summarize(args.load, args.out)
+
+
+if __name__ == "__main__":
+    main()
