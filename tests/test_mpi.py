@@ -42,3 +42,37 @@ def test_two_ranks_match_serial(tmp_path, degree, formulation):
         a, b = np.array(r), np.array(par["reactions"][region])
         np.testing.assert_allclose(b, a, rtol=1e-8, atol=1e-8 * np.abs(a).max())
     assert par["n_vertices"] == serial["n_vertices"]
+
+
+@pytest.mark.mpi
+@pytest.mark.skipif(MPIRUN is None, reason="mpirun not installed")
+def test_two_ranks_match_serial_with_contact(tmp_path):
+    """A rigid tip pressed into the half phantom (mirror plane sliding, P2: P1 on 4 mm cells
+    lets the tip through): the contact force,
+    contact area, penetration and targets of two ranks are the serial ones."""
+    text = (ROOT / "meshes/cases/phantom-indenter-half.toml").read_text()
+    text = text.replace("size = 6.0 ", "size = 12.0 ").replace("site_size = 1.6 ",
+                                                              "site_size = 4.0 ")
+    case = tmp_path / "half.toml"
+    case.write_text(text)
+    runs = {}
+    for nproc in (1, 2):
+        out = tmp_path / f"contact-{nproc}.json"
+        cmd = [TISSUE, "solve", str(case), "--push", "A1=2", "--degree", "2", "--no-estimate", "-q",
+               "--json", str(out)]
+        if nproc > 1:
+            cmd = [MPIRUN, "--allow-run-as-root", "--oversubscribe", "-n", str(nproc)] + cmd
+        env = {**os.environ, "OMPI_MCA_rmaps_base_oversubscribe": "1"}
+        subprocess.run(cmd, check=True, cwd=tmp_path, env=env, capture_output=True,
+                       timeout=600)
+        runs[nproc] = json.loads(out.read_text())
+    serial, par = runs[1], runs[2]
+    assert serial["converged"] and par["converged"] and serial["valid"] and par["valid"]
+    assert serial["discretization"] == par["discretization"]
+    a, b = serial["indenters"]["A1"], par["indenters"]["A1"]
+    assert a["force"] > 1.0 and a["contact_area"] > 1.0
+    for key in ("force", "contact_area", "max_penetration"):
+        assert b[key] == pytest.approx(a[key], rel=1e-7), key
+    for name, p in serial["probes"].items():
+        x, y = np.array(p["displacement"]), np.array(par["probes"][name]["displacement"])
+        np.testing.assert_allclose(y, x, rtol=1e-7, atol=1e-8 * np.abs(x).max())
