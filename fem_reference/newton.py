@@ -301,6 +301,10 @@ class NewtonMixin:
                     print(f"tissue fem: load fraction {trial:.4f} failed, cutting the step to "
                           f"{inc:.4f}", file=sys.stderr, flush=True)
                 if inc < s.min_fraction:
+                    # the last converged state with its own prescriptions: the Dirichlet values
+                    # and the indenters' tips back where that state was solved
+                    for garr, start, full in ramps:
+                        garr[:] = start + lam * (full - start)
                     self.load.value = 1.0 if warm else lam
                     wall = time.perf_counter() - t_start
                     last = self._result(case, False, iters, residual, wall, steps, history, lam)

@@ -209,3 +209,23 @@ def test_fast_solvers_refuse_an_indenter_naming_it(block):
             solve(case, pushes={"I": 0.1})
         assert str(err.value).startswith(f"{who} does not model contact: actuator 'I' is an "
                                          f"indenter")
+
+
+def test_a_failed_push_keeps_the_last_converged_state_with_its_tip(block):
+    """When Newton gives up, the last converged state is reported with the tip where that state
+    was solved: its push and force are those of a solve to that push, not of the failed try."""
+    from tissue_reference.meshes.errors import ConvergenceError
+
+    case = quarter_case(block, sphere(10.0))
+    # few Newton iterations and few cut-backs: the first load step converges, a later fails
+    tight = fr.NewtonSettings(max_iterations=6, min_fraction=0.1, max_step_mm=0.1)
+    with pytest.raises(ConvergenceError) as info:
+        fr.solve(case, pushes={"I": 0.5}, settings=tight)
+    last = info.value.last_converged
+    reached = last.extra["indenters"]["I"]["push"]
+    assert reached == pytest.approx(info.value.load_fraction * 0.5, abs=1e-12)
+    assert 0.0 < reached < 0.5
+    _, again = indent(case, reached)
+    # the intermediate load step is converged to its looser tolerance (0.06 % measured); the
+    # tip of the failed try, pushed 2.5x as far, would give several times the force
+    assert last.extra["indenters"]["I"]["force"] == pytest.approx(again["force"], rel=1e-2)
