@@ -1,6 +1,7 @@
 """The "contact" mismatch scenario: the controller's model is the fast solver on glued patches,
 the plant the reference on the same body with each patch replaced by a rigid spherical indenter
 in frictionless contact (control.plants.indenter_plant_case, scenario_loop)."""
+import json
 import math
 from dataclasses import replace
 
@@ -190,3 +191,57 @@ def test_an_explicit_plant_with_smaller_tips_is_steered_too(block):
                          plant_case=replace(plant, actuators=plant.actuators[::-1]))
     res = _steer(loop, 15, False)
     assert res.steady_state_error_mm <= 0.05 and res.max_retraction_mm == 0.0
+
+
+# --------------------------------------------------------------------------- the command line
+@pytest.mark.slow
+def test_table1_runs_the_contact_scenario_and_its_outputs_match_the_schemas(block, tmp_path,
+                                                                           capsys):
+    from tissue_reference.meshes.writers import write_mesh
+    from tissue_reference.tissue.cli import main
+    from tissue_reference.tissue.output_schema import validate_file
+
+    write_mesh(block.mesh, tmp_path / "block.msh")
+    common = ('[mesh]\nfile = "block.msh"\n[material]\nE = 6.0\nnu = 0.3\n'
+              '[[boundary]]\nregion = "base"\ntype = "fixed"\n'
+              '[[probe]]\nname = "T1"\npoint = [5.0, 5.0, 5.5]\n')
+    (tmp_path / "discs.toml").write_text(
+        'name = "discs"\n' + common
+        + '[[actuator]]\nname = "A1"\nregion = "pX"\ndirection = [-1.0, 0.0, 0.0]\n'
+        + '[[actuator]]\nname = "A2"\nregion = "pY"\ndirection = [0.0, -1.0, 0.0]\n')
+    tip = 'type = "indenter"\ntip = "sphere"\nradius = 2.5\ncontact_region = "skin"\n'
+    (tmp_path / "tips.toml").write_text(
+        'name = "tips"\n' + common
+        + '[[actuator]]\nname = "A1"\nregion = "pX"\ndirection = [-1.0, 0.0, 0.0]\n' + tip
+        + '[[actuator]]\nname = "A2"\nregion = "pY"\ndirection = [0.0, -1.0, 0.0]\n' + tip)
+    (tmp_path / "other.toml").write_text(
+        'name = "other"\n' + common
+        + '[[actuator]]\nname = "B1"\nregion = "pX"\ndirection = [-1.0, 0.0, 0.0]\n' + tip)
+    base = ["table1", tmp_path / "discs.toml", "--steps", "2", "--max-travel", "0.3", "-q"]
+    # refused before any solve: another plant's actuators, a plant without the scenario
+    assert main([str(a) for a in base + ["--scenarios", "gravity", "contact", "--contact-plant",
+                                         tmp_path / "other.toml", "--out", tmp_path / "x"]]) == 2
+    err = capsys.readouterr().err
+    assert f"the contact plant {tmp_path / 'other.toml'} has actuators ['B1']" in err
+    assert f"the model {tmp_path / 'discs.toml'} has ['A1', 'A2']" in err
+    assert main([str(a) for a in base + ["--scenarios", "gravity", "--contact-plant",
+                                         tmp_path / "tips.toml", "--out", tmp_path / "y"]]) == 2
+    assert "--contact-plant: only with --scenarios contact" in capsys.readouterr().err
+    assert main([str(a) for a in base + ["--scenarios", "contact", "--contact-plant",
+                                         tmp_path / "nope.toml", "--out", tmp_path / "z"]]) == 2
+    assert "--contact-plant: " in capsys.readouterr().err
+    assert not (tmp_path / "x" / "gravity").exists()
+    out = tmp_path / "t"
+    assert main([str(a) for a in base + ["--scenarios", "contact", "--contact-plant",
+                                         tmp_path / "tips.toml", "--out", out]]) == 0
+    both = validate_file("table1_scenarios", out / "table1_scenarios.json")
+    t = validate_file("table1", out / "contact" / "table1.json")
+    assert both["meta"]["contact"]["plant_actuator_kind"] == "indenter"
+    assert t["meta"]["plant_actuator_kind"] == "indenter"
+    assert t["meta"]["model_actuator_kind"] == "patch"
+    assert t["meta"]["plant_indenters"]["A2"] == {"tip": "sphere", "radius_mm": 2.5,
+                                                  "contact": "frictionless",
+                                                  "contact_regions": ["pY", "skin"]}
+    assert [r["status"] for r in t["rows"]] == ["ok", "ok", "unreachable"]
+    assert "table1 contact:" in capsys.readouterr().out
+    assert json.loads((out / "table1_scenarios.json").read_text())["scenarios"]["contact"]
