@@ -42,14 +42,20 @@ def _block_mesh():
     return MeshData(m.points, m.cells, facet_regions=regions, cell_regions=m.cell_regions)
 
 
-@pytest.fixture(scope="module")
-def block():
-    """The glued-patch case: A1 pushes the +x disc along -x, A2 the +y disc along -y."""
+def block_case():
+    """The glued-patch case on the block: A1 pushes the +x disc along -x, A2 the +y disc along
+    -y; targets T1 (the centre at z = 5.5 mm) and T2 (nearer both discs). Also the case of
+    bench/bench_contact_scenario.py."""
     return Case(mesh=_block_mesh(), material=Material("neo-hookean", E=6.0, nu=0.3),
                 name="discs", boundaries=(Boundary("base", "fixed"),),
                 actuators=(Actuator("A1", "pX", (-1.0, 0.0, 0.0)),
                            Actuator("A2", "pY", (0.0, -1.0, 0.0))),
                 probes=(Probe("T1", (5.0, 5.0, 5.5)), Probe("T2", (7.0, 7.0, 5.5))))
+
+
+@pytest.fixture(scope="module")
+def block():
+    return block_case()
 
 
 def _disc_radius(points, facets):
