@@ -251,3 +251,11 @@ def test_table1_runs_the_contact_scenario_and_its_outputs_match_the_schemas(bloc
     assert [r["status"] for r in t["rows"]] == ["ok", "ok", "unreachable"]
     assert "table1 contact:" in capsys.readouterr().out
     assert json.loads((out / "table1_scenarios.json").read_text())["scenarios"]["contact"]
+    from page_checks import check_page
+
+    check_page(out / "table1_scenarios.html")
+    check_page(out / "contact" / "table1.html")
+    page = (out / "contact" / "table1.html").read_text()
+    assert "<th scope='row'>plant actuator kind</th><td>indenter</td>" in page
+    assert "<th scope='row'>model actuator kind</th><td>patch</td>" in page
+    assert "<th scope='row'>plant indenters: A1: radius (mm)</th><td>2.5</td>" in page
