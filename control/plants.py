@@ -462,4 +462,6 @@ def scenario_loop(case, name: str, *, model: str = "admm", coarse_case=None,
     loop = build_loop(case, plant="fem", model=model, model_case=model_case,
                       plant_case=plant_case, scenario=name)
     loop.meta["scenario_description"] = SCENARIOS[name]
+    if name == "contact":   # which plant: a case file, or derived from the model's (source null)
+        loop.meta.update({"plant_case": plant_case.name, "plant_source": plant_case.source})
     return loop

@@ -175,6 +175,7 @@ def test_the_patch_model_steers_the_contact_plant_to_the_goal(block):
     assert loop.meta["model_actuator_kind"] == "patch"
     assert loop.meta["mismatch"]["actuator_kind"] == "different"
     assert loop.meta["mismatch"]["mesh"] == "same"
+    assert (loop.meta["plant_case"], loop.meta["plant_source"]) == ("discs-indenters", None)
     res = _steer(loop, 15, True)
     assert res.steady_state_error_mm <= 0.05 and res.max_retraction_mm == 0.0
     assert res.open_loop["converged"] and res.open_loop["steady_state_error_mm"] > 0.05
@@ -245,6 +246,7 @@ def test_table1_runs_the_contact_scenario_and_its_outputs_match_the_schemas(bloc
     assert both["meta"]["contact"]["plant_actuator_kind"] == "indenter"
     assert t["meta"]["plant_actuator_kind"] == "indenter"
     assert t["meta"]["model_actuator_kind"] == "patch"
+    assert t["meta"]["plant_source"] == str(tmp_path / "tips.toml")
     assert t["meta"]["plant_indenters"]["A2"] == {"tip": "sphere", "radius_mm": 2.5,
                                                   "contact": "frictionless",
                                                   "contact_regions": ["pY", "skin"]}
