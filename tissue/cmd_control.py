@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_reference.control.plants import tangent_for
+from tissue_reference.control.plants import SCENARIOS, tangent_for
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.io import check_output_dir, check_output_file, save_figure
 from tissue_reference.meshes.results import write_json
@@ -152,6 +152,9 @@ def run_table1(args) -> int:
     from tissue_reference.control.table1 import run_table1 as run_all
 
     check_outputs(args, dirs=("out",))
+    if args.contact_plant is not None and "contact" not in (args.scenarios or ()):
+        raise CaseError("--contact-plant: only with --scenarios contact (it is that scenario's "
+                        "plant)")
     case = case_from_args(args)
     targets = args.targets or [p.name for p in case.probes]
     for t in targets:
@@ -190,13 +193,22 @@ def _run_scenarios(args, case, targets, settings, base_meta) -> int:
     from tissue_reference.control.table1 import run_table1 as run_all
 
     out = Path(args.out)
-    coarse = None
+    coarse = plant = None
     if "mesh" in args.scenarios:
         h = args.size if args.size is not None else 6.0
         coarse = case_from_args(args, size=2.0 * h)
+    if args.contact_plant is not None:   # meshed as its file says: --size is the model's
+        try:
+            plant = case_from_args(argparse.Namespace(**{**vars(args), "case": args.contact_plant,
+                                                         "size": None, "free_actuators": False}))
+        except CaseError as exc:   # CaseReadError stays one (its exit status)
+            raise type(exc)(f"--contact-plant: {exc}") from None
+    # every scenario's loop first: a plant that does not fit is refused before any solve
+    loops = {name: scenario_loop(case, name, model=args.model or "admm", coarse_case=coarse,
+                                 plant_case=plant if name == "contact" else None)
+             for name in dict.fromkeys(args.scenarios)}
     summaries, rows, metas = {}, {}, {}
-    for name in args.scenarios:
-        loop = scenario_loop(case, name, model=args.model or "admm", coarse_case=coarse)
+    for name, loop in loops.items():
         loop.meta["settings"] = base_meta.get("settings")
         metas[name] = loop.meta
         _progress(args)(f"== scenario {name}: {loop.meta['scenario_description']}")
@@ -306,10 +318,18 @@ def add_parser(sub):
     _loop_args(p)
     p.add_argument("--targets", nargs="*", default=None,
                    help="probes to steer (default: every probe of the case)")
-    p.add_argument("--scenarios", nargs="+", choices=("gravity", "nu", "mesh"), default=None,
+    p.add_argument("--scenarios", nargs="+", choices=tuple(SCENARIOS), default=None,
                    help="run the table once per model-plant mismatch (plant: the reference; "
                         "model: --model, default admm): gravity on the plant only, a nearly "
-                        "incompressible plant (nu 0.495, mixed), a model mesh twice as coarse")
+                        "incompressible plant (nu 0.495, mixed), a model mesh twice as coarse, "
+                        "a plant pressed by rigid spherical indenters (frictionless contact) "
+                        "where the model has glued patches")
+    p.add_argument("--contact-plant", metavar="CASE.toml", default=None,
+                   help="the contact scenario's plant: a case of the same body whose actuators "
+                        "are indenters with the case's actuator names (e.g. "
+                        "meshes/cases/phantom-indenter.toml; meshed as its file says); default: "
+                        "the case with each patch replaced by a sphere of the patch's area "
+                        "touching the one free skin region")
     p.add_argument("--out", required=True, help="folder for the tables, trajectories and plots")
     p.set_defaults(func=run_table1)
 
