@@ -41,7 +41,7 @@ def level_sizes(k: int) -> tuple[float, float]:
     return SIZE / RATIO ** k, SITE / RATIO ** k
 
 
-def run_level(load: str, k: int, pushes, degree: int, out: Path) -> dict:
+def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool = False) -> dict:
     import tissue_reference.fem_reference as fr
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
@@ -60,7 +60,8 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path) -> dict:
     for p in pushes:
         t0 = time.perf_counter()
         try:
-            res, converged = s.solve({a: p for a in actuators}, initial=prev), True
+            res, converged = s.solve({a: p for a in actuators}, initial=prev,
+                                     progress=progress), True
         except ConvergenceError as exc:
             res, converged = exc.last_converged, False
         ind = res.extra["indenters"]["A1"]
@@ -148,12 +149,13 @@ def main():
     ap.add_argument("--levels", type=int, default=LEVELS)
     ap.add_argument("--degree", type=int, default=2)
     ap.add_argument("--summarize", action="store_true", help="only print the summary")
+    ap.add_argument("--progress", action="store_true", help="Newton's progress on stderr")
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "indenter-convergence")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     if not args.summarize:
         for k in ([args.level] if args.level is not None else range(args.levels)):
-            run_level(args.load, k, args.pushes, args.degree, args.out)
+            run_level(args.load, k, args.pushes, args.degree, args.out, args.progress)
     if args.level is None:
         summarize(args.load, args.out)
 
