@@ -186,7 +186,9 @@ class NewtonMixin:
                 u.x.array[:] = u_old
                 return False, it, float("nan")
             if progress and self.comm.rank == 0:
-                ls = "" if alpha == 1.0 else f"  (step x{alpha:g}: inverted elements)"
+                why = "energy or inverted elements" if self.contact.indenters else \
+                    "inverted elements"
+                ls = "" if alpha == 1.0 else f"  (step x{alpha:g}: {why})"
                 print(f"  {label} newton {it:2d}  |R| {rnorm:.3e}  |du|_max {step:.3e} mm{ls}",
                       file=sys.stderr, flush=True)
             rprev, rnorm = rnorm, rnew
