@@ -90,6 +90,7 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
 
 def summarize(load: str, out: Path) -> None:
     from tissue_reference.fem_reference.richardson import assess
+    from tissue_reference.meshes.results import write_json
 
     docs = []
     for k in range(10):
@@ -103,26 +104,38 @@ def summarize(load: str, out: Path) -> None:
               f"{d['level']}: size {d['size_mm']:.2f} / site {d['site_mm']:.2f} mm, "
               f"{d['cells']} cells" for d in docs))
     pushes = sorted({r["push"] for d in docs for r in d["pushes"]})
+    summary = {"load": load, "degree": docs[0]["degree"], "ratio": RATIO,
+               "levels": [{k: d[k] for k in ("level", "size_mm", "site_mm", "cells")}
+                          for d in docs], "pushes": []}
     for p in pushes:
         rows = [next((r for r in d["pushes"] if r["push"] == p and r["converged"]), None)
                 for d in docs]
         have = [(d, r) for d, r in zip(docs, rows) if r is not None]
-        print(f"\npush {p:g} mm: levels reached {[d['level'] for d, _ in have]}; valid "
-              f"{[r['valid'] for _, r in have]}; skin inside the tip (mm) "
-              f"{[round(r['surface_mm'], 3) for _, r in have]}")
+        entry = {"push_mm": p, "levels": [d["level"] for d, _ in have],
+                 "valid": [r["valid"] for _, r in have],
+                 "surface_penetration_mm": [r["surface_mm"] for _, r in have],
+                 "dofs": [r["dofs"] for _, r in have], "newton": [r["newton"] for _, r in have],
+                 "wall_s": [r["wall_s"] for _, r in have], "quantities": {}}
+        summary["pushes"].append(entry)
+        print(f"\npush {p:g} mm: levels reached {entry['levels']}; valid {entry['valid']}; "
+              f"skin inside the tip (mm) {[round(v, 3) for v in entry['surface_penetration_mm']]}")
         for d, r in have:
             print(f"  level {d['level']}: {r['dofs']} dofs, {r['newton']} Newton, "
                   f"{r['wall_s']:.0f} s")
         if len(have) < 3:
+            entry["assessed"] = False
             print("  no convergence assessment: needs 3 levels that converged")
             continue
-        if not all(r["valid"] for _, r in have):
+        entry["assessed"] = True
+        if not all(entry["valid"]):
             print("  levels flagged invalid (skin inside the tip beyond 5 % of its radius): "
                   f"{[d['level'] for d, r in have if not r['valid']]}; assessed all the same, "
                   "their error shows in the orders")
         h = [d["site_mm"] for d, _ in have]
         quantities = [("force A1", "mN", [r["force_mN"] for _, r in have])]
         for n in PROBES:
+            if not all(n in r["probes"] for _, r in have):
+                continue
             vals = np.array([r["probes"][n] for _, r in have])
             for c, axis in enumerate("xyz"):
                 if np.abs(vals[:, c]).max() > 1e-3:
@@ -133,11 +146,14 @@ def summarize(load: str, out: Path) -> None:
         for qname, unit, vals in quantities:
             a = assess(vals, h, expected_order=docs[0]["degree"] + 1, ratio=RATIO,
                        name=qname, unit=unit)
+            entry["quantities"][qname] = a.to_json_dict()
             order = "-" if a.observed_order is None else f"{a.observed_order:.2f}"
             ext = "-" if a.extrapolated is None else f"{a.extrapolated:.4f}"
             rel = "-" if a.gci_rel is None else f"{100 * a.gci_rel:.1f}%"
             print(f"  {qname:>9} {unit:>4} " + " ".join(f"{v:10.4f}" for v in vals)
                   + f" {order:>6} {a.asymptotic!s:>5} {ext:>10} {a.gci:10.4f} {rel:>7}")
+    write_json(summary, out / f"{load}-summary.json")
+    print(f"\nsummary: {out / f'{load}-summary.json'}")
 
 
 def main():
