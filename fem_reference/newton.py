@@ -42,7 +42,10 @@ class NewtonSettings:
         Newton's first step from it, with the new boundary values, is the exact tangent predictor)
         or "secant" (linear extrapolation of the last two converged states: on the phantom at
         degree 2 it overshoots into inverted cells near the actuator rims, 6 factorizations
-        instead of 3, 1.5-1.8x slower).
+        instead of 3, 1.5-1.8x slower);
+    contact_curvature_after_halving: with indenters, the correction after a halved one is
+        computed with the tips' curvature terms dropped from the penalty's Hessian ("drop",
+        fem_reference.contact) or with the exact tangent ("keep").
     """
 
     rtol: float = 1e-10
@@ -57,6 +60,7 @@ class NewtonSettings:
     line_search: int = 8
     lag_max_its: int = 12
     predictor: str = "none"
+    contact_curvature_after_halving: str = "drop"
 
     def __post_init__(self):
         for name in ("rtol", "atol", "atol_mm", "intermediate_rtol", "intermediate_atol_mm",
@@ -66,6 +70,9 @@ class NewtonSettings:
                 raise ValueError(f"NewtonSettings.{name} must be a positive number, got {v!r}")
         if self.max_iterations < 1:
             raise ValueError(f"NewtonSettings.max_iterations must be >= 1, got {self.max_iterations}")
+        if self.contact_curvature_after_halving not in ("drop", "keep"):
+            raise ValueError("NewtonSettings.contact_curvature_after_halving must be 'drop' or "
+                             "'keep'")
         if self.predictor not in ("secant", "none"):
             raise ValueError(f"NewtonSettings.predictor must be 'secant' or 'none', got "
                              f"{self.predictor!r}")
@@ -125,10 +132,14 @@ class NewtonMixin:
         self.timings.assemble += time.perf_counter() - t0
         return b.norm()
 
-    def _assemble_tangent(self, bcs):
+    def _assemble_tangent(self, bcs, halved: bool = False):
+        """The exact tangent, or after a halved correction with indenters the one without the
+        tips' curvature terms (``K_halved_form``, fem_reference.contact)."""
         t0 = time.perf_counter()
         self.A.zeroEntries()
-        dolfinx.fem.petsc.assemble_matrix(self.A, self.K_form, bcs=bcs,
+        drop = halved and self.settings.contact_curvature_after_halving == "drop"
+        form = self.K_halved_form if drop and self.K_halved_form is not None else self.K_form
+        dolfinx.fem.petsc.assemble_matrix(self.A, form, bcs=bcs,
                                           diagonal=self._bc_stiffness())
         self.A.assemble()
         if self.extra_terms is not None:
@@ -149,6 +160,7 @@ class NewtonMixin:
         u, du = self.x, self.du
         atol = s.atol * self._bc_stiffness() * float(self.dm.h_min)   # mN
         r0 = rprev = None
+        halved = False  # the last correction was halved
         rnorm = self._assemble_residual(bcs)
         for it in range(1, s.max_iterations + 1):
             if trace is not None:
@@ -162,7 +174,7 @@ class NewtonMixin:
             # forcing term of the inexact (Krylov) solves: no more accuracy than Newton can use
             eta = 1e-3 if rprev is None else \
                 min(1e-3, max((rnorm / rprev) ** 2, 0.1 * rtol * r0 / rnorm, 1e-12))
-            self._assemble_tangent(bcs)
+            self._assemble_tangent(bcs, halved)
             t0 = time.perf_counter()
             ok = self._linear_solve(eta)
             self.timings.solve += time.perf_counter() - t0
@@ -192,6 +204,7 @@ class NewtonMixin:
                 print(f"  {label} newton {it:2d}  |R| {rnorm:.3e}  |du|_max {step:.3e} mm{ls}",
                       file=sys.stderr, flush=True)
             rprev, rnorm = rnorm, rnew
+            halved = alpha < 1.0
             if alpha == 1.0 and step <= atol_mm and it > 1:
                 return True, it, rnorm
         return False, s.max_iterations, rnorm

@@ -199,6 +199,13 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
         self.R_form = dolfinx.fem.form(self.R_ufl)
         self.R_int_form = dolfinx.fem.form(self.R_int_ufl)
         self.K_form = dolfinx.fem.form(self.K_ufl)
+        # with indenters: Newton's matrix after a halved correction (fem_reference.contact)
+        self.K_halved_form = None
+        soft = self.contact.tangent_without_curvature(v, w)
+        if soft is not None:
+            self.K_halved_form = dolfinx.fem.form(
+                self.K_ufl - ufl.derivative(ufl.derivative(self.contact.normal_energy, self.x, v),
+                                            self.x, w) + soft)
         self.W_form = dolfinx.fem.form(internal)
         n_dofs = self.W.dofmap.index_map.size_global * self.W.dofmap.index_map_bs
         if linear_solver == "auto":

@@ -229,3 +229,24 @@ def test_a_failed_push_keeps_the_last_converged_state_with_its_tip(block):
     # the intermediate load step is converged to its looser tolerance (0.06 % measured); the
     # tip of the failed try, pushed 2.5x as far, would give several times the force
     assert last.extra["indenters"]["I"]["force"] == pytest.approx(again["force"], rel=1e-2)
+
+
+def test_newton_without_the_tips_curvature_after_a_halving_reaches_the_same_answer(block):
+    """Dropping the tip's curvature from Newton's matrix after a halved correction changes the
+    path, not the answer: a sphere pressed into the block gives the same force and field either
+    way, and the exported tangent stays exact (its J_s is checked against finite differences in
+    tests/test_indenter_jacobian.py)."""
+    case = quarter_case(block, sphere(2.0), model="neo-hookean")
+    out = {}
+    for mode in ("drop", "keep"):
+        st = fr.NewtonSettings(contact_curvature_after_halving=mode)
+        res = fr.solve(case, pushes={"I": 1.5}, settings=st)
+        assert res.converged and res.extra["valid"]
+        out[mode] = res
+    a, b = out["drop"], out["keep"]
+    assert a.extra["indenters"]["I"]["force"] == pytest.approx(
+        b.extra["indenters"]["I"]["force"], rel=1e-8)
+    assert np.abs(a.u - b.u).max() < 1e-8
+    assert a.iterations != b.iterations  # the other path was taken (59 vs 85 measured)
+    with pytest.raises(ValueError, match="contact_curvature_after_halving"):
+        fr.NewtonSettings(contact_curvature_after_halving="sometimes")
