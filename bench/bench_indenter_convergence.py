@@ -115,7 +115,12 @@ def summarize(load: str, out: Path) -> None:
                  "valid": [r["valid"] for _, r in have],
                  "surface_penetration_mm": [r["surface_mm"] for _, r in have],
                  "dofs": [r["dofs"] for _, r in have], "newton": [r["newton"] for _, r in have],
-                 "wall_s": [r["wall_s"] for _, r in have], "quantities": {}}
+                 "wall_s": [r["wall_s"] for _, r in have],
+                 "why_invalid": [r["why"] for _, r in have],
+                 "force_mN": [r["force_mN"] for _, r in have],
+                 "probes_mm": {n: [r["probes"][n] for _, r in have] for n in PROBES
+                               if all(n in r["probes"] for _, r in have)},
+                 "quantities": {}}
         summary["pushes"].append(entry)
         print(f"\npush {p:g} mm: levels reached {entry['levels']}; valid {entry['valid']}; "
               f"skin inside the tip (mm) {[round(v, 3) for v in entry['surface_penetration_mm']]}")
