@@ -320,7 +320,6 @@ SCENARIOS = {
 }
 GRAVITY_MM_S2 = (0.0, 0.0, -9810.0)
 PLANT_NU = 0.495
-_DIRICHLET = ("fixed", "displacement", "affine", "sliding")
 
 
 def _where(case) -> str:
@@ -332,7 +331,7 @@ def skin_region(case) -> str:
     condition but a traction. CaseError naming the case and the candidates when there is none
     or more than one (then name it: ``indenter_plant_case(case, skin=...)``)."""
     taken = {a.region for a in case.actuators}
-    taken |= {b.region for b in case.boundaries if b.type in _DIRICHLET}
+    taken |= {b.region for b in case.boundaries if b.type != "traction"}
     cands = sorted(r for r in case.mesh.facet_regions if r not in taken)
     if len(cands) != 1:
         why = "no facet region is" if not cands else f"{len(cands)} facet regions are"

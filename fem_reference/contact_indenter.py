@@ -125,8 +125,7 @@ class _Indenter:
         self._normal_stiffness = (k * ufl.conditional(ufl.le(pen, 0.0), 0.0, ufl.conditional(
             ufl.lt(pen, eps), pen / eps, 1.0)), n_y, ds(self.tags))
         if a.contact == "tied":
-            n = ufl.diff(g, y)
-            n = n / ufl.sqrt(ufl.dot(n, n))
+            n = n_y / ufl.sqrt(ufl.dot(n_y, n_y))
             slip = (y - X) - (self.q - q0)
             slip = slip - ufl.dot(slip, n) * n
             # tied where touching: g <= eps (a node hovering at g = 0 stays tied)

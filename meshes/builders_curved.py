@@ -84,8 +84,7 @@ def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANT
         return all(p[keep[pl]] > tol for pl in planes)
 
     actuators = [(n, az) for n, az in actuators if inside(g.side_point(az))]
-    targets = [(n, xyz) for n, xyz in g.targets
-               if all(xyz[keep[pl]] >= -tol for pl in planes)]
+    targets = [(n, xyz) for n, xyz in g.targets if inside(xyz)]
     with builders_gmsh._gmsh_session("phantom", size) as gmsh:
         occ = gmsh.model.occ
         s = occ.addSphere(0, 0, 0, g.radius)
