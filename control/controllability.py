@@ -201,18 +201,22 @@ def manipulability(Js, p, *, solver="highs") -> ManipulabilityResult:
 TASKS = {1: (-5.0, None), 2: (None, -5.0), 3: (5.0, 5.0)}
 
 
-def task_goal(task, gdim=3):
+def task_goal(task, gdim=3, distance: float = 5.0):
     """(goal (gdim,) mm with 0 on free coordinates, mask (gdim,) bool of controlled coordinates)
-    for seed task 1, 2 or 3 (z is always free)."""
+    for seed task 1, 2 or 3 (z is always free), each controlled coordinate moved ``distance`` mm
+    (the seed's 5 mm by default; smaller for bodies whose targets move little per mm of push)."""
     if task not in TASKS:
         raise CaseError(f"unknown task {task!r}; tasks: {sorted(TASKS)} (1: -x 5 mm, y free; "
                         f"2: -y 5 mm, x free; 3: +x and +y 5 mm)")
+    if isinstance(distance, bool) or not isinstance(distance, (int, float, np.floating)) or \
+            not (np.isfinite(distance) and distance > 0):
+        raise CaseError(f"task distance must be a number of mm > 0, got {distance!r}")
     spec = TASKS[task]
     goal = np.zeros(gdim)
     mask = np.zeros(gdim, bool)
     for c, v in enumerate(spec):
         if v is not None:
-            goal[c] = v
+            goal[c] = v / 5.0 * distance
             mask[c] = True
     return goal, mask
 

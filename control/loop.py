@@ -50,7 +50,8 @@ def itae(t, e, dt) -> float:
 class LoopSettings:
     """steps: MPC updates; dt_s: time per step (s); noise_mm: std of the measurement noise (mm);
     seed: RNG seed of the noise; reach_tol_mm: goal-reachability tolerance (mm); open_loop: also
-    run the open-loop baseline; mpc: MPCSettings."""
+    run the open-loop baseline; mpc: MPCSettings; task_mm: how far a seed task moves the target
+    along each controlled axis (mm; the seed's 5)."""
 
     steps: int = 60
     dt_s: float = 1.0
@@ -59,12 +60,13 @@ class LoopSettings:
     reach_tol_mm: float = 1e-6
     open_loop: bool = True
     mpc: MPCSettings = field(default_factory=MPCSettings)
+    task_mm: float = 5.0
 
     def __post_init__(self):
         if not (isinstance(self.steps, (int, np.integer)) and not isinstance(self.steps, bool)
                 and self.steps >= 1):
             raise CaseError(f"loop setting steps must be an integer >= 1, got steps={self.steps!r}")
-        for name in ("dt_s", "reach_tol_mm"):
+        for name in ("dt_s", "reach_tol_mm", "task_mm"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise CaseError(f"loop setting {name} must be > 0, got {name}={v!r}")
@@ -253,7 +255,7 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
         raise CaseError(f"model target {model.target!r} differs from the plant target {target!r}")
     d = plant_case.mesh.gdim
     if goal is None:
-        dgoal, mask = task_goal(task, d)
+        dgoal, mask = task_goal(task, d, settings.task_mm)
     else:
         g = np.asarray(goal, float).reshape(-1)
         if g.shape != (d,):

@@ -77,6 +77,10 @@ def test_task_goals_follow_the_seed():
     assert g.tolist() == [5, 5, 0] and m.tolist() == [True, True, False]
     with pytest.raises(CaseError, match="4"):
         task_goal(4)
+    g, m = task_goal(3, distance=0.2)   # a shorter task, same directions
+    assert g.tolist() == [0.2, 0.2, 0] and m.tolist() == [True, True, False]
+    with pytest.raises(CaseError, match="task distance"):
+        task_goal(1, distance=-1.0)
 
 
 @pytest.fixture(scope="module")

@@ -46,6 +46,17 @@ def test_exact_linear_model_closed_loop_reaches_goal_and_open_loop_is_exact(setu
     assert png.read_bytes()[:4] == b"\x89PNG"
 
 
+def test_a_shorter_task_moves_the_target_by_that_distance(setup):
+    case, K, plant = setup
+    model = LinearizedModel(case, plant, linear_tangent(K), "T1")
+    res = run_closed_loop(plant, case, model, "T1", 1,
+                          settings=LoopSettings(steps=60, task_mm=0.5, open_loop=False))
+    moved = res.target[-1] - res.target[0]
+    assert moved[0] == pytest.approx(-0.5, abs=1e-2)
+    with pytest.raises(CaseError, match="task_mm"):
+        LoopSettings(task_mm=0.0)
+
+
 def test_mismatched_model_closed_loop_beats_open_loop(setup):
     case, K, plant = setup
     Km = linear_p1_stiffness(case, nu=0.35)           # the controller's model is wrong

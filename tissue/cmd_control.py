@@ -57,6 +57,9 @@ def _loop_args(p):
     p.add_argument("--max-travel", type=real("positive", "mm"), default=None,
                    help="push limit per actuator (mm)")
     p.add_argument("--qp-solver", default="qpoases", help="casadi conic plugin")
+    p.add_argument("--task-mm", type=real("positive", "mm"), default=5.0,
+                   help="how far a task moves the target along each controlled axis (mm; the "
+                        "seed's tasks: 5)")
 
 
 def _setup(args, case):
@@ -77,13 +80,15 @@ def _setup(args, case):
     except CaseError as exc:
         raise CaseError(f"--model-E-factor / --model: {exc}") from None
     settings = LoopSettings(steps=args.steps, dt_s=args.dt, noise_mm=args.noise, seed=args.seed,
+                            task_mm=args.task_mm,
                             mpc=MPCSettings(horizon=args.horizon, q=args.q, r=args.r,
                                             max_travel=args.max_travel, solver=args.qp_solver))
     loop.meta.update({"size": args.size, "model_size": args.model_size,
                       "settings": {"steps": args.steps, "dt_s": args.dt,
                                    "horizon": args.horizon, "q": args.q, "r": args.r,
                                    "max_travel_mm": args.max_travel, "noise_mm": args.noise,
-                                   "seed": args.seed, "qp_solver": args.qp_solver}})
+                                   "seed": args.seed, "qp_solver": args.qp_solver,
+                                   "task_mm": args.task_mm}})
     return loop, settings
 
 
@@ -306,7 +311,7 @@ def add_parser(sub):
     add_case_args(p)
     p.add_argument("--target", required=True, help="the probe to steer, e.g. T1")
     p.add_argument("--task", type=int, required=True, choices=(1, 2, 3),
-                   help="1: -x 5 mm (y free); 2: -y 5 mm (x free); 3: +x and +y 5 mm")
+                   help="1: -x (y free); 2: -y (x free); 3: +x and +y; each by --task-mm (5 mm)")
     _loop_args(p)
     p.add_argument("--out", help="folder for the time-response PNGs and the loop's page "
                                  "(mpc_TARGET_taskN.html)")
