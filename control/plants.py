@@ -45,10 +45,10 @@ def solver_description(name: str, case, *, degree: int | None = None,
 
     if name == "fem":
         from tissue_reference.fem_reference.newton import settings_json
-        from tissue_reference.fem_reference.solver import resolve_formulation
+        from tissue_reference.fem_reference.solver import default_degree, resolve_formulation
 
         form = resolve_formulation(formulation, case.material)
-        p = degree if degree is not None else (2 if form == "mixed" else 1)
+        p = degree if degree is not None else default_degree(case, form)
         disc = {"formulation": form, "degree": p,
                 "pressure_degree": p - 1 if form == "mixed" else None,
                 "cells": case.mesh.n_cells}

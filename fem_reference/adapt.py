@@ -201,7 +201,7 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
     Returns AdaptiveResult; raises AccuracyNotReached at max_dofs, CaseError for a case without
     probes or a bad accuracy, ConvergenceError when a solve fails.
     """
-    from .solver import resolve_formulation
+    from .solver import default_degree, resolve_formulation
 
     t0 = time.perf_counter()
     if isinstance(case, (str, Path)):
@@ -220,7 +220,7 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
         raise CaseError(f"accuracy must be a relative error in (0, 1), e.g. 0.01, got "
                         f"{accuracy!r}")
     formulation = resolve_formulation(solver_options.pop("formulation", "auto"), case.material)
-    p = degree if degree is not None else (2 if formulation == "mixed" else 1)
+    p = degree if degree is not None else default_degree(case, formulation)
     if p not in (1, 2) or (formulation == "mixed" and p != 2):
         raise CaseError(f"solve_to_accuracy starts at degree 1 or 2 (2 for the mixed "
                         f"formulation): the estimate needs degree + 1 <= {MAX_DEGREE}, got "

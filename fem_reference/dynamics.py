@@ -51,7 +51,7 @@ from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.results import DynamicsResult
 
-from .solver import _solver_for, resolve_formulation
+from .solver import _solver_for, default_degree, resolve_formulation
 
 __all__ = ["MASS_KINDS", "DynamicsResult", "simulate"]
 
@@ -206,7 +206,7 @@ def simulate(case: Case, *, dt: float, steps: int, pushes=None, initial=None,
     case = case.with_pushes(pushes)   # idle patches held unless the Case frees them
     formulation = resolve_formulation(solver_options.get("formulation", "auto"), case.material)
     if degree is None:
-        degree = 2 if formulation == "mixed" else 1
+        degree = default_degree(case, formulation)
     if mass == "lumped" and degree != 1:
         raise CaseError(f"mass='lumped' is the P1 vertex mass (row sums of the consistent mass); "
                         f"at degree {degree} row sums are not positive at the vertices: "

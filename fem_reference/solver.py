@@ -75,14 +75,22 @@ def resolve_formulation(formulation: str, material: Material) -> str:
     return formulation
 
 
+def default_degree(case: Case, formulation: str) -> int:
+    """The displacement degree of a solve that names none: the case's own (``[reference]
+    degree``), else 2 for the mixed formulation (Taylor-Hood) and 1 for displacement."""
+    if case.reference_degree is not None:
+        return int(case.reference_degree)
+    return 2 if formulation == "mixed" else 1
+
+
 class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin):
     """Neo-Hookean / linear-elastic reference on one Case mesh; build once, solve many times.
 
     Args:
         case: the Case (mesh, material, boundaries, probes).
         degree: Lagrange degree of the displacement, 1, 2 or 3 (the mixed formulation is
-            Taylor-Hood: pressure one degree lower, so degree >= 2); None: 2 for mixed, 1 for
-            displacement.
+            Taylor-Hood: pressure one degree lower, so degree >= 2); None: the case's
+            ``reference_degree``, else 2 for mixed, 1 for displacement (``default_degree``).
         formulation: "displacement" (the energy of u alone), "mixed" (u-p perturbed Lagrangian,
             see ``forms``: locking-free up to the incompressible limit nu = 0.5) or "auto" (mixed
             from nu >= MIXED_FROM_NU).
@@ -116,7 +124,7 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
                  contact_penalty: float = DEFAULT_CONTACT_PENALTY):
         self.formulation = resolve_formulation(formulation, case.material)
         if degree is None:
-            degree = 2 if self.formulation == "mixed" else 1
+            degree = default_degree(case, self.formulation)
         if degree not in (1, 2, 3):
             raise CaseError(f"degree must be 1, 2 or 3, got {degree!r}")
         if self.formulation == "mixed" and degree < 2:
@@ -297,7 +305,7 @@ _CACHE: dict = {}
 def _solver_for(case: Case, degree: int | None, **kw) -> ReferenceSolver:
     kw["formulation"] = resolve_formulation(kw.get("formulation", "auto"), case.material)
     if degree is None:
-        degree = 2 if kw["formulation"] == "mixed" else 1
+        degree = default_degree(case, kw["formulation"])
     key = (id(case.mesh), degree, case.material.model, case.gravity, case.material.density,
            tuple((b.region, b.type, str(b.normal), str(b.value)) for b in case.boundaries
                  if b.type in ("traction", "sliding")), tuple(sorted(kw.items())),
@@ -317,7 +325,8 @@ def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None, d
     """Solve a Case with the reference (compiled forms are cached per mesh and degree).
 
     degree, formulation (in ``kw``) and the other options: see ReferenceSolver; the default
-    picks the mixed P2/P1 formulation for nu >= 0.49 and P1 displacement below.
+    degree is the case's (``[reference] degree``), else mixed P2/P1 for nu >= 0.49 and P1
+    displacement below.
     pushes: actuator name -> push (mm); initial: warm start (n_vertices, gdim) mm;
     dirichlet_override: (node-major Case dofs, values in mm) added to the Case's prescriptions.
     estimate: add the estimated discretization error (``fem_reference.estimate``: one more solve

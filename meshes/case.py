@@ -82,6 +82,7 @@ class Case(CaseConstraintsMixin, CaseVariantsMixin):
     gravity: tuple | None = None
     name: str = "case"
     source: str | None = None
+    reference_degree: int | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "boundaries", tuple(self.boundaries))
@@ -115,6 +116,10 @@ class Case(CaseConstraintsMixin, CaseVariantsMixin):
                                         f"{sorted(self.mesh.facet_regions)}")
         if self.gravity is not None:
             object.__setattr__(self, "gravity", tuple(_vec(self.gravity, gdim, f"{where}: gravity")))
+        if self.reference_degree is not None and (isinstance(self.reference_degree, bool) or
+                                                  self.reference_degree not in (1, 2, 3)):
+            raise CaseError(f"{where}: reference degree must be 1, 2 or 3, got "
+                            f"{self.reference_degree!r}")
         _ = self.constraints  # validates the prescriptions (raises on conflicts)
         self._check_rigid_body(where)
 

@@ -265,6 +265,7 @@ def load_case(path, *, mesh: MeshData | None = None, size: float | None = None,
                                            for k, v in a.items()})
                                for a in data.get("actuator", [])],
                     gravity=data.get("body", {}).get("gravity"),
+                    reference_degree=data.get("reference", {}).get("degree"),
                     name=data.get("name", Path(path).stem), source=src)
     except CaseError as exc:  # conflicting prescriptions, rigid-body freedom, inverted cells
         if str(exc).startswith(f"{src}: "):

@@ -173,3 +173,30 @@ def test_written_files_get_the_umask_mode_not_the_private_temporary_mode(tmp_pat
     finally:
         os.umask(old)
     assert out.stat().st_mode & 0o777 == 0o644
+
+
+BOX_CASE = ('[mesh]\nbuiltin = "box"\nsize = 5.0\n{reference}'
+            '[[boundary]]\nregion = "zmin"\ntype = "fixed"\n'
+            '[[boundary]]\nregion = "zmax"\ntype = "displacement"\nvalue = [0.0, 0.0, -0.5]\n'
+            '[[probe]]\nname = "c"\npoint = [5.0, 5.0, 5.0]\n')
+
+
+def test_the_case_names_the_reference_degree_a_solve_gets_by_default(tmp_path):
+    import tissue_reference.fem_reference as fr
+
+    (tmp_path / "p2.toml").write_text(BOX_CASE.format(reference="[reference]\ndegree = 2\n"))
+    (tmp_path / "plain.toml").write_text(BOX_CASE.format(reference=""))
+    p2, plain = load_case(tmp_path / "p2.toml"), load_case(tmp_path / "plain.toml")
+    assert p2.reference_degree == 2 and plain.reference_degree is None
+    assert fr.solve(p2).extra["discretization"]["degree"] == 2
+    assert fr.solve(plain).extra["discretization"]["degree"] == 1
+    assert fr.solve(p2, degree=1).extra["discretization"]["degree"] == 1  # an explicit one wins
+
+
+def test_a_bad_reference_degree_is_named(tmp_path):
+    (tmp_path / "c.toml").write_text(BOX_CASE.format(reference="[reference]\ndegree = 4\n"))
+    with pytest.raises(CaseError, match=r"c\.toml: \[reference\]\.degree"):
+        load_case(tmp_path / "c.toml")
+    with pytest.raises(CaseError, match="reference degree must be 1, 2 or 3"):
+        Case(mesh=box(5.0), reference_degree=0,
+             boundaries=[Boundary(region="zmin", type="fixed")])

@@ -195,8 +195,8 @@ def add_max_cells(p: argparse.ArgumentParser, default=None, what="builtin mesh")
 def add_discretization_args(p: argparse.ArgumentParser):
     """--degree and --formulation of the reference."""
     p.add_argument("--degree", type=int, choices=(1, 2, 3), default=None,
-                   help="Lagrange degree of the reference's displacement (default: 2 for the "
-                        "mixed formulation, 1 otherwise)")
+                   help="Lagrange degree of the reference's displacement (default: the case's "
+                        "[reference] degree, else 2 for the mixed formulation, 1 otherwise)")
     p.add_argument("--formulation", choices=("auto", "displacement", "mixed"), default="auto",
                    help="reference formulation: mixed u-p (Taylor-Hood P2/P1, locking-free for "
                         "nearly incompressible tissue) or displacement; auto: mixed for "
