@@ -237,9 +237,12 @@ def _measure(r, target, case=None, pushes=None):
 
 
 def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task: int, *,
-                    settings: LoopSettings = LoopSettings(), goal=None) -> LoopResult:
+                    settings: LoopSettings = LoopSettings(), goal=None,
+                    progress=None) -> LoopResult:
     """Steer ``target`` of ``plant_case`` by seed task 1, 2 or 3 (or an explicit ``goal``
     displacement (gdim,) mm with NaN on free coordinates) with the push-only MPC.
+    ``progress(line)``, when given, gets a line per closed- and open-loop step (a plant solve
+    on a fine mesh with contact takes minutes).
 
     plant(case, pushes, initial_u) -> SolveResult (nonlinear, mm). Raises UnreachableGoalError
     (with the closest reachable displacement) when the goal lies outside the positive span of the
@@ -300,12 +303,16 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
         st = mpc.step(J, y, x_goal, s)
         s = s + st.du
         pushes = dict(zip(acts, s.tolist()))
+        tk = time.perf_counter()
         r = solve_checked(plant, plant_case, pushes, u_prev, "plant", plant_retries)
         x = _measure(r, target)
         u_prev = r.u
         y = x + (rng.normal(0.0, settings.noise_mm, d) if settings.noise_mm > 0 else 0.0)
         S.append(s.copy())
         X.append(x)
+        if progress is not None:
+            progress(_step_line("closed loop", k + 1, settings.steps, s, x_goal - x, mask,
+                                time.perf_counter() - tk))
     S, X = np.array(S), np.array(X)
     t = settings.dt_s * np.arange(settings.steps + 1)
     err = np.linalg.norm((x_goal - X)[:, mask], axis=1)
@@ -313,7 +320,8 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
     closed_s = time.perf_counter() - t_start
     ol = None
     if settings.open_loop:
-        ol = _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, settings)
+        ol = _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, settings,
+                        progress)
         ol["u_open_unclamped"] = u_open_raw
         ol["clamped"] = bool(np.any(np.abs(u_open_raw - u_open) > 1e-12))
     wall = time.perf_counter() - t_start
@@ -324,7 +332,14 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
                        "model_retries": list(model.retries)})
 
 
-def _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, settings):
+def _step_line(what, k, n, pushes, error, mask, seconds) -> str:
+    return (f"{what} step {k}/{n}: pushes {np.round(np.asarray(pushes, float), 3).tolist()} mm, "
+            f"target error {np.linalg.norm(np.asarray(error)[mask]):.4g} mm, plant "
+            f"{seconds:.1f} s")
+
+
+def _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, settings,
+               progress=None):
     """The eq. 22 pushes from the initial J_s applied along the closed loop's time profile.
 
     When the plant cannot be solved at some open-loop pushes (the baseline asks for pushes the
@@ -340,6 +355,7 @@ def _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, sett
     retries: list[str] = []
     for k, f in enumerate(phi):
         so = f * u_open
+        tk = time.perf_counter()
         try:
             po = dict(zip(acts, so.tolist()))
             r = solve_checked(plant, plant_case, po, u_prev, "open-loop plant", retries)
@@ -350,6 +366,9 @@ def _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, sett
         u_prev = r.u
         SO.append(so)
         XO.append(x)
+        if progress is not None:
+            progress(_step_line("open loop", k, len(phi) - 1, so, x_goal - x, mask,
+                                time.perf_counter() - tk))
     SO, XO = np.array(SO), np.array(XO)
     eo = np.linalg.norm((x_goal - XO)[:, mask], axis=1)
     ol = {"itae": itae(t[:len(eo)], eo, settings.dt_s), "error_mm": eo, "pushes": SO,

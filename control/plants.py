@@ -212,13 +212,15 @@ class LoopSetup:
     meta: dict = field(default_factory=dict)
     model_sensitivity: object = None   # the model's Jacobian when not from its tangent
 
-    def run(self, target: str, task: int, settings):
-        """One closed loop (and its open-loop baseline) -> control.loop.LoopResult."""
+    def run(self, target: str, task: int, settings, progress=None):
+        """One closed loop (and its open-loop baseline) -> control.loop.LoopResult;
+        ``progress(line)`` gets a line per step."""
         from .loop import LinearizedModel, run_closed_loop
 
         model = LinearizedModel(self.model_case, self.model_solve, self.model_tangent, target,
                                 self.model_sensitivity)
-        return run_closed_loop(self.plant, self.case, model, target, task, settings=settings)
+        return run_closed_loop(self.plant, self.case, model, target, task, settings=settings,
+                               progress=progress)
 
 
 def build_loop(case, *, plant: str = "fem", model: str | None = None,

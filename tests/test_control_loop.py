@@ -49,8 +49,12 @@ def test_exact_linear_model_closed_loop_reaches_goal_and_open_loop_is_exact(setu
 def test_a_shorter_task_moves_the_target_by_that_distance(setup):
     case, K, plant = setup
     model = LinearizedModel(case, plant, linear_tangent(K), "T1")
+    lines = []
     res = run_closed_loop(plant, case, model, "T1", 1,
-                          settings=LoopSettings(steps=60, task_mm=0.5, open_loop=False))
+                          settings=LoopSettings(steps=60, task_mm=0.5), progress=lines.append)
+    assert len(lines) == 60 + 61    # a line per closed-loop step, and per open-loop step
+    assert lines[0].startswith("closed loop step 1/60: pushes [")
+    assert lines[-1].startswith("open loop step 60/60: ")
     moved = res.target[-1] - res.target[0]
     assert moved[0] == pytest.approx(-0.5, abs=1e-2)
     with pytest.raises(CaseError, match="task_mm"):

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -118,7 +119,7 @@ def run_mpc(args) -> int:
     loop, settings = _setup(args, case)
     meta = {**loop.meta, "target": args.target, "task": args.task}
     try:
-        res = loop.run(args.target, args.task, settings)
+        res = loop.run(args.target, args.task, settings, progress=_step_progress(args))
     except UnreachableGoalError as exc:
         _write_mpc(args, {**meta, "status": "unreachable", "reachable": False, "error": str(exc),
                           "closest_reachable_mm": np.asarray(exc.closest).tolist(),
@@ -181,6 +182,13 @@ def _median_text(task, index) -> str:
     if v.size == 0:
         return f"task {task}: reachable nowhere on the grid"
     return f"task {task} median index {np.median(v):.4f}"
+
+
+def _step_progress(args):
+    """tissue mpc's per-step lines: stderr, or nowhere with -q/--quiet."""
+    if args.quiet:
+        return None
+    return lambda line: print(f"tissue mpc: {line}", file=sys.stderr, flush=True)
 
 
 def _progress(args):
