@@ -155,8 +155,8 @@ def error_estimate(case: Case, result: SolveResult, *, pushes=None, progress: bo
     rtol: residual reduction at which the enriched Newton stops (None: the solver settings' own,
         1e-10: a fully converged degree-(p+1) answer, e.g. to be used as an answer itself).
     from_rest: when Newton from the interpolated degree-2 answer does not converge, solve along
-        the load path from rest (True), or raise ConvergenceError (False: a caller with a
-        cheaper way out, e.g. ``solve_to_accuracy`` keeping its previous level's answer).
+        the load path from rest (True), or raise ConvergenceError (False: for a caller with a
+        cheaper way out than the from-rest solve).
     solver_options: the ReferenceSolver options of the degree-p solve (formulation, curved,
         settings, sliding_penalty, body_force, linear_solver); the formulation defaults to the
         one recorded in ``result.extra["discretization"]``; a quadrature_degree is not passed
