@@ -80,7 +80,7 @@ def test_a_refined_level_whose_warm_estimate_fails_is_solved_from_rest(monkeypat
     case = Case(mesh=box(5.0), material=Material("neo-hookean", E=6.0, nu=0.45),
                 boundaries=[Boundary("zmin", "fixed")], probes=[Probe("T", (5.0, 5.0, 5.0))],
                 actuators=[Actuator("A1", "zmax", (1.0, 0.0, -1.0))], name="block")
-    kw = dict(accuracy=0.002, progress=False)
+    kw = {"accuracy": 0.002, "progress": False}
     warm = solve_to_accuracy(case, {"A1": 1.0}, **kw)
     assert warm.reached and warm.steps[-1].level >= 1   # at least one refined level
     solve = ReferenceSolver.solve
