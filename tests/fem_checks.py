@@ -1,5 +1,5 @@
-"""Shared helpers of the tests (no tests here): an independent linear-elastic P1 stiffness and
-central finite differences along coordinate directions."""
+"""Shared helpers of the tests (no tests here): an independent linear-elastic P1 stiffness,
+central finite differences along coordinate directions, and a reference whose warm starts fail."""
 from __future__ import annotations
 
 import numpy as np
@@ -47,3 +47,19 @@ def central_differences(fun, u, count, seed, h=1e-6):
         e = np.zeros_like(u)
         e[k] = h
         yield k, (fun(u + e) - fun(u - e)) / (2 * h)
+
+
+def refuse_warm_starts(monkeypatch):
+    """Make every warm-started reference solve (``initial`` given) raise ConvergenceError, as
+    Newton from an interpolated answer can on hard problems; solves from rest are untouched."""
+    from tissue_reference.fem_reference.solver import ReferenceSolver
+    from tissue_reference.meshes.errors import ConvergenceError
+
+    solve = ReferenceSolver.solve
+
+    def no_warm_start(self, pushes=None, *, initial=None, **options):
+        if initial is not None:
+            raise ConvergenceError("forced", load_fraction=0.0)
+        return solve(self, pushes, initial=initial, **options)
+
+    monkeypatch.setattr(ReferenceSolver, "solve", no_warm_start)

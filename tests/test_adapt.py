@@ -74,8 +74,7 @@ def test_a_refined_level_whose_warm_estimate_fails_is_solved_from_rest(monkeypat
     """With indenters the degree-3 estimate of a refined level may not converge from the
     interpolated answer (its surface nodes change the contact set): the level is then solved
     along the load path from rest, and the loop goes on to the same answer."""
-    from tissue_reference.fem_reference.solver import ReferenceSolver
-    from tissue_reference.meshes.errors import ConvergenceError
+    from fem_checks import refuse_warm_starts
 
     case = Case(mesh=box(5.0), material=Material("neo-hookean", E=6.0, nu=0.45),
                 boundaries=[Boundary("zmin", "fixed")], probes=[Probe("T", (5.0, 5.0, 5.0))],
@@ -83,14 +82,7 @@ def test_a_refined_level_whose_warm_estimate_fails_is_solved_from_rest(monkeypat
     kw = {"accuracy": 0.002, "progress": False}
     warm = solve_to_accuracy(case, {"A1": 1.0}, **kw)
     assert warm.reached and warm.steps[-1].level >= 1   # at least one refined level
-    solve = ReferenceSolver.solve
-
-    def no_warm_start(self, pushes=None, *, initial=None, **options):
-        if initial is not None:
-            raise ConvergenceError("forced", load_fraction=0.0)
-        return solve(self, pushes, initial=initial, **options)
-
-    monkeypatch.setattr(ReferenceSolver, "solve", no_warm_start)
+    refuse_warm_starts(monkeypatch)
     cold = solve_to_accuracy(case, {"A1": 1.0}, **kw)
     assert cold.reached and len(cold.steps) == len(warm.steps)
     np.testing.assert_allclose(cold.result.probes["T"], warm.result.probes["T"], rtol=1e-6,

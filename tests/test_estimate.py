@@ -188,22 +188,14 @@ def test_estimate_refuses_what_it_cannot_enrich(block):
 def test_estimate_solves_from_rest_when_the_warm_start_fails(block, monkeypatch):
     """Newton from the interpolated degree-2 answer can fail (large strains on a coarse mesh):
     the degree-3 problem is then solved along the load path, with the same estimate."""
-    from tissue_reference.fem_reference.solver import ReferenceSolver
-    from tissue_reference.meshes.errors import ConvergenceError
+    from fem_checks import refuse_warm_starts
 
     push = {"A1": 1.0}
     res = fr.solve(block, pushes=push, degree=2)
     warm = error_estimate(block, res, pushes=push)
     assert warm.warm_start
     assert not error_estimate(block, fr.solve(block, pushes=push), pushes=push).warm_start
-    solve = ReferenceSolver.solve
-
-    def no_warm_start(self, pushes=None, *, initial=None, **kw):
-        if initial is not None:
-            raise ConvergenceError("forced", load_fraction=0.0)
-        return solve(self, pushes, initial=initial, **kw)
-
-    monkeypatch.setattr(ReferenceSolver, "solve", no_warm_start)
+    refuse_warm_starts(monkeypatch)
     cold = error_estimate(block, res, pushes=push)
     assert not cold.warm_start and cold.extras()["estimate_warm_start"] is False
     np.testing.assert_allclose(cold.probes["T"], warm.probes["T"], rtol=1e-4, atol=1e-9)
