@@ -31,12 +31,13 @@ DATA = ROOT / "tests" / "data" / "phantom_indenter_reference.json"
 LOADS = {"one": ("A1",), "four": ("A1", "A2", "A3", "A4")}
 
 
-def finest(load: str, push: float) -> dict:
-    """The finest level's answer at ``push`` and the spread of all levels (relative)."""
+def finest(load: str, push: float) -> dict | None:
+    """The finest level's answer at ``push`` and the spread of all levels (relative); None when
+    no level of the study reached that push."""
     doc = json.loads(DATA.read_text())["loads"][load]
-    entry = next(e for e in doc["pushes"] if e["push_mm"] == push)
-    if not entry["levels"]:
-        raise SystemExit(f"no level of the study reached {push} mm for load {load!r}")
+    entry = next((e for e in doc["pushes"] if e["push_mm"] == push and e["levels"]), None)
+    if entry is None:
+        return None
     force = np.array(entry["force_mN"])
     probes = {n: np.array(v) for n, v in entry["probes_mm"].items()}
     spread = {"force": float(np.ptp(force) / abs(force[-1]))}
@@ -87,6 +88,8 @@ def main():
     args = ap.parse_args()
     for load in args.loads:
         ref = finest(load, args.push)
+        if ref is None:
+            raise SystemExit(f"no level of the study reached {args.push:g} mm for load {load!r}")
         what = "A1 alone" if load == "one" else "all four"
         print(f"\n{what} at {args.push:g} mm; converged answer: level {ref['level']} of the "
               f"study ({ref['dofs']} unknowns on the symmetric part), levels {ref['levels']} "

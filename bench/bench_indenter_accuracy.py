@@ -19,23 +19,14 @@ the accuracy asked can mean.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
+from bench_default_accuracy import finest  # the study's finest level (this folder)
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE = ROOT / "meshes" / "cases" / "phantom-indenter-half.toml"
-DATA = ROOT / "tests" / "data" / "phantom_indenter_reference.json"
-
-
-def study_answer(push: float) -> dict | None:
-    doc = json.loads(DATA.read_text())["loads"]["one"]
-    entry = next((e for e in doc["pushes"] if e["push_mm"] == push and e["levels"]), None)
-    if entry is None:
-        return None
-    return {n: np.array(v[-1]) for n, v in entry["probes_mm"].items()}
 
 
 def main():
@@ -74,12 +65,12 @@ def main():
             print(f"  {st.level:>5} {st.degree:>3} {st.cells:>7} {st.dofs:>7} "
                   f"{st.estimate_dofs:>8} {name:>5} {100 * ratio * args.accuracy:7.2f}% "
                   f"{st.wall_time_s:8.1f}")
-        truth = study_answer(push)
-        if truth is None:
+        study = finest("one", push)
+        if study is None:
             continue
         last = out.steps[-1]
         print("  effectivity against the study's finest level (estimate / |u - u_study|):")
-        for n, ref in truth.items():
+        for n, ref in study["probes"].items():
             err = float(np.linalg.norm(np.asarray(last.probes[n]) - ref))
             est = last.estimates[n]
             print(f"    {n}: estimate {est:.2e} mm, difference {err:.2e} mm "

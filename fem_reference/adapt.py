@@ -254,9 +254,10 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
             # a degree-2 estimate that will be the next answer is converged fully; one that
             # does not converge from the interpolated answer (with indenters the enriched
             # surface nodes change the contact set) is solved along the load path from rest
+            # (error_estimate's default)
             est = error_estimate(case, answer, pushes=pushes, formulation=formulation,
                                  rtol=None if p == 1 and not curved else ESTIMATE_RTOL,
-                                 from_rest=True, progress=progress, **solver_options)
+                                 progress=progress, **solver_options)
         except ConvergenceError as exc:
             if last is None:
                 raise
