@@ -53,7 +53,11 @@ correction the next one is computed without the tips' curvature term in the pena
 (``tangent_without_curvature``, positive semi-definite; the exact tangent returns with the next
 full step, so the last iterations converge quadratically and the exported tangent is exact):
 on the half phantom at P2, A1 = 5 mm, 68 instead of 101 Newton iterations at 81k unknowns,
-61 instead of 64 at 32k, the same answer.
+61 instead of 64 at 32k, the same answer. Under several tips the tissue crushed against them
+makes the tangent indefinite (negative pivots in its factorization) and the corrections huge:
+such a correction is solved again without the curvature, then with a Levenberg-Marquardt shift
+(``NewtonSettings.descent_shift``), and a refused step is shortened to the minimizer of the
+energy's quadratic fit (``NewtonSettings.interpolate``).
 
 Each solve reports, per indenter, in ``SolveResult.extra["indenters"][name]``: ``push`` (mm),
 ``force`` (mN, the actuator force along its direction: the total force the tip exerts on the
@@ -202,23 +206,37 @@ class Contact:
         if self.indenters and self.solver.formulation == "displacement":
             self._total = dolfinx.fem.form(total)
 
+    @property
+    def energy_search(self) -> bool:
+        """Whether Newton's line search tests the total energy (indenters, displacement
+        formulation): the slope and the interpolated step lengths of ``_newton`` then apply."""
+        return self._total is not None
+
     def accepts(self, r_new: float, r_old: float, forced: bool) -> bool:
         """Newton's line search with indenters: is the correction just tried (the solver's
-        current state) taken, or halved? Taken when it lowers the total energy (uJ; the
+        current state) taken, or shortened? Taken when it lowers the total energy (uJ; the
         residual norm r_new < r_old (mN) in the mixed formulation, a saddle point), or when
         ``forced`` (the first correction of a load step, which also moves the Dirichlet values,
-        and the last halving). A node sliding along a curved tip leaves it by s^2 / (2 R) at
+        and the shortest step). A node sliding along a curved tip leaves it by s^2 / (2 R) at
         second order, which the stiff penalty turns into a large residual, so the residual norm
-        would refuse steps that the energy takes. Without indenters every correction is taken."""
+        would refuse steps that the energy takes. Without indenters every correction is taken.
+        ``accepted_energy`` is then the taken state's energy and ``trial_energy`` the one just
+        tried."""
         if not self.indenters:
             return True
         if self._total is None:
             return forced or r_new < r_old
         energy = self.comm.allreduce(dolfinx.fem.assemble_scalar(self._total), op=MPI.SUM)
+        self.trial_energy = energy
         if forced or energy <= self._energy + 1e-12 * abs(self._energy):
             self._energy = energy
             return True
         return False
+
+    @property
+    def accepted_energy(self) -> float:
+        """The total energy (uJ) of the state the line search last took."""
+        return self._energy
 
     def extra(self) -> dict:
         """{"indenters": {name: report}} at the solver's current state; {} without indenters.

@@ -70,6 +70,8 @@ class _quiet_c_output:
 class LinearSolveMixin(SaddleSolveMixin):
     """The ReferenceSolver's linear solves (needs self.A, self.b, self.du, self.comm, ...)."""
 
+    negative_pivots = None  # the inertia of the last factorized tangent (``_krylov_solve``)
+
     def _rigid_body_nullspace(self):
         x = self.V.tabulate_dof_coordinates()[:, :self.gdim]
         n_own = self.V.dofmap.index_map.size_local
@@ -157,9 +159,12 @@ class LinearSolveMixin(SaddleSolveMixin):
 
     def _krylov_solve(self, eta):
         """One solve of the current factorizing KSP; a CHOLMOD failure (tangent not positive
-        definite) switches to MUMPS and solves again."""
-        if self.linear_solver == "direct" or self._refactor:
+        definite) switches to MUMPS and solves again. ``negative_pivots``: the inertia of the
+        tangent when it was factorized for this solve, else None."""
+        refresh = self.linear_solver == "direct" or self._refactor
+        if refresh:
             self._refresh_factor()
+        self.negative_pivots = None
         if self.linear_solver == "lagged":
             self.ksp.setTolerances(rtol=eta)
         try:
@@ -174,6 +179,19 @@ class LinearSolveMixin(SaddleSolveMixin):
             log.info("tangent not positive definite for CHOLMOD: switching to MUMPS LDL^T")
             self._use_factor("mumps")
             self._krylov_solve(eta)
+            return
+        if refresh:
+            self.negative_pivots = self._inertia()
+
+    def _inertia(self):
+        """Negative pivots of the factorization just made (0 after a CHOLMOD Cholesky, MUMPS
+        LDL^T's INFOG(12)); None when unknown (MUMPS LU)."""
+        if self.factor_package == "cholmod":
+            return 0
+        try:
+            return int(self.ksp.getPC().getFactorMatrix().getMumpsInfog(12))
+        except PETSc.Error:
+            return None
 
     def _linear_solve(self, eta: float) -> bool:
         """du = -A^-1 b at relative tolerance ``eta`` (Krylov modes); False when it fails."""

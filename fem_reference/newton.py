@@ -46,6 +46,18 @@ class NewtonSettings:
     contact_curvature_after_halving: with indenters, the correction after a halved one is
         computed with the tips' curvature terms dropped from the penalty's Hessian ("drop",
         fem_reference.contact) or with the exact tangent ("keep").
+    descent_shift: with indenters, a Newton correction that is not a descent direction of the
+        total energy, or whose tangent's factorization has negative pivots (tissue crushed
+        against a tip: the corrections are huge), is solved again, first without the tips'
+        curvature in the penalty's Hessian, then with mu |diag K| added to the tangent
+        (Levenberg-Marquardt), mu starting at this value and growing tenfold until the tangent
+        is positive definite and the correction descends (four times at most); the shift stays
+        until a correction is taken whole. 0: never shift. On the whole indenter phantom (P2,
+        59k unknowns, all four tips at 5 mm) it and ``interpolate`` take 392 Newton iterations
+        down to about 110 (bench/bench_indenter_newton.py);
+    interpolate: with indenters, the energy line search's next step length is the minimizer
+        of the quadratic through the energy, its slope and the refused trial (kept within
+        [0.1, 0.5] of the trial) instead of half the trial.
     """
 
     rtol: float = 1e-10
@@ -61,6 +73,8 @@ class NewtonSettings:
     lag_max_its: int = 12
     predictor: str = "none"
     contact_curvature_after_halving: str = "drop"
+    descent_shift: float = 1e-2
+    interpolate: bool = True
 
     def __post_init__(self):
         for name in ("rtol", "atol", "atol_mm", "intermediate_rtol", "intermediate_atol_mm",
@@ -76,6 +90,8 @@ class NewtonSettings:
         if self.predictor not in ("secant", "none"):
             raise ValueError(f"NewtonSettings.predictor must be 'secant' or 'none', got "
                              f"{self.predictor!r}")
+        if not (self.descent_shift >= 0 and math.isfinite(self.descent_shift)):
+            raise ValueError("NewtonSettings.descent_shift must be a finite number >= 0")
         if self.line_search < 0 or self.lag_max_its < 1:
             raise ValueError("NewtonSettings.line_search must be >= 0 and lag_max_its >= 1")
 
@@ -97,6 +113,7 @@ class _Timings:
     factorizations: int = 0
     krylov_iterations: int = 0
     preconditioner_builds: int = 0
+    shifts: int = 0
 
 
 
@@ -147,6 +164,44 @@ class NewtonMixin:
         self.timings.assemble += time.perf_counter() - t0
 
 
+    def _shift_tangent(self, mu: float):
+        """A += mu |diag A| (Levenberg-Marquardt; the Dirichlet rows, whose residual is zero
+        after a load step's first correction, keep their corrections at zero)."""
+        d = self.A.getDiagonal()
+        d.abs()
+        d.scale(mu)
+        self.A.setDiagonal(d, addv=PETSc.InsertMode.ADD_VALUES)
+        self._refactor = True
+
+    def _correction(self, bcs, eta, halved, shift, test):
+        """Newton's correction du from the tangent (without the tips' curvature if ``halved``,
+        shifted by ``shift`` |diag K| if > 0). ``test``: the energy's slope along du is computed
+        and, with ``settings.descent_shift``, a correction that does not descend or whose
+        tangent's factorization has negative pivots is solved again: first without the tips'
+        curvature, then with the shift growing tenfold from descent_shift, four times at most
+        (the last one is taken whatever it gives: the line search still guards the energy).
+        Returns (ok, slope (uJ; None untested), halved, shift): the tangent used."""
+        s = self.settings
+        while True:
+            self._assemble_tangent(bcs, halved)
+            if shift > 0:
+                self._shift_tangent(shift)
+                self.timings.shifts += 1
+            t0 = time.perf_counter()
+            ok = self._linear_solve(eta)
+            self.timings.solve += time.perf_counter() - t0
+            if not (ok and test):
+                return ok, None, halved, shift
+            slope = self.b.dot(self.du.vector)  # b is the residual: the energy's gradient
+            if (slope < 0 and not self.negative_pivots) or s.descent_shift == 0 or \
+                    shift >= 999.0 * s.descent_shift:
+                return True, slope, halved, shift
+            if not halved and self.K_halved_form is not None and \
+                    s.contact_curvature_after_halving == "drop":
+                halved = True
+            else:
+                shift = max(10.0 * shift, s.descent_shift)
+
     def _newton(self, bcs, progress, label, rtol=None, atol_mm=None, trace=None):
         """Newton iterations at fixed load; returns (converged, iterations, residual).
 
@@ -161,6 +216,9 @@ class NewtonMixin:
         atol = s.atol * self._bc_stiffness() * float(self.dm.h_min)   # mN
         r0 = rprev = None
         halved = False  # the last correction was halved
+        energy = self.contact.energy_search  # the line search tests the energy (indenters)
+        shift = 0.0  # Levenberg-Marquardt shift of the tangent (relative to its diagonal)
+        floor = 0.5 ** s.line_search  # the shortest step, taken regardless
         rnorm = self._assemble_residual(bcs)
         for it in range(1, s.max_iterations + 1):
             if trace is not None:
@@ -174,10 +232,9 @@ class NewtonMixin:
             # forcing term of the inexact (Krylov) solves: no more accuracy than Newton can use
             eta = 1e-3 if rprev is None else \
                 min(1e-3, max((rnorm / rprev) ** 2, 0.1 * rtol * r0 / rnorm, 1e-12))
-            self._assemble_tangent(bcs, halved)
-            t0 = time.perf_counter()
-            ok = self._linear_solve(eta)
-            self.timings.solve += time.perf_counter() - t0
+            # the first correction of a load step also moves the Dirichlet values: not tested
+            ok, slope, halved, shift = self._correction(bcs, eta, halved, shift,
+                                                        energy and it > 1)
             if not ok:
                 return False, it, rnorm
             # the largest displacement correction (mm; the pressure's, in kPa, is not compared)
@@ -186,26 +243,36 @@ class NewtonMixin:
             if not math.isfinite(step):
                 return False, it, float("nan")
             u_old = u.x.array.copy()
+            e_old = self.contact.accepted_energy if energy else None
             alpha = 1.0
-            for _ in range(s.line_search + 1):
+            while True:
                 u.x.array[:] = u_old + alpha * du.x.array
                 rnew = self._assemble_residual(bcs)
                 if math.isfinite(rnew) and self.contact.accepts(
-                        rnew, rnorm, it == 1 or alpha <= 0.5 ** s.line_search):
+                        rnew, rnorm, it == 1 or alpha <= floor):
                     break
-                alpha *= 0.5
-            else:
-                u.x.array[:] = u_old
-                return False, it, float("nan")
+                if alpha <= floor:
+                    u.x.array[:] = u_old
+                    return False, it, float("nan")
+                nxt = 0.5 * alpha
+                if s.interpolate and slope is not None and slope < 0 and math.isfinite(rnew):
+                    # minimizer of the quadratic through E(0), E'(0) and E(alpha)
+                    curv = self.contact.trial_energy - e_old - slope * alpha
+                    if curv > 0:
+                        nxt = min(0.5 * alpha, max(0.1 * alpha, -slope * alpha ** 2 / (2 * curv)))
+                alpha = max(nxt, floor)
             if progress and self.comm.rank == 0:
                 why = "energy or inverted elements" if self.contact.indenters else \
                     "inverted elements"
-                ls = "" if alpha == 1.0 else f"  (step x{alpha:g}: {why})"
-                print(f"  {label} newton {it:2d}  |R| {rnorm:.3e}  |du|_max {step:.3e} mm{ls}",
+                ls = "" if alpha == 1.0 else f"  (step x{alpha:.3g}: {why})"
+                lm = f"  (tangent shifted {shift:g})" if shift > 0 else ""
+                print(f"  {label} newton {it:2d}  |R| {rnorm:.3e}  |du|_max {step:.3e} mm{ls}{lm}",
                       file=sys.stderr, flush=True)
             rprev, rnorm = rnorm, rnew
             halved = alpha < 1.0
-            if alpha == 1.0 and step <= atol_mm and it > 1:
+            if alpha == 1.0:
+                shift = 0.0  # the exact tangent again: Newton's quadratic convergence
+            if alpha == 1.0 and shift == 0.0 and step <= atol_mm and it > 1:
                 return True, it, rnorm
         return False, s.max_iterations, rnorm
 

@@ -20,6 +20,7 @@ the tolerances are 2 % and 3 % (the punch's pressure is singular-like at its rou
 Units: mm, kPa, mN.
 """
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -31,6 +32,8 @@ from tissue_reference.meshes.builders import indent_block
 from tissue_reference.meshes.case import Actuator, Boundary, Case, Material
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.solvers import admm, mass_tensor
+
+CASES = Path(__file__).resolve().parents[1] / "meshes" / "cases"
 
 E, NU = 6.0, 0.45
 E_STAR = E / (1 - NU ** 2)
@@ -250,3 +253,56 @@ def test_newton_without_the_tips_curvature_after_a_halving_reaches_the_same_answ
     assert a.iterations != b.iterations  # the other path was taken (59 vs 85 measured)
     with pytest.raises(ValueError, match="contact_curvature_after_halving"):
         fr.NewtonSettings(contact_curvature_after_halving="sometimes")
+
+
+@pytest.mark.slow
+def test_the_shifted_tangent_and_the_fitted_step_lengths_reach_the_same_answer():
+    """The Levenberg-Marquardt shift of an indefinite tangent and the step lengths from the
+    energy's quadratic fit change Newton's path, not the answer: all four tips pushed 5 mm into
+    the quarter indenter phantom (P2, 2.7k cells), where the tissue crushed under the tips makes
+    the tangent indefinite on the way (the shift is used), give the same forces and field as
+    plain halving with the exact tangent."""
+    import dataclasses
+
+    from tissue_reference.meshes.builders import build
+    from tissue_reference.meshes.case import load_case
+
+    case = load_case(CASES / "phantom-indenter-quarter.toml")
+    case = dataclasses.replace(case, mesh=build("phantom-quarter", 8.0, site_size=3.2))
+    pushes = {a.name: 5.0 for a in case.actuators}
+    plain = fr.NewtonSettings(descent_shift=0.0, interpolate=False)
+    a = fr.solve(case, pushes=pushes, degree=2, settings=plain)
+    b = fr.solve(case, pushes=pushes, degree=2)
+    for res in (a, b):
+        assert res.converged and res.extra["valid"]
+    assert a.extra["tangent_shifts"] == 0
+    assert b.extra["tangent_shifts"] > 0
+    for name in pushes:
+        assert b.extra["indenters"][name]["force"] == pytest.approx(
+            a.extra["indenters"][name]["force"], rel=1e-7)
+    assert np.abs(a.u - b.u).max() < 1e-7
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(ValueError, match="descent_shift"):
+            fr.NewtonSettings(descent_shift=bad)
+
+
+@pytest.mark.parametrize("package", ["mumps", "cholmod"])
+def test_the_factorization_reports_the_tangents_negative_pivots(block, package):
+    """The inertia the shift relies on: a tangent scaled by -1 after its Dirichlet rows are set
+    has every free row negative; unscaled (at rest, positive definite) it has none. CHOLMOD
+    refuses the indefinite one and hands it to MUMPS LDL^T, which counts them."""
+    case = quarter_case(block, sphere(2.0), model="neo-hookean")
+    s = fr.ReferenceSolver(case, degree=1, linear_solver="direct")
+    s._use_factor(package)
+    bcs = [e[0] for e in s._bcs(case, 1.0, None)]
+    s._assemble_residual(bcs)
+    s._assemble_tangent(bcs)
+    assert s._linear_solve(1e-8)
+    assert s.negative_pivots == 0
+    s._assemble_tangent(bcs)
+    s.A.scale(-1.0)
+    s._refactor = True
+    assert s._linear_solve(1e-8)
+    assert s.factor_package == "mumps"
+    # the Dirichlet rows (E h on the diagonal) turn negative too: every row is
+    assert s.negative_pivots == s.A.getSize()[0]
