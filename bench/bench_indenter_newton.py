@@ -3,10 +3,12 @@ solving the same case in one run, with the ratios against the first.
 
 Settings (``--settings``, any of):
   halve4   4 halvings of a correction before it is taken regardless, exact tangent
+  keep8    8 halvings, exact tangent
   halve8   8 halvings, the correction after a halved one without the tips' curvature
   interp   halve8 with each shorter step the minimizer of the energy's quadratic fit
-  shift    interp with the Levenberg-Marquardt shift of a tangent whose correction does not
-           descend (the default)
+  shift    halve8 with the Levenberg-Marquardt shift of a tangent that is indefinite or whose
+           correction does not descend (the default)
+  both     shift and interp
 
 Models: ``--model half`` (meshes/cases/phantom-indenter-half.toml, forces doubled) or ``whole``
 (phantom-indenter.toml); ``--load one`` pushes A1, ``four`` all four actuators; the mesh is the
@@ -30,9 +32,12 @@ ROOT = Path(__file__).resolve().parents[1]
 SETTINGS = {
     "halve4": {"line_search": 4, "contact_curvature_after_halving": "keep",
                "descent_shift": 0.0, "interpolate": False},
+    "keep8": {"contact_curvature_after_halving": "keep", "descent_shift": 0.0,
+              "interpolate": False},
     "halve8": {"descent_shift": 0.0, "interpolate": False},
     "interp": {"descent_shift": 0.0, "interpolate": True},
     "shift": {},
+    "both": {"interpolate": True},
 }
 
 

@@ -56,8 +56,7 @@ on the half phantom at P2, A1 = 5 mm, 68 instead of 101 Newton iterations at 81k
 61 instead of 64 at 32k, the same answer. Under several tips the tissue crushed against them
 makes the tangent indefinite (negative pivots in its factorization) and the corrections huge:
 such a correction is solved again without the curvature, then with a Levenberg-Marquardt shift
-(``NewtonSettings.descent_shift``), and a refused step is shortened to the minimizer of the
-energy's quadratic fit (``NewtonSettings.interpolate``).
+(``NewtonSettings.descent_shift``).
 
 Each solve reports, per indenter, in ``SolveResult.extra["indenters"][name]``: ``push`` (mm),
 ``force`` (mN, the actuator force along its direction: the total force the tip exerts on the
