@@ -10,8 +10,9 @@ numbering and identical on all ranks.
     tan = ref.tangent(res)                    # exact tangent K as scipy CSR
 
 The concerns live in their own modules, mixed into ReferenceSolver: ``forms`` (energies),
-``boundary`` (Dirichlet conditions), ``newton`` (Newton and load stepping), ``linalg``
-(factorizations and Krylov solves), ``outputs`` (states, probes, reactions, tangent export).
+``boundary`` (Dirichlet conditions), ``newton`` (Newton and load stepping; its settings in
+``newton_settings``), ``linalg`` (factorizations and Krylov solves), ``outputs`` (states,
+probes, reactions, tangent export).
 """
 from __future__ import annotations
 

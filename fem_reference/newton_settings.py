@@ -1,0 +1,103 @@
+"""Newton's and the load stepping's settings (``NewtonSettings``), their JSON record and the
+per-solve counters of the reference's assembly and linear solves. Units: mm, mN."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class NewtonSettings:
+    """Newton and load-stepping controls.
+
+    rtol, atol: residual reduction within the final load step / absolute residual, the latter
+        relative to the force scale E h_min^2 (mN; dimensionless: a displacement-controlled
+        solve then stops at the same state whatever E's magnitude);
+    atol_mm: Newton correction (inf-norm, mm) under which the final step is converged;
+    intermediate_rtol, intermediate_atol_mm: the same, for load steps before the last (their states
+        only start the next step, so they need not be converged to round-off);
+    max_step_mm: largest prescribed-displacement increment of the first try;
+    line_search: halvings of a Newton correction allowed when it inverts an element (non-finite
+        residual: after the last one the step counts as failed) or, with indenters, raises the
+        total energy (the last halving is taken regardless). 8: on the indenter half phantom
+        (P2, 32k unknowns, A1 = 5 mm) 64 Newton iterations instead of 164 with 4, where each
+        forced quarter-step that raised the energy set Newton wandering;
+    lag_max_its: "lagged" linear solver: GMRES iterations above which the tangent is refactorized.
+    predictor: start of each load step after the first: "none" (the last converged state;
+        Newton's first step from it, with the new boundary values, is the exact tangent predictor)
+        or "secant" (linear extrapolation of the last two converged states: on the phantom at
+        degree 2 it overshoots into inverted cells near the actuator rims, 6 factorizations
+        instead of 3, 1.5-1.8x slower);
+    contact_curvature_after_halving: with indenters, the correction after a halved one is
+        computed with the tips' curvature terms dropped from the penalty's Hessian ("drop",
+        fem_reference.contact) or with the exact tangent ("keep").
+    descent_shift: with indenters, a Newton correction that is not a descent direction of the
+        total energy, or whose tangent's factorization has negative pivots (tissue crushed
+        against a tip: the corrections are huge), is solved again, first without the tips'
+        curvature in the penalty's Hessian, then with mu |diag K| added to the tangent
+        (Levenberg-Marquardt), mu starting at this value and growing tenfold until the tangent
+        is positive definite and the correction descends (four times at most); the shift stays
+        until a correction is taken whole. 0: never shift. On the whole indenter phantom (P2,
+        59k unknowns, all four tips at 5 mm) it takes 392 Newton iterations down to 106
+        (bench/bench_indenter_newton.py);
+    interpolate: with indenters, the energy line search's next step length is the minimizer
+        of the quadratic through the energy, its slope and the refused trial (kept within
+        [0.1, 0.5] of the trial) instead of half the trial. Off by default: it took more Newton
+        iterations than halving on the indenter phantoms (70 against 61 for A1 alone on the
+        half phantom, 112 against 106 for all four on the whole one) and on the block.
+    """
+
+    rtol: float = 1e-10
+    atol: float = 1e-11
+    atol_mm: float = 1e-10
+    intermediate_rtol: float = 1e-6
+    intermediate_atol_mm: float = 1e-6
+    max_iterations: int = 25
+    max_step_mm: float = 5.0
+    min_fraction: float = 1.0 / 1024
+    grow: float = 1.5
+    line_search: int = 8
+    lag_max_its: int = 12
+    predictor: str = "none"
+    contact_curvature_after_halving: str = "drop"
+    descent_shift: float = 1e-2
+    interpolate: bool = False
+
+    def __post_init__(self):
+        for name in ("rtol", "atol", "atol_mm", "intermediate_rtol", "intermediate_atol_mm",
+                     "max_step_mm", "min_fraction"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
+                raise ValueError(f"NewtonSettings.{name} must be a positive number, got {v!r}")
+        if self.max_iterations < 1:
+            raise ValueError(f"NewtonSettings.max_iterations must be >= 1, got {self.max_iterations}")
+        if self.contact_curvature_after_halving not in ("drop", "keep"):
+            raise ValueError("NewtonSettings.contact_curvature_after_halving must be 'drop' or "
+                             "'keep'")
+        if self.predictor not in ("secant", "none"):
+            raise ValueError(f"NewtonSettings.predictor must be 'secant' or 'none', got "
+                             f"{self.predictor!r}")
+        if not (self.descent_shift >= 0 and math.isfinite(self.descent_shift)):
+            raise ValueError("NewtonSettings.descent_shift must be a finite number >= 0")
+        if self.line_search < 0 or self.lag_max_its < 1:
+            raise ValueError("NewtonSettings.line_search must be >= 0 and lag_max_its >= 1")
+
+
+def settings_json(settings: NewtonSettings | None = None) -> dict:
+    """The reference's settings as the JSON outputs record them: ``{"newton": {...}}`` with every
+    field of ``settings`` (default: the defaults, which the command line does not change)."""
+    import dataclasses
+
+    return {"newton": dataclasses.asdict(settings or NewtonSettings())}
+
+
+
+@dataclass
+class _Timings:
+    assemble: float = 0.0
+    solve: float = 0.0
+    setup: float = 0.0
+    factorizations: int = 0
+    krylov_iterations: int = 0
+    preconditioner_builds: int = 0
+    shifts: int = 0
