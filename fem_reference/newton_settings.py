@@ -91,9 +91,11 @@ def settings_json(settings: NewtonSettings | None = None) -> dict:
     return {"newton": dataclasses.asdict(settings or NewtonSettings())}
 
 
-
 @dataclass
 class _Timings:
+    """Per-solve counters: seconds in assembly, linear solves and setup; factorizations, Krylov
+    iterations, preconditioner builds, and Newton corrections solved with a shifted tangent."""
+
     assemble: float = 0.0
     solve: float = 0.0
     setup: float = 0.0
