@@ -179,8 +179,8 @@ class NewtonMixin:
             halved = alpha < 1.0
             if alpha == 1.0:
                 shift = 0.0  # the exact tangent again: Newton's quadratic convergence
-            if alpha == 1.0 and shift == 0.0 and step <= atol_mm and it > 1:
-                return True, it, rnorm
+                if step <= atol_mm and it > 1:
+                    return True, it, rnorm
         return False, s.max_iterations, rnorm
 
     def _max_prescribed(self, case, override):
