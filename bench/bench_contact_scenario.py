@@ -3,7 +3,7 @@
 Model: ADMM on glued disc patches (the block of tests/test_contact_scenario.py: 10 mm, 2.7k tets,
 a 3 mm disc on the +x face pushed along -x and one on the +y face pushed along -y, base fixed);
 plant: the reference on the same mesh with each patch replaced by a rigid sphere in frictionless
-contact (control.plants.indenter_plant_case: radius sqrt(area / pi) of the patch, or --radius).
+contact (control.scenarios.indenter_plant_case: radius sqrt(area / pi) of the patch, or --radius).
 Goal: T1 (the block's centre at z = 5.5 mm) moved 0.3 mm along -x and 0.2 mm along -y.
 
 Prints, per plant: the closed loop's steady-state error (mm), its ITAE against the open loop's
@@ -34,7 +34,7 @@ from tissue_reference.control.loop import (
     LoopSettings,
     run_closed_loop,
 )
-from tissue_reference.control.plants import indenter_plant_case, scenario_loop
+from tissue_reference.control.scenarios import indenter_plant_case, scenario_loop
 from tissue_reference.control.table1 import SSE_GOAL_MM
 
 

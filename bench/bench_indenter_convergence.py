@@ -4,8 +4,10 @@ phantom's symmetric part, remeshed with every cell size divided by sqrt 2 per le
 A1 alone (``--load one``) is symmetric about y = 0: the half phantom
 (meshes/cases/phantom-indenter-half.toml); all four equal (``--load four``) about x = 0 and
 y = 0: the quarter (phantom-indenter-quarter.toml). Level k has characteristic size 6 / 2^(k/2)
-mm and sites 3.2 / 2^(k/2) mm. Each level's pushes are one warm-started load path; after every
-push the level's JSON (``--out``) is rewritten whole, so a long run keeps what it reached.
+mm and sites 3.2 / 2^(k/2) mm; ``--path RATIO`` refines each tip's path into the tissue further
+(cells of RATIO x the site size within 6 mm of the axis, 20 mm deep). Each level's pushes are
+one warm-started load path; after every push the level's JSON (``--out``) is rewritten whole, so
+a long run keeps what it reached.
 
 Per push and level: validity (the skin may not pass inside the tip), the skin's deepest point
 inside the tip (mm), the whole phantom's A1 force (mN: twice the cut tip's), T1..T4 (mm), Newton
@@ -41,7 +43,8 @@ def level_sizes(k: int) -> tuple[float, float]:
     return SIZE / RATIO ** k, SITE / RATIO ** k
 
 
-def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool = False) -> dict:
+def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool = False,
+              path: float | None = None) -> dict:
     import tissue_reference.fem_reference as fr
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
@@ -51,10 +54,12 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
     name, builder = CASES[load]
     size, site = level_sizes(k)
     case = load_case(ROOT / "meshes" / "cases" / name)
-    case = dataclasses.replace(case, mesh=build(builder, size, site_size=site))
+    path_mm = None if path is None else site * path
+    case = dataclasses.replace(case, mesh=build(builder, size, site_size=site, path_size=path_mm))
     s = fr.ReferenceSolver(case, degree=degree)
     actuators = ["A1"] if load == "one" else [a.name for a in case.actuators]
-    doc = {"load": load, "level": k, "size_mm": size, "site_mm": site, "degree": degree,
+    doc = {"load": load, "level": k, "size_mm": size, "site_mm": site, "path_mm": path_mm,
+           "degree": degree,
            "cells": case.mesh.n_cells, "pushes": []}
     prev = None
     for p in pushes:
@@ -77,7 +82,8 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
                "wall_s": time.perf_counter() - t0}
         doc["pushes"].append(row)
         write_json(doc, out / f"{load}-level{k}.json")
-        print(f"level {k} (size {size:.2f}, site {site:.2f} mm, {doc['cells']} cells, "
+        print(f"level {k} (size {size:.2f}, site {site:.2f} mm, path {path_mm or site:.2f} mm, "
+              f"{doc['cells']} cells, "
               f"{row['dofs']} dofs) push {p:g}: converged {converged}, valid {row['valid']}, "
               f"skin inside tip {row['surface_mm']:.3f} mm, force {row['force_mN']:.2f} mN, "
               f"T1 {np.round(row['probes']['T1'], 4).tolist()} mm, {row['newton']} Newton, "
@@ -105,7 +111,7 @@ def summarize(load: str, out: Path) -> None:
               f"{d['cells']} cells" for d in docs))
     pushes = sorted({r["push"] for d in docs for r in d["pushes"]})
     summary = {"load": load, "degree": docs[0]["degree"], "ratio": RATIO,
-               "levels": [{k: d[k] for k in ("level", "size_mm", "site_mm", "cells")}
+               "levels": [{k: d.get(k) for k in ("level", "size_mm", "site_mm", "path_mm", "cells")}
                           for d in docs], "pushes": []}
     for p in pushes:
         rows = [next((r for r in d["pushes"] if r["push"] == p and r["converged"]), None)
@@ -136,7 +142,7 @@ def summarize(load: str, out: Path) -> None:
             print("  levels flagged invalid (skin inside the tip beyond 5 % of its radius): "
                   f"{[d['level'] for d, r in have if not r['valid']]}; assessed all the same, "
                   "their error shows in the orders")
-        h = [d["site_mm"] for d, _ in have]
+        h = [d.get("path_mm") or d["site_mm"] for d, _ in have]   # the cells under the tips
         quantities = [("force A1", "mN", [r["force_mN"] for _, r in have])]
         for n in PROBES:
             if not all(n in r["probes"] for _, r in have):
@@ -171,12 +177,15 @@ def main():
     ap.add_argument("--degree", type=int, default=2)
     ap.add_argument("--summarize", action="store_true", help="only print the summary")
     ap.add_argument("--progress", action="store_true", help="Newton's progress on stderr")
+    ap.add_argument("--path", type=float, metavar="RATIO",
+                    help="cells of RATIO x the site size along each tip's path into the tissue "
+                         "(meshes.builders_curved.PATH_DEPTH / PATH_REACH); default: none")
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "indenter-convergence")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     if not args.summarize:
         for k in ([args.level] if args.level is not None else range(args.levels)):
-            run_level(args.load, k, args.pushes, args.degree, args.out, args.progress)
+            run_level(args.load, k, args.pushes, args.degree, args.out, args.progress, args.path)
     if args.level is None:
         summarize(args.load, args.out)
 

@@ -43,6 +43,8 @@ from .builders_blocks import (
 from .builders_curved import (  # noqa: F401  (re-exported)
     ACTUATORS_3,
     ACTUATORS_4,
+    PATH_DEPTH,
+    PATH_REACH,
     PHANTOM,
     SITE_REACH,
     PhantomGeometry,
@@ -121,7 +123,8 @@ MAX_CELLS = 2_000_000
 command line's ``--max-cells`` raise it."""
 
 
-def estimate_cells(name: str, size: float, *, site_size: float | None = None) -> int | None:
+def estimate_cells(name: str, size: float, *, site_size: float | None = None,
+                   path_size: float | None = None) -> int | None:
     """Estimated cells (tetrahedra, or triangles for the rectangle) of builder ``name`` at
     characteristic length ``size`` (mm): about CELLS_PER_VOLUME * V / size^d, within ~10 %
     above a few thousand cells; None for a builder whose body volume is not in BODY_VOLUMES."""
@@ -147,6 +150,10 @@ def estimate_cells(name: str, size: float, *, site_size: float | None = None) ->
             shell = 7.0 * half
             mid = (site_size + size) / 2.0
             local = n_sites * (half / site_size ** 3 + shell / mid ** 3)
+            if path_size is not None and path_size < site_size:
+                # each path: a cylinder of radius PATH_REACH (less the half ball it shares)
+                tube = math.pi * PATH_REACH ** 2 * PATH_DEPTH
+                local += n_sites * tube * (1.0 / path_size ** 3 - 0.5 / site_size ** 3)
             est += CELLS_PER_VOLUME[d] * min(local, BODY_VOLUMES[name] / site_size ** 3)
     return int(min(est, 1e18)) if math.isfinite(est) else 10 ** 18
 
@@ -171,21 +178,27 @@ SITE_BUILDERS = tuple(SITES)
 
 
 def build(name: str, size: float, *, out=None, max_cells: int | None = MAX_CELLS,
-          site_size: float | None = None) -> MeshData:
+          site_size: float | None = None, path_size: float | None = None) -> MeshData:
     """Build a named mesh (see ``BUILDERS``) with characteristic length ``size`` (mm).
 
     max_cells: refuse (CaseError with the estimate, before gmsh starts) a mesh whose estimated
     cell count (``estimate_cells``) exceeds it; None: no limit. site_size: finer cells at the
-    actuator sites (``SITE_BUILDERS`` only)."""
+    actuator sites (``SITE_BUILDERS`` only); path_size: finer still along each actuator's path
+    into the tissue (with a site_size)."""
     if name not in BUILDERS:
         raise CaseError(f"unknown mesh builder {name!r}; builders: {sorted(BUILDERS)}")
+    if site_size is None and path_size is not None:
+        raise CaseError(f"path_size {path_size!r} mm refines within the actuator sites: give a "
+                        f"site_size too")
     if site_size is None:
         check_cell_budget(name, size, max_cells)
         return BUILDERS[name](size, out=out)
     if name not in SITE_BUILDERS:
         raise CaseError(f"site_size applies to the builders {list(SITE_BUILDERS)}, not {name!r}")
-    est = estimate_cells(name, size, site_size=site_size)
+    est = estimate_cells(name, size, site_size=site_size, path_size=path_size)
     if max_cells is not None and est > max_cells:
         raise CaseError(f"builtin mesh {name!r} at size {size:g} mm, site_size {site_size:g} mm: "
                         f"about {est:,} cells (estimate), more than the limit {max_cells:,}")
-    return BUILDERS[name](size, out=out, site_size=site_size)
+    if path_size is None:
+        return BUILDERS[name](size, out=out, site_size=site_size)
+    return BUILDERS[name](size, out=out, site_size=site_size, path_size=path_size)

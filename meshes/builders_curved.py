@@ -24,6 +24,8 @@ from .mesh import MeshData
 __all__ = [
     "ACTUATORS_3",
     "ACTUATORS_4",
+    "PATH_DEPTH",
+    "PATH_REACH",
     "PHANTOM",
     "SITE_REACH",
     "PhantomGeometry",
@@ -61,6 +63,12 @@ ACTUATORS_3 = (("act_a", 0.0), ("act_b", 120.0), ("act_c", 240.0))
 SITE_REACH = 15.0
 """Radius (mm) around each actuator site inside which ``site_size`` applies; the cells grow to
 ``size`` over the next SITE_REACH mm."""
+PATH_DEPTH = 20.0
+"""Length (mm) of each actuator's path refined by ``path_size``: from the site inward along the
+actuator's direction, as deep as a 15 mm push of a 5 mm tip reaches."""
+PATH_REACH = 6.0
+"""Radius (mm) around each path inside which ``path_size`` applies (a 5 mm tip and the skin
+wrapped around it); the cells grow to ``site_size`` over the next PATH_REACH / 2 mm."""
 
 
 SYMMETRY_PLANES = {"full": (), "half": ("sym_y0",), "quarter": ("sym_y0", "sym_x0")}
@@ -69,10 +77,15 @@ plane y = 0 (the part keeps y >= 0), ``sym_x0`` the plane x = 0 (the part keeps 
 
 
 def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANTOM,
-             site_size: float | None = None, part: str = "full") -> MeshData:
+             site_size: float | None = None, part: str = "full",
+             path_size: float | None = None) -> MeshData:
     g = geometry
-    if site_size is not None and not (math.isfinite(site_size) and 0 < site_size):
-        raise CaseError(f"site_size must be a positive length in mm, got {site_size!r}")
+    for name, v in (("site_size", site_size), ("path_size", path_size)):
+        if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and 0 < v):
+            raise CaseError(f"{name} must be a positive length in mm, got {v!r}")
+    if path_size is not None and (site_size is None or path_size > site_size):
+        raise CaseError(f"path_size {path_size!r} mm refines within the actuator sites: it "
+                        f"needs a site_size at least as large, got site_size={site_size!r}")
     planes = SYMMETRY_PLANES[part]
     keep = {"sym_y0": 1, "sym_x0": 0}  # the coordinate each plane bounds from below
     tol = 1e-6 * g.radius
@@ -169,7 +182,12 @@ def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANT
         gmsh.model.mesh.setSize(gmsh.model.getBoundary([(2, s) for g_ in patches.values() for s in g_],
                                                        recursive=True), min(size, g.patch_radius))
         if site_size is not None and site_size < size:
-            _refine_sites(gmsh, [g.side_point(az) for _, az in actuators], site_size, size)
+            sites = [g.side_point(az) for _, az in actuators]
+            inward = [np.array([-math.cos(math.radians(az)), -math.sin(math.radians(az)), 0.0])
+                      for _, az in actuators]
+            paths = None if path_size is None else [(p, p + PATH_DEPTH * n)
+                                                    for p, n in zip(sites, inward)]
+            _refine_sites(gmsh, sites, site_size, size, paths=paths, path_size=path_size)
         return _finish(gmsh, 3, out, curved=True)
 
 
@@ -181,50 +199,77 @@ def _vertex_at(gmsh, xyz, tag: int, tol: float) -> int:
     raise CaseError(f"phantom geometry: the target at {list(xyz)} was lost on its mirror plane")
 
 
-def _refine_sites(gmsh, sites, fine: float, coarse: float):
+def _refine_sites(gmsh, sites, fine: float, coarse: float, *, paths=None,
+                  path_size: float | None = None):
     """Cells of size ``fine`` within SITE_REACH of every site, growing linearly to ``coarse``
-    over the next SITE_REACH mm (a gmsh Distance + Threshold background field)."""
+    over the next SITE_REACH mm (a gmsh Distance + Threshold background field); with ``paths``
+    (segments (start, end), mm) and ``path_size``, cells of ``path_size`` within PATH_REACH of
+    each segment, growing to ``fine`` over the next PATH_REACH / 2 mm. The points and segments
+    are free geometry, not part of the body: they are neither meshed into it nor written."""
     f = gmsh.model.mesh.field
-    pts = [gmsh.model.occ.addPoint(*p) for p in sites]
-    gmsh.model.occ.synchronize()
+    occ = gmsh.model.occ
+
+    def threshold(dist, small, large, near, far):
+        th = f.add("Threshold")
+        f.setNumber(th, "InField", dist)
+        f.setNumber(th, "SizeMin", small)
+        f.setNumber(th, "SizeMax", large)
+        f.setNumber(th, "DistMin", near)
+        f.setNumber(th, "DistMax", far)
+        return th
+
+    pts = [occ.addPoint(*p) for p in sites]
+    lines = [occ.addLine(occ.addPoint(*a), occ.addPoint(*b)) for a, b in (paths or [])]
+    occ.synchronize()
     dist = f.add("Distance")
     f.setNumbers(dist, "PointsList", pts)
-    th = f.add("Threshold")
-    f.setNumber(th, "InField", dist)
-    f.setNumber(th, "SizeMin", fine)
-    f.setNumber(th, "SizeMax", coarse)
-    f.setNumber(th, "DistMin", SITE_REACH)
-    f.setNumber(th, "DistMax", 2 * SITE_REACH)
-    f.setAsBackgroundMesh(th)
-    gmsh.option.setNumber("Mesh.CharacteristicLengthMin", fine)
+    field = threshold(dist, fine, coarse, SITE_REACH, 2 * SITE_REACH)
+    smallest = fine
+    if lines and path_size is not None and path_size < fine:
+        along = f.add("Distance")
+        f.setNumbers(along, "CurvesList", lines)
+        f.setNumber(along, "NumPointsPerCurve", 200)
+        near = threshold(along, path_size, fine, PATH_REACH, 1.5 * PATH_REACH)
+        both = f.add("Min")
+        f.setNumbers(both, "FieldsList", [field, near])
+        field, smallest = both, path_size
+    f.setAsBackgroundMesh(field)
+    gmsh.option.setNumber("Mesh.CharacteristicLengthMin", smallest)
 
 
-def phantom(size: float = 6.0, *, out=None, site_size: float | None = None) -> MeshData:
+def phantom(size: float = 6.0, *, out=None, site_size: float | None = None,
+            path_size: float | None = None) -> MeshData:
     """Seed 000 breast phantom with four side actuators (see module docstring). size in mm;
     site_size: the cell size (mm) near each actuator site (``SITE_REACH``), e.g. a third of an
-    indenter's radius."""
-    return _phantom(size, ACTUATORS_4, out, site_size=site_size)
+    indenter's radius; path_size: a finer size along each actuator's path into the tissue
+    (``PATH_DEPTH``, ``PATH_REACH``), where a tip pushed 10-15 mm crushes the tissue."""
+    return _phantom(size, ACTUATORS_4, out, site_size=site_size, path_size=path_size)
 
 
-def phantom_half(size: float = 6.0, *, out=None, site_size: float | None = None) -> MeshData:
+def phantom_half(size: float = 6.0, *, out=None, site_size: float | None = None,
+                 path_size: float | None = None) -> MeshData:
     """The part y >= 0 of ``phantom``: its mirror plane is the region ``sym_y0``, and it keeps
     act_px, act_py and act_nx (the first and last cut in half) and T1..T4. With sliding on
     ``sym_y0`` it is the whole phantom under loads symmetric about y = 0 (A1 or A3 alone, or
     A2 with A4 equal), at about half the unknowns; forces on cut actuators are halves."""
-    return _phantom(size, ACTUATORS_4, out, site_size=site_size, part="half")
+    return _phantom(size, ACTUATORS_4, out, site_size=site_size, part="half",
+                    path_size=path_size)
 
 
-def phantom_quarter(size: float = 6.0, *, out=None, site_size: float | None = None) -> MeshData:
+def phantom_quarter(size: float = 6.0, *, out=None, site_size: float | None = None,
+                    path_size: float | None = None) -> MeshData:
     """The part x >= 0, y >= 0 of ``phantom``: mirror planes ``sym_y0`` and ``sym_x0``, halves
     of act_px and act_py, and T1..T3. With sliding on both planes it is the whole phantom under
     loads symmetric about both (A1 = A3 and A2 = A4, e.g. all four equal), at about a quarter
     of the unknowns."""
-    return _phantom(size, ACTUATORS_4, out, site_size=site_size, part="quarter")
+    return _phantom(size, ACTUATORS_4, out, site_size=site_size, part="quarter",
+                    path_size=path_size)
 
 
-def phantom3(size: float = 6.0, *, out=None, site_size: float | None = None) -> MeshData:
+def phantom3(size: float = 6.0, *, out=None, site_size: float | None = None,
+             path_size: float | None = None) -> MeshData:
     """Seed 000 phantom with three actuators 120 deg apart (minimal positive basis)."""
-    return _phantom(size, ACTUATORS_3, out, site_size=site_size)
+    return _phantom(size, ACTUATORS_3, out, site_size=site_size, path_size=path_size)
 
 
 def shell_octant(size: float = 2.5, *, inner: float = 10.0, outer: float = 20.0,

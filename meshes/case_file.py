@@ -88,10 +88,11 @@ def _mesh(data, base: Path, src: str, size, max_cells=None) -> MeshData:
     name = m["builtin"]
     default = case_schema()["properties"]["mesh"]["properties"]["size"]["default"]
     h = float(size if size is not None else m.get("size", default))
-    site = m.get("site_size")
+    site, path = m.get("site_size"), m.get("path_size")
     try:
         return build(name, h, max_cells=MAX_CELLS if max_cells is None else max_cells,
-                     site_size=None if site is None else float(site))
+                     site_size=None if site is None else float(site),
+                     path_size=None if path is None else float(path))
     except CaseError as exc:
         raise CaseError(f"{src}: [mesh]: {exc}") from None
     except Exception as exc:  # gmsh raises plain Exception

@@ -1,6 +1,6 @@
 """The "contact" mismatch scenario: the controller's model is the fast solver on glued patches,
 the plant the reference on the same body with each patch replaced by a rigid spherical indenter
-in frictionless contact (control.plants.indenter_plant_case, scenario_loop)."""
+in frictionless contact (control.scenarios.indenter_plant_case, scenario_loop)."""
 import json
 import math
 from dataclasses import replace
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tissue_reference.control.loop import LinearizedModel, LoopSettings, run_closed_loop
-from tissue_reference.control.plants import (
+from tissue_reference.control.scenarios import (
     check_contact_plant,
     indenter_plant_case,
     scenario_loop,

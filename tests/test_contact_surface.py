@@ -64,6 +64,55 @@ def test_site_size_refines_only_the_phantom_builders():
         build("box", 5.0, site_size=1.0)
 
 
+def test_path_size_refines_along_each_actuators_path_into_the_tissue():
+    # quarter phantom: the paths run from the sites of A1 (azimuth 0) and A2 (90) inward; the
+    # cells within PATH_REACH of them shrink towards path_size, those of the site's ball farther
+    # than 1.5 PATH_REACH from both paths keep site_size (compared with the same mesh built
+    # without a path)
+    from tissue_reference.meshes.builders import PATH_DEPTH, PATH_REACH, SITE_REACH, build
+    from tissue_reference.meshes.builders_curved import PHANTOM
+
+    site, path = 4.0, 2.0
+
+    def sizes(mesh):
+        pts = mesh.points[mesh.cells]
+        c = pts.mean(axis=1)
+        h = np.linalg.norm(pts[:, [0, 0, 0, 1, 1, 2]] - pts[:, [1, 2, 3, 2, 3, 3]],
+                           axis=2).mean(axis=1)
+        d, r = [], []
+        for az in (0.0, 90.0):
+            s0 = PHANTOM.side_point(az)
+            n = -np.array([np.cos(np.radians(az)), np.sin(np.radians(az)), 0.0])
+            t = np.clip((c - s0) @ n, 0.0, PATH_DEPTH)
+            d.append(np.linalg.norm(c - s0 - t[:, None] * n, axis=1))
+            r.append(np.linalg.norm(c - s0, axis=1))
+        d, r = np.min(d, axis=0), np.min(r, axis=0)
+        on_path = d < PATH_REACH - path
+        in_ball = (r < SITE_REACH - 1.0) & (d > 1.5 * PATH_REACH + 1.0)
+        assert on_path.sum() > 100 and in_ball.sum() > 50
+        return np.median(h[on_path]), np.median(h[in_ball])
+
+    refined = build("phantom-quarter", 8.0, site_size=site, path_size=path)
+    plain = build("phantom-quarter", 8.0, site_size=site)
+    (p_on, p_ball), (q_on, q_ball) = sizes(refined), sizes(plain)
+    assert q_on > 0.9 * site                  # without a path: site_size there too
+    assert p_on < 1.3 * path and p_on < 0.7 * q_on
+    assert p_ball > 0.85 * q_ball             # the rest of the site's ball is as it was
+    assert refined.n_cells > 2 * plain.n_cells
+
+
+@pytest.mark.parametrize("kw, match", [({"path_size": 1.0}, "give a site_size too"),
+                                       ({"site_size": 2.0, "path_size": 3.0},
+                                        "needs a site_size at least as large"),
+                                       ({"site_size": 2.0, "path_size": -1.0},
+                                        "path_size must be a positive length")])
+def test_a_path_size_without_a_coarser_site_is_refused(kw, match):
+    from tissue_reference.meshes.builders import build
+
+    with pytest.raises(CaseError, match=match):
+        build("phantom-quarter", 8.0, **kw)
+
+
 def test_a_degree_2_surface_is_checked_where_it_bulges_between_its_vertices():
     """A P2 field bends a facet between its vertices: the check samples that curved surface.
     The field is quadratic (P2 holds it exactly): a paraboloid bulge rising towards the tip,

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_reference.control.plants import SCENARIOS, tangent_for
+from tissue_reference.control.plants import tangent_for
+from tissue_reference.control.scenarios import SCENARIOS
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.io import check_output_dir, check_output_file, save_figure
 from tissue_reference.meshes.results import write_json
@@ -201,7 +202,7 @@ def _progress(args):
 def _run_scenarios(args, case, targets, settings, base_meta) -> int:
     """The Table I analog once per mismatch scenario, each in ``--out``/NAME, with a combined
     summary (table1_scenarios.json) and the ITAE plot."""
-    from tissue_reference.control.plants import scenario_loop
+    from tissue_reference.control.scenarios import scenario_loop
     from tissue_reference.control.table1 import plot_scenarios, write_scenarios_page
     from tissue_reference.control.table1 import run_table1 as run_all
 
