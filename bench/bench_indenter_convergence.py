@@ -73,6 +73,7 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
         row = {"push": p, "reached": ind["push"], "converged": converged,
                "valid": bool(res.extra.get("valid", True)),
                "why": res.extra.get("invalid_reason"),
+               "min_J": res.extra.get("min_J"),   # of the P1 interpolant of the vertices
                "surface_mm": ind["surface_penetration"], "nodal_mm": ind["max_penetration"],
                "force_mN": 2.0 * ind["force"],  # A1 is cut in half by the plane y = 0
                "area_mm2": 2.0 * ind["contact_area"],
@@ -85,7 +86,8 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
         print(f"level {k} (size {size:.2f}, site {site:.2f} mm, path {path_mm or site:.2f} mm, "
               f"{doc['cells']} cells, "
               f"{row['dofs']} dofs) push {p:g}: converged {converged}, valid {row['valid']}, "
-              f"skin inside tip {row['surface_mm']:.3f} mm, force {row['force_mN']:.2f} mN, "
+              f"skin inside tip {row['surface_mm']:.3f} mm, min J {row['min_J']}, "
+              f"force {row['force_mN']:.2f} mN, "
               f"T1 {np.round(row['probes']['T1'], 4).tolist()} mm, {row['newton']} Newton, "
               f"{row['wall_s']:.0f} s", flush=True)
         if not converged:
