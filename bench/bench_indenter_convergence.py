@@ -100,11 +100,8 @@ def summarize(load: str, out: Path) -> None:
     from tissue_reference.fem_reference.richardson import assess
     from tissue_reference.meshes.results import write_json
 
-    docs = []
-    for k in range(10):
-        f = out / f"{load}-level{k}.json"
-        if f.exists():
-            docs.append(json.loads(f.read_text()))
+    docs = sorted((json.loads(f.read_text()) for f in out.glob(f"{load}-level*.json")),
+                  key=lambda d: d["level"])
     if not docs:
         raise SystemExit(f"no level results under {out} for --load {load}")
     print(f"indenter phantom, {'A1 alone (half model)' if load == 'one' else 'all four (quarter model)'}, "
@@ -174,7 +171,8 @@ def main():
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--load", choices=sorted(CASES), default="one")
     ap.add_argument("--pushes", type=float, nargs="+", default=[5.0, 10.0, 15.0])
-    ap.add_argument("--level", type=int, help="run this level only (0 = coarsest)")
+    ap.add_argument("--level", type=int,
+                    help="run this level only (0: size 6 / sites 3.2 mm; -1 is coarser still)")
     ap.add_argument("--levels", type=int, default=LEVELS)
     ap.add_argument("--degree", type=int, default=2)
     ap.add_argument("--summarize", action="store_true", help="only print the summary")
