@@ -101,6 +101,15 @@ class OutputsMixin(StateMixin, TangentMixin):
                 "dofs": int(self.W.dofmap.index_map.size_global * self.W.dofmap.index_map_bs),
                 "quadrature_degree": self.qdeg}
 
+    def _field_J(self):
+        """Each cell's smallest J of the degree >= 2 field (``field_jacobian.cell_min_J``);
+        None at degree 1 (J is constant in a cell: the vertices give it) and under MPI."""
+        if self.degree < 2 or self.comm.size > 1:
+            return None
+        from .field_jacobian import cell_min_J
+
+        return cell_min_J(self)
+
     def _result(self, case, converged, iters, residual, wall, steps, history, lam) -> SolveResult:
         self._sync_fields()
         u_v = self._vertex_field()
@@ -130,6 +139,6 @@ class OutputsMixin(StateMixin, TangentMixin):
                    "preconditioner_builds": self.timings.preconditioner_builds,
                    "tangent_shifts": self.timings.shifts, **state,
                    **contact,
-                   **_through_surface(deformation_state(case.mesh, u_v, degree=self.degree),
-                                      contact),
+                   **_through_surface(deformation_state(case.mesh, u_v, degree=self.degree,
+                                                        cell_J=self._field_J()), contact),
                    "warnings": case.glued_patch_warnings(u_v)})

@@ -374,18 +374,20 @@ def cell_jacobians(points: np.ndarray, cells: np.ndarray, u) -> np.ndarray:
 
 
 def deformation_state(mesh: MeshData, u, *, degree: int = 1,
-                      runaway: float = RUNAWAY_FACTOR) -> dict:
+                      runaway: float = RUNAWAY_FACTOR, cell_J=None) -> dict:
     """Whether the vertex displacement ``u`` ((n, gdim), mm) is an admissible final state.
 
     Returns the keys every solver puts in ``SolveResult.extra``: ``inverted_cells`` (cells with
     J <= 0, see ``cell_jacobians``), ``min_J``, ``max_displacement_mm``, ``valid`` and
     ``invalid_reason`` (None when valid), and ``J_evaluated`` (how J was taken: per P1 cell, or
-    for ``degree`` >= 2 from the P1 interpolant of the vertex values). A state is invalid when it
-    is not finite, has an inverted cell, or its largest displacement exceeds ``runaway`` times
-    the body's diameter (bounding-box diagonal, mm).
+    for ``degree`` >= 2 from the P1 interpolant of the vertex values, unless ``cell_J`` gives
+    each cell's smallest J of the field itself, e.g. ``fem_reference.field_jacobian``). A state
+    is invalid when it is not finite, has an inverted cell, or its largest displacement exceeds
+    ``runaway`` times the body's diameter (bounding-box diagonal, mm).
     """
     u = np.asarray(u, float).reshape(mesh.points.shape)
-    J = cell_jacobians(mesh.points, mesh.cells, u)
+    J = cell_jacobians(mesh.points, mesh.cells, u) if cell_J is None else \
+        np.asarray(cell_J, float).reshape(mesh.n_cells)
     finite = bool(np.all(np.isfinite(u)))
     inverted = int(np.count_nonzero(~(J > 0)))
     with np.errstate(all="ignore"):
@@ -404,8 +406,13 @@ def deformation_state(mesh: MeshData, u, *, degree: int = 1,
         if umax > runaway * diameter:
             reasons.append(f"runaway displacement: max |u| = {umax:.3g} mm, more than "
                            f"{runaway:g} x the body's diameter ({diameter:.3g} mm)")
-    how = "per cell (P1: J constant in each cell)" if degree == 1 else \
-        "per cell of the P1 interpolant of the vertex displacements (edge nodes not used)"
+    if cell_J is not None:
+        how = (f"the degree-{degree} field's J = det(I + grad u), its smallest over the points "
+               f"of each cell's degree-3 lattice")
+    elif degree == 1:
+        how = "per cell (P1: J constant in each cell)"
+    else:
+        how = "per cell of the P1 interpolant of the vertex displacements (edge nodes not used)"
     return {"inverted_cells": inverted, "min_J": min_j,
             "max_displacement_mm": umax if np.isfinite(umax) else None,
             "valid": not reasons, "invalid_reason": "; ".join(reasons) or None,

@@ -121,7 +121,36 @@ def test_admm_and_the_degree_2_reference_report_the_state_checks(phantom14):
     assert a.extra["valid"] and a.extra["inverted_cells"] == 0 and 0 < a.extra["min_J"] < 1
     r = fem_reference.solve(Case(box(5.0), Material("linear-elastic"), **BOX_CASE), degree=2)
     assert r.extra["valid"] and r.extra["inverted_cells"] == 0
-    assert "P1 interpolant of the vertex displacements" in r.extra["J_evaluated"]
+    assert "degree-2 field's J" in r.extra["J_evaluated"]
+
+
+def test_a_degree_2_field_folded_between_its_vertices_is_reported_inverted():
+    # every vertex at rest, every edge node moved by c along x: the straight cells through the
+    # vertices are undeformed (J = 1), but the quadratic field is u = 2c (1 - sum_i l_i^2) e_x
+    # (l_i the barycentric coordinates), so F = I + e_x (x) g with g = -4c sum_i l_i grad l_i,
+    # J = 1 + g_x, linear in the cell: its smallest value is at a vertex k, 1 - 4c d l_k / dx
+    pytest.importorskip("dolfinx")
+    from tissue_reference.fem_reference import ReferenceSolver
+    from tissue_reference.fem_reference.field_jacobian import cell_min_J
+
+    m = box(2.5)
+    case = Case(m, Material("neo-hookean", E=6.0, nu=0.45), **BOX_CASE)
+    s = ReferenceSolver(case, degree=2)
+    c = 0.5
+    nodes = np.zeros((len(s.node_vertex), 3))
+    nodes[m.n_vertices:, 0] = c
+    s._set_state(nodes, exact=True)
+    P = m.points[m.cells]                                    # (cells, 4, 3)
+    inv = np.linalg.inv(np.transpose(P[:, 1:] - P[:, :1], (0, 2, 1)))  # rows: grad l_1..l_3
+    dldx = np.concatenate([-inv[:, :, 0].sum(axis=1, keepdims=True), inv[:, :, 0]], axis=1)
+    expected = 1.0 - 4.0 * c * dldx.max(axis=1)
+    got = cell_min_J(s)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-10)
+    folded = int(np.count_nonzero(expected <= 0))
+    assert 0 < folded < m.n_cells
+    st = deformation_state(m, np.zeros_like(m.points), degree=2, cell_J=got)
+    assert st["inverted_cells"] == folded and not st["valid"]
+    assert deformation_state(m, np.zeros_like(m.points), degree=2)["valid"]   # P1 sees nothing
 
 
 # --------------------------------------------------------------------------- E scale
