@@ -99,6 +99,8 @@ def test_path_size_refines_along_each_actuators_path_into_the_tissue():
     assert p_on < 1.3 * path and p_on < 0.7 * q_on
     assert p_ball > 0.85 * q_ball             # the rest of the site's ball is as it was
     assert refined.n_cells > 2 * plain.n_cells
+    est = estimate_cells("phantom-quarter", 8.0, site_size=site, path_size=path)
+    assert abs(est - refined.n_cells) <= 0.15 * refined.n_cells, (est, refined.n_cells)
 
 
 @pytest.mark.parametrize("kw, match", [({"path_size": 1.0}, "give a site_size too"),
