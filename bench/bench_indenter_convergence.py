@@ -44,7 +44,7 @@ def level_sizes(k: int) -> tuple[float, float]:
 
 
 def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool = False,
-              path: float | None = None) -> dict:
+              path: float | None = None, radius: float | None = None) -> dict:
     import tissue_reference.fem_reference as fr
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
@@ -56,9 +56,13 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
     case = load_case(ROOT / "meshes" / "cases" / name)
     path_mm = None if path is None else site * path
     case = dataclasses.replace(case, mesh=build(builder, size, site_size=site, path_size=path_mm))
+    if radius is not None:   # a diagnostic: tips of another radius on the same meshes
+        case = dataclasses.replace(case, actuators=tuple(dataclasses.replace(a, radius=radius)
+                                                         for a in case.actuators))
     s = fr.ReferenceSolver(case, degree=degree)
     actuators = ["A1"] if load == "one" else [a.name for a in case.actuators]
     doc = {"load": load, "level": k, "size_mm": size, "site_mm": site, "path_mm": path_mm,
+           "tip_radius_mm": case.actuators[0].radius,
            "degree": degree,
            "cells": case.mesh.n_cells, "pushes": []}
     prev = None
@@ -177,6 +181,8 @@ def main():
     ap.add_argument("--degree", type=int, default=2)
     ap.add_argument("--summarize", action="store_true", help="only print the summary")
     ap.add_argument("--progress", action="store_true", help="Newton's progress on stderr")
+    ap.add_argument("--radius", type=float, metavar="MM",
+                    help="tips of this radius instead of the case's 5 mm (a diagnostic)")
     ap.add_argument("--path", type=float, metavar="RATIO",
                     help="cells of RATIO x the site size along each tip's path into the tissue "
                          "(meshes.builders_curved.PATH_DEPTH / PATH_REACH); default: none")
@@ -185,7 +191,8 @@ def main():
     args.out.mkdir(parents=True, exist_ok=True)
     if not args.summarize:
         for k in ([args.level] if args.level is not None else range(args.levels)):
-            run_level(args.load, k, args.pushes, args.degree, args.out, args.progress, args.path)
+            run_level(args.load, k, args.pushes, args.degree, args.out, args.progress, args.path,
+                      args.radius)
     if args.level is None:
         summarize(args.load, args.out)
 
