@@ -203,6 +203,4 @@ def build(name: str, size: float, *, out=None, max_cells: int | None = MAX_CELLS
     if max_cells is not None and est > max_cells:
         raise CaseError(f"builtin mesh {name!r} at size {size:g} mm, site_size {site_size:g} mm: "
                         f"about {est:,} cells (estimate), more than the limit {max_cells:,}")
-    if path_size is None:
-        return BUILDERS[name](size, out=out, site_size=site_size)
     return BUILDERS[name](size, out=out, site_size=site_size, path_size=path_size)
