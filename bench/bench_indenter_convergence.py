@@ -77,7 +77,7 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
         row = {"push": p, "reached": ind["push"], "converged": converged,
                "valid": bool(res.extra.get("valid", True)),
                "why": res.extra.get("invalid_reason"),
-               "min_J": res.extra.get("min_J"),   # of the P1 interpolant of the vertices
+               "min_J": res.extra.get("min_J"),   # how it was taken: res.extra["J_evaluated"]
                "surface_mm": ind["surface_penetration"], "nodal_mm": ind["max_penetration"],
                "force_mN": 2.0 * ind["force"],  # A1 is cut in half by the plane y = 0
                "area_mm2": 2.0 * ind["contact_area"],
