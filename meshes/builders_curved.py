@@ -27,6 +27,7 @@ __all__ = [
     "PATH_DEPTH",
     "PATH_REACH",
     "PHANTOM",
+    "RIM_GRADING",
     "SITE_REACH",
     "PhantomGeometry",
     "phantom",
@@ -69,6 +70,10 @@ actuator's direction, as deep as a 15 mm push of a 5 mm tip reaches."""
 PATH_REACH = 6.0
 """Radius (mm) around each path inside which ``path_size`` applies (a 5 mm tip and the skin
 wrapped around it); the cells grow to ``site_size`` over the next PATH_REACH / 2 mm."""
+RIM_GRADING = 0.25
+"""Growth (mm of cell size per mm of distance) of the cells away from the actuator patches'
+rims when ``rim_size`` refines them: the cells are ``rim_size`` within ``rim_size`` of the rim
+and grow linearly to the size around them."""
 
 
 SYMMETRY_PLANES = {"full": (), "half": ("sym_y0",), "quarter": ("sym_y0", "sym_x0")}
@@ -78,9 +83,10 @@ plane y = 0 (the part keeps y >= 0), ``sym_x0`` the plane x = 0 (the part keeps 
 
 def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANTOM,
              site_size: float | None = None, part: str = "full",
-             path_size: float | None = None) -> MeshData:
+             path_size: float | None = None, rim_size: float | None = None) -> MeshData:
     g = geometry
-    for name, v in (("site_size", site_size), ("path_size", path_size)):
+    for name, v in (("site_size", site_size), ("path_size", path_size),
+                    ("rim_size", rim_size)):
         if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and 0 < v):
             raise CaseError(f"{name} must be a positive length in mm, got {v!r}")
     if path_size is not None and (site_size is None or path_size > site_size):
@@ -181,13 +187,20 @@ def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANT
         # finer patches so each actuator touches several vertices
         gmsh.model.mesh.setSize(gmsh.model.getBoundary([(2, s) for g_ in patches.values() for s in g_],
                                                        recursive=True), min(size, g.patch_radius))
-        if site_size is not None and site_size < size:
-            sites = [g.side_point(az) for _, az in actuators]
-            inward = [np.array([-math.cos(math.radians(az)), -math.sin(math.radians(az)), 0.0])
-                      for _, az in actuators]
-            paths = None if path_size is None else [(p, p + PATH_DEPTH * n)
-                                                    for p, n in zip(sites, inward)]
-            _refine_sites(gmsh, sites, site_size, size, paths=paths, path_size=path_size)
+        sites = [g.side_point(az) for _, az in actuators]
+        inward = [np.array([-math.cos(math.radians(az)), -math.sin(math.radians(az)), 0.0])
+                  for _, az in actuators]
+        paths = None if path_size is None else [(p, p + PATH_DEPTH * n)
+                                                for p, n in zip(sites, inward)]
+        rims = None
+        if rim_size is not None:  # the patches' rims, less any cut along a mirror plane
+            rims = [t for _, t in gmsh.model.getBoundary(
+                [(2, s_) for g_ in patches.values() for s_ in g_], combined=True, oriented=False)
+                if not any(abs(gmsh.model.occ.getCenterOfMass(1, t)[keep[pl]]) <= tol
+                           for pl in planes)]
+        if site_size is not None or rim_size is not None:
+            _refine_sites(gmsh, sites, site_size, size, paths=paths, path_size=path_size,
+                          rims=rims, rim_size=rim_size)
         return _finish(gmsh, 3, out, curved=True)
 
 
@@ -199,13 +212,15 @@ def _vertex_at(gmsh, xyz, tag: int, tol: float) -> int:
     raise CaseError(f"phantom geometry: the target at {list(xyz)} was lost on its mirror plane")
 
 
-def _refine_sites(gmsh, sites, fine: float, coarse: float, *, paths=None,
-                  path_size: float | None = None):
-    """Cells of size ``fine`` within SITE_REACH of every site, growing linearly to ``coarse``
-    over the next SITE_REACH mm (a gmsh Distance + Threshold background field); with ``paths``
+def _refine_sites(gmsh, sites, fine: float | None, coarse: float, *, paths=None,
+                  path_size: float | None = None, rims=None, rim_size: float | None = None):
+    """A gmsh background size field, the smallest of: cells of size ``fine`` within SITE_REACH
+    of every site, growing linearly to ``coarse`` over the next SITE_REACH mm; with ``paths``
     (segments (start, end), mm) and ``path_size``, cells of ``path_size`` within PATH_REACH of
-    each segment, growing to ``fine`` over the next PATH_REACH / 2 mm. The points and segments
-    are free geometry, not part of the body: they are neither meshed into it nor written."""
+    each segment, growing to ``fine`` over the next PATH_REACH / 2 mm; with ``rims`` (curve
+    tags) and ``rim_size``, cells of ``rim_size`` within ``rim_size`` of those curves, growing
+    by RIM_GRADING to ``coarse``. The points and segments are free geometry, not part of the
+    body: they are neither meshed into it nor written."""
     f = gmsh.model.mesh.field
     occ = gmsh.model.occ
 
@@ -218,58 +233,78 @@ def _refine_sites(gmsh, sites, fine: float, coarse: float, *, paths=None,
         f.setNumber(th, "DistMax", far)
         return th
 
+    fine = coarse if fine is None else min(fine, coarse)
     pts = [occ.addPoint(*p) for p in sites]
     lines = [occ.addLine(occ.addPoint(*a), occ.addPoint(*b)) for a, b in (paths or [])]
     occ.synchronize()
-    dist = f.add("Distance")
-    f.setNumbers(dist, "PointsList", pts)
-    field = threshold(dist, fine, coarse, SITE_REACH, 2 * SITE_REACH)
-    smallest = fine
+    fields, smallest = [], coarse
+    if fine < coarse:
+        dist = f.add("Distance")
+        f.setNumbers(dist, "PointsList", pts)
+        fields.append(threshold(dist, fine, coarse, SITE_REACH, 2 * SITE_REACH))
+        smallest = fine
     if lines and path_size is not None and path_size < fine:
         along = f.add("Distance")
         f.setNumbers(along, "CurvesList", lines)
         f.setNumber(along, "NumPointsPerCurve", 200)
-        near = threshold(along, path_size, fine, PATH_REACH, 1.5 * PATH_REACH)
-        both = f.add("Min")
-        f.setNumbers(both, "FieldsList", [field, near])
-        field, smallest = both, path_size
+        fields.append(threshold(along, path_size, fine, PATH_REACH, 1.5 * PATH_REACH))
+        smallest = path_size
+    if rims and rim_size is not None and rim_size < coarse:
+        rim = f.add("Distance")
+        f.setNumbers(rim, "CurvesList", rims)
+        # samples closer than the rim cells, so the distance is smooth along the rim
+        length = 2.0 * math.pi * PHANTOM.patch_radius
+        f.setNumber(rim, "NumPointsPerCurve", max(200, math.ceil(4.0 * length / rim_size)))
+        fields.append(threshold(rim, rim_size, coarse, rim_size,
+                                rim_size + (coarse - rim_size) / RIM_GRADING))
+        smallest = min(smallest, rim_size)
+    if not fields:
+        return
+    field = fields[0]
+    if len(fields) > 1:
+        field = f.add("Min")
+        f.setNumbers(field, "FieldsList", fields)
     f.setAsBackgroundMesh(field)
     gmsh.option.setNumber("Mesh.CharacteristicLengthMin", smallest)
 
 
 def phantom(size: float = 6.0, *, out=None, site_size: float | None = None,
-            path_size: float | None = None) -> MeshData:
+            path_size: float | None = None, rim_size: float | None = None) -> MeshData:
     """Seed 000 breast phantom with four side actuators (see module docstring). size in mm;
     site_size: the cell size (mm) near each actuator site (``SITE_REACH``), e.g. a third of an
     indenter's radius; path_size: a finer size along each actuator's path into the tissue
-    (``PATH_DEPTH``, ``PATH_REACH``), where a tip pushed 10-15 mm crushes the tissue."""
-    return _phantom(size, ACTUATORS_4, out, site_size=site_size, path_size=path_size)
+    (``PATH_DEPTH``, ``PATH_REACH``), where a tip pushed 10-15 mm crushes the tissue;
+    rim_size: the cell size at the rims of the actuator patches (``RIM_GRADING``), where a
+    glued patch's pushed skin meets the free skin and the strain is singular."""
+    return _phantom(size, ACTUATORS_4, out, site_size=site_size, path_size=path_size,
+                    rim_size=rim_size)
 
 
 def phantom_half(size: float = 6.0, *, out=None, site_size: float | None = None,
-                 path_size: float | None = None) -> MeshData:
+                 path_size: float | None = None, rim_size: float | None = None) -> MeshData:
     """The part y >= 0 of ``phantom``: its mirror plane is the region ``sym_y0``, and it keeps
     act_px, act_py and act_nx (the first and last cut in half) and T1..T4. With sliding on
     ``sym_y0`` it is the whole phantom under loads symmetric about y = 0 (A1 or A3 alone, or
     A2 with A4 equal), at about half the unknowns; forces on cut actuators are halves."""
     return _phantom(size, ACTUATORS_4, out, site_size=site_size, part="half",
-                    path_size=path_size)
+                    path_size=path_size, rim_size=rim_size)
 
 
 def phantom_quarter(size: float = 6.0, *, out=None, site_size: float | None = None,
-                    path_size: float | None = None) -> MeshData:
+                    path_size: float | None = None, rim_size: float | None = None) -> MeshData:
     """The part x >= 0, y >= 0 of ``phantom``: mirror planes ``sym_y0`` and ``sym_x0``, halves
     of act_px and act_py, and T1..T3. With sliding on both planes it is the whole phantom under
     loads symmetric about both (A1 = A3 and A2 = A4, e.g. all four equal), at about a quarter
     of the unknowns."""
     return _phantom(size, ACTUATORS_4, out, site_size=site_size, part="quarter",
-                    path_size=path_size)
+                    path_size=path_size, rim_size=rim_size)
 
 
 def phantom3(size: float = 6.0, *, out=None, site_size: float | None = None,
-             path_size: float | None = None) -> MeshData:
+             path_size: float | None = None, rim_size: float | None = None) -> MeshData:
     """Seed 000 phantom with three actuators 120 deg apart (minimal positive basis)."""
-    return _phantom(size, ACTUATORS_3, out, site_size=site_size, path_size=path_size)
+    return _phantom(size, ACTUATORS_3, out, site_size=site_size, path_size=path_size,
+                    rim_size=rim_size)
 
 
 def shell_octant(size: float = 2.5, *, inner: float = 10.0, outer: float = 20.0,

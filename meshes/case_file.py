@@ -88,11 +88,9 @@ def _mesh(data, base: Path, src: str, size, max_cells=None) -> MeshData:
     name = m["builtin"]
     default = case_schema()["properties"]["mesh"]["properties"]["size"]["default"]
     h = float(size if size is not None else m.get("size", default))
-    site, path = m.get("site_size"), m.get("path_size")
+    local = {k: float(m[k]) for k in ("site_size", "path_size", "rim_size") if k in m}
     try:
-        return build(name, h, max_cells=MAX_CELLS if max_cells is None else max_cells,
-                     site_size=None if site is None else float(site),
-                     path_size=None if path is None else float(path))
+        return build(name, h, max_cells=MAX_CELLS if max_cells is None else max_cells, **local)
     except CaseError as exc:
         raise CaseError(f"{src}: [mesh]: {exc}") from None
     except Exception as exc:  # gmsh raises plain Exception

@@ -214,7 +214,8 @@ def test_every_shipped_case_validates_and_loads(path):
     assert schema_errors(tomllib.loads(path.read_text())) == []
     case = load_case(path, size=14)
     # the phantom's targets, those of its symmetric parts on the part
-    targets = {"phantom-indenter-half": 4, "phantom-indenter-quarter": 3}.get(path.stem, 5)
+    targets = {"phantom-indenter-half": 4, "phantom-indenter-quarter": 3,
+               "phantom-quarter": 3}.get(path.stem, 5)
     assert case.name == path.stem and len(case.probes) == targets
 
 
@@ -264,8 +265,8 @@ MISTAKES = [
     ("E = true", PHANTOM.replace("E = 6.0 ", "E = true"),
      "FILE: [material].E: expected a finite number in [1e-09, 1e+12], found true (a boolean)"),
     ("unknown key", PHANTOM.replace("size = 6.0", "sise = 6.0"),
-     ("FILE: [mesh].sise: expected a key of [mesh] (file, builtin, size, site_size, path_size), "
-      "found unknown key 'sise' "
+     ("FILE: [mesh].sise: expected a key of [mesh] (file, builtin, size, site_size, path_size, "
+      "rim_size), found unknown key 'sise' "
       "(did you mean 'size'?)")),
     ("file and builtin", PHANTOM.replace('builtin = "phantom"',
                                          'builtin = "phantom"\nfile = "part.msh"'),
