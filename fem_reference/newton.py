@@ -212,6 +212,12 @@ class NewtonMixin:
         case = (case or self.case).with_pushes(pushes or {})
         if case.mesh is not self.case.mesh:
             raise CaseError("ReferenceSolver.solve: the case mesh differs from the solver's mesh")
+        if (case.material.model, case.material.volumetric) != \
+                (self.case.material.model, self.case.material.volumetric):
+            raise CaseError(f"ReferenceSolver.solve: the case's material law "
+                            f"({case.material.model}, volumetric {case.material.volumetric!r}) "
+                            f"differs from the solver's ({self.case.material.model}, volumetric "
+                            f"{self.case.material.volumetric!r}): build a solver for it")
         self.E.value = case.material.E
         self.nu.value = case.material.nu
         self.inv_kappa.value = 3.0 * (1.0 - 2.0 * case.material.nu) / case.material.E

@@ -87,7 +87,8 @@ class StateMixin:
         if getattr(self, "_pproj", None) is None:
             dx = ufl.Measure("dx", domain=self.dm.mesh, metadata={"quadrature_degree": self.qdeg})
             q, pt = ufl.TestFunction(self.Q), ufl.TrialFunction(self.Q)
-            _, vol = mixed_energy_density(self.u, 0.0, self.case.material.model, 1.0, 0.0)
+            _, vol = mixed_energy_density(self.u, 0.0, self.case.material.model, 1.0, 0.0,
+                                          self.case.material.volumetric)
             M = dolfinx.fem.petsc.assemble_matrix(dolfinx.fem.form(pt * q * dx))
             M.assemble()
             ksp = PETSc.KSP().create(self.comm)

@@ -163,12 +163,14 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
         dx = ufl.Measure("dx", domain=mesh, metadata=md)
         ds = ufl.Measure("ds", domain=mesh, subdomain_data=self.dm.facet_tags, metadata=md)
         if self.formulation == "mixed":
-            psi, vol = mixed_energy_density(u, self.p_ufl, case.material.model, mu, self.inv_kappa)
+            psi, vol = mixed_energy_density(u, self.p_ufl, case.material.model, mu, self.inv_kappa,
+                                            case.material.volumetric)
             self._vol_form = vol
         else:
             kappa = E / (3 * (1 - 2 * nu))
             lmbda = E * nu / ((1 + nu) * (1 - 2 * nu))
-            psi, _ = strain_energy_density(u, case.material.model, mu, kappa, lmbda)
+            psi, _ = strain_energy_density(u, case.material.model, mu, kappa, lmbda,
+                                           case.material.volumetric)
         g = case.gravity if case.gravity is not None else (0.0,) * self.gdim
         self.body = dolfinx.fem.Constant(mesh, PETSc.ScalarType(
             tuple(case.material.density * np.asarray(g, float))))
@@ -307,7 +309,8 @@ def _solver_for(case: Case, degree: int | None, **kw) -> ReferenceSolver:
     kw["formulation"] = resolve_formulation(kw.get("formulation", "auto"), case.material)
     if degree is None:
         degree = default_degree(case, kw["formulation"])
-    key = (id(case.mesh), degree, case.material.model, case.gravity, case.material.density,
+    key = (id(case.mesh), degree, case.material.model, case.material.volumetric, case.gravity,
+           case.material.density,
            tuple((b.region, b.type, str(b.normal), str(b.value)) for b in case.boundaries
                  if b.type in ("traction", "sliding")), tuple(sorted(kw.items())),
            contact_key(case))

@@ -5,7 +5,8 @@ in mm.
 (``PhantomGeometry``: base radius 50 mm, height 45 mm) with four or three actuator patches on
 its side and the targets T1..T5 as mesh vertices; the regions are listed in the
 ``meshes.builders`` module docstring. ``site_size`` gives finer cells within ``SITE_REACH`` mm
-of each actuator site.
+of each actuator site, ``path_size`` along each actuator's path into the tissue and
+``rim_size`` at the rims of the actuator patches.
 
 ``shell_octant``: one octant of a thick spherical shell (radii 10 and 20 mm by default).
 """
@@ -199,7 +200,7 @@ def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANT
                 if not any(abs(gmsh.model.occ.getCenterOfMass(1, t)[keep[pl]]) <= tol
                            for pl in planes)]
         if site_size is not None or rim_size is not None:
-            _refine_sites(gmsh, sites, site_size, size, paths=paths, path_size=path_size,
+            _local_sizes(gmsh, sites, site_size, size, paths=paths, path_size=path_size,
                           rims=rims, rim_size=rim_size)
         return _finish(gmsh, 3, out, curved=True)
 
@@ -212,7 +213,7 @@ def _vertex_at(gmsh, xyz, tag: int, tol: float) -> int:
     raise CaseError(f"phantom geometry: the target at {list(xyz)} was lost on its mirror plane")
 
 
-def _refine_sites(gmsh, sites, fine: float | None, coarse: float, *, paths=None,
+def _local_sizes(gmsh, sites, fine: float | None, coarse: float, *, paths=None,
                   path_size: float | None = None, rims=None, rim_size: float | None = None):
     """A gmsh background size field, the smallest of: cells of size ``fine`` within SITE_REACH
     of every site, growing linearly to ``coarse`` over the next SITE_REACH mm; with ``paths``

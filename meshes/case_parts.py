@@ -17,6 +17,7 @@ __all__ = [
     "E_RANGE_KPA",
     "MATERIAL_MODELS",
     "TIP_SHAPES",
+    "VOLUMETRIC_LAWS",
     "Actuator",
     "Boundary",
     "Material",
@@ -31,6 +32,8 @@ E_RANGE_KPA = (1e-9, 1e12)
 """Young's moduli accepted (kPa): from far softer than any tissue to harder than diamond
 (1.2e9 kPa); outside it the residuals of a solve under- or overflow."""
 MATERIAL_MODELS = ("neo-hookean", "linear-elastic")
+VOLUMETRIC_LAWS = ("quadratic", "log")
+"""The Neo-Hookean volumetric energies kappa/2 G(J)^2: G = J - 1 (seed 000 eq. 14) or ln J."""
 ACTUATOR_TYPES = ("patch", "indenter")
 TIP_SHAPES = ("sphere", "punch")
 CONTACT_TYPES = ("frictionless", "tied")
@@ -45,15 +48,23 @@ def _real(x) -> bool:
 class Material:
     """Isotropic material. E in kPa, density in kg/mm^3.
 
-    neo-hookean (seed 000 eq. 14): psi = mu/2 (J^(-2/3) tr C - 3) + kappa/2 (J - 1)^2,
-    mu = E / (2 (1 + nu)), kappa = E / (3 (1 - 2 nu)).
-    linear-elastic: psi = mu eps:eps + lambda/2 tr(eps)^2.
+    neo-hookean: psi = mu/2 (J^(-2/3) tr C - 3) + kappa/2 G(J)^2, mu = E / (2 (1 + nu)),
+    kappa = E / (3 (1 - 2 nu)), with ``volumetric``:
+      "quadratic" (seed 000 eq. 14): G = J - 1. The pressure kappa (1 - J) it resists with is
+        bounded by kappa, and in hydrostatic compression the force per reference area,
+        kappa (1 - J) J^(2/3), peaks at J = 0.4 and then falls: tissue pressed harder than that
+        collapses (J -> 0) whatever the mesh. Where a tip or a patch rim compresses cells that
+        far (J ~ 0.4) the answer stops.
+      "log": G = ln J. The pressure -kappa ln J / J grows without bound as J -> 0; the same
+        kappa, so the two agree at small strain (to first order in J - 1).
+    linear-elastic: psi = mu eps:eps + lambda/2 tr(eps)^2 (``volumetric`` does not apply).
     """
 
     model: str = "neo-hookean"
     E: float = 6.0
     nu: float = 0.45
     density: float = 1.0e-6
+    volumetric: str = "quadratic"
 
     def __post_init__(self):
         if self.model not in MATERIAL_MODELS:
@@ -68,6 +79,12 @@ class Material:
                             f"got nu={self.nu!r}")
         if not (_real(self.density) and math.isfinite(self.density) and self.density >= 0):
             raise CaseError(f"material density must be >= 0 kg/mm^3, got {self.density!r}")
+        if self.volumetric not in VOLUMETRIC_LAWS:
+            raise CaseError(f"unknown material volumetric law {self.volumetric!r}; laws: "
+                            f"{list(VOLUMETRIC_LAWS)}")
+        if self.model != "neo-hookean" and self.volumetric != "quadratic":
+            raise CaseError(f"material volumetric = {self.volumetric!r} applies to the "
+                            f"neo-hookean model only, not {self.model!r}")
 
     @property
     def mu(self) -> float:
@@ -86,6 +103,14 @@ class Material:
         if self.nu >= 0.5:
             return math.inf
         return self.E * self.nu / ((1.0 + self.nu) * (1.0 - 2.0 * self.nu))
+
+    def require_seed_volumetric(self, who: str):
+        """Raise CaseError for a Neo-Hookean material whose volumetric law is not seed 000's
+        kappa/2 (J - 1)^2, the only one ``who`` (a fast solver) implements."""
+        if self.model == "neo-hookean" and self.volumetric != "quadratic":
+            raise CaseError(f"{who} implements seed 000's volumetric energy kappa/2 (J - 1)^2 "
+                            f"only; this material has volumetric = {self.volumetric!r} (the "
+                            f"reference solves it)")
 
     def require_compressible(self, who: str):
         """Raise CaseError for an incompressible material (nu = 0.5), which ``who`` (a

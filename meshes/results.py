@@ -14,8 +14,11 @@ __all__ = ["DynamicsResult", "SolveResult", "material_json", "write_json"]
 
 def material_json(material) -> dict:
     """A Material as the JSON outputs write it (E in kPa, density in kg/mm^3)."""
-    return {"model": material.model, "E_kPa": float(material.E), "nu": float(material.nu),
-            "density_kg_mm3": float(material.density)}
+    out = {"model": material.model, "E_kPa": float(material.E), "nu": float(material.nu),
+           "density_kg_mm3": float(material.density)}
+    if material.model == "neo-hookean":
+        out["volumetric"] = material.volumetric
+    return out
 
 
 @dataclass(frozen=True)
@@ -68,9 +71,7 @@ class SolveResult:
             "strain_energy": float(self.strain_energy),
         }
         if case is not None:   # what was solved: the material and every actuator's position
-            m = case.material
-            d["material"] = {"model": m.model, "E_kPa": float(m.E), "nu": float(m.nu),
-                             "density_kg_mm3": float(m.density)}
+            d["material"] = material_json(case.material)
             d["pushes_mm"] = {a.name: float(a.push) for a in case.actuators}
             d["actuators"] = {a.name: {"type": a.type, "idle": a.idle} for a in case.actuators}
         d.update({k: v for k, v in self.extra.items() if _jsonable(v)})

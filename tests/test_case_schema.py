@@ -287,7 +287,8 @@ MISTAKES = [
     ("list as name", PHANTOM.replace('name = "phantom"', 'name = ["phantom"]'),
      "FILE: name: expected a non-empty string, found ['phantom'] (a list)"),
     ("scalar as table", "material = 6.0\n" + BOX.replace("[material]\nE = 6.0\nnu = 0.45\n", ""),
-     "FILE: [material]: expected a table with keys model, E, nu, density, found 6.0 (a number)"),
+     ("FILE: [material]: expected a table with keys model, E, nu, density, volumetric, found "
+      "6.0 (a number)")),
     ("table as scalar", PHANTOM.replace("E = 6.0 ", "E = {value = 6.0}"),
      ("FILE: [material].E: expected a finite number in [1e-09, 1e+12], found {value = 6.0} "
       "(a table)")),
@@ -358,8 +359,8 @@ def test_all_faults_are_reported_one_line_each(tmp_path):
     got = message(tmp_path, PHANTOM.replace("E = 6.0 ", "E = -1.0").replace("nu = 0.45", "nuu = 3"))
     assert got.splitlines() == [
         "FILE: [material].E: expected a finite number in [1e-09, 1e+12], found -1.0",
-        ("FILE: [material].nuu: expected a key of [material] (model, E, nu, density), found "
-         "unknown key 'nuu' (did you mean 'nu'?)")]
+        ("FILE: [material].nuu: expected a key of [material] (model, E, nu, density, "
+         "volumetric), found unknown key 'nuu' (did you mean 'nu'?)")]
 
 
 # --------------------------------------------------------------------------- fuzz

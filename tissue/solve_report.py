@@ -119,6 +119,10 @@ def _what(d: dict) -> list:
     m = d.get("material") or {}
     rows += [("material model", m.get("model")), ("E (kPa)", m.get("E_kPa")),
              ("nu", m.get("nu")), ("density (kg/mm³)", m.get("density_kg_mm3"))]
+    if m.get("volumetric"):
+        rows.append(("volumetric law", {"quadratic": "quadratic: κ/2 (J − 1)², as seed 000",
+                                        "log": "log: κ/2 (ln J)²"}.get(m["volumetric"],
+                                                                      m["volumetric"])))
     if disc:
         p = disc.get("pressure_degree")
         rows += [("formulation", disc.get("formulation")),

@@ -83,6 +83,7 @@ class _Law:
 
     def __init__(self, material, d):
         material.require_compressible("the ADMM solver")
+        material.require_seed_volumetric("the ADMM solver")
         self.model = material.model
         self.mu, self.kappa, self.lmbda = material.mu, material.kappa, material.lmbda
         self.d = d
