@@ -6,7 +6,9 @@ the given depths on one warm-started load path.
 Per depth: whether Newton converged and the depth reached, validity (no inverted cell, the skin
 not inside the tip), the whole tip's force (mN: four times the quarter's), the smallest J of
 the P2 field (``field_jacobian.cell_min_J``) with its cell's place (radius from the axis and
-height, before and after), the cells below J = 0.2, Newton iterations and wall time. On the
+height, before and after), the cells below J = 0.2, the skin's smallest hoop stretch r / r0
+(its compression around the axis, skin nodes starting more than 0.3 R from it), Newton
+iterations and wall time. On the
 phantom the 5 mm tips stop just past one diameter (docs/verification.md); this is the same tip
 without the phantom's curved skin, neighbours and base.
 
@@ -47,6 +49,9 @@ def run(size: float, radius: float, depths, volumetric: str) -> None:
     print(f"indent-block at {size:g} mm ({mesh.n_cells} cells), {TIP} R = {radius:g} mm, P2, "
           f"volumetric {volumetric}", flush=True)
     s = fr.ReferenceSolver(case, degree=2)
+    skin = np.unique(np.concatenate([mesh.facet_regions[r].ravel() for r in ("top", "tip")]))
+    r0 = np.hypot(*mesh.points[skin, :2].T)
+    off_axis = r0 > 0.3 * radius
     prev = None
     for d in depths:
         t0 = time.perf_counter()
@@ -59,11 +64,14 @@ def run(size: float, radius: float, depths, volumetric: str) -> None:
         w = int(np.argmin(J))
         X = mesh.points[mesh.cells[w]].mean(axis=0)
         x = X + res.u[mesh.cells[w]].mean(axis=0)
+        xs = mesh.points[skin] + res.u[skin]
+        hoop = (np.hypot(*xs[:, :2].T)[off_axis] / r0[off_axis]).min()
         print(f"depth {d:g} mm ({d / radius:.2f} R): converged {ok}, reached {ind['push']:.3f} mm, "
               f"valid {res.extra['valid']}, force {4 * ind['force']:.3f} mN, smallest J "
               f"{J.min():.3f} at r {math.hypot(X[0], X[1]):.2f} z {X[2]:.2f} -> r "
               f"{math.hypot(x[0], x[1]):.2f} z {x[2]:.2f} mm, {(J < 0.2).sum()} cells below "
-              f"0.2, {res.iterations} Newton, {time.perf_counter() - t0:.0f} s", flush=True)
+              f"0.2, skin hoop stretch >= {hoop:.3f}, {res.iterations} Newton, "
+              f"{time.perf_counter() - t0:.0f} s", flush=True)
         if not ok:
             break
         prev = res
