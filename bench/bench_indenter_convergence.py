@@ -44,7 +44,8 @@ def level_sizes(k: int) -> tuple[float, float]:
 
 
 def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool = False,
-              path: float | None = None, radius: float | None = None) -> dict:
+              path: float | None = None, radius: float | None = None,
+              volumetric: str | None = None) -> dict:
     import tissue_reference.fem_reference as fr
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
@@ -56,6 +57,9 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
     case = load_case(ROOT / "meshes" / "cases" / name)
     path_mm = None if path is None else site * path
     case = dataclasses.replace(case, mesh=build(builder, size, site_size=site, path_size=path_mm))
+    if volumetric is not None:   # the Neo-Hookean volumetric law (default: the case's)
+        case = dataclasses.replace(case, material=dataclasses.replace(case.material,
+                                                                      volumetric=volumetric))
     if radius is not None:   # a diagnostic: tips of another radius on the same meshes
         case = dataclasses.replace(case, actuators=tuple(dataclasses.replace(a, radius=radius)
                                                          for a in case.actuators))
@@ -63,6 +67,7 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
     actuators = ["A1"] if load == "one" else [a.name for a in case.actuators]
     doc = {"load": load, "level": k, "size_mm": size, "site_mm": site, "path_mm": path_mm,
            "tip_radius_mm": case.actuators[0].radius,
+           "volumetric": case.material.volumetric,
            "degree": degree,
            "cells": case.mesh.n_cells, "pushes": []}
     prev = None
@@ -186,13 +191,15 @@ def main():
     ap.add_argument("--path", type=float, metavar="RATIO",
                     help="cells of RATIO x the site size along each tip's path into the tissue "
                          "(meshes.builders_curved.PATH_DEPTH / PATH_REACH); default: none")
+    ap.add_argument("--volumetric", choices=["quadratic", "log"],
+                    help="the Neo-Hookean volumetric law (default: the case's, the seed's)")
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "indenter-convergence")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     if not args.summarize:
         for k in ([args.level] if args.level is not None else range(args.levels)):
             run_level(args.load, k, args.pushes, args.degree, args.out, args.progress, args.path,
-                      args.radius)
+                      args.radius, args.volumetric)
     if args.level is None:
         summarize(args.load, args.out)
 
