@@ -21,7 +21,6 @@ independent interval.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import time
 from pathlib import Path
@@ -43,9 +42,11 @@ def run(case_path: Path, rims, degree: int, push: float, size: float | None,
 
     case = load_case(case_path)
     if volumetric is not None:
-        case = dataclasses.replace(case, material=dataclasses.replace(case.material,
-                                                                      volumetric=volumetric))
-    builder = {"phantom": "phantom", "phantom-quarter": "phantom-quarter"}[case.name]
+        case = case.with_material(volumetric=volumetric)
+    if case.name not in ("phantom", "phantom-quarter"):
+        raise SystemExit(f"{case_path}: a glued phantom case (phantom or phantom-quarter) is "
+                         f"needed, got {case.name!r}")
+    builder = case.name
     h = size if size is not None else 6.0
     cut = 2.0 if builder == "phantom-quarter" else 1.0    # A1's patch is cut in half
     pushes = {a.name: push for a in case.actuators}
@@ -53,7 +54,7 @@ def run(case_path: Path, rims, degree: int, push: float, size: float | None,
     for rim in rims:
         t0 = time.perf_counter()
         mesh = build(builder, h, rim_size=rim)
-        c = dataclasses.replace(case, mesh=mesh)
+        c = case.with_mesh(mesh)
         try:
             res = fr.solve(c, pushes=pushes, degree=degree)
         except ConvergenceError as exc:
@@ -66,8 +67,8 @@ def run(case_path: Path, rims, degree: int, push: float, size: float | None,
                "dofs": res.extra["discretization"]["dofs"],
                "probes": {n: [float(v) for v in res.probes[n]] for n in PROBES},
                "force_A1_mN": cut * float(-res.reactions["act_px"][0]),
-               "min_J": res.extra.get("min_J"), "newton": res.iterations, "wall_s": wall}
-        row["volumetric"] = c.material.volumetric
+               "min_J": res.extra.get("min_J"), "newton": res.iterations, "wall_s": wall,
+               "volumetric": c.material.volumetric}
         rows.append(row)
         print(f"rim {rim:.2f} mm: {row['cells']} cells, {row['dofs']} dofs, T1 "
               f"{np.round(row['probes']['T1'], 4).tolist()} mm, A1 {row['force_A1_mN']:.2f} mN, "

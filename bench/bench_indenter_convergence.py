@@ -58,8 +58,7 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
     path_mm = None if path is None else site * path
     case = dataclasses.replace(case, mesh=build(builder, size, site_size=site, path_size=path_mm))
     if volumetric is not None:   # the Neo-Hookean volumetric law (default: the case's)
-        case = dataclasses.replace(case, material=dataclasses.replace(case.material,
-                                                                      volumetric=volumetric))
+        case = case.with_material(volumetric=volumetric)
     if radius is not None:   # a diagnostic: tips of another radius on the same meshes
         case = dataclasses.replace(case, actuators=tuple(dataclasses.replace(a, radius=radius)
                                                          for a in case.actuators))

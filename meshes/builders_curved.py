@@ -201,7 +201,7 @@ def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANT
                            for pl in planes)]
         if site_size is not None or rim_size is not None:
             _local_sizes(gmsh, sites, site_size, size, paths=paths, path_size=path_size,
-                          rims=rims, rim_size=rim_size)
+                         rims=rims, rim_size=rim_size)
         return _finish(gmsh, 3, out, curved=True)
 
 
@@ -214,7 +214,7 @@ def _vertex_at(gmsh, xyz, tag: int, tol: float) -> int:
 
 
 def _local_sizes(gmsh, sites, fine: float | None, coarse: float, *, paths=None,
-                  path_size: float | None = None, rims=None, rim_size: float | None = None):
+                 path_size: float | None = None, rims=None, rim_size: float | None = None):
     """A gmsh background size field, the smallest of: cells of size ``fine`` within SITE_REACH
     of every site, growing linearly to ``coarse`` over the next SITE_REACH mm; with ``paths``
     (segments (start, end), mm) and ``path_size``, cells of ``path_size`` within PATH_REACH of

@@ -104,7 +104,6 @@ def test_refined_rims_move_the_glued_phantom_towards_the_independent_converged_v
     rims from 2.4 to 0.85 mm brings T1 u_z to within 2 % of the independent textbook solve's
     converged interval (tests/data/phantom_reference.json), less than half as far from it as
     before. The rim is singular: its smallest J falls as its cells shrink."""
-    import dataclasses
     import json
     from pathlib import Path
 
@@ -116,7 +115,7 @@ def test_refined_rims_move_the_glued_phantom_towards_the_independent_converged_v
     case = load_case("meshes/cases/phantom-quarter.toml")
     out = {}
     for rim in (2.4, 0.85):
-        c = dataclasses.replace(case, mesh=build("phantom-quarter", 6.0, rim_size=rim))
+        c = case.with_mesh(build("phantom-quarter", 6.0, rim_size=rim))
         res = fr.solve(c, pushes={"A1": 5.0, "A2": 5.0}, degree=2)
         out[rim] = (res.probes["T1"][2], res.extra["min_J"])
     coarse, fine = out[2.4][0], out[0.85][0]
