@@ -45,7 +45,7 @@ def level_sizes(k: int) -> tuple[float, float]:
 
 def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool = False,
               path: float | None = None, radius: float | None = None,
-              volumetric: str | None = None) -> dict:
+              volumetric: str | None = None, contact_quadrature="nodal") -> dict:
     import tissue_reference.fem_reference as fr
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
@@ -62,12 +62,12 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
     if radius is not None:   # a diagnostic: tips of another radius on the same meshes
         case = dataclasses.replace(case, actuators=tuple(dataclasses.replace(a, radius=radius)
                                                          for a in case.actuators))
-    s = fr.ReferenceSolver(case, degree=degree)
+    s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=contact_quadrature)
     actuators = ["A1"] if load == "one" else [a.name for a in case.actuators]
     doc = {"load": load, "level": k, "size_mm": size, "site_mm": site, "path_mm": path_mm,
            "tip_radius_mm": case.actuators[0].radius,
            "volumetric": case.material.volumetric,
-           "degree": degree,
+           "degree": degree, "contact_quadrature": contact_quadrature,
            "cells": case.mesh.n_cells, "pushes": []}
     prev = None
     for p in pushes:
@@ -192,13 +192,16 @@ def main():
                          "(meshes.builders_curved.PATH_DEPTH / PATH_REACH); default: none")
     ap.add_argument("--volumetric", choices=["quadratic", "log"],
                     help="the Neo-Hookean volumetric law (default: the case's, the seed's)")
+    ap.add_argument("--contact-quadrature", type=lambda t: t if t == "nodal" else int(t),
+                    default="nodal", metavar="RULE",
+                    help="where the contact penalty is sampled: 'nodal' or a Gauss degree")
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "indenter-convergence")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     if not args.summarize:
         for k in ([args.level] if args.level is not None else range(args.levels)):
             run_level(args.load, k, args.pushes, args.degree, args.out, args.progress, args.path,
-                      args.radius, args.volumetric)
+                      args.radius, args.volumetric, args.contact_quadrature)
     if args.level is None:
         summarize(args.load, args.out)
 

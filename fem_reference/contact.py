@@ -27,9 +27,21 @@ Method: a node-to-surface penalty added to the energy that the reference minimiz
     Pi_c = int_Gamma_c  k phi(-g) dA                                  (frictionless)
          + int_Gamma_c  k/2 H(eps - g) |(I - n n)(u - (q - q0))|^2 dA  (tied: no slip)
 
-integrated with one point per displacement node of the surface (``nodal_rule``: the lumped rule
-of the P1 facets through the nodes, so the penalty constrains each node once; Gauss points
-constrain P2 surfaces several times per node and lock: +3.7 % Hertz force at h = 0.5 mm).
+integrated by default with one point per displacement node of the surface (``nodal_rule``: the
+lumped rule of the P1 facets through the nodes, so the penalty constrains each node once), or
+with a Gauss rule on each facet (``contact_quadrature`` of ReferenceSolver: its degree).
+
+Which rule (bench/bench_contact_rule.py, quarter block, P2, beta = 1e3). Shallow: Gauss points
+sample the gap more often than a P2 skin has nodes and stiffen the contact a little: Hertz
+force +1.11 / +0.84 / +0.74 % at h = 0.5 / 0.35 / 0.25 mm against the nodal rule's +0.47 /
++0.43 / +0.61 % (degree 2; about 0.4 % of each is the block's fixed bottom). Deep: the nodal
+rule knows the gap only at the nodes, so the skin's facets can bulge into the tip between them.
+Past about two tip radii the exact tangent gains a negative eigenvalue whose mode moves a few
+skin nodes under the tip's front along it, and Newton stops: a ball-ended rod R = 1 mm stops at
+2.41 R on 0.3 mm cells, R = 0.5 mm at 2.0 R (the same cells, twice as coarse relative to the
+tip), R = 1.5 mm at 2.89 R. A Gauss rule of degree 2 penalizes the facets' interiors too and
+goes to 3 R in a few Newton iterations per step, the work of the tip's force then equal to the
+stored strain energy within 0.4 % (tests/test_contact_rule.py).
 k = beta E / h (kPa/mm): beta is the dimensionless ``contact_penalty`` of ReferenceSolver, E
 Young's modulus, h the longest edge of the cell at the point (mm). phi is the penalty's kink
 smoothed over eps = h / beta: phi(x) = 0 (x <= 0), x^3 / (6 eps) (x < eps),
@@ -64,7 +76,7 @@ skin, which the supports balance), ``force_vector`` (mN, that force; the same si
 ``SolveResult.reactions``), ``contact_area`` (mm^2: the reference area lumped to the surface
 nodes with g < 0; it resolves the contact edge to about a cell), ``max_penetration`` (mm: max of
 -g over those nodes), ``penalty_beta`` and ``penalty`` ([min, max] of k over the cells along
-Gamma_c, kPa/mm), ``tip``, ``contact`` and ``tip_start`` (q0, mm). The exported tangent
+Gamma_c, kPa/mm), ``quadrature`` (the contact rule), ``tip``, ``contact`` and ``tip_start`` (q0, mm). The exported tangent
 (``ReferenceSolver.tangent``) uses the tips where the last solve left them.
 
 Where it lives: ``fem_reference.contact_geometry`` (the tip's shape and gap, ``nodal_rule``),
@@ -100,6 +112,11 @@ DEFAULT_CONTACT_PENALTY = 1e3
 """beta in k = beta E / h: the penetration is (p_c / E + 1 / 2) h / beta (mm)."""
 
 
+DEEP_RADII = 1.8
+"""Depth (in tip radii) past which a failed solve with the nodal rule names the contact rule as
+a likely cause: a ball-ended rod stops at 2.0-2.9 radii on cells of 0.6-0.2 radii."""
+
+
 STEP_FRACTION = 0.1
 """A load step moves an indenter by at most this fraction of its radius at first (the load
 stepping grows the increments after steps that converge quickly)."""
@@ -114,13 +131,19 @@ class Contact:
     """The contact of a Case's indenters on a ReferenceSolver: ``energy`` (UFL, 0 without
     indenters) joins the solver's energy; ``ramps`` moves the tips with the load stepping;
     ``extra`` reports them; ``accepts`` is Newton's line search with indenters. penalty: beta,
-    the ``contact_penalty`` (module docstring); quadrature_degree: a Gauss rule of that degree
-    for the contact integrals instead of the nodal rule (for comparisons; it locks at P2)."""
+    the ``contact_penalty`` (module docstring); quadrature: "nodal" (``nodal_rule``) or the
+    degree (int) of a Gauss rule on each facet for the contact integrals (module docstring)."""
 
     def __init__(self, solver, case: Case, *, penalty: float = DEFAULT_CONTACT_PENALTY,
-                 quadrature_degree: int | None = None):
+                 quadrature: str | int = "nodal"):
         if not (isinstance(penalty, (int, float)) and np.isfinite(penalty) and penalty > 0):
             raise CaseError(f"contact_penalty must be a finite number > 0, got {penalty!r}")
+        if quadrature != "nodal" and not (isinstance(quadrature, int) and
+                                          not isinstance(quadrature, bool) and
+                                          1 <= quadrature <= 8):
+            raise CaseError(f"contact_quadrature must be 'nodal' or a Gauss degree 1-8, got "
+                            f"{quadrature!r}")
+        self.quadrature = quadrature
         self.solver = solver
         self.comm = solver.comm
         self._total, self._energy = None, 0.0
@@ -131,12 +154,12 @@ class Contact:
         if not self.key:
             return
         mesh = solver.dm.mesh
-        if quadrature_degree is None:
+        if quadrature == "nodal":
             pts, wts = nodal_rule(solver.gdim - 1, solver.degree)
             md = {"quadrature_rule": "custom", "quadrature_degree": 1,
                   "quadrature_points": pts.tolist(), "quadrature_weights": wts.tolist()}
         else:
-            md = {"quadrature_degree": quadrature_degree}
+            md = {"quadrature_degree": quadrature}
         ds = ufl.Measure("ds", domain=mesh, subdomain_data=solver.dm.facet_tags, metadata=md)
         X = ufl.SpatialCoordinate(mesh)
         for a in case.indenters():
@@ -237,6 +260,22 @@ class Contact:
         """The total energy (uJ) of the state the line search last took."""
         return self._energy
 
+    def failure_hint(self) -> str:
+        """Why a solve that stopped with the tips where they are may have stopped, for its
+        error message: with the nodal rule, a tip deeper than DEEP_RADII of its radii (the
+        discrete equilibrium there can turn unstable: module docstring); "" otherwise."""
+        if self.quadrature != "nodal":
+            return ""
+        deep = [f"{ind.name} ({ind.push_now() / ind.shape.radius:.2f})" for ind in self.indenters
+                if ind.push_now() > DEEP_RADII * ind.shape.radius]
+        if not deep:
+            return ""
+        return (f"; indenter tips deeper than {DEEP_RADII:g} of their radii: "
+                f"{', '.join(deep)}. With the nodal contact rule the skin's facets bulge into a tip "
+                f"that deep and the discrete equilibrium can turn unstable (docs/verification.md, "
+                f"Known limits): a Gauss rule holds it ([reference] contact_quadrature = 2, or "
+                f"contact_quadrature=2)")
+
     def extra(self) -> dict:
         """{"indenters": {name: report}} at the solver's current state; {} without indenters.
         Each report has the facet check: a tip that passed between the surface's nodes makes
@@ -244,4 +283,5 @@ class Contact:
         if not self.indenters:
             return {}
         arr = self.solver.u.x.array
-        return {"indenters": {ind.name: ind.report(arr) for ind in self.indenters}}
+        return {"indenters": {ind.name: {**ind.report(arr), "quadrature": self.quadrature}
+                              for ind in self.indenters}}

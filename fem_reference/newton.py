@@ -308,7 +308,8 @@ class NewtonMixin:
                     last = self._result(case, False, iters, residual, wall, steps, history, lam)
                     raise ConvergenceError(
                         f"{case.source or case.name}: Newton did not converge beyond load fraction "
-                        f"{lam:.4f} (tried {trial:.4f}) after cut-backs down to {inc * 2:.2e}",
+                        f"{lam:.4f} (tried {trial:.4f}) after cut-backs down to {inc * 2:.2e}"
+                        f"{self.contact.failure_hint()}",
                         load_fraction=lam, last_converged=last)
         wall = time.perf_counter() - t_start
         return self._result(case, True, iters, residual, wall, max(steps, 1), history, 1.0)

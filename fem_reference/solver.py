@@ -116,13 +116,20 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
         contact_penalty: beta of the indenters' contact penalty k = beta E / h (kPa/mm, h the
             cell size; see ``contact``: the penetration (p_c / E + 1/2) h / beta, mm, is the
             method's error).
+        contact_quadrature: where the contact penalty is sampled: "nodal" (one point per
+            displacement node of the skin) or an int, a Gauss rule of that degree on each skin
+            facet, which also penalizes the facets' interiors; None: the case's (``[reference]
+            contact_quadrature``), else "nodal". The nodal rule is the more accurate for shallow
+            pushes, a Gauss rule holds the skin on a tip pushed deeper than about two of its
+            radii (``contact``).
     """
 
     def __init__(self, case: Case, *, degree: int | None = None, formulation: str = "auto",
                  quadrature_degree: int | None = None, settings: NewtonSettings | None = None,
                  comm=MPI.COMM_WORLD, sliding_penalty: float = 1e4, body_force=None,
                  linear_solver: str = "auto", curved: bool | None = None,
-                 contact_penalty: float = DEFAULT_CONTACT_PENALTY):
+                 contact_penalty: float = DEFAULT_CONTACT_PENALTY,
+                 contact_quadrature: str | int | None = None):
         self.formulation = resolve_formulation(formulation, case.material)
         if degree is None:
             degree = default_degree(case, self.formulation)
@@ -197,7 +204,10 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
                     beta = sliding_penalty * case.material.E / self.dm.h_min
                     penalty = penalty + beta / 2 * (ufl.dot(u, nn) - self.load * gval) ** 2 * \
                         ds(self.dm.region_tags[b.region])
-        self.contact = Contact(self, case, penalty=contact_penalty)  # rigid indenters
+        if contact_quadrature is None:
+            contact_quadrature = case.reference_contact_quadrature or "nodal"
+        self.contact = Contact(self, case, penalty=contact_penalty,  # rigid indenters
+                               quadrature=contact_quadrature)
         penalty = penalty + self.contact.energy
         self.energy_internal = internal
         total = internal - self.load * external + penalty
@@ -313,7 +323,7 @@ def _solver_for(case: Case, degree: int | None, **kw) -> ReferenceSolver:
            case.material.density,
            tuple((b.region, b.type, str(b.normal), str(b.value)) for b in case.boundaries
                  if b.type in ("traction", "sliding")), tuple(sorted(kw.items())),
-           contact_key(case))
+           contact_key(case), case.reference_contact_quadrature)
     s = _CACHE.get(key)
     if s is None or s.case.mesh is not case.mesh:
         if len(_CACHE) > 8:

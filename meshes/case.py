@@ -83,6 +83,7 @@ class Case(CaseConstraintsMixin, CaseVariantsMixin):
     name: str = "case"
     source: str | None = None
     reference_degree: int | None = None
+    reference_contact_quadrature: str | int | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "boundaries", tuple(self.boundaries))
@@ -120,6 +121,11 @@ class Case(CaseConstraintsMixin, CaseVariantsMixin):
                                                   self.reference_degree not in (1, 2, 3)):
             raise CaseError(f"{where}: reference degree must be 1, 2 or 3, got "
                             f"{self.reference_degree!r}")
+        rule = self.reference_contact_quadrature
+        if rule is not None and rule != "nodal" and (isinstance(rule, bool) or
+                                                     rule not in range(1, 9)):
+            raise CaseError(f"{where}: reference contact_quadrature must be 'nodal' or a Gauss "
+                            f"degree 1-8, got {rule!r}")
         _ = self.constraints  # validates the prescriptions (raises on conflicts)
         self._check_rigid_body(where)
 

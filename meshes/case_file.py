@@ -265,6 +265,8 @@ def load_case(path, *, mesh: MeshData | None = None, size: float | None = None,
                                for a in data.get("actuator", [])],
                     gravity=data.get("body", {}).get("gravity"),
                     reference_degree=data.get("reference", {}).get("degree"),
+                    reference_contact_quadrature=data.get("reference", {}).get(
+                        "contact_quadrature"),
                     name=data.get("name", Path(path).stem), source=src)
     except CaseError as exc:  # conflicting prescriptions, rigid-body freedom, inverted cells
         if str(exc).startswith(f"{src}: "):

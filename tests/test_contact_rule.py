@@ -1,0 +1,125 @@
+"""Where the contact penalty is sampled (``contact_quadrature``): the nodal rule and Gauss rules
+on the skin's facets, against answers computed here independently of the solver, on the
+quarter block ``indent-block`` (symmetry planes sliding, bottom fixed):
+
+- Hertz (shallow, linear elastic): a Gauss rule of degree 2 samples the gap more often than
+  the P2 skin has nodes, which stiffens the contact a little (measured at h = 0.5 mm: +1.1 %
+  against the nodal rule's +0.5 %, of which about 0.4 % is the block's fixed bottom); both stay
+  within 2 % of Hertz;
+- a deep push (Neo-Hookean, a ball-ended rod pushed three of its radii in, where the nodal rule
+  stops): the work of the tip's force along the path, integrated here with Simpson's rule over
+  the depths, equals the strain energy the tissue stores (frictionless contact and a
+  hyperelastic body are conservative; the penalties store O(1/beta) of it). The force is the
+  contact form's derivative, the energy the tissue's own integral: they agree only on an
+  equilibrium path.
+Units: mm, kPa, mN, uJ.
+"""
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tissue_reference.fem_reference as fr
+from tissue_reference.meshes.builders import indent_block
+from tissue_reference.meshes.case import Actuator, Boundary, Case, Material, load_case
+from tissue_reference.meshes.errors import CaseError
+
+E, NU = 6.0, 0.45
+E_STAR = E / (1 - NU ** 2)
+
+
+def quarter_case(mesh, R, model):
+    tip = Actuator("I", "tip", (0.0, 0.0, -1.0), type="indenter", tip="sphere", radius=R,
+                   point=(0.0, 0.0, 0.0), contact_region="top")
+    return Case(mesh, Material(model, E, NU),
+                boundaries=[Boundary("bottom", "fixed"),
+                            Boundary("xsym", "sliding", normal=(1.0, 0.0, 0.0)),
+                            Boundary("ysym", "sliding", normal=(0.0, 1.0, 0.0))],
+                actuators=[tip])
+
+
+@pytest.mark.parametrize("rule", ["gauss", 0, 9, 2.0, True])
+def test_a_bad_contact_quadrature_is_refused_naming_it(rule):
+    case = quarter_case(indent_block(1.0), 10.0, "linear-elastic")
+    with pytest.raises(CaseError, match="contact_quadrature"):
+        fr.ReferenceSolver(case, degree=1, contact_quadrature=rule)
+
+
+@pytest.mark.slow
+def test_a_gauss_contact_rule_gives_hertz_force_within_2_percent_and_reports_its_rule():
+    R, d = 10.0, 0.1
+    case = quarter_case(indent_block(0.5), R, "linear-elastic")
+    F_hertz = 4.0 / 3.0 * E_STAR * math.sqrt(R) * d ** 1.5
+    forces = {}
+    for rule in ("nodal", 2):
+        res = fr.solve(case, pushes={"I": d}, degree=2, contact_quadrature=rule)
+        ind = res.extra["indenters"]["I"]
+        assert res.converged and res.extra["valid"] and ind["quadrature"] == rule
+        forces[rule] = 4 * ind["force"]
+    print(f"\nHertz {F_hertz:.5f} mN: nodal {forces['nodal']:.5f}, Gauss 2 {forces[2]:.5f}")
+    assert abs(forces[2] / F_hertz - 1) < 0.02
+    # the Gauss rule over-constrains the skin: stiffer than the nodal rule, not softer
+    assert forces[2] > forces["nodal"]
+
+
+@pytest.mark.slow
+def test_a_deep_push_with_a_gauss_rule_does_the_work_the_tissue_stores():
+    R, h = 1.0, 0.3
+    case = quarter_case(indent_block(h), R, "neo-hookean")
+    s = fr.ReferenceSolver(case, degree=2, contact_quadrature=2)
+    depths = np.linspace(0.0, 3.0 * R, 13)
+    forces, prev = [0.0], None
+    for d in depths[1:]:
+        prev = s.solve({"I": float(d)}, initial=prev)
+        assert prev.converged and prev.extra["valid"]
+        forces.append(4 * prev.extra["indenters"]["I"]["force"])
+    stored = 4 * prev.strain_energy
+    hstep = depths[1] - depths[0]
+    f = np.asarray(forces)
+    work = hstep / 3 * (f[0] + f[-1] + 4 * f[1:-1:2].sum() + 2 * f[2:-1:2].sum())
+    print(f"\nball-ended rod at 3 R: force {f[-1]:.3f} mN, work {work:.4f} uJ, strain energy "
+          f"{stored:.4f} uJ ({100 * (work / stored - 1):+.2f} %)")
+    assert np.all(np.diff(f) > 0)
+    assert abs(work / stored - 1) < 0.01
+
+
+CASES = Path(__file__).resolve().parents[1] / "meshes" / "cases"
+
+
+def _quarter_file(tmp_path, line):
+    text = (CASES / "phantom-indenter-quarter.toml").read_text()
+    assert "[reference]\ndegree = 2" in text
+    path = tmp_path / "quarter.toml"
+    path.write_text(text.replace("[reference]\ndegree = 2", f"[reference]\n{line}\ndegree = 2"))
+    return path
+
+
+def test_a_case_file_chooses_its_contact_rule_and_a_solver_argument_overrides_it(tmp_path):
+    case = load_case(_quarter_file(tmp_path, "contact_quadrature = 2"), size=14.0)
+    assert case.reference_contact_quadrature == 2
+    assert fr.ReferenceSolver(case, degree=1).contact.quadrature == 2
+    assert fr.ReferenceSolver(case, degree=1,
+                              contact_quadrature="nodal").contact.quadrature == "nodal"
+    shipped = load_case(CASES / "phantom-indenter-quarter.toml", size=14.0)
+    assert shipped.reference_contact_quadrature is None
+    assert fr.ReferenceSolver(shipped, degree=1).contact.quadrature == "nodal"
+
+
+def test_a_bad_contact_rule_in_a_case_file_is_refused_naming_file_and_key(tmp_path):
+    path = _quarter_file(tmp_path, 'contact_quadrature = "gauss"')
+    with pytest.raises(CaseError, match=r"quarter\.toml.*contact_quadrature"):
+        load_case(path, size=14.0)
+
+
+def test_a_stop_with_a_tip_two_radii_deep_names_the_nodal_rule():
+    case = quarter_case(indent_block(1.0), 1.0, "neo-hookean")
+    for rule, named in (("nodal", True), (2, False)):
+        s = fr.ReferenceSolver(case, degree=1, contact_quadrature=rule)
+        ind = s.contact.indenters[0]
+        ind.q.value = ind.q0 + 1.5 * ind.d     # 1.5 radii: not deep
+        assert s.contact.failure_hint() == ""
+        ind.q.value = ind.q0 + 2.1 * ind.d
+        hint = s.contact.failure_hint()
+        assert ("I (2.10)" in hint and "contact_quadrature = 2" in hint) == named
+        assert (hint == "") != named
