@@ -14,6 +14,7 @@ quarter block ``indent-block`` (symmetry planes sliding, bottom fixed):
   equilibrium path.
 Units: mm, kPa, mN, uJ.
 """
+import json
 import math
 from pathlib import Path
 
@@ -123,3 +124,17 @@ def test_a_stop_with_a_tip_two_radii_deep_names_the_nodal_rule():
         hint = s.contact.failure_hint()
         assert ("I (2.10)" in hint and "contact_quadrature = 2" in hint) == named
         assert (hint == "") != named
+
+
+def test_the_command_line_takes_the_contact_rule_and_reports_it(tmp_path, capsys):
+    from tissue_reference.tissue.cli import main
+
+    case = str(CASES / "phantom-indenter-quarter.toml")
+    js = tmp_path / "s.json"
+    assert main(["solve", case, "--size", "14", "--degree", "1", "--push", "A1=1", "-q",
+                 "--json", str(js), "--contact-quadrature", "2"]) == 0
+    assert json.loads(js.read_text())["indenters"]["A1"]["quadrature"] == 2
+    capsys.readouterr()
+    assert main(["solve", case, "--size", "14", "--contact-quadrature", "9"]) == 2
+    assert "--contact-quadrature: 'nodal' or a Gauss degree 1-8, got '9'" in \
+        capsys.readouterr().err

@@ -9,6 +9,7 @@ meshing or solving (``check_outputs``). Units: lengths mm.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 import tomllib
@@ -192,8 +193,21 @@ def add_max_cells(p: argparse.ArgumentParser, default=None, what="builtin mesh")
                         f"{MAX_CELLS:,})")
 
 
+def contact_rule(text: str):
+    """argparse type of --contact-quadrature: "nodal" or a Gauss degree 1-8."""
+    if text == "nodal":
+        return text
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if not 1 <= value <= 8:
+        raise argparse.ArgumentTypeError(f"'nodal' or a Gauss degree 1-8, got {text!r}")
+    return value
+
+
 def add_discretization_args(p: argparse.ArgumentParser):
-    """--degree and --formulation of the reference."""
+    """--degree, --formulation and --contact-quadrature of the reference."""
     p.add_argument("--degree", type=int, choices=(1, 2, 3), default=None,
                    help="Lagrange degree of the reference's displacement (default: the case's "
                         "[reference] degree, else 2 for the mixed formulation, 1 otherwise)")
@@ -201,6 +215,11 @@ def add_discretization_args(p: argparse.ArgumentParser):
                    help="reference formulation: mixed u-p (Taylor-Hood P2/P1, locking-free for "
                         "nearly incompressible tissue) or displacement; auto: mixed for "
                         "nu >= 0.49")
+    p.add_argument("--contact-quadrature", type=contact_rule, default=None, metavar="RULE",
+                   help="where indenters' contact is sampled: 'nodal' (the skin's nodes) or a "
+                        "Gauss degree on the skin's facets (2 holds tips pushed past two of "
+                        "their radii); default: the case's [reference] contact_quadrature, "
+                        "else nodal")
 
 
 def builtin_of(path, size=None):
@@ -239,6 +258,8 @@ def case_from_args(args, *, size: float | None = None) -> Case:
     if b is not None:
         announce_build(getattr(args, "command", "") or "", *b, max_cells)
     case = load_case(Path(args.case), size=size, max_cells=max_cells)
+    if getattr(args, "contact_quadrature", None) is not None:
+        case = dataclasses.replace(case, reference_contact_quadrature=args.contact_quadrature)
     return case.with_free_actuators() if getattr(args, "free_actuators", False) else case
 
 

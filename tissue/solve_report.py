@@ -182,9 +182,10 @@ def _answer(d: dict) -> list:
     if ind:
         parts += [Raw("<h3>Indenters</h3>"),
                   table(["indenter", "push (mm)", "force (mN)", "contact area (mm²)",
-                         "max penetration (mm)"],
+                         "max penetration (mm)", "contact rule"],
                         [(n, r.get("push"), r.get("force"), r.get("contact_area"),
-                          r.get("max_penetration")) for n, r in ind.items()])]
+                          r.get("max_penetration"), _rule_text(r.get("quadrature")))
+                         for n, r in ind.items()])]
     return parts
 
 
@@ -229,3 +230,10 @@ def write_solve_report(case, res, out_dir, *, data: dict | None = None, stem: st
     if d.get("solver_settings"):
         parts += [Raw("<h2>Solver settings</h2>"), kv_table(d["solver_settings"])]
     return write_page(out / REPORT, page(f"tissue solve: {case.name}", parts))
+
+
+def _rule_text(rule) -> str:
+    """The contact rule as the report page names it."""
+    if rule is None:
+        return ""
+    return "nodal" if rule == "nodal" else f"Gauss, degree {rule}"
