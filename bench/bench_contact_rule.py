@@ -29,10 +29,6 @@ E, NU = 6.0, 0.45
 E_STAR = E / (1 - NU ** 2)
 
 
-def _rule(text: str):
-    return text if text == "nodal" else int(text)
-
-
 def _quarter(mesh, actuator, model):
     from tissue_reference.meshes.case import Boundary, Case, Material
 
@@ -175,10 +171,12 @@ def depth(size, radius, depths, rules, eigen: bool) -> list[dict]:
 
 
 def main():
+    from tissue_reference.tissue.common import contact_rule
+
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--part", choices=["hertz", "depth", "both"], default="both")
-    ap.add_argument("--rules", type=_rule, nargs="+", default=["nodal", 2],
+    ap.add_argument("--rules", type=contact_rule, nargs="+", default=["nodal", 2],
                     help="'nodal' and/or Gauss degrees")
     ap.add_argument("--sizes", type=float, nargs="+", default=[0.5, 0.35, 0.25],
                     help="cell sizes under the tip for the Hertz part (mm)")

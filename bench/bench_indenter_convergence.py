@@ -175,6 +175,8 @@ def summarize(load: str, out: Path) -> None:
 
 
 def main():
+    from tissue_reference.tissue.common import contact_rule
+
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--load", choices=sorted(CASES), default="one")
@@ -192,7 +194,7 @@ def main():
                          "(meshes.builders_curved.PATH_DEPTH / PATH_REACH); default: none")
     ap.add_argument("--volumetric", choices=["quadratic", "log"],
                     help="the Neo-Hookean volumetric law (default: the case's, the seed's)")
-    ap.add_argument("--contact-quadrature", type=lambda t: t if t == "nodal" else int(t),
+    ap.add_argument("--contact-quadrature", type=contact_rule,
                     default="nodal", metavar="RULE",
                     help="where the contact penalty is sampled: 'nodal' or a Gauss degree")
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "indenter-convergence")
