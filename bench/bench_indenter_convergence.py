@@ -112,12 +112,20 @@ def summarize(load: str, out: Path) -> None:
                   key=lambda d: d["level"])
     if not docs:
         raise SystemExit(f"no level results under {out} for --load {load}")
+    for key in ("contact_quadrature", "volumetric", "degree"):
+        if len({str(d.get(key, "nodal" if key == "contact_quadrature" else None))
+                for d in docs}) > 1:
+            raise SystemExit(f"the level results under {out} differ in {key}: "
+                             f"{[(d['level'], d.get(key)) for d in docs]}; summarize one "
+                             f"discretization at a time")
     print(f"indenter phantom, {'A1 alone (half model)' if load == 'one' else 'all four (quarter model)'}, "
-          f"P{docs[0]['degree']}; levels: " + ", ".join(
+          f"P{docs[0]['degree']}, contact rule {docs[0].get('contact_quadrature', 'nodal')}; "
+          f"levels: " + ", ".join(
               f"{d['level']}: size {d['size_mm']:.2f} / site {d['site_mm']:.2f} mm, "
               f"{d['cells']} cells" for d in docs))
     pushes = sorted({r["push"] for d in docs for r in d["pushes"]})
     summary = {"load": load, "degree": docs[0]["degree"], "ratio": RATIO,
+               "contact_quadrature": docs[0].get("contact_quadrature", "nodal"),
                "levels": [{k: d.get(k) for k in ("level", "size_mm", "site_mm", "path_mm", "cells")}
                           for d in docs], "pushes": []}
     for p in pushes:
