@@ -94,7 +94,7 @@ import numpy as np
 import ufl
 from mpi4py import MPI
 
-from tissue_reference.meshes.case import Case
+from tissue_reference.meshes.case import CONTACT_RULES, Case, is_contact_rule
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import SolveResult
 
@@ -138,11 +138,8 @@ class Contact:
                  quadrature: str | int = "nodal"):
         if not (isinstance(penalty, (int, float)) and np.isfinite(penalty) and penalty > 0):
             raise CaseError(f"contact_penalty must be a finite number > 0, got {penalty!r}")
-        if quadrature != "nodal" and not (isinstance(quadrature, int) and
-                                          not isinstance(quadrature, bool) and
-                                          1 <= quadrature <= 8):
-            raise CaseError(f"contact_quadrature must be 'nodal' or a Gauss degree 1-8, got "
-                            f"{quadrature!r}")
+        if not is_contact_rule(quadrature):
+            raise CaseError(f"contact_quadrature must be {CONTACT_RULES}, got {quadrature!r}")
         self.quadrature = quadrature
         self.solver = solver
         self.comm = solver.comm

@@ -42,6 +42,7 @@ from .mesh import MeshData, cell_volumes, check_cells
 __all__ = [
     "ACTUATOR_TYPES",
     "BOUNDARY_TYPES",
+    "CONTACT_RULES",
     "CONTACT_TYPES",
     "E_RANGE_KPA",
     "MATERIAL_MODELS",
@@ -55,6 +56,15 @@ __all__ = [
     "VertexConstraints",
     "load_case",
 ]
+
+CONTACT_RULES = "'nodal' or a Gauss degree 1-8"
+"""What a contact rule (``contact_quadrature``) may be, as error messages name it."""
+
+
+def is_contact_rule(rule) -> bool:
+    """Whether ``rule`` is a contact rule: "nodal" or an int (not a bool) from 1 to 8."""
+    return rule == "nodal" or (isinstance(rule, int) and not isinstance(rule, bool)
+                               and 1 <= rule <= 8)
 
 
 def _closest_barycentric(verts: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -122,10 +132,9 @@ class Case(CaseConstraintsMixin, CaseVariantsMixin):
             raise CaseError(f"{where}: reference degree must be 1, 2 or 3, got "
                             f"{self.reference_degree!r}")
         rule = self.reference_contact_quadrature
-        if rule is not None and rule != "nodal" and (isinstance(rule, bool) or
-                                                     rule not in range(1, 9)):
-            raise CaseError(f"{where}: reference contact_quadrature must be 'nodal' or a Gauss "
-                            f"degree 1-8, got {rule!r}")
+        if rule is not None and not is_contact_rule(rule):
+            raise CaseError(f"{where}: reference contact_quadrature must be {CONTACT_RULES}, "
+                            f"got {rule!r}")
         _ = self.constraints  # validates the prescriptions (raises on conflicts)
         self._check_rigid_body(where)
 

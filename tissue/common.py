@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from tissue_reference.meshes.builders import MAX_CELLS, estimate_cells
-from tissue_reference.meshes.case import Case, load_case
+from tissue_reference.meshes.case import CONTACT_RULES, Case, is_contact_rule, load_case
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.io import check_output_dir, check_output_file
 from tissue_reference.meshes.mesh import RUNAWAY_FACTOR
@@ -195,14 +195,12 @@ def add_max_cells(p: argparse.ArgumentParser, default=None, what="builtin mesh")
 
 def contact_rule(text: str):
     """argparse type of --contact-quadrature: "nodal" or a Gauss degree 1-8."""
-    if text == "nodal":
-        return text
     try:
-        value = int(text)
+        value = text if text == "nodal" else int(text)
     except ValueError:
-        value = 0
-    if not 1 <= value <= 8:
-        raise argparse.ArgumentTypeError(f"'nodal' or a Gauss degree 1-8, got {text!r}")
+        value = None
+    if not is_contact_rule(value):
+        raise argparse.ArgumentTypeError(f"{CONTACT_RULES}, got {text!r}")
     return value
 
 
