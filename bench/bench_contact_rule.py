@@ -6,6 +6,8 @@ node, the default) against Gauss rules on each skin facet, on the quarter block 
    (E = 6 kPa, nu = 0.45) against Hertz's force 4/3 E* sqrt(R) d^(3/2), per cell size h under
    the tip and per rule. A Gauss rule samples the gap more often than the P2 skin has nodes, so
    it over-constrains the skin and stiffens the contact (locking); the nodal rule does not.
+   On cells wider than the contact (``--sizes 2 1.5 1``: h = 2, 1.5, 1 contact radii) the
+   few facets in contact cannot follow the tip at the Gauss points and the rule fails.
 2. Depth: a ball-ended rod R = 1 mm pushed into the Neo-Hookean block (0.3 mm cells) through
    the given depths on one warm-started load path, per rule: whether Newton converges, the
    force (mN, the whole tip), the smallest J and the state's validity. With the nodal rule the

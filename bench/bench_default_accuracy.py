@@ -2,23 +2,26 @@
 and what it costs, against the previous default, measured in one run.
 
 The default is what ``tissue solve meshes/cases/phantom-indenter.toml --push ...`` solves: the
-case's mesh (size, site_size) at the case's ``[reference] degree``. The previous default was P1
-on 1.6 mm site cells (``--old``: solved in the same run, for the ratios). The converged answer is
-the finest level of the refinement study shipped in tests/data/phantom_indenter_reference.json
-(P2 on the phantom's symmetric parts, cells divided by sqrt 2 per level, from
-bench/bench_indenter_convergence.py); the spread of its levels is printed with it, so the
-comparison says how well the converged value itself is known.
+case's mesh (size, site_size), the case's ``[reference] degree`` and contact rule. The previous
+default was P1 on 1.6 mm site cells (``--old``: solved in the same run, for the ratios). The
+converged answer is the finest level of a refinement study shipped in
+tests/data/phantom_indenter_reference.json (P2 on the phantom's symmetric parts, cells divided by
+sqrt 2 per level, from bench/bench_indenter_convergence.py): for all four pushed, the study with
+the Gauss contact rule and refined paths (``four_gauss``, to 12.5 mm; 15 mm has no converged
+value) where it has the push, else the nodal one; for A1 alone the nodal study. The spread of its
+levels and, where assessed, its GCI band are printed with it, so the comparison says how well the
+converged value itself is known.
 
-Per load (A1 alone at 5 mm; all four at 5 mm): the A1 force (mN) and the targets' displacements
-(mm) of each discretization, the relative difference of each to the finest level (targets:
-|u - u_ref| / |u_ref|), Newton iterations, wall time, and the ratios new / old.
+Per load and push (the pushes one warm-started load path): the A1 force (mN) and the targets'
+displacements (mm) of each discretization, the relative difference of each to the finest level
+(targets: |u - u_ref| / |u_ref|), Newton iterations, wall time, and the ratios new / old.
 
-    .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--push 5] [--old]
+    .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--pushes 5 10 12.5]
+        [--contact-quadrature nodal|2] [--old]
 """
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import time
 from pathlib import Path
@@ -32,23 +35,35 @@ LOADS = {"one": ("A1",), "four": ("A1", "A2", "A3", "A4")}
 
 
 def finest(load: str, push: float) -> dict | None:
-    """The finest level's answer at ``push`` and the spread of all levels (relative); None when
-    no level of the study reached that push."""
-    doc = json.loads(DATA.read_text())["loads"][load]
-    entry = next((e for e in doc["pushes"] if e["push_mm"] == push and e["levels"]), None)
-    if entry is None:
+    """The finest level's answer at ``push`` (of the Gauss-rule study where it has the push) and
+    the spread of all levels (relative); None when no study has three assessed levels there or
+    when its levels do not contract (the force's last change not smaller than the one before)."""
+    loads = json.loads(DATA.read_text())["loads"]
+    for key in (f"{load}_gauss", load):
+        entry = next((e for e in loads.get(key, {}).get("pushes", [])
+                      if e["push_mm"] == push and len(e["levels"]) >= 3 and e.get("assessed")),
+                     None)
+        if entry is not None:
+            break
+    else:
         return None
     force = np.array(entry["force_mN"])
+    if abs(force[-1] - force[-2]) >= abs(force[-2] - force[-3]):
+        return None         # the levels do not contract: no converged value to compare with
     probes = {n: np.array(v) for n, v in entry["probes_mm"].items()}
     spread = {"force": float(np.ptp(force) / abs(force[-1]))}
     for n, v in probes.items():
         spread[n] = float(max(np.linalg.norm(a - v[-1]) for a in v) / np.linalg.norm(v[-1]))
-    return {"level": entry["levels"][-1], "levels": entry["levels"], "valid": entry["valid"],
+    gci = {q: a.get("gci_rel") for q, a in entry.get("quantities", {}).items()}
+    return {"study": key, "rule": loads[key].get("contact_quadrature", "nodal"),
+            "level": entry["levels"][-1], "levels": entry["levels"], "valid": entry["valid"],
             "dofs": entry["dofs"][-1], "force": float(force[-1]),
-            "probes": {n: v[-1] for n, v in probes.items()}, "spread": spread}
+            "probes": {n: v[-1] for n, v in probes.items()}, "spread": spread, "gci": gci}
 
 
-def solve(load: str, push: float, degree: int | None, site: float | None) -> dict:
+def solve(load: str, pushes, degree: int | None, site: float | None, rule) -> list[dict]:
+    """The case's default discretization (or ``degree`` on ``site`` cells) along one load path
+    through ``pushes``: one row per push reached."""
     import tissue_reference.fem_reference as fr
     from tissue_reference.meshes.builders import phantom
     from tissue_reference.meshes.case import load_case
@@ -56,19 +71,29 @@ def solve(load: str, push: float, degree: int | None, site: float | None) -> dic
 
     case = load_case(CASE)
     if site is not None:
-        case = dataclasses.replace(case, mesh=phantom(6.0, site_size=site))
-    t0 = time.perf_counter()
-    try:
-        res, converged = fr.solve(case, degree=degree,
-                                  pushes={a: push for a in LOADS[load]}), True
-    except ConvergenceError as exc:
-        res, converged = exc.last_converged, False
-    return {"degree": res.extra["discretization"]["degree"], "cells": case.mesh.n_cells,
-            "dofs": res.extra["discretization"]["dofs"], "converged": converged,
-            "valid": bool(res.extra.get("valid", True)), "why": res.extra.get("invalid_reason"),
-            "force": float(res.extra["indenters"]["A1"]["force"]),
-            "probes": {n: np.asarray(v) for n, v in res.probes.items()},
-            "newton": res.iterations, "wall_s": time.perf_counter() - t0}
+        case = case.with_mesh(phantom(6.0, site_size=site))
+    s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=rule)
+    rows, prev = [], None
+    for push in pushes:
+        t0 = time.perf_counter()
+        try:
+            res, converged = s.solve({a: push for a in LOADS[load]}, initial=prev), True
+        except ConvergenceError as exc:
+            res, converged = exc.last_converged, False
+        ind = res.extra["indenters"]["A1"]
+        rows.append({"push": push, "reached": float(ind["push"]),
+                     "degree": res.extra["discretization"]["degree"],
+                     "rule": ind.get("quadrature"), "cells": case.mesh.n_cells,
+                     "dofs": res.extra["discretization"]["dofs"], "converged": converged,
+                     "valid": bool(res.extra.get("valid", True)),
+                     "why": res.extra.get("invalid_reason"), "min_J": res.extra.get("min_J"),
+                     "force": float(ind["force"]),
+                     "probes": {n: np.asarray(v) for n, v in res.probes.items()},
+                     "newton": res.iterations, "wall_s": time.perf_counter() - t0})
+        if not converged:
+            break
+        prev = res
+    return rows
 
 
 def errors(row: dict, ref: dict) -> dict:
@@ -79,44 +104,66 @@ def errors(row: dict, ref: dict) -> dict:
 
 
 def main():
+    from tissue_reference.tissue.common import contact_rule
+
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--loads", nargs="+", choices=sorted(LOADS), default=["one", "four"])
-    ap.add_argument("--push", type=float, default=5.0, help="every pushed tip (mm)")
+    ap.add_argument("--pushes", type=float, nargs="+", default=[5.0],
+                    help="every pushed tip (mm), one load path")
+    ap.add_argument("--contact-quadrature", type=contact_rule, default=None,
+                    help="contact rule of the default (default: the case's)")
     ap.add_argument("--old", action="store_true",
                     help="also solve the previous default (P1, 1.6 mm sites) for the ratios")
     args = ap.parse_args()
     for load in args.loads:
-        ref = finest(load, args.push)
-        if ref is None:
-            raise SystemExit(f"no level of the study reached {args.push:g} mm for load {load!r}")
         what = "A1 alone" if load == "one" else "all four"
-        print(f"\n{what} at {args.push:g} mm; converged answer: level {ref['level']} of the "
-              f"study ({ref['dofs']} unknowns on the symmetric part), levels {ref['levels']} "
-              f"valid {ref['valid']}; spread of the levels: force "
-              f"{100 * ref['spread']['force']:.1f} %, targets "
-              + ", ".join(f"{n} {100 * ref['spread'][n]:.1f} %" for n in ref["probes"]))
-        rows = [("default", solve(load, args.push, None, None))]
+        runs = [("default", solve(load, args.pushes, None, None, args.contact_quadrature))]
         if args.old:
-            rows.append(("old P1", solve(load, args.push, 1, 1.6)))
-        print(f"  {'what':>8} {'deg':>3} {'cells':>7} {'dofs':>7} {'valid':>5} {'force_mN':>9} "
-              f"{'force err':>9} " + " ".join(f"{n + ' err':>8}" for n in ref["probes"])
-              + f" {'newton':>6} {'wall_s':>7}")
-        for name, r in rows:
-            e = errors(r, ref)
-            r["err"] = e
-            print(f"  {name:>8} {r['degree']:>3} {r['cells']:>7} {r['dofs']:>7} "
-                  f"{r['valid']!s:>5} {r['force']:9.2f} {100 * e['force']:8.2f}% "
-                  + " ".join(f"{100 * e[n]:7.2f}%" for n in ref["probes"])
-                  + f" {r['newton']:>6} {r['wall_s']:7.1f}")
-            if not r["valid"] or not r["converged"]:
-                print(f"           not valid / converged: {r['why']}")
-        if len(rows) == 2:
-            new, old = rows[0][1], rows[1][1]
-            worst = (max(new["err"].values()), max(old["err"].values()))
-            print(f"  ratios default / old: worst error {worst[0] / worst[1]:.3f} "
-                  f"({100 * worst[0]:.2f} % vs {100 * worst[1]:.2f} %), wall time "
-                  f"{new['wall_s'] / old['wall_s']:.3f}")
+            runs.append(("old P1", solve(load, args.pushes, 1, 1.6, args.contact_quadrature)))
+        for push in args.pushes:
+            ref = finest(load, push)
+            print(f"\n{what} at {push:g} mm; ", end="")
+            if ref is None:
+                print("no study converges at this push (three assessed levels whose changes "
+                      "shrink): no converged answer to compare with")
+            else:
+                band = ", ".join(f"{q} {100 * g:.1f} %" for q, g in ref["gci"].items()
+                                 if g is not None)
+                print(f"converged answer: level {ref['level']} of the study {ref['study']!r} "
+                      f"(contact rule {ref['rule']}; {ref['dofs']} unknowns on the symmetric "
+                      f"part), levels {ref['levels']} valid {ref['valid']}; spread of the "
+                      f"levels: force {100 * ref['spread']['force']:.1f} %, targets "
+                      + ", ".join(f"{n} {100 * ref['spread'][n]:.1f} %" for n in ref["probes"])
+                      + (f"; GCI bands: {band}" if band else ""))
+            names = list(ref["probes"]) if ref else []
+            print(f"  {'what':>8} {'deg':>3} {'rule':>5} {'cells':>7} {'dofs':>7} {'valid':>5} "
+                  f"{'min J':>6} {'force_mN':>9} {'force err':>9} "
+                  + " ".join(f"{n + ' err':>8}" for n in names) + f" {'newton':>6} {'wall_s':>7}")
+            errs = {}
+            for name, rows in runs:
+                r = next((r for r in rows if r["push"] == push), None)
+                if r is None or not r["converged"]:
+                    last = rows[-1]
+                    print(f"  {name:>8} stopped at {last['reached']:.2f} mm: {last['why']}")
+                    continue
+                e = errors(r, ref) if ref else {}
+                errs[name] = e
+                print(f"  {name:>8} {r['degree']:>3} {r['rule']!s:>5} {r['cells']:>7} "
+                      f"{r['dofs']:>7} {r['valid']!s:>5} {r['min_J'] or float('nan'):6.3f} "
+                      f"{r['force']:9.2f} "
+                      + (f"{100 * e['force']:8.2f}% " if e else f"{'-':>9} ")
+                      + " ".join(f"{100 * e[n]:7.2f}%" for n in names)
+                      + f" {r['newton']:>6} {r['wall_s']:7.1f}")
+                if not r["valid"]:
+                    print(f"           not valid: {r['why']}")
+            if ref and len(errs) == 2:
+                worst = (max(errs["default"].values()), max(errs["old P1"].values()))
+                new_t, old_t = (next(r["wall_s"] for r in rows if r["push"] == push)
+                                for _, rows in runs)
+                print(f"  ratios default / old: worst error {worst[0] / worst[1]:.3f} "
+                      f"({100 * worst[0]:.2f} % vs {100 * worst[1]:.2f} %), wall time "
+                      f"{new_t / old_t:.3f}")
 
 
 if __name__ == "__main__":

@@ -135,8 +135,14 @@ class _Indenter:
         # by constants so that it compiles once
         self._e = dolfinx.fem.Constant(mesh, sc((0.0,) * gdim))
         self._w_area = dolfinx.fem.Constant(mesh, sc(0.0))
-        report = -ufl.dot(ufl.diff(pi, y), self._e) + \
-            self._w_area * ufl.conditional(ufl.lt(g, 0.0), 1.0, 0.0)
+        # and the contact's moments for ``contact_width``: rho^2 (squared distance from the
+        # tip's axis) and h over the contact, weighted by the same constant vector
+        self._w_moments = dolfinx.fem.Constant(mesh, sc((0.0, 0.0)))
+        w = y - (self.q - edge * d)
+        rho2 = ufl.dot(w, w) - ufl.dot(w, d) ** 2
+        touching = ufl.conditional(ufl.lt(g, 0.0), 1.0, 0.0)
+        report = -ufl.dot(ufl.diff(pi, y), self._e) + self._w_area * touching + \
+            touching * (self._w_moments[0] * rho2 + self._w_moments[1] * h_cell)
         self._report_form = dolfinx.fem.form(report * ds(self.tags))
 
     def tangent_without_curvature(self, v, w):
@@ -173,10 +179,24 @@ class _Indenter:
         """The tip's current position (mm along its direction from its start)."""
         return float((np.asarray(self.q.value) - self.q0) @ self.d)
 
-    def _assemble(self, e, w_area) -> float:
+    def _assemble(self, e, w_area, w_moments=(0.0, 0.0)) -> float:
         self._e.value = e
         self._w_area.value = w_area
+        self._w_moments.value = w_moments
         return self.comm.allreduce(dolfinx.fem.assemble_scalar(self._report_form), op=MPI.SUM)
+
+    def contact_width(self) -> tuple[float, float]:
+        """(a, h) mm: the contact's radius and the mean longest edge of the cells in contact,
+        both by the contact rule's own points. a = sqrt(2 <rho^2>) with <rho^2> the mean squared
+        distance from the tip's axis over the contact: exact for a disc, and for a sector of
+        one cut by symmetry planes through the axis; (0, 0) out of contact."""
+        zero = np.zeros(len(self.d))
+        area = self._assemble(zero, 1.0)
+        if area <= 0.0:
+            return 0.0, 0.0
+        rho2 = self._assemble(zero, 0.0, (1.0, 0.0)) / area
+        h = self._assemble(zero, 0.0, (0.0, 1.0)) / area
+        return float(np.sqrt(2.0 * max(rho2, 0.0))), float(h)
 
     def surface_penetration(self) -> float:
         """Deepest point (mm) of the contact surface's deformed facets inside the tip, sampled
@@ -184,14 +204,17 @@ class _Indenter:
         narrower than the facets can slip between nodes; then this exceeds the nodal
         ``max_penetration`` by far. The facets are the field's own surface, the displacement
         evaluated between the vertices (flat for P1, bending for P2)."""
+        deep = float(np.max(-self._sample_gaps(), initial=0.0))
+        return max(self.comm.allreduce(deep, op=MPI.MAX), 0.0)
+
+    def _sample_gaps(self) -> np.ndarray:
+        """The gap (mm) of the deformed facets' sample points (``surface_penetration``)."""
         gdim = len(self.d)
         pts = self._samples
-        deep = 0.0
-        if len(pts):
-            u = self._u_field.eval(np.pad(pts, ((0, 0), (0, 3 - gdim))), self._sample_cells)
-            y = pts + np.asarray(u)[:, :gdim]
-            deep = float(np.max(-self.shape.gap(y, self._origin(), self.d), initial=0.0))
-        return max(self.comm.allreduce(deep, op=MPI.MAX), 0.0)
+        if not len(pts):
+            return np.zeros(0)
+        u = self._u_field.eval(np.pad(pts, ((0, 0), (0, 3 - gdim))), self._sample_cells)
+        return self.shape.gap(pts + np.asarray(u)[:, :gdim], self._origin(), self.d)
 
     def _origin(self) -> np.ndarray:
         """Centre (mm) of the tip's rounded end where the tip is now."""

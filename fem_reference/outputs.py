@@ -141,4 +141,4 @@ class OutputsMixin(StateMixin, TangentMixin):
                    **contact,
                    **_through_surface(deformation_state(case.mesh, u_v, degree=self.degree,
                                                         cell_J=self._field_J()), contact),
-                   "warnings": case.glued_patch_warnings(u_v)})
+                   "warnings": case.glued_patch_warnings(u_v) + self.contact.warnings()})

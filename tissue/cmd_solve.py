@@ -216,7 +216,8 @@ def _relative_estimates(res) -> dict:
 
 
 def print_answer(res):
-    """Probes and reactions, each with its estimated discretization error when there is one."""
+    """Probes, reactions and indenters, each with its estimated discretization error when there is
+    one, and the smallest J of the state."""
     pe = res.extra.get("probe_error_estimates") or {}
     re_ = res.extra.get("reaction_error_estimates") or {}
     rels = _relative_estimates(res)
@@ -233,6 +234,13 @@ def print_answer(res):
         if k in re_:
             line += f"  +- {re_[k]:.2g} mN"
         print(line)
+    for k, ind in (res.extra.get("indenters") or {}).items():
+        print(f"  indenter {k}: push {ind['push']:.2f} mm, force {ind['force']:+.2f} mN, contact "
+              f"area {ind['contact_area']:.1f} mm^2, skin inside the tip "
+              f"{ind.get('surface_penetration', ind['max_penetration']):.3f} mm "
+              f"(contact rule {ind.get('quadrature', 'nodal')})")
+    if res.extra.get("min_J") is not None:
+        print(f"  smallest J = det F: {res.extra['min_J']:.3f}")
     if res.extra.get("estimate_note"):
         print(f"  error estimate: none: {res.extra['estimate_note']}")
     if pe:
