@@ -6,18 +6,18 @@ case's mesh (size, site_size), the case's ``[reference] degree`` and contact rul
 default was P1 on 1.6 mm site cells (``--old``: solved in the same run, for the ratios). The
 converged answer is the finest level of a refinement study shipped in
 tests/data/phantom_indenter_reference.json (P2 on the phantom's symmetric parts, cells divided by
-sqrt 2 per level, from bench/bench_indenter_convergence.py): for all four pushed, the study with
-the Gauss contact rule and refined paths (``four_gauss``, to 12.5 mm; 15 mm has no converged
-value) where it has the push, else the nodal one; for A1 alone the nodal study. The spread of its
-levels and, where assessed, its GCI band are printed with it, so the comparison says how well the
-converged value itself is known.
+sqrt 2 per level, from bench/bench_indenter_convergence.py): by default the study with the
+Gauss contact rule and refined paths (``four_gauss`` / ``one_gauss``, to 12.5 mm; 15 mm has no
+converged value) where it has the push, else the nodal one (``--study nodal``: the nodal one
+only). The spread of its levels and, where assessed, its GCI band are printed with it, so the
+comparison says how well the converged value itself is known.
 
 Per load and push (the pushes one warm-started load path): the A1 force (mN) and the targets'
 displacements (mm) of each discretization, the relative difference of each to the finest level
 (targets: |u - u_ref| / |u_ref|), Newton iterations, wall time, and the ratios new / old.
 
     .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--pushes 5 10 12.5]
-        [--contact-quadrature nodal|2] [--old]
+        [--contact-quadrature nodal|2] [--study gauss|nodal] [--old]
 """
 from __future__ import annotations
 
@@ -34,12 +34,12 @@ DATA = ROOT / "tests" / "data" / "phantom_indenter_reference.json"
 LOADS = {"one": ("A1",), "four": ("A1", "A2", "A3", "A4")}
 
 
-def finest(load: str, push: float) -> dict | None:
+def finest(load: str, push: float, study: str = "gauss") -> dict | None:
     """The finest level's answer at ``push`` (of the Gauss-rule study where it has the push) and
     the spread of all levels (relative); None when no study has three assessed levels there or
     when its levels do not contract (the force's last change not smaller than the one before)."""
     loads = json.loads(DATA.read_text())["loads"]
-    for key in (f"{load}_gauss", load):
+    for key in ((f"{load}_gauss", load) if study == "gauss" else (load,)):
         entry = next((e for e in loads.get(key, {}).get("pushes", [])
                       if e["push_mm"] == push and len(e["levels"]) >= 3 and e.get("assessed")),
                      None)
@@ -113,6 +113,8 @@ def main():
                     help="every pushed tip (mm), one load path")
     ap.add_argument("--contact-quadrature", type=contact_rule, default=None,
                     help="contact rule of the default (default: the case's)")
+    ap.add_argument("--study", choices=["gauss", "nodal"], default="gauss",
+                    help="the refinement study whose finest level is the converged answer")
     ap.add_argument("--old", action="store_true",
                     help="also solve the previous default (P1, 1.6 mm sites) for the ratios")
     args = ap.parse_args()
@@ -122,7 +124,7 @@ def main():
         if args.old:
             runs.append(("old P1", solve(load, args.pushes, 1, 1.6, args.contact_quadrature)))
         for push in args.pushes:
-            ref = finest(load, push)
+            ref = finest(load, push, args.study)
             print(f"\n{what} at {push:g} mm; ", end="")
             if ref is None:
                 print("no study converges at this push (three assessed levels whose changes "
