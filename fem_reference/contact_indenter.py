@@ -204,17 +204,14 @@ class _Indenter:
         narrower than the facets can slip between nodes; then this exceeds the nodal
         ``max_penetration`` by far. The facets are the field's own surface, the displacement
         evaluated between the vertices (flat for P1, bending for P2)."""
-        deep = float(np.max(-self._sample_gaps(), initial=0.0))
-        return max(self.comm.allreduce(deep, op=MPI.MAX), 0.0)
-
-    def _sample_gaps(self) -> np.ndarray:
-        """The gap (mm) of the deformed facets' sample points (``surface_penetration``)."""
         gdim = len(self.d)
         pts = self._samples
-        if not len(pts):
-            return np.zeros(0)
-        u = self._u_field.eval(np.pad(pts, ((0, 0), (0, 3 - gdim))), self._sample_cells)
-        return self.shape.gap(pts + np.asarray(u)[:, :gdim], self._origin(), self.d)
+        deep = 0.0
+        if len(pts):
+            u = self._u_field.eval(np.pad(pts, ((0, 0), (0, 3 - gdim))), self._sample_cells)
+            y = pts + np.asarray(u)[:, :gdim]
+            deep = float(np.max(-self.shape.gap(y, self._origin(), self.d), initial=0.0))
+        return max(self.comm.allreduce(deep, op=MPI.MAX), 0.0)
 
     def _origin(self) -> np.ndarray:
         """Centre (mm) of the tip's rounded end where the tip is now."""
