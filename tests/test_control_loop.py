@@ -72,6 +72,23 @@ def test_mismatched_model_closed_loop_beats_open_loop(setup):
     assert res.max_retraction_mm == 0.0
 
 
+def test_gain_relative_weights_close_a_small_task_within_the_loop(setup):
+    """T1 moves a fraction of a mm per mm of push: the seed's absolute weights close a
+    0.3 mm task slowly; R relative to the model's gain closes it in a few steps, pushing only."""
+    case, K, plant = setup
+    Km = linear_p1_stiffness(case, nu=0.35)
+    res = {}
+    for weights in ("absolute", "gain"):
+        model = LinearizedModel(case, LinearPlant(Km), linear_tangent(Km), "T1")
+        res[weights] = run_closed_loop(plant, case, model, "T1", 3, settings=LoopSettings(
+            steps=60, task_mm=0.3, mpc=MPCSettings(weights=weights)))
+    fast, slow = res["gain"], res["absolute"]
+    assert fast.steady_state_error_mm < 1e-6 < slow.steady_state_error_mm
+    assert fast.itae < slow.itae / 10 and fast.itae < fast.open_loop["itae"]
+    assert fast.error_mm[5] < 0.01 * fast.error_mm[0]
+    assert fast.max_retraction_mm == 0.0
+
+
 def test_noise_is_seeded(setup):
     case, K, plant = setup
     model = LinearizedModel(case, plant, linear_tangent(K), "T1")

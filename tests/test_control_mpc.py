@@ -79,10 +79,46 @@ def test_prediction_follows_eq23():
 @pytest.mark.parametrize("kw,name", [({"horizon": 0}, "horizon"), ({"horizon": 2.5}, "horizon"),
                                      ({"q": -1.0}, "q"), ({"r": float("nan")}, "r"),
                                      ({"max_travel": 0.0}, "max_travel"),
-                                     ({"solver": "nope"}, "solver")])
+                                     ({"solver": "nope"}, "solver"),
+                                     ({"weights": "relative"}, "weights")])
 def test_bad_settings_are_named(kw, name):
     with pytest.raises(CaseError, match=name):
         MPCSettings(**kw)
+
+
+def test_gain_weights_are_the_seed_weights_times_the_squared_gain():
+    """weights="gain": the BVLS plan of eq. 25 with R = r g^2, g the largest singular value of
+    the weighted rows of J_s (computed here with numpy's SVD)."""
+    mask = np.array([True, True, False])
+    x0 = np.array([0.0, 0.0, 15.0])
+    g = np.linalg.svd(J[mask], compute_uv=False)[0]
+    mpc = PushOnlyMPC(4, mask, MPCSettings(weights="gain"))
+    for goal in ([-0.3, 0, 0], [0.3, 0.3, 0], [2.0, -3.0, 0]):
+        xr = x0 + np.array(goal)
+        ref = reference_plan(J, x0, xr, mask, r=2.0 * g * g)
+        mpc.reset()
+        plan = mpc.step(J, x0, xr).plan
+        assert np.abs(plan - ref).max() <= 1e-6 * max(1.0, np.abs(ref).max())
+        assert not np.allclose(ref, reference_plan(J, x0, xr, mask), atol=1e-3)
+
+
+@pytest.mark.parametrize("scale", [0.05, 20.0])
+def test_gain_weights_make_the_predicted_motion_independent_of_the_gain(scale):
+    """A body c times stiffer in transfer (J_s / c) gets c times the pushes and the same predicted
+    target motion with weights="gain"; with absolute weights the stiffer one moves less."""
+    mask = np.array([True, True, False])
+    x0, xr = np.array([0.0, 0.0, 15.0]), np.array([2.0, -3.0, 15.0])
+    preds = {}
+    for weights in ("gain", "absolute"):
+        a = PushOnlyMPC(4, mask, MPCSettings(weights=weights)).step(J, x0, xr)
+        b = PushOnlyMPC(4, mask, MPCSettings(weights=weights)).step(J / scale, x0, xr)
+        preds[weights] = (a, b)
+    a, b = preds["gain"]
+    np.testing.assert_allclose(b.plan, scale * a.plan, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(b.predicted, a.predicted, rtol=0, atol=1e-7)
+    a, b = preds["absolute"]
+    moved = [np.linalg.norm(s.predicted[0] - x0) for s in (a, b)]
+    assert (moved[1] < moved[0]) == (scale > 1.0)
 
 
 def test_wrong_jacobian_shape_is_refused():
