@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.errors import CaseError, ConvergenceError
 
 from .plants import LoopSetup, build_loop
 
@@ -174,4 +174,22 @@ def scenario_loop(case, name: str, *, model: str = "admm", coarse_case=None,
     loop.meta["scenario_description"] = SCENARIOS[name]
     if name == "contact":   # which plant: a case file, or derived from the model's (source null)
         loop.meta.update({"plant_case": plant_case.name, "plant_source": plant_case.source})
+        _check_plant_at_rest(loop, plant_case)
     return loop
+
+
+def _check_plant_at_rest(loop, plant_case):
+    """Solve the contact plant with every tip at its start: a plant whose skin is meshed too
+    coarsely for its tips is invalid before any push (a tip between the skin's nodes), and every
+    loop of the scenario would stop on its first step; say so once, before any loop runs."""
+    from .loop import solve_checked
+
+    rest = {a.name: 0.0 for a in plant_case.actuators}
+    try:
+        solve_checked(loop.plant, plant_case, rest, None, "the contact plant")
+    except ConvergenceError as exc:
+        src = plant_case.source or "derived from the case: tips of its patches' area, its mesh"
+        raise CaseError(f"the contact scenario's plant ({src}) cannot start: {exc}. Give it a "
+                        f"case of the same body meshed for its tips (--contact-plant, e.g. "
+                        f"meshes/cases/phantom-indenter.toml for the phantom) or a finer "
+                        f"--size") from None

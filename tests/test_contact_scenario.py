@@ -261,3 +261,16 @@ def test_table1_runs_the_contact_scenario_and_its_outputs_match_the_schemas(bloc
     assert "<th scope='row'>plant actuator kind</th><td>indenter</td>" in page
     assert "<th scope='row'>model actuator kind</th><td>patch</td>" in page
     assert "<th scope='row'>plant indenters: A1: radius (mm)</th><td>2.5</td>" in page
+
+
+def test_a_contact_plant_too_coarse_for_its_tips_is_refused_before_any_loop():
+    """The glued phantom at its default size: tips of the patches' area start between the skin's
+    nodes (the dome's facets lie inside them), so the derived plant is invalid at rest; the
+    scenario says so once, with the remedy, instead of failing every loop on its first step."""
+    from pathlib import Path
+
+    from tissue_reference.meshes.case import load_case
+
+    case = load_case(Path(__file__).resolve().parents[1] / "meshes" / "cases" / "phantom.toml")
+    with pytest.raises(CaseError, match=r"plant .*cannot start.*between the nodes.*--contact-plant"):
+        scenario_loop(case, "contact")
