@@ -75,7 +75,7 @@ def test_mismatched_model_closed_loop_beats_open_loop(setup):
 def test_gain_relative_weights_close_a_small_task_within_the_loop(setup):
     """T1 moves a fraction of a mm per mm of push: the seed's absolute weights close a
     0.3 mm task slowly; R relative to the model's gain closes it in a few steps, pushing only."""
-    case, K, plant = setup
+    case, _, plant = setup
     Km = linear_p1_stiffness(case, nu=0.35)
     res = {}
     for weights in ("absolute", "gain"):
