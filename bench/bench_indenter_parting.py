@@ -15,6 +15,7 @@ point on A1's axis 2.9 mm under its site (P2 nodes interpolated) on every level.
 from __future__ import annotations
 
 import argparse
+import itertools
 import dataclasses
 import math
 import os
@@ -68,7 +69,7 @@ def compare(levels, pushes, out: Path) -> None:
             u = LinearNDInterpolator(d["node_points"], d["node_u"])(PROBE_POINT[None])[0]
             print(f"  level {k}: force per tip {float(d['force_mN']):.2f} mN; the point "
                   f"{PROBE_POINT.tolist()} moved {np.round(u, 2).tolist()} mm")
-        for a, b in zip(levels[:-1], levels[1:]):
+        for a, b in itertools.pairwise(levels):
             A, B = data[a], data[b]
             ub = LinearNDInterpolator(B["X"], B["u"])(A["X"])
             ok = ~np.isnan(ub[:, 0])
