@@ -15,8 +15,8 @@ point on A1's axis 2.9 mm under its site (P2 nodes interpolated) on every level.
 from __future__ import annotations
 
 import argparse
-import itertools
 import dataclasses
+import itertools
 import math
 import os
 import tempfile
