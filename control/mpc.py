@@ -22,8 +22,9 @@ Weights relative to the model's gain (``weights="gain"``): R = r g^2 I with g th
 value of the weighted J_s at each step (mm of target motion per mm of push). The closed loop's
 speed then depends on q / r alone, not on how far a push moves the target: seed 000 tuned Q = 3 I,
 R = 2 I "experimentally ... so that convergence is fast" on its phantom; on a body whose targets
-move 0.05 mm per mm of push, the same absolute R makes every step close about 2 % of the error
-(and 1 % with a model that over-predicts the plant twice), so a loop of 60 steps is still closing.
+move 0.05 mm per mm of push, the same absolute R makes every step close about 2 % of the error (one
+coordinate, horizon 5; 1 % with a model that over-predicts the plant twice), so a loop of 60 steps
+is still closing.
 ``weights="absolute"`` (default) is eq. 25 with the numbers as given.
 
 Built once with ``casadi.qpsol`` (parameters J_s, x, x_ref, s); the default conic plugin is
