@@ -17,12 +17,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import itertools
-import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+from bench_indenter_convergence import level_sizes  # the levels' cell sizes (this folder)
 
 ROOT = Path(__file__).resolve().parents[1]
 PATH = (5.0, 10.0, 12.5, 13.75, 15.0)
@@ -33,8 +31,9 @@ def solve_level(k: int, keep, out: Path) -> None:
     import tissue_reference.fem_reference as fr
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
+    from tissue_reference.meshes.io import atomic_path
 
-    size, site = 6.0 / math.sqrt(2.0) ** k, 3.2 / math.sqrt(2.0) ** k
+    size, site = level_sizes(k)
     case = load_case(ROOT / "meshes" / "cases" / "phantom-indenter-quarter.toml")
     case = dataclasses.replace(case, mesh=build("phantom-quarter", size, site_size=site,
                                                 path_size=0.5 * site))
@@ -50,12 +49,9 @@ def solve_level(k: int, keep, out: Path) -> None:
         print(f"level {k}: push {p:g} mm, force per tip {force:.2f} mN, "
               f"T1 {np.round(res.probes['T1'], 4).tolist()} mm", flush=True)
         if p in keep:
-            target = out / f"level{k}_push{p:g}.npz"
-            fd, tmp = tempfile.mkstemp(dir=out, suffix=".npz")
-            os.close(fd)
-            np.savez(tmp, X=case.mesh.points, u=res.u, node_points=res.extra["node_points"],
-                     node_u=res.extra["node_u"], force_mN=force)
-            os.replace(tmp, target)
+            with atomic_path(out / f"level{k}_push{p:g}.npz") as tmp:
+                np.savez(tmp, X=case.mesh.points, u=res.u, node_points=res.extra["node_points"],
+                         node_u=res.extra["node_u"], force_mN=force)
 
 
 def compare(levels, pushes, out: Path) -> None:
