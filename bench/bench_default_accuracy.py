@@ -2,7 +2,9 @@
 and what it costs, against the previous default, measured in one run.
 
 The default is what ``tissue solve meshes/cases/phantom-indenter.toml --push ...`` solves: the
-case's mesh (size, site_size), the case's ``[reference] degree`` and contact rule. The previous
+case's mesh (size, site_size), the case's ``[reference] degree`` and contact rule; ``--case wide``:
+the same for meshes/cases/phantom-indenter-wide.toml (8 mm tips), against its own study
+(``four_wide`` / ``one_wide``, to 15 mm). The previous
 default was P1 on 1.6 mm site cells (``--old``: solved in the same run, for the ratios). The
 converged answer is the finest level of a refinement study shipped in
 tests/data/phantom_indenter_reference.json (P2 on the phantom's symmetric parts, cells divided by
@@ -17,7 +19,7 @@ displacements (mm) of each discretization, the relative difference of each to th
 (targets: |u - u_ref| / |u_ref|), Newton iterations, wall time, and the ratios new / old.
 
     .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--pushes 5 10 12.5]
-        [--contact-quadrature nodal|2] [--study gauss|nodal] [--old]
+        [--contact-quadrature nodal|2] [--study gauss|nodal] [--old] [--case indenter|wide]
 """
 from __future__ import annotations
 
@@ -29,17 +31,21 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-CASE = ROOT / "meshes" / "cases" / "phantom-indenter.toml"
+CASES = {"indenter": ROOT / "meshes" / "cases" / "phantom-indenter.toml",
+         "wide": ROOT / "meshes" / "cases" / "phantom-indenter-wide.toml"}
+STUDIES = {("indenter", "gauss"): ("{load}_gauss", "{load}"), ("indenter", "nodal"): ("{load}",),
+           ("wide", "gauss"): ("{load}_wide",)}
+"""Per case and ``--study``: the studies in DATA searched for the push, in order."""
 DATA = ROOT / "tests" / "data" / "phantom_indenter_reference.json"
 LOADS = {"one": ("A1",), "four": ("A1", "A2", "A3", "A4")}
 
 
-def finest(load: str, push: float, study: str = "gauss") -> dict | None:
+def finest(load: str, push: float, study: str = "gauss", case: str = "indenter") -> dict | None:
     """The finest level's answer at ``push`` (of the Gauss-rule study where it has the push) and
     the spread of all levels (relative); None when no study has three assessed levels there or
     when its levels do not contract (the force's last change not smaller than the one before)."""
     loads = json.loads(DATA.read_text())["loads"]
-    for key in ((f"{load}_gauss", load) if study == "gauss" else (load,)):
+    for key in (k.format(load=load) for k in STUDIES[case, study]):
         entry = next((e for e in loads.get(key, {}).get("pushes", [])
                       if e["push_mm"] == push and e.get("assessed")),   # >= 3 levels
                      None)
@@ -61,7 +67,8 @@ def finest(load: str, push: float, study: str = "gauss") -> dict | None:
             "probes": {n: v[-1] for n, v in probes.items()}, "spread": spread, "gci": gci}
 
 
-def solve(load: str, pushes, degree: int | None, site: float | None, rule) -> list[dict]:
+def solve(load: str, pushes, degree: int | None, site: float | None, rule,
+          case_name: str = "indenter") -> list[dict]:
     """The case's default discretization (or ``degree`` on ``site`` cells) along one load path
     through ``pushes``: one row per push reached."""
     import tissue_reference.fem_reference as fr
@@ -69,7 +76,7 @@ def solve(load: str, pushes, degree: int | None, site: float | None, rule) -> li
     from tissue_reference.meshes.case import load_case
     from tissue_reference.meshes.errors import ConvergenceError
 
-    case = load_case(CASE)
+    case = load_case(CASES[case_name])
     if site is not None:
         case = case.with_mesh(phantom(6.0, site_size=site))
     s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=rule)
@@ -113,18 +120,25 @@ def main():
                     help="every pushed tip (mm), one load path")
     ap.add_argument("--contact-quadrature", type=contact_rule, default=None,
                     help="contact rule of the default (default: the case's)")
+    ap.add_argument("--case", choices=sorted(CASES), default="indenter",
+                    help="phantom-indenter.toml (5 mm tips) or phantom-indenter-wide.toml (8 mm)")
     ap.add_argument("--study", choices=["gauss", "nodal"], default="gauss",
-                    help="the refinement study whose finest level is the converged answer")
+                    help="the refinement study whose finest level is the converged answer "
+                         "(the wide case has a Gauss-rule study only)")
     ap.add_argument("--old", action="store_true",
                     help="also solve the previous default (P1, 1.6 mm sites) for the ratios")
     args = ap.parse_args()
+    if (args.case, args.study) not in STUDIES:
+        ap.error(f"the {args.case} case has no {args.study} study")
     for load in args.loads:
         what = "A1 alone" if load == "one" else "all four"
-        runs = [("default", solve(load, args.pushes, None, None, args.contact_quadrature))]
+        runs = [("default", solve(load, args.pushes, None, None, args.contact_quadrature,
+                                  args.case))]
         if args.old:
-            runs.append(("old P1", solve(load, args.pushes, 1, 1.6, args.contact_quadrature)))
+            runs.append(("old P1", solve(load, args.pushes, 1, 1.6, args.contact_quadrature,
+                                         args.case)))
         for push in args.pushes:
-            ref = finest(load, push, args.study)
+            ref = finest(load, push, args.study, args.case)
             print(f"\n{what} at {push:g} mm; ", end="")
             if ref is None:
                 print("no study converges at this push (three assessed levels whose changes "
@@ -159,6 +173,8 @@ def main():
                       + f" {r['newton']:>6} {r['wall_s']:7.1f}")
                 if not r["valid"]:
                     print(f"           not valid: {r['why']}")
+                print("           targets (mm): " + ", ".join(
+                    f"{n} {np.round(v, 4).tolist()}" for n, v in r["probes"].items()))
             if ref and len(errs) == 2:
                 worst = (max(errs["default"].values()), max(errs["old P1"].values()))
                 print(f"  ratios default / old: worst error {worst[0] / worst[1]:.3f} "

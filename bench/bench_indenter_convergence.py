@@ -45,7 +45,8 @@ def level_sizes(k: int) -> tuple[float, float]:
 
 def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool = False,
               path: float | None = None, radius: float | None = None,
-              volumetric: str | None = None, contact_quadrature="nodal") -> dict:
+              volumetric: str | None = None, contact_quadrature="nodal",
+              contact: str | None = None) -> dict:
     import tissue_reference.fem_reference as fr
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
@@ -62,10 +63,14 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
     if radius is not None:   # a diagnostic: tips of another radius on the same meshes
         case = dataclasses.replace(case, actuators=tuple(dataclasses.replace(a, radius=radius)
                                                          for a in case.actuators))
+    if contact is not None:   # frictionless (the case's) or tied where touching
+        case = dataclasses.replace(case, actuators=tuple(dataclasses.replace(a, contact=contact)
+                                                         for a in case.actuators))
     s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=contact_quadrature)
     actuators = ["A1"] if load == "one" else [a.name for a in case.actuators]
     doc = {"load": load, "level": k, "size_mm": size, "site_mm": site, "path_mm": path_mm,
            "tip_radius_mm": case.actuators[0].radius,
+           "contact": case.actuators[0].contact or "frictionless",
            "volumetric": case.material.volumetric,
            "degree": degree, "contact_quadrature": contact_quadrature,
            "cells": case.mesh.n_cells, "pushes": []}
@@ -112,9 +117,9 @@ def summarize(load: str, out: Path) -> None:
                   key=lambda d: d["level"])
     if not docs:
         raise SystemExit(f"no level results under {out} for --load {load}")
-    for key in ("contact_quadrature", "volumetric", "degree"):
-        if len({str(d.get(key, "nodal" if key == "contact_quadrature" else None))
-                for d in docs}) > 1:
+    defaults = {"contact_quadrature": "nodal", "contact": "frictionless"}
+    for key in ("contact_quadrature", "contact", "volumetric", "degree", "tip_radius_mm"):
+        if len({str(d.get(key) or defaults.get(key)) for d in docs}) > 1:
             raise SystemExit(f"the level results under {out} differ in {key}: "
                              f"{[(d['level'], d.get(key)) for d in docs]}; summarize one "
                              f"discretization at a time")
@@ -126,6 +131,8 @@ def summarize(load: str, out: Path) -> None:
     pushes = sorted({r["push"] for d in docs for r in d["pushes"]})
     summary = {"load": load, "degree": docs[0]["degree"], "ratio": RATIO,
                "contact_quadrature": docs[0].get("contact_quadrature", "nodal"),
+               "tip_radius_mm": docs[0].get("tip_radius_mm"),
+               "contact": docs[0].get("contact") or "frictionless",
                "levels": [{k: d.get(k) for k in ("level", "size_mm", "site_mm", "path_mm", "cells")}
                           for d in docs], "pushes": []}
     for p in pushes:
@@ -205,13 +212,15 @@ def main():
     ap.add_argument("--contact-quadrature", type=contact_rule,
                     default="nodal", metavar="RULE",
                     help="where the contact penalty is sampled: 'nodal' or a Gauss degree")
+    ap.add_argument("--contact", choices=["frictionless", "tied"],
+                    help="the tips' contact law (default: the case's, frictionless)")
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "indenter-convergence")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     if not args.summarize:
         for k in ([args.level] if args.level is not None else range(args.levels)):
             run_level(args.load, k, args.pushes, args.degree, args.out, args.progress, args.path,
-                      args.radius, args.volumetric, args.contact_quadrature)
+                      args.radius, args.volumetric, args.contact_quadrature, args.contact)
     if args.level is None:
         summarize(args.load, args.out)
 

@@ -1,0 +1,58 @@
+"""The wide-tip indenter phantom (meshes/cases/phantom-indenter-wide.toml: 8 mm spheres, wider
+than the seed's deepest push) at its shipped default discretization, all four tips pushed to
+5, 10 and 15 mm, against the finest level of its refinement study shipped as test data
+(tests/data/phantom_indenter_reference.json, ``four_wide``: levels -2..0 of
+bench/bench_indenter_convergence.py, P2 on meshes whose every cell size is divided by sqrt 2 per
+level; the finest has 2.4x the unknowns of the default).
+
+All four tips pushed equally is symmetric about x = 0 and y = 0, so the quarter phantom
+(phantom-indenter-quarter.toml, mirror planes sliding) meshed at the wide case's sizes carries
+the whole phantom's answer at a quarter of the unknowns; the cut tip A1 carries half its force.
+"""
+import dataclasses
+import json
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tissue_reference.fem_reference as fr
+from tissue_reference.meshes.builders import build
+from tissue_reference.meshes.case import load_case
+
+ROOT = Path(__file__).resolve().parents[1]
+CASES = ROOT / "meshes" / "cases"
+DATA = ROOT / "tests" / "data" / "phantom_indenter_reference.json"
+PUSHES = (5.0, 10.0, 15.0)
+
+
+@pytest.mark.slow
+def test_the_wide_tip_default_is_within_2_percent_of_the_finest_level_up_to_15_mm():
+    wide = load_case(CASES / "phantom-indenter-wide.toml")
+    spec = tomllib.loads((CASES / "phantom-indenter-wide.toml").read_text())["mesh"]
+    quarter = load_case(CASES / "phantom-indenter-quarter.toml")
+    mesh = build("phantom-quarter", spec["size"], site_size=spec["site_size"],
+                 path_size=spec["path_size"])
+    radius = wide.actuators[0].radius
+    case = dataclasses.replace(quarter, mesh=mesh, actuators=tuple(
+        dataclasses.replace(a, radius=radius) for a in quarter.actuators))
+    solver = fr.ReferenceSolver(case, degree=wide.reference_degree,
+                                contact_quadrature=wide.reference_contact_quadrature)
+    study = json.loads(DATA.read_text())["loads"]["four_wide"]
+    assert study["tip_radius_mm"] == radius
+    assert study["contact_quadrature"] == wide.reference_contact_quadrature
+    finest_cells = study["levels"][-1]["cells"]
+    assert finest_cells > 2 * case.mesh.n_cells      # the reference is a finer discretization
+    prev = None
+    for push in PUSHES:
+        res = solver.solve({a.name: push for a in case.actuators}, initial=prev)
+        prev = res
+        assert res.extra.get("valid", True), res.extra.get("invalid_reason")
+        ref = next(e for e in study["pushes"] if e["push_mm"] == push)
+        force = 2.0 * res.extra["indenters"]["A1"]["force"]
+        assert force == pytest.approx(ref["force_mN"][-1], rel=0.02), push
+        for name in ("T1", "T2", "T3"):
+            u_ref = np.array(ref["probes_mm"][name][-1])
+            err = np.linalg.norm(np.asarray(res.probes[name]) - u_ref) / np.linalg.norm(u_ref)
+            assert err < 0.02, (push, name, err)
