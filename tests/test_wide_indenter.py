@@ -1,13 +1,16 @@
 """The wide-tip indenter phantom (meshes/cases/phantom-indenter-wide.toml: 8 mm spheres, wider
 than the seed's deepest push) at its shipped default discretization, all four tips pushed to
-5, 10 and 15 mm, against the finest level of its refinement study shipped as test data
-(tests/data/phantom_indenter_reference.json, ``four_wide``: levels -2..0 of
+5, 10 and 15 mm (one load path), against the finest level of its refinement study shipped as
+test data (tests/data/phantom_indenter_reference.json, ``four_wide``: levels -2..0 of
 bench/bench_indenter_convergence.py, P2 on meshes whose every cell size is divided by sqrt 2 per
 level; the finest has 2.4x the unknowns of the default).
 
-All four tips pushed equally is symmetric about x = 0 and y = 0, so the quarter phantom
-(phantom-indenter-quarter.toml, mirror planes sliding) meshed at the wide case's sizes carries
-the whole phantom's answer at a quarter of the unknowns; the cut tip A1 carries half its force.
+The finest level stands for the converged answer only where the levels' changes shrink: for
+all four at 10 and 15 mm (at 5 mm the three levels differ by 1 % and less without contracting,
+and the comparison is skipped). All four tips pushed equally is symmetric about x = 0 and
+y = 0, so the quarter phantom (phantom-indenter-quarter.toml, mirror planes sliding) meshed at
+the wide case's sizes carries the whole phantom's answer at a quarter of the unknowns; the cut
+tip A1 carries half its force.
 """
 import dataclasses
 import json
@@ -28,7 +31,7 @@ PUSHES = (5.0, 10.0, 15.0)
 
 
 @pytest.mark.slow
-def test_the_wide_tip_default_is_within_2_percent_of_the_finest_level_up_to_15_mm():
+def test_the_wide_tip_default_is_within_2_percent_of_the_finest_level_at_10_and_15_mm():
     wide = load_case(CASES / "phantom-indenter-wide.toml")
     spec = tomllib.loads((CASES / "phantom-indenter-wide.toml").read_text())["mesh"]
     quarter = load_case(CASES / "phantom-indenter-quarter.toml")
@@ -44,11 +47,19 @@ def test_the_wide_tip_default_is_within_2_percent_of_the_finest_level_up_to_15_m
     assert study["contact_quadrature"] == wide.reference_contact_quadrature
     finest_cells = study["levels"][-1]["cells"]
     assert finest_cells > 2 * case.mesh.n_cells      # the reference is a finer discretization
+    # a finest level is a converged answer only where the study's levels contract (the force's
+    # last change smaller than the one before); all four do at 10 and 15 mm, not at 5 mm
+    contracting = {e["push_mm"] for e in study["pushes"] if len(e["force_mN"]) >= 3
+                   and abs(e["force_mN"][-1] - e["force_mN"][-2])
+                   < abs(e["force_mN"][-2] - e["force_mN"][-3])}
+    assert {10.0, 15.0} <= contracting
     prev = None
     for push in PUSHES:
         res = solver.solve({a.name: push for a in case.actuators}, initial=prev)
         prev = res
         assert res.extra.get("valid", True), res.extra.get("invalid_reason")
+        if push not in contracting:
+            continue                                # a load step on the way
         ref = next(e for e in study["pushes"] if e["push_mm"] == push)
         force = 2.0 * res.extra["indenters"]["A1"]["force"]
         assert force == pytest.approx(ref["force_mN"][-1], rel=0.02), push
