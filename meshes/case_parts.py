@@ -177,7 +177,8 @@ class Actuator:
         edge_radius). The tip's axis passes through ``point`` (default: the area centroid of the
         facet region ``region``) along ``direction``; at push 0 it touches the contact surface
         (zero gap, zero force) and a push moves it by push * direction. ``contact``:
-        "frictionless" (default) or "tied" (no slip where in contact). The contact surface is
+        "frictionless" (default) or "tied" (no slip where in contact; a punch only, whose face
+        touches from push 0). The contact surface is
         ``region`` and the facet regions ``contact_region`` (a name or a tuple of names, e.g.
         the skin around the site: contact spreads as the tip goes in). ``push`` (mm) is the
         actuator's position, set by ``Case.with_pushes`` (0 on a Case as loaded).
@@ -249,6 +250,11 @@ class Actuator:
         if contact not in CONTACT_TYPES:
             raise CaseError(f"{what}: contact must be one of {list(CONTACT_TYPES)}, "
                             f"got {self.contact!r}")
+        if contact == "tied" and self.tip == "sphere":
+            raise CaseError(f"{what}: contact = 'tied' needs tip = 'punch': a sphere's contact "
+                            f"grows from a point, and the tied law holds the skin in contact to "
+                            f"the tip's travel since push 0, right only for skin touching from "
+                            f"the start")
         object.__setattr__(self, "contact", contact)
 
     @property

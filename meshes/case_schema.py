@@ -155,7 +155,8 @@ def expected(s) -> str:
         return "nothing here"
     s = _resolve(s)
     if "enum" in s:
-        return "one of " + ", ".join(repr(v) for v in s["enum"])
+        return (repr(s["enum"][0]) if len(s["enum"]) == 1 else
+                "one of " + ", ".join(repr(v) for v in s["enum"]))
     kind = s.get("type")
     if kind == "object":
         return f"a table with keys {', '.join(s.get('properties', {}))}"
@@ -264,18 +265,28 @@ def _lines_of(err, data, skip_mesh: bool) -> list[tuple]:
     s, x = _walk(loc, data)
     if s is False:  # reported by the error of the False schema itself
         return []
-    return [(loc, f"expected {expected(s)}, found {_found(x, s)}")]
+    cond = _condition(loc[:-1], data, _walk(loc[:-1], data)[1], loc[-1], s) if loc else None
+    return [(loc, f"expected {expected(s)}{f' with {cond}' if cond else ''}, "
+                  f"found {_found(x, s)}")]
 
 
 def _forbidding(path, data, parent, key) -> str:
     """The condition (``type = 'fixed'``, ``tip = 'sphere'``) of the branch of the table at
     ``path`` that forbids ``key`` in ``parent``."""
+    return _condition(path, data, parent, key, False) or \
+        f"type = {show(parent.get('type', 'fixed'))}"
+
+
+def _condition(path, data, parent, key, schema) -> str | None:
+    """The condition (``tip = 'sphere'``) of the branch of the table at ``path`` that gives
+    ``key`` in ``parent`` the schema ``schema`` (False: forbids it); None when no branch does."""
     for branch in _resolve(_walk(path, data)[0]).get("allOf", ()):
-        if branch["then"].get("properties", {}).get(key) is False and _branch_validator(
-                json.dumps(branch["if"])).is_valid(parent):
+        if branch["then"].get("properties", {}).get(key, None) == schema and \
+                schema is not None and _branch_validator(
+                    json.dumps(branch["if"])).is_valid(parent):
             return ", ".join(f"{k} = {show(v['const'])}"
                              for k, v in branch["if"].get("properties", {}).items() if "const" in v)
-    return f"type = {show(parent.get('type', 'fixed'))}"
+    return None
 
 
 def _nonfinite(x, path=()):

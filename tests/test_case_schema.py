@@ -321,6 +321,9 @@ MISTAKES = [
       "xmin, ymax, ymin, zmax, zmin), found 'tissue'")),
     ("unknown contact", INDENTER.replace('"tied"', '"sticky"'),
      "FILE: [[actuator]][1].contact: expected one of 'frictionless', 'tied', found 'sticky'"),
+    ("tied sphere", INDENTER.replace("radius = 2.0", 'radius = 2.0\ncontact = "tied"'),
+     ("FILE: [[actuator]][2].contact: expected 'frictionless' with tip = 'sphere', "
+      "type = 'indenter', found 'tied'")),
 ]
 
 

@@ -188,6 +188,7 @@ def test_warm_start_moves_the_tip_from_where_the_initial_state_left_it(block):
     ({"tip": "punch", "radius": 1.0, "edge_radius": 1.0}, "0 < edge_radius < radius"),
     ({"tip": "sphere", "radius": 1.0, "edge_radius": 0.5}, "edge_radius only for tip = 'punch'"),
     ({"tip": "sphere", "radius": 1.0, "contact": "glued"}, "contact must be one of"),
+    ({"tip": "sphere", "radius": 1.0, "contact": "tied"}, "contact = 'tied' needs tip = 'punch'"),
     ({"tip": "sphere", "radius": 1.0, "point": (0.0, 1.0)}, "point must be a list of 3"),
 ])
 def test_bad_indenters_are_refused_naming_the_actuator(kw, match):
