@@ -45,8 +45,7 @@ def level_sizes(k: int) -> tuple[float, float]:
 
 def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool = False,
               path: float | None = None, radius: float | None = None,
-              volumetric: str | None = None, contact_quadrature="nodal",
-              contact: str | None = None) -> dict:
+              volumetric: str | None = None, contact_quadrature="nodal") -> dict:
     import tissue_reference.fem_reference as fr
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
@@ -62,9 +61,6 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
         case = case.with_material(volumetric=volumetric)
     if radius is not None:   # a diagnostic: tips of another radius on the same meshes
         case = dataclasses.replace(case, actuators=tuple(dataclasses.replace(a, radius=radius)
-                                                         for a in case.actuators))
-    if contact is not None:   # frictionless (the case's) or tied where touching
-        case = dataclasses.replace(case, actuators=tuple(dataclasses.replace(a, contact=contact)
                                                          for a in case.actuators))
     s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=contact_quadrature)
     actuators = ["A1"] if load == "one" else [a.name for a in case.actuators]
@@ -212,15 +208,13 @@ def main():
     ap.add_argument("--contact-quadrature", type=contact_rule,
                     default="nodal", metavar="RULE",
                     help="where the contact penalty is sampled: 'nodal' or a Gauss degree")
-    ap.add_argument("--contact", choices=["frictionless", "tied"],
-                    help="the tips' contact law (default: the case's, frictionless)")
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "indenter-convergence")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     if not args.summarize:
         for k in ([args.level] if args.level is not None else range(args.levels)):
             run_level(args.load, k, args.pushes, args.degree, args.out, args.progress, args.path,
-                      args.radius, args.volumetric, args.contact_quadrature, args.contact)
+                      args.radius, args.volumetric, args.contact_quadrature)
     if args.level is None:
         summarize(args.load, args.out)
 
