@@ -266,8 +266,8 @@ def _lines_of(err, data, skip_mesh: bool) -> list[tuple]:
     if s is False:  # reported by the error of the False schema itself
         return []
     cond = _condition(loc[:-1], data, _walk(loc[:-1], data)[1], loc[-1], s) if loc else None
-    return [(loc, f"expected {expected(s)}{f' with {cond}' if cond else ''}, "
-                  f"found {_found(x, s)}")]
+    where_from = f" with {cond}" if cond else ""
+    return [(loc, f"expected {expected(s)}{where_from}, found {_found(x, s)}")]
 
 
 def _forbidding(path, data, parent, key) -> str:
@@ -280,10 +280,11 @@ def _forbidding(path, data, parent, key) -> str:
 def _condition(path, data, parent, key, schema) -> str | None:
     """The condition (``tip = 'sphere'``) of the branch of the table at ``path`` that gives
     ``key`` in ``parent`` the schema ``schema`` (False: forbids it); None when no branch does."""
+    if schema is None:
+        return None
     for branch in _resolve(_walk(path, data)[0]).get("allOf", ()):
-        if branch["then"].get("properties", {}).get(key, None) == schema and \
-                schema is not None and _branch_validator(
-                    json.dumps(branch["if"])).is_valid(parent):
+        if branch["then"].get("properties", {}).get(key) == schema and _branch_validator(
+                json.dumps(branch["if"])).is_valid(parent):
             return ", ".join(f"{k} = {show(v['const'])}"
                              for k, v in branch["if"].get("properties", {}).items() if "const" in v)
     return None
