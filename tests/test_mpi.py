@@ -22,7 +22,10 @@ def run_solve(tmp_path, name, nproc, degree, formulation="displacement"):
     if nproc > 1:
         cmd = [MPIRUN, "--allow-run-as-root", "--oversubscribe", "-n", str(nproc)] + cmd
     env = {**os.environ, "OMPI_MCA_rmaps_base_oversubscribe": "1"}
-    subprocess.run(cmd, check=True, cwd=tmp_path, env=env, capture_output=True, timeout=600)
+    r = subprocess.run(cmd, check=False, cwd=tmp_path, env=env, capture_output=True, text=True,
+                       timeout=600)
+    output = f"{r.stdout[-2000:]}\n{r.stderr[-4000:]}"
+    assert r.returncode == 0, f"{' '.join(cmd)} exited {r.returncode}:\n{output}"
     return json.loads(out.read_text())
 
 
