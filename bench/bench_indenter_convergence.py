@@ -66,7 +66,7 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
     actuators = ["A1"] if load == "one" else [a.name for a in case.actuators]
     doc = {"load": load, "level": k, "size_mm": size, "site_mm": site, "path_mm": path_mm,
            "tip_radius_mm": case.actuators[0].radius,
-           "contact": case.actuators[0].contact or "frictionless",
+           "contact": case.actuators[0].contact,   # an indenter's, defaulted when loaded
            "volumetric": case.material.volumetric,
            "degree": degree, "contact_quadrature": contact_quadrature,
            "cells": case.mesh.n_cells, "pushes": []}
