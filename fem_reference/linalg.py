@@ -25,6 +25,14 @@ LAGGED_ABOVE_DOFS = 1000
 # linear_solver="auto" with the mixed formulation: above this many dofs Newton solves the
 # saddle-point tangent by fieldsplit FGMRES (``saddle``) instead of the lagged MUMPS factor.
 FIELDSPLIT_ABOVE_DOFS = 100_000
+# MUMPS's INFOG(1) values that say a workspace sized at the analysis was too small (the remedy:
+# a larger ICNTL(14), the percentage MUMPS adds to its estimate). Numerical pivoting of an
+# indefinite tangent (the mixed formulation's saddle point) delays pivots beyond the estimate;
+# in parallel the delays depend on the order in which messages arrive, so the same tangent can
+# factorize in one run and not in the next.
+MUMPS_WORKSPACE_ERRORS = frozenset({-8, -9, -11, -12, -14, -15, -17, -20})
+# the largest ICNTL(14) (percent) the workspace is grown to, doubling from MUMPS's default
+MUMPS_WORKSPACE_MAX = 1000
 
 
 @functools.cache
@@ -71,6 +79,8 @@ class LinearSolveMixin(SaddleSolveMixin):
     """The ReferenceSolver's linear solves (needs self.A, self.b, self.du, self.comm, ...)."""
 
     negative_pivots = None  # the inertia of the last factorized tangent (``_krylov_solve``)
+    mumps_workspace = None  # MUMPS's ICNTL(14) (percent), None: its default
+    _factor_broken = False  # the factor's last factorization failed: it needs a new one
 
     def _rigid_body_nullspace(self):
         x = self.V.tabulate_dof_coordinates()[:, :self.gdim]
@@ -121,7 +131,49 @@ class LinearSolveMixin(SaddleSolveMixin):
         self.P = None
         self._T = None
         self._refactor = True
+        self._factor_broken = False
         self.ksp = self.direct_ksp = self._factor_ksp(pkg)
+
+    def _configure_mumps(self, ksp):
+        """ICNTL(14) of ``ksp``'s MUMPS factor (its operators set) when it was grown."""
+        if self.mumps_workspace is None:
+            return
+        pc = ksp.getPC()
+        pc.setFactorSetUpSolverType()
+        pc.getFactorMatrix().setMumpsIcntl(14, int(self.mumps_workspace))
+
+    def _mumps_failure(self, ksp) -> int:
+        """MUMPS's INFOG(1) when ``ksp``'s last solve failed in its factorization, else 0."""
+        if self.factor_package != "mumps" or \
+                ksp.getConvergedReason() != PETSc.KSP.ConvergedReason.DIVERGED_PCSETUP_FAILED:
+            return 0
+        try:
+            info = int(ksp.getPC().getFactorMatrix().getMumpsInfog(1))
+        except PETSc.Error:
+            return 0
+        return min(info, 0)
+
+    def _after_mumps_failure(self, ksp) -> bool:
+        """After a solve of ``ksp``: whether MUMPS's factorization failed for want of workspace
+        and the solve is worth repeating, with ICNTL(14) doubled. Any failed factorization marks
+        the factor broken: PETSc 3.18 never factorizes a MUMPS factor again once a
+        factorization failed in it (every later solve fails at once), so a new one is built."""
+        info = self._mumps_failure(ksp)
+        if not info:
+            return False
+        self._factor_broken = True
+        if info not in MUMPS_WORKSPACE_ERRORS:
+            log.debug("MUMPS factorization failed (INFOG(1) = %d)", info)
+            return False
+        current = self.mumps_workspace or int(ksp.getPC().getFactorMatrix().getMumpsIcntl(14))
+        if current >= MUMPS_WORKSPACE_MAX:
+            log.info("MUMPS factorization failed for want of workspace (INFOG(1) = %d) with "
+                     "ICNTL(14) = %d %%", info, current)
+            return False
+        self.mumps_workspace = min(2 * max(current, 10), MUMPS_WORKSPACE_MAX)
+        log.info("MUMPS needed more workspace than its analysis estimated (INFOG(1) = %d): "
+                 "factorizing again with ICNTL(14) = %d %%", info, self.mumps_workspace)
+        return True
 
     def _refresh_factor(self):
         """Copy the current tangent into the matrix that is factorized (the factorization itself
@@ -154,6 +206,8 @@ class LinearSolveMixin(SaddleSolveMixin):
                 self.A.copy(self.P, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
         if first:
             self.ksp.setOperators(self.A, self.P)
+            if self.factor_package == "mumps":
+                self._configure_mumps(self.ksp)
         self._refactor = False
         self.timings.factorizations += 1
 
@@ -161,6 +215,8 @@ class LinearSolveMixin(SaddleSolveMixin):
         """One solve of the current factorizing KSP; a CHOLMOD failure (tangent not positive
         definite) switches to MUMPS and solves again. ``negative_pivots``: the inertia of the
         tangent when it was factorized for this solve, else None."""
+        if self._factor_broken:
+            self._use_factor(self.factor_package)
         refresh = self.linear_solver == "direct" or self._refactor
         if refresh:
             self._refresh_factor()
@@ -178,6 +234,9 @@ class LinearSolveMixin(SaddleSolveMixin):
                 raise
             log.info("tangent not positive definite for CHOLMOD: switching to MUMPS LDL^T")
             self._use_factor("mumps")
+            self._krylov_solve(eta)
+            return
+        if self._after_mumps_failure(self.ksp):
             self._krylov_solve(eta)
             return
         if refresh:
@@ -222,6 +281,8 @@ class LinearSolveMixin(SaddleSolveMixin):
         except PETSc.Error as exc:  # MUMPS on NaN entries (error 76) and the like
             log.debug("linear solve failed: %s", exc)
             self._refactor = True
+            # the factor may be left half set up: the next solve builds a new one
+            self._factor_broken = self.linear_solver in ("direct", "lagged")
             return False
         finally:
             self.b.scale(-1.0)

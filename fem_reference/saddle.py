@@ -151,9 +151,13 @@ class SaddleSolveMixin:
         self.saddle_ksp = k
         self._sp_key = None
         self._fresh_its = None  # iterations of the last solve with a freshly built preconditioner
-        # the fallback: MUMPS LDL^T of A itself (refactorized whenever A changed)
+        self._use_fallback_factor()
+
+    def _use_fallback_factor(self):
+        """The fallback: MUMPS LDL^T of A itself (refactorized whenever A changed)."""
         self._use_factor("mumps")
         self.ksp.setOperators(self.A, self.A)
+        self._configure_mumps(self.ksp)
 
     def _saddle_solve(self, eta: float) -> int:
         """du = A^-1 b (b: the negated residual) by fieldsplit FGMRES at relative tolerance
@@ -184,6 +188,10 @@ class SaddleSolveMixin:
             self._fresh_its = None
         log.info("fieldsplit FGMRES did not converge (reason %d after %d iterations): "
                  "solving with the MUMPS factorization", k.getConvergedReason(), its)
-        self.ksp.solve(self.b, self.du.vector)
-        self.timings.factorizations += 1
-        return total
+        while True:
+            if self._factor_broken:
+                self._use_fallback_factor()
+            self.ksp.solve(self.b, self.du.vector)
+            self.timings.factorizations += 1
+            if not self._after_mumps_failure(self.ksp):
+                return total

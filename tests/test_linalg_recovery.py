@@ -1,0 +1,97 @@
+"""The reference's factorizing solves recover from a failed MUMPS factorization.
+
+Two failures are exercised on real factorizations (serial, so they are deterministic):
+- MUMPS's workspace, sized at its analysis, too small for the pivots an indefinite matrix
+  delays (INFOG(1) = -9): the solve is repeated with a larger ICNTL(14). Two MPI ranks meet
+  this at random on the mixed formulation's saddle-point tangent (the pivots delayed depend on
+  the order in which messages arrive).
+- PETSc 3.18 never factorizes a MUMPS factor again once a factorization failed in it: after a
+  singular tangent, the solver must build a new factor, or every later solve fails at once.
+"""
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import scipy.sparse as sp
+from petsc4py import PETSc
+
+import tissue_reference.fem_reference as fr
+from tissue_reference.fem_reference.linalg import LinearSolveMixin
+from tissue_reference.meshes.case import load_case
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _zero_diagonal_matrix(m=1000, density=0.001):
+    """[[0, C], [C^T, 0]] with C = 2 I + a sparse random part: symmetric, indefinite and well
+    conditioned (condition number 3.2), with a zero diagonal. Every 1x1 pivot is refused and
+    MUMPS delays pivots beyond its analysis's estimate when ICNTL(14) leaves no margin."""
+    C = 2 * sp.identity(m) + sp.random(m, m, density=density, random_state=1)
+    return sp.bmat([[None, C], [C.T, None]]).tocsr()
+
+
+class _BareSolve(LinearSolveMixin):
+    """Just what the factorizing solve reads: the matrix, right-hand side and unknown."""
+
+    def __init__(self, M, workspace):
+        self.comm = PETSc.COMM_SELF
+        self.A = PETSc.Mat().createAIJ(M.shape, comm=self.comm, csr=(
+            M.indptr.astype(PETSc.IntType), M.indices.astype(PETSc.IntType), M.data))
+        self.A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+        self.b, x = self.A.createVecLeft(), self.A.createVecRight()
+        self.du = SimpleNamespace(vector=x)
+        self.linear_solver = "direct"
+        self.timings = SimpleNamespace(factorizations=0)
+        self.mumps_workspace = workspace
+        self._use_factor("mumps")
+
+
+def test_workspace_too_small_is_grown_and_the_solve_repeated():
+    M = _zero_diagonal_matrix()
+    rhs = np.random.default_rng(0).standard_normal(M.shape[0])
+    s = _BareSolve(M, workspace=0)
+    s.b.array[:] = rhs
+    s._krylov_solve(1e-8)
+    # the first factorization failed for want of workspace and a grown one solved the system
+    assert s.mumps_workspace > 0
+    assert s.timings.factorizations >= 2
+    assert s.ksp.getConvergedReason() > 0
+    x = s.du.vector.array
+    assert np.linalg.norm(M @ x - rhs) <= 1e-10 * np.linalg.norm(rhs)
+
+
+def test_no_margin_does_fail_without_the_retry():
+    """The matrix above does need the retry: with no margin MUMPS refuses it (INFOG(1) = -9)."""
+    M = _zero_diagonal_matrix()
+    k = PETSc.KSP().create(PETSc.COMM_SELF)
+    A = PETSc.Mat().createAIJ(M.shape, comm=PETSc.COMM_SELF, csr=(
+        M.indptr.astype(PETSc.IntType), M.indices.astype(PETSc.IntType), M.data))
+    k.setOperators(A)
+    k.setType("preonly")
+    pc = k.getPC()
+    pc.setType("cholesky")
+    pc.setFactorSolverType("mumps")
+    pc.setFactorSetUpSolverType()
+    pc.getFactorMatrix().setMumpsIcntl(14, 0)
+    b, x = A.createVecLeft(), A.createVecRight()
+    b.set(1.0)
+    k.solve(b, x)
+    assert k.getConvergedReason() < 0
+    assert pc.getFactorMatrix().getMumpsInfog(1) == -9
+
+
+def test_a_singular_tangent_does_not_break_later_solves():
+    case = load_case(ROOT / "meshes/cases/phantom.toml", size=14)
+    pushes = {"A1": 4.0, "A3": 2.0}
+    expected = fr.ReferenceSolver(case, degree=1, linear_solver="direct").solve(pushes).probes
+    s = fr.ReferenceSolver(case, degree=1, linear_solver="direct")
+    assert s.factor_package == "mumps"
+    assert s.solve({"A1": 1.0}).converged  # an assembled tangent, factorized
+    s.A.scale(0.0)  # the same pattern, all zero: MUMPS's factorization fails (singular)
+    s.b.set(1.0)
+    assert not s._linear_solve(1e-3)
+    assert s.ksp.getPC().getFactorMatrix().getMumpsInfog(1) < 0
+    r = s.solve(pushes)
+    assert r.converged
+    for name, u in expected.items():
+        assert np.allclose(r.probes[name], u, rtol=1e-6, atol=1e-9), name
