@@ -25,6 +25,8 @@ from petsc4py import PETSc
 from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.errors import CaseError
 
+from .mumps import set_mumps_workspace, solve_mumps
+
 __all__ = ["indenter_jacobian"]
 
 
@@ -44,11 +46,17 @@ def indenter_jacobian(solver, case: Case, *, actuators=None, targets=None,
     x0 = solver.x.x.array.copy()
     bcs = [e[0] for e in solver._bcs(case, 1.0, None)]
     solver._assemble_tangent(bcs)
-    ksp = PETSc.KSP().create(solver.comm)
-    ksp.setOperators(solver.A)
-    ksp.setType("preonly")
-    ksp.getPC().setType("lu")
-    ksp.getPC().setFactorSolverType("mumps")
+
+    def lu(percent=None):
+        k = PETSc.KSP().create(solver.comm)
+        k.setOperators(solver.A)
+        k.setType("preonly")
+        k.getPC().setType("lu")
+        k.getPC().setFactorSolverType("mumps")
+        set_mumps_workspace(k, percent)
+        return k
+
+    ksp = lu()
     rhs = solver.A.createVecRight()
     du = solver.A.createVecRight()
     cols = []
@@ -67,7 +75,7 @@ def indenter_jacobian(solver, case: Case, *, actuators=None, targets=None,
             sides[0].axpy(-1.0, sides[1])
             sides[0].copy(rhs)
             rhs.scale(-0.5 / step)
-            ksp.solve(rhs, du)
+            ksp = solve_mumps(ksp, rhs, du, lu)
             if ksp.getConvergedReason() <= 0:
                 raise CaseError(f"indenter {name!r}: the tangent at this state could not be "
                                 f"factorized (reason {ksp.getConvergedReason()})")

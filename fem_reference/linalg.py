@@ -14,6 +14,7 @@ import dolfinx
 import dolfinx.fem
 from petsc4py import PETSc
 
+from .mumps import grown_mumps_workspace, mumps_failure, set_mumps_workspace, solve_mumps
 from .saddle import SaddleSolveMixin
 
 log = logging.getLogger("tissue.fem")
@@ -25,14 +26,6 @@ LAGGED_ABOVE_DOFS = 1000
 # linear_solver="auto" with the mixed formulation: above this many dofs Newton solves the
 # saddle-point tangent by fieldsplit FGMRES (``saddle``) instead of the lagged MUMPS factor.
 FIELDSPLIT_ABOVE_DOFS = 100_000
-# MUMPS's INFOG(1) values that say a workspace sized at the analysis was too small (the remedy:
-# a larger ICNTL(14), the percentage MUMPS adds to its estimate). Numerical pivoting of an
-# indefinite tangent (the mixed formulation's saddle point) delays pivots beyond the estimate;
-# in parallel the delays depend on the order in which messages arrive, so the same tangent can
-# factorize in one run and not in the next.
-MUMPS_WORKSPACE_ERRORS = frozenset({-8, -9, -11, -12, -14, -15, -17, -20})
-# the largest ICNTL(14) (percent) the workspace is grown to, doubling from MUMPS's default
-MUMPS_WORKSPACE_MAX = 1000
 
 
 @functools.cache
@@ -125,6 +118,12 @@ class LinearSolveMixin(SaddleSolveMixin):
             k.setType("preonly")
         return k
 
+    def _fallback_factor(self, percent=None):
+        """A new MUMPS KSP for the iterative mode's fallback, ICNTL(14) = ``percent``."""
+        k = self._factor_ksp("mumps")
+        set_mumps_workspace(k, percent)
+        return k
+
     def _use_factor(self, pkg: str):
         """(Re)build the factorizing KSP with ``pkg``; P is made at the next refresh."""
         self.factor_package = pkg
@@ -134,45 +133,18 @@ class LinearSolveMixin(SaddleSolveMixin):
         self._factor_broken = False
         self.ksp = self.direct_ksp = self._factor_ksp(pkg)
 
-    def _configure_mumps(self, ksp):
-        """ICNTL(14) of ``ksp``'s MUMPS factor (its operators set) when it was grown."""
-        if self.mumps_workspace is None:
-            return
-        pc = ksp.getPC()
-        pc.setFactorSetUpSolverType()
-        pc.getFactorMatrix().setMumpsIcntl(14, int(self.mumps_workspace))
-
-    def _mumps_failure(self, ksp) -> int:
-        """MUMPS's INFOG(1) when ``ksp``'s last solve failed in its factorization, else 0."""
-        if self.factor_package != "mumps" or \
-                ksp.getConvergedReason() != PETSc.KSP.ConvergedReason.DIVERGED_PCSETUP_FAILED:
-            return 0
-        try:
-            info = int(ksp.getPC().getFactorMatrix().getMumpsInfog(1))
-        except PETSc.Error:
-            return 0
-        return min(info, 0)
-
     def _after_mumps_failure(self, ksp) -> bool:
         """After a solve of ``ksp``: whether MUMPS's factorization failed for want of workspace
-        and the solve is worth repeating, with ICNTL(14) doubled. Any failed factorization marks
-        the factor broken: PETSc 3.18 never factorizes a MUMPS factor again once a
-        factorization failed in it (every later solve fails at once), so a new one is built."""
-        info = self._mumps_failure(ksp)
-        if not info:
+        and the solve is worth repeating, with ICNTL(14) grown (``grown_mumps_workspace``). Any
+        failed factorization marks the factor broken: PETSc 3.18 never factorizes a MUMPS factor
+        again once a factorization failed in it, so a new one is built."""
+        if self.factor_package != "mumps" or not mumps_failure(ksp):
             return False
         self._factor_broken = True
-        if info not in MUMPS_WORKSPACE_ERRORS:
-            log.debug("MUMPS factorization failed (INFOG(1) = %d)", info)
+        grown = grown_mumps_workspace(ksp, self.mumps_workspace)
+        if grown is None:
             return False
-        current = self.mumps_workspace or int(ksp.getPC().getFactorMatrix().getMumpsIcntl(14))
-        if current >= MUMPS_WORKSPACE_MAX:
-            log.info("MUMPS factorization failed for want of workspace (INFOG(1) = %d) with "
-                     "ICNTL(14) = %d %%", info, current)
-            return False
-        self.mumps_workspace = min(2 * max(current, 10), MUMPS_WORKSPACE_MAX)
-        log.info("MUMPS needed more workspace than its analysis estimated (INFOG(1) = %d): "
-                 "factorizing again with ICNTL(14) = %d %%", info, self.mumps_workspace)
+        self.mumps_workspace = grown
         return True
 
     def _refresh_factor(self):
@@ -207,7 +179,7 @@ class LinearSolveMixin(SaddleSolveMixin):
         if first:
             self.ksp.setOperators(self.A, self.P)
             if self.factor_package == "mumps":
-                self._configure_mumps(self.ksp)
+                set_mumps_workspace(self.ksp, self.mumps_workspace)
         self._refactor = False
         self.timings.factorizations += 1
 
@@ -265,8 +237,8 @@ class LinearSolveMixin(SaddleSolveMixin):
                 ksp.solve(self.b, self.du.vector)
                 its = ksp.getIterationNumber()
                 if ksp.getConvergedReason() < 0:
-                    ksp = self.direct_ksp
-                    ksp.solve(self.b, self.du.vector)
+                    ksp = self.direct_ksp = solve_mumps(self.direct_ksp, self.b,
+                                                        self.du.vector, self._fallback_factor)
                     self.timings.factorizations += 1
             else:
                 self._krylov_solve(eta)

@@ -30,6 +30,8 @@ import numpy as np
 import ufl
 from petsc4py import PETSc
 
+from .mumps import set_mumps_workspace
+
 log = logging.getLogger("tissue.fem")
 
 # PETSc options of the fieldsplit KSP (prefix SADDLE_PREFIX); an entry already in PETSc's options
@@ -157,7 +159,7 @@ class SaddleSolveMixin:
         """The fallback: MUMPS LDL^T of A itself (refactorized whenever A changed)."""
         self._use_factor("mumps")
         self.ksp.setOperators(self.A, self.A)
-        self._configure_mumps(self.ksp)
+        set_mumps_workspace(self.ksp, self.mumps_workspace)
 
     def _saddle_solve(self, eta: float) -> int:
         """du = A^-1 b (b: the negated residual) by fieldsplit FGMRES at relative tolerance

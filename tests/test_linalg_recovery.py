@@ -17,6 +17,7 @@ from petsc4py import PETSc
 
 import tissue_reference.fem_reference as fr
 from tissue_reference.fem_reference.linalg import LinearSolveMixin
+from tissue_reference.fem_reference.mumps import mumps_failure, set_mumps_workspace, solve_mumps
 from tissue_reference.meshes.case import load_case
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -60,24 +61,59 @@ def test_workspace_too_small_is_grown_and_the_solve_repeated():
     assert np.linalg.norm(M @ x - rhs) <= 1e-10 * np.linalg.norm(rhs)
 
 
-def test_no_margin_does_fail_without_the_retry():
-    """The matrix above does need the retry: with no margin MUMPS refuses it (INFOG(1) = -9)."""
-    M = _zero_diagonal_matrix()
-    k = PETSc.KSP().create(PETSc.COMM_SELF)
-    A = PETSc.Mat().createAIJ(M.shape, comm=PETSc.COMM_SELF, csr=(
+def _petsc(M):
+    return PETSc.Mat().createAIJ(M.shape, comm=PETSc.COMM_SELF, csr=(
         M.indptr.astype(PETSc.IntType), M.indices.astype(PETSc.IntType), M.data))
+
+
+def _mumps_ksp(A, percent):
+    k = PETSc.KSP().create(PETSc.COMM_SELF)
     k.setOperators(A)
     k.setType("preonly")
-    pc = k.getPC()
-    pc.setType("cholesky")
-    pc.setFactorSolverType("mumps")
-    pc.setFactorSetUpSolverType()
-    pc.getFactorMatrix().setMumpsIcntl(14, 0)
+    k.getPC().setType("cholesky")
+    k.getPC().setFactorSolverType("mumps")
+    set_mumps_workspace(k, percent)
+    return k
+
+
+def test_no_margin_does_fail_without_the_retry():
+    """The matrix above does need the retry: with no margin MUMPS refuses it (INFOG(1) = -9)."""
+    A = _petsc(_zero_diagonal_matrix())
+    k = _mumps_ksp(A, 0)
     b, x = A.createVecLeft(), A.createVecRight()
     b.set(1.0)
     k.solve(b, x)
     assert k.getConvergedReason() < 0
-    assert pc.getFactorMatrix().getMumpsInfog(1) == -9
+    assert k.getPC().getFactorMatrix().getMumpsInfog(1) == -9
+    assert mumps_failure(k) == -9
+
+
+def test_one_off_solves_grow_the_workspace_too():
+    M = _zero_diagonal_matrix()
+    A = _petsc(M)
+    made = []
+
+    def rebuild(percent):
+        made.append(percent)
+        return _mumps_ksp(A, percent)
+
+    b, x = A.createVecLeft(), A.createVecRight()
+    rhs = np.random.default_rng(1).standard_normal(M.shape[0])
+    b.array[:] = rhs
+    k = solve_mumps(_mumps_ksp(A, 0), b, x, rebuild)
+    assert made and made[0] == 20 and all(q > p for p, q in zip(made, made[1:]))
+    assert k.getConvergedReason() > 0
+    assert np.linalg.norm(M @ x.array - rhs) <= 1e-10 * np.linalg.norm(rhs)
+
+
+def test_one_off_solve_of_a_singular_matrix_fails_and_leaves_a_new_factor():
+    M = _zero_diagonal_matrix()
+    A0 = _petsc(M * 0.0)  # the same pattern, all zero
+    b, x = A0.createVecLeft(), A0.createVecRight()
+    b.set(1.0)
+    k = solve_mumps(_mumps_ksp(A0, None), b, x, lambda p: _mumps_ksp(A0, p))
+    assert k.getConvergedReason() == 0  # a new, unsolved factor: the solve failed
+    assert mumps_failure(k) == 0
 
 
 def test_a_singular_tangent_does_not_break_later_solves():
