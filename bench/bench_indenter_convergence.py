@@ -45,7 +45,8 @@ def level_sizes(k: int) -> tuple[float, float]:
 
 def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool = False,
               path: float | None = None, radius: float | None = None,
-              volumetric: str | None = None, contact_quadrature="nodal") -> dict:
+              volumetric: str | None = None, contact_quadrature="nodal",
+              idle_tips: bool = True) -> dict:
     import tissue_reference.fem_reference as fr
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
@@ -62,12 +63,17 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
     if radius is not None:   # a diagnostic: tips of another radius on the same meshes
         case = dataclasses.replace(case, actuators=tuple(dataclasses.replace(a, radius=radius)
                                                          for a in case.actuators))
+    if not idle_tips:   # a diagnostic: only the pushed tips, no obstacles held at their start
+        if load != "one":
+            raise SystemExit("--without-idle-tips: only with --load one (all four are pushed)")
+        case = dataclasses.replace(case, actuators=tuple(a for a in case.actuators
+                                                         if a.name == "A1"))
     s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=contact_quadrature)
     actuators = ["A1"] if load == "one" else [a.name for a in case.actuators]
     doc = {"load": load, "level": k, "size_mm": size, "site_mm": site, "path_mm": path_mm,
            "tip_radius_mm": case.actuators[0].radius,
            "contact": case.actuators[0].contact,   # an indenter's, defaulted when loaded
-           "volumetric": case.material.volumetric,
+           "volumetric": case.material.volumetric, "idle_tips": idle_tips,
            "degree": degree, "contact_quadrature": contact_quadrature,
            "cells": case.mesh.n_cells, "pushes": []}
     prev = None
@@ -113,8 +119,9 @@ def summarize(load: str, out: Path) -> None:
                   key=lambda d: d["level"])
     if not docs:
         raise SystemExit(f"no level results under {out} for --load {load}")
-    defaults = {"contact_quadrature": "nodal", "contact": "frictionless"}
-    for key in ("contact_quadrature", "contact", "volumetric", "degree", "tip_radius_mm"):
+    defaults = {"contact_quadrature": "nodal", "contact": "frictionless", "idle_tips": True}
+    for key in ("contact_quadrature", "contact", "volumetric", "degree", "tip_radius_mm",
+                "idle_tips"):
         if len({str(d.get(key) or defaults.get(key)) for d in docs}) > 1:
             raise SystemExit(f"the level results under {out} differ in {key}: "
                              f"{[(d['level'], d.get(key)) for d in docs]}; summarize one "
@@ -129,6 +136,7 @@ def summarize(load: str, out: Path) -> None:
                "contact_quadrature": docs[0].get("contact_quadrature", "nodal"),
                "tip_radius_mm": docs[0].get("tip_radius_mm"),
                "contact": docs[0].get("contact") or "frictionless",
+               "idle_tips": docs[0].get("idle_tips", True),
                "levels": [{k: d.get(k) for k in ("level", "size_mm", "site_mm", "path_mm", "cells")}
                           for d in docs], "pushes": []}
     for p in pushes:
@@ -208,13 +216,17 @@ def main():
     ap.add_argument("--contact-quadrature", type=contact_rule,
                     default="nodal", metavar="RULE",
                     help="where the contact penalty is sampled: 'nodal' or a Gauss degree")
+    ap.add_argument("--without-idle-tips", action="store_true",
+                    help="--load one: A1's tip only, without the other tips the case holds at "
+                         "their start as obstacles (a diagnostic: what they change)")
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "indenter-convergence")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     if not args.summarize:
         for k in ([args.level] if args.level is not None else range(args.levels)):
             run_level(args.load, k, args.pushes, args.degree, args.out, args.progress, args.path,
-                      args.radius, args.volumetric, args.contact_quadrature)
+                      args.radius, args.volumetric, args.contact_quadrature,
+                      not args.without_idle_tips)
     if args.level is None:
         summarize(args.load, args.out)
 
