@@ -4,7 +4,8 @@ and what it costs, against the previous default, measured in one run.
 The default is what ``tissue solve meshes/cases/phantom-indenter.toml --push ...`` solves: the
 case's mesh (size, site_size), the case's ``[reference] degree`` and contact rule; ``--case wide``:
 the same for meshes/cases/phantom-indenter-wide.toml (8 mm tips), against its own study
-(``four_wide`` / ``one_wide``, to 15 mm). The previous
+(``four_wide`` / ``one_wide``, to 15 mm); ``--case control``: phantom-indenter-control.toml
+(the 5 mm tips on a coarser body, the contact scenario's plant of control loops). The previous
 default was P1 on 1.6 mm site cells (``--old``: solved in the same run, for the ratios). The
 converged answer is the finest level of a refinement study shipped in
 tests/data/phantom_indenter_reference.json (P2 on the phantom's symmetric parts, cells divided by
@@ -19,7 +20,7 @@ displacements (mm) of each discretization, the relative difference of each to th
 (targets: |u - u_ref| / |u_ref|), Newton iterations, wall time, and the ratios new / old.
 
     .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--pushes 5 10 12.5]
-        [--contact-quadrature nodal|2] [--study gauss|nodal] [--old] [--case indenter|wide]
+        [--contact-quadrature nodal|2] [--study gauss|nodal] [--old] [--case indenter|wide|control]
 """
 from __future__ import annotations
 
@@ -32,9 +33,11 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = {"indenter": ROOT / "meshes" / "cases" / "phantom-indenter.toml",
-         "wide": ROOT / "meshes" / "cases" / "phantom-indenter-wide.toml"}
+         "wide": ROOT / "meshes" / "cases" / "phantom-indenter-wide.toml",
+         "control": ROOT / "meshes" / "cases" / "phantom-indenter-control.toml"}
 STUDIES = {("indenter", "gauss"): ("{load}_gauss", "{load}"), ("indenter", "nodal"): ("{load}",),
-           ("wide", "gauss"): ("{load}_wide",)}
+           ("wide", "gauss"): ("{load}_wide",),
+           ("control", "gauss"): ("{load}_gauss", "{load}"), ("control", "nodal"): ("{load}",)}
 """Per case and ``--study``: the studies in DATA searched for the push, in order."""
 DATA = ROOT / "tests" / "data" / "phantom_indenter_reference.json"
 LOADS = {"one": ("A1",), "four": ("A1", "A2", "A3", "A4")}
@@ -121,7 +124,8 @@ def main():
     ap.add_argument("--contact-quadrature", type=contact_rule, default=None,
                     help="contact rule of the default (default: the case's)")
     ap.add_argument("--case", choices=sorted(CASES), default="indenter",
-                    help="phantom-indenter.toml (5 mm tips) or phantom-indenter-wide.toml (8 mm)")
+                    help="phantom-indenter.toml (5 mm tips), phantom-indenter-wide.toml (8 mm) or "
+                         "phantom-indenter-control.toml (5 mm tips, a coarser body)")
     ap.add_argument("--study", choices=["gauss", "nodal"], default="gauss",
                     help="the refinement study whose finest level is the converged answer "
                          "(the wide case has a Gauss-rule study only)")

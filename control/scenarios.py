@@ -191,5 +191,5 @@ def _check_plant_at_rest(loop, plant_case):
         src = plant_case.source or "derived from the case: tips of its patches' area, its mesh"
         raise CaseError(f"the contact scenario's plant ({src}) cannot start: {exc}. Give it a "
                         f"case of the same body meshed for its tips (--contact-plant, e.g. "
-                        f"meshes/cases/phantom-indenter.toml for the phantom) or a finer "
-                        f"--size") from None
+                        f"meshes/cases/phantom-indenter-control.toml for the phantom) or a "
+                        f"finer --size") from None

@@ -274,3 +274,21 @@ def test_a_contact_plant_too_coarse_for_its_tips_is_refused_before_any_loop():
     case = load_case(Path(__file__).resolve().parents[1] / "meshes" / "cases" / "phantom.toml")
     with pytest.raises(CaseError, match=r"plant .*cannot start.*between the nodes.*--contact-plant"):
         scenario_loop(case, "contact")
+
+
+@pytest.mark.slow
+def test_the_shipped_control_plant_starts_valid_and_fits_the_phantom():
+    """meshes/cases/phantom-indenter-control.toml, the contact scenario's shipped plant for the
+    phantom: the same actuators, directions and targets as the glued phantom, and valid at rest
+    (its skin fine enough at the sites that no tip lies between the nodes), where the plant
+    derived from the glued phantom is not (the test above)."""
+    from pathlib import Path
+
+    from tissue_reference.meshes.case import load_case
+
+    cases = Path(__file__).resolve().parents[1] / "meshes" / "cases"
+    model = load_case(cases / "phantom.toml", size=10)
+    plant = load_case(cases / "phantom-indenter-control.toml")
+    assert all(a.type == "indenter" for a in check_contact_plant(model, plant).actuators)
+    loop = scenario_loop(model, "contact", plant_case=plant)   # solves the plant at rest
+    assert loop.meta["plant_case"] == "phantom-indenter-control"

@@ -349,7 +349,8 @@ def add_parser(sub):
     p.add_argument("--contact-plant", metavar="CASE.toml", default=None,
                    help="the contact scenario's plant: a case of the same body whose actuators "
                         "are indenters with the case's actuator names (e.g. "
-                        "meshes/cases/phantom-indenter.toml; meshed as its file says); default: "
+                        "meshes/cases/phantom-indenter-control.toml; meshed as its file says); "
+                        "default: "
                         "the case with each patch replaced by a sphere of the patch's area "
                         "touching the one free skin region")
     p.add_argument("--out", required=True, help="folder for the tables, trajectories and plots")
