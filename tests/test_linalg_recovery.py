@@ -8,6 +8,7 @@ Two failures are exercised on real factorizations (serial, so they are determini
 - PETSc 3.18 never factorizes a MUMPS factor again once a factorization failed in it: after a
   singular tangent, the solver must build a new factor, or every later solve fails at once.
 """
+from itertools import pairwise
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -101,7 +102,7 @@ def test_one_off_solves_grow_the_workspace_too():
     rhs = np.random.default_rng(1).standard_normal(M.shape[0])
     b.array[:] = rhs
     k = solve_mumps(_mumps_ksp(A, 0), b, x, rebuild)
-    assert made and made[0] == 20 and all(q > p for p, q in zip(made, made[1:]))
+    assert made and made[0] == 20 and all(q > p for p, q in pairwise(made))
     assert k.getConvergedReason() > 0
     assert np.linalg.norm(M @ x.array - rhs) <= 1e-10 * np.linalg.norm(rhs)
 
