@@ -37,6 +37,9 @@ Newton (``transfer.warm_newton``). When they do not converge (past the first lev
 is then not tried from rest, which near a pushed patch's rim can take many minutes and, where the
 refined problem has lost its solution, still fail) ``solve_to_accuracy`` raises
 AccuracyNotReached carrying the last level's answer with its estimate, as at ``max_dofs``.
+A degree-2 answer that is not valid (inverted cells: the refinement has gone where the model has
+no regular solution, such as the rim of a glued patch, and P2 fields fold its smallest cells) is
+not estimated or refined further: AccuracyNotReached names it and carries the last valid level.
 
 Cost: every degree-2 level solves the answer and the degree-3 estimate. A uniform refinement
 multiplies the dofs by about 8 in 3D (4 in 2D), so each level costs roughly 8-10x the previous
@@ -198,8 +201,9 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
         indicators ("local").
     progress: print each step (cells, dofs, worst probe) to stderr.
     solver_options: ReferenceSolver options (formulation, curved, settings, ...).
-    Returns AdaptiveResult; raises AccuracyNotReached at max_dofs, CaseError for a case without
-    probes or a bad accuracy, ConvergenceError when a solve fails.
+    Returns AdaptiveResult; raises AccuracyNotReached at max_dofs or at a degree-2 answer that is
+    not valid (carrying the last answer before it), CaseError for a case without probes or a bad
+    accuracy, ConvergenceError when a solve fails.
     """
     from .solver import default_degree, resolve_formulation
 
@@ -251,6 +255,12 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
         try:
             if answer is None:
                 answer = _answer(case, p, pushes, formulation, solver_options, start)
+            if p >= 2 and not answer.extra.get("valid", True):
+                kept, kept_case = (last[0], last_case) if last is not None else (answer, case)
+                raise AccuracyNotReached(
+                    _invalid_level(case, answer, level, p, accuracy, steps),
+                    result=AdaptiveResult(kept, kept_case, tuple(steps), accuracy, False,
+                                          time.perf_counter() - t0))
             # a degree-2 estimate that will be the next answer is converged fully; one that
             # does not converge from the interpolated answer (with indenters the enriched
             # surface nodes change the contact set) is solved along the load path from rest
@@ -333,6 +343,21 @@ def _last_answer(step: AdaptiveStep, accuracy: float) -> str:
     return (f"the last answer ({step.dofs:,} dofs, degree {step.degree}, {step.cells:,} cells) "
             f"has probe {name!r} at {ratio * accuracy:.3g} relative (estimate "
             f"{step.estimates[name]:.3g} mm)")
+
+
+def _invalid_level(case, answer, level: int, degree: int, accuracy: float,
+                   steps: list) -> str:
+    """What AccuracyNotReached says of a level whose answer is not valid (inverted cells): the
+    refinement went where the model has no regular solution (the rim of a glued patch pushed
+    deep), and refining further would only chase it; the last valid answer is handed back."""
+    x = answer.extra
+    rims = [w for w in x.get("warnings", ()) if w.startswith("glued patch")]
+    last = (f"{_last_answer(steps[-1], accuracy)}, handed back" if steps else
+            "there is no earlier answer: this one is handed back, flagged invalid")
+    return (f"{case.source or case.name}: accuracy {accuracy:.3g} not reached: the answer of "
+            f"level {level} ({answer.n_cells:,} cells, degree {degree}) is not valid "
+            f"({x.get('invalid_reason')})" + "".join(f"; {w}" for w in rims)
+            + f"; refining further would chase that point; {last}")
 
 
 def _answer(case, degree, pushes, formulation, options, start):

@@ -1,6 +1,8 @@
 """Goal-oriented adaptivity (fem_reference.adapt.solve_to_accuracy): degree 1 -> 2, then uniform
 refinement, until every probe's estimated error is within the requested relative accuracy; a
 max_dofs budget stops it with AccuracyNotReached. Units: mm, kPa, mN."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -132,3 +134,39 @@ def test_command_line_estimate_and_accuracy(tmp_path, capsys):
     rc = main(["solve", case, "--size", "14", "--push", "A1=3", "--accuracy", "0.001",
                "--max-dofs", "20000", "-q"])
     assert rc == 1 and "not reached within max_dofs" in capsys.readouterr().err
+
+
+def test_an_invalid_refined_answer_stops_the_loop_and_keeps_the_last_valid_one(monkeypatch):
+    """A refined level whose answer has inverted cells (the refinement reached a point where the
+    model has no regular solution, as the rim of a glued patch pushed deep) is neither estimated
+    nor refined again: AccuracyNotReached names the level and its fault and carries the last
+    valid answer, which the command line writes."""
+    from tissue_reference.fem_reference import adapt
+
+    case = Case(mesh=box(5.0), material=Material("neo-hookean", E=6.0, nu=0.45),
+                boundaries=[Boundary("zmin", "fixed")], probes=[Probe("T", (5.0, 5.0, 5.0))],
+                actuators=[Actuator("A1", "zmax", (1.0, 0.0, -1.0))], name="block")
+    real = adapt._answer
+    folded = []
+
+    def folding(case, degree, pushes, formulation, options, start):
+        res = real(case, degree, pushes, formulation, options, start)
+        if degree < 2:     # level 0's first answer (P1): the P2 estimate then answers
+            return res
+        bad = replace(res, extra={**res.extra, "valid": False, "inverted_cells": 1,
+                                  "invalid_reason": "1 inverted cell (J <= 0; worst cell 7)",
+                                  "warnings": ["glued patch 'A1' (push 1 mm) compresses ..."]})
+        folded.append(bad)
+        return bad
+
+    monkeypatch.setattr(adapt, "_answer", folding)
+    with pytest.raises(AccuracyNotReached) as info:
+        solve_to_accuracy(case, {"A1": 1.0}, accuracy=0.002, progress=False)
+    msg = str(info.value)
+    assert len(folded) == 1        # the folded level is not estimated, nor refined again
+    assert "level 1" in msg and "is not valid (1 inverted cell" in msg
+    assert "glued patch 'A1'" in msg and "handed back" in msg
+    kept = info.value.result
+    assert not kept.reached and kept.steps[-1].level == 0
+    assert kept.result.extra.get("valid", True) and kept.case.mesh.n_cells == case.mesh.n_cells
+    assert "probe_error_estimates" in kept.result.extra   # the last valid answer's estimate
