@@ -9,10 +9,11 @@ One step (quasi-static, ``dt_s`` seconds of the time axis each):
      from its previous displacement, and the target position is measured (optional Gaussian noise,
      seeded, mm).
 
-Open loop: pushes u_open from the *initial* J_s by eq. 22 (least travel, push only), applied with
-the closed loop's time profile u_open(t_k) = u_open * phi_k,
-phi_k = sum_i s_i(t_k) / sum_i s_i(t_end) (non-decreasing, so the open loop never retracts
-either), no feedback.
+Open loop (``control.open_loop``): pushes u_open from the *initial* J_s by eq. 22 (least travel,
+push only), applied with the closed loop's time profile, no feedback.
+
+When the plant cannot be solved at the pushes the controller asks for, the loop stops there with
+LoopStopped: the step, the pushes, the plant's reason and the history up to that step.
 
 Metrics on the controlled coordinates of the task (free ones excluded), with the noise-free plant
 position: error e_k = ||mask * (x_goal - x_k)||_2 (mm); ITAE (eq. 26) = sum_k t_k e_k dt (mm s^2,
@@ -30,20 +31,19 @@ from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from .controllability import UnreachableGoalError, inverse_push, task_goal
 from .jacobian import dirichlet_jacobian
 from .mpc import MPCSettings, PushOnlyMPC
+from .open_loop import open_loop_json, run_open_loop
+from .plant_step import check_prescribed, itae, measure, solve_checked, step_line
 
 __all__ = [
     "LinearizedModel",
     "LoopResult",
     "LoopSettings",
+    "LoopStopped",
     "check_prescribed",
     "itae",
     "run_closed_loop",
+    "solve_checked",
 ]
-
-
-def itae(t, e, dt) -> float:
-    """Eq. 26, rectangle rule: sum t_k |e_k| dt (t in s, e in mm)."""
-    return float(np.sum(np.asarray(t) * np.abs(np.asarray(e)) * dt))
 
 
 @dataclass(frozen=True)
@@ -151,7 +151,7 @@ class LoopResult:
                 "steady_state_error_mm": float(self.steady_state_error_mm),
                 "max_retraction_mm": float(self.max_retraction_mm),
                 "mpc_step_median_ms": float(np.median(self.mpc_ms)) if len(self.mpc_ms) else 0.0,
-                "open_loop": _open_loop_json(ol),
+                "open_loop": open_loop_json(ol),
                 "time_s": self.time_s.tolist(), "target_error_mm": self.error_mm.tolist(),
                 "target_position_mm": self.target.tolist(),
                 "actuator_positions_mm": self.pushes.tolist(),
@@ -161,79 +161,39 @@ class LoopResult:
                 "wall_time_s": float(self.wall_time_s)}
 
 
-def solve_checked(solve, case, pushes, initial, who: str, retries: list | None = None):
-    """solve(case, pushes, initial) checked by :func:`check_prescribed`; when a warm-started solve
-    fails (ConvergenceError or a state that misses the pushes) it is retried once cold
-    (initial=None: the solver's own load path from the rest state) -- a warm start from a state far
-    from the new pushes can leave the solver's basin where the cold load path does not (reference,
-    phantom size 8: A2 = 52 mm converges cold, not warm-started from the previous open-loop step).
-    ``retries`` collects the warm failures' messages."""
-    try:
-        r = solve(case, pushes, initial)
-        check_prescribed(case, pushes, r, who)
-        return r
-    except ConvergenceError as exc:
-        if initial is None:
-            raise
-        if retries is not None:
-            retries.append(f"{who} at pushes {pushes}: {exc}")
-    r = solve(case, pushes, None)
-    check_prescribed(case, pushes, r, who + " (cold retry)")
-    return r
+class LoopStopped(ConvergenceError):
+    """The plant could not be solved at the pushes the controller asked for: the closed loop
+    stopped at ``step`` (1-based, of ``steps``) with ``pushes_mm`` asked. ``history``: the steps
+    it reached (``time_s``, ``target_error_mm``, ``target_position_mm``,
+    ``actuator_positions_mm``, ``goal_mm``, ``controlled``); ``to_json_dict()`` gives them with
+    the step, the pushes and the ITAE so far (a lower bound of the loop's)."""
 
+    def __init__(self, message, *, step: int, steps: int, pushes_mm, history: dict):
+        super().__init__(message)
+        self.step, self.steps = int(step), int(steps)
+        self.pushes_mm = np.asarray(pushes_mm, float).tolist()
+        self.history = history
 
-def check_prescribed(case, pushes, r, who: str, *, rtol=1e-9):
-    """Raise ConvergenceError unless solve result ``r`` is converged, valid (no inverted cells, no
-    runaway growth: ``extra["valid"]``) and meets the Case's prescriptions at ``pushes`` (actuator
-    patches at their pushes, fixed regions at 0): a solver that reports success with the previous
-    step's boundary values, or with a folded mesh, is caught here, not differentiated or
-    measured."""
-    if not r.converged:
-        raise ConvergenceError(f"{who} solve did not converge at pushes {pushes} "
-                               f"(residual {r.residual:g})")
-    extra = getattr(r, "extra", None) or {}
-    if extra.get("valid", True) is False:
-        raise ConvergenceError(f"{who} state at pushes {pushes} is not valid: "
-                               f"{extra.get('invalid_reason')}")
-    c = case.with_pushes(pushes).constraints
-    if len(c.dofs):
-        u = np.asarray(r.u, float).reshape(-1)
-        gap = float(np.abs(u[c.dofs] - c.values).max())
-        if gap > rtol * max(1.0, float(np.abs(c.values).max())):
-            raise ConvergenceError(f"{who} solve reported success at pushes {pushes} but its state "
-                                   f"misses the prescribed displacements by {gap:.3g} mm "
-                                   f"({getattr(r, 'solver', '?')} solver)")
+    @classmethod
+    def at(cls, step, settings, pushes, S, X, x_goal, mask, exc):
+        """The stop at ``step`` after the states ``S`` (pushes) and ``X`` (target) reached."""
+        S, X = np.array(S), np.array(X)
+        t = settings.dt_s * np.arange(len(S))
+        err = np.linalg.norm((x_goal - X)[:, mask], axis=1)
+        history = {"time_s": t.tolist(), "target_error_mm": err.tolist(),
+                   "target_position_mm": X.tolist(), "actuator_positions_mm": S.tolist(),
+                   "goal_mm": np.asarray(x_goal, float).tolist(),
+                   "controlled": np.asarray(mask, bool).tolist(),
+                   "itae_so_far": itae(t, err, settings.dt_s)}
+        asked = np.round(np.asarray(pushes, float), 3).tolist()
+        return cls(f"closed loop stopped at step {step}/{settings.steps}, pushes {asked} mm asked "
+                   f"(target error {err[-1]:.4g} mm at the step before): {exc}", step=step,
+                   steps=settings.steps, pushes_mm=pushes, history=history)
 
-
-def _open_loop_json(ol):
-    """The open-loop baseline: ``status`` "completed", "infeasible" (its pushes were clamped to
-    the push limit: it cannot reach the goal) or "failed" (the plant could not be solved at its
-    pushes; ``failed_at_step``, ``failure``), or "not run"."""
-    if not ol:
-        return {"status": "not run", "itae": None, "steady_state_error_mm": None}
-    status = "failed" if not ol["converged"] else (
-        "infeasible" if ol.get("clamped") else "completed")
-    out = {"status": status, "itae": float(ol["itae"]),
-           "steady_state_error_mm": ol["steady_state_error_mm"],
-           "converged": bool(ol["converged"]), "u_open_mm": np.asarray(ol["u_open"]).tolist(),
-           "clamped": bool(ol.get("clamped", False)),
-           "u_open_unclamped_mm": np.asarray(ol.get("u_open_unclamped", ol["u_open"])).tolist(),
-           "time_s": np.asarray(ol["time_s"], float).tolist(),
-           "target_error_mm": np.asarray(ol["error_mm"], float).tolist(),
-           "actuator_positions_mm": np.asarray(ol["pushes"], float).tolist()}
-    if not ol["converged"]:
-        out.update({"itae_is_lower_bound": True, "failed_at_step": ol["failed_at_step"],
-                    "failed_pushes_mm": ol["failed_pushes_mm"],
-                    "last_error_mm": ol["last_error_mm"], "failure": ol["failure"]})
-    return out
-
-
-def _measure(r, target, case=None, pushes=None):
-    if case is not None:
-        check_prescribed(case, pushes, r, "plant")
-    elif not r.converged:
-        raise ConvergenceError(f"plant solve did not converge (residual {r.residual:g})")
-    return np.asarray(r.probes[target], float)
+    def to_json_dict(self) -> dict:
+        return {"failed_at_step": self.step, "steps": self.steps,
+                "failed_pushes_mm": self.pushes_mm,
+                "last_error_mm": self.history["target_error_mm"][-1], **self.history}
 
 
 def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task: int, *,
@@ -246,7 +206,8 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
 
     plant(case, pushes, initial_u) -> SolveResult (nonlinear, mm). Raises UnreachableGoalError
     (with the closest reachable displacement) when the goal lies outside the positive span of the
-    initial J_s; CaseError naming a missing target or actuator.
+    initial J_s; LoopStopped (a ConvergenceError) when the plant cannot be solved at the pushes
+    asked, with the history up to that step; CaseError naming a missing target or actuator.
     """
     t_start = time.perf_counter()
     plant_case.probe(target)
@@ -270,7 +231,7 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
     s = np.zeros(na)
     pushes = dict(zip(acts, s.tolist()))
     r = plant(plant_case, pushes, None)
-    x0 = _measure(r, target, plant_case, pushes)
+    x0 = measure(r, target, plant_case, pushes)
     u_prev = r.u
     x_goal = x0 + dgoal
     J0 = model.jacobian(pushes, u=r.u if same else None)
@@ -304,14 +265,17 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
         s = s + st.du
         pushes = dict(zip(acts, s.tolist()))
         tk = time.perf_counter()
-        r = solve_checked(plant, plant_case, pushes, u_prev, "plant", plant_retries)
-        x = _measure(r, target)
+        try:
+            r = solve_checked(plant, plant_case, pushes, u_prev, "plant", plant_retries)
+            x = measure(r, target)
+        except ConvergenceError as exc:
+            raise LoopStopped.at(k + 1, settings, s, S, X, x_goal, mask, exc) from exc
         u_prev = r.u
         y = x + (rng.normal(0.0, settings.noise_mm, d) if settings.noise_mm > 0 else 0.0)
         S.append(s.copy())
         X.append(x)
         if progress is not None:
-            progress(_step_line("closed loop", k + 1, settings.steps, s, x_goal - x, mask,
+            progress(step_line("closed loop", k + 1, settings.steps, s, x_goal - x, mask,
                                 time.perf_counter() - tk))
     S, X = np.array(S), np.array(X)
     t = settings.dt_s * np.arange(settings.steps + 1)
@@ -320,7 +284,7 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
     closed_s = time.perf_counter() - t_start
     ol = None
     if settings.open_loop:
-        ol = _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, settings,
+        ol = run_open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, settings,
                         progress)
         ol["u_open_unclamped"] = u_open_raw
         ol["clamped"] = bool(np.any(np.abs(u_open_raw - u_open) > 1e-12))
@@ -330,55 +294,6 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
                       {"model_time_s": model.solve_time_s, "J0": J0, "closed_loop_s": closed_s,
                        "open_loop_s": wall - closed_s, "plant_retries": plant_retries,
                        "model_retries": list(model.retries)})
-
-
-def _step_line(what, k, n, pushes, error, mask, seconds) -> str:
-    return (f"{what} step {k}/{n}: pushes {np.round(np.asarray(pushes, float), 3).tolist()} mm, "
-            f"target error {np.linalg.norm(np.asarray(error)[mask]):.4g} mm, plant "
-            f"{seconds:.1f} s")
-
-
-def _open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, settings,
-               progress=None):
-    """The eq. 22 pushes from the initial J_s applied along the closed loop's time profile.
-
-    When the plant cannot be solved at some open-loop pushes (the baseline asks for pushes the
-    tissue model cannot take), the run stops there: ``converged`` False, ``failed_at_step`` and
-    ``failed_pushes_mm`` set, ``itae`` summed over the steps reached (a lower bound of the open
-    loop's ITAE), ``steady_state_error_mm`` None (never reached) and ``last_error_mm`` the error
-    at the last step solved."""
-    total = S[-1].sum()
-    phi = np.clip(S.sum(axis=1) / total, 0.0, 1.0) if total > 0 else np.ones(len(S))
-    SO, XO = [], []
-    u_prev = None
-    failed = None
-    retries: list[str] = []
-    for k, f in enumerate(phi):
-        so = f * u_open
-        tk = time.perf_counter()
-        try:
-            po = dict(zip(acts, so.tolist()))
-            r = solve_checked(plant, plant_case, po, u_prev, "open-loop plant", retries)
-            x = _measure(r, target)
-        except ConvergenceError as exc:
-            failed = {"failed_at_step": k, "failed_pushes_mm": so.tolist(), "failure": str(exc)}
-            break
-        u_prev = r.u
-        SO.append(so)
-        XO.append(x)
-        if progress is not None:
-            progress(_step_line("open loop", k, len(phi) - 1, so, x_goal - x, mask,
-                                time.perf_counter() - tk))
-    SO, XO = np.array(SO), np.array(XO)
-    eo = np.linalg.norm((x_goal - XO)[:, mask], axis=1)
-    ol = {"itae": itae(t[:len(eo)], eo, settings.dt_s), "error_mm": eo, "pushes": SO,
-          "time_s": t[:len(eo)],
-          "target": XO, "u_open": u_open, "converged": failed is None, "retries": retries,
-          "steady_state_error_mm": float(eo[-1]) if failed is None else None,
-          "last_error_mm": float(eo[-1]) if len(eo) else None}
-    if failed is not None:
-        ol.update(failed)
-    return ol
 
 
 def plot_response(result: LoopResult, path, *, title=None):

@@ -134,7 +134,7 @@ def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
     summary. ``progress(line)`` gets one line per scenario; ``plots``: a time-response PNG per
     scenario in ``out``."""
     from tissue_reference.control.controllability import UnreachableGoalError
-    from tissue_reference.control.loop import plot_response
+    from tissue_reference.control.loop import LoopStopped, plot_response
 
     rows = []
     n = 3 * len(targets)
@@ -147,8 +147,9 @@ def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
                 rows.append({"target": t, "task": task, "status": "unreachable", "error": str(exc),
                              "closest_reachable_mm": np.asarray(exc.closest).tolist()})
                 progress(f"{t} task {task}: unreachable: {exc}")
-            except ConvergenceError as exc:
-                rows.append({"target": t, "task": task, "status": "failed", "error": str(exc)})
+            except ConvergenceError as exc:   # LoopStopped: with the step, pushes and history
+                rows.append({"target": t, "task": task, "status": "failed", "error": str(exc),
+                             **(exc.to_json_dict() if isinstance(exc, LoopStopped) else {})})
                 progress(f"{t} task {task}: closed loop failed: {exc}")
             else:
                 row = table1_row(t, task, res)

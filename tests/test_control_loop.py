@@ -188,6 +188,58 @@ def test_open_loop_plant_failure_is_reported_with_a_lower_bound_itae(setup, tmp_
     assert plot_response(res, tmp_path / "f.png").read_bytes()[:4] == b"\x89PNG"
 
 
+def test_a_plant_that_fails_mid_loop_stops_it_with_the_history_so_far(setup, tmp_path):
+    """The plant cannot be solved at the pushes of step 7 (warm, then cold): the loop stops with
+    LoopStopped naming the step and the pushes asked, and carries the steps it reached, equal
+    to those of the same loop on a plant that does not fail; Table I's row and the mpc page keep
+    them."""
+    import json
+
+    from tissue_reference.control.loop import LoopStopped
+    from tissue_reference.control.table1 import run_table1
+    from tissue_reference.tissue.mpc_report import write_mpc_report
+    from tissue_reference.tissue.output_schema import schema
+
+    case, K, plant = setup
+    steps = 10
+    model = LinearizedModel(case, plant, linear_tangent(K), "T1")
+    full = run_closed_loop(plant, case, model, "T1", 2, settings=LoopSettings(steps=steps))
+    with pytest.raises(LoopStopped) as info:
+        run_closed_loop(FailingAfter(plant, 1 + 6), case, model, "T1", 2,
+                        settings=LoopSettings(steps=steps))
+    stop = info.value
+    assert isinstance(stop, ConvergenceError) and stop.step == 7
+    assert "stopped at step 7/10" in str(stop) and "test plant" in str(stop)
+    np.testing.assert_allclose(stop.pushes_mm, full.pushes[7], atol=1e-12)
+    d = stop.to_json_dict()
+    np.testing.assert_allclose(d["target_error_mm"], full.error_mm[:7], atol=1e-12)
+    np.testing.assert_allclose(d["actuator_positions_mm"], full.pushes[:7], atol=1e-12)
+    assert d["last_error_mm"] == pytest.approx(full.error_mm[6], abs=1e-12)
+    assert d["itae_so_far"] == pytest.approx(sum(k * full.error_mm[k] for k in range(7)))
+
+    class Loop:   # what run_table1 needs of control.plants.LoopSetup
+        def run(self, target, task, settings, progress=None):
+            return run_closed_loop(FailingAfter(plant, 1 + 6), case, model, target, task,
+                                   settings=settings)
+
+    lines = []
+    summ = run_table1(case, ["T1"], Loop(), LoopSettings(steps=steps), tmp_path, plots=False,
+                      progress=lines.append)
+    assert summ["failed"] == 3 and not summ["all_met"]
+    row = json.loads((tmp_path / "table1.json").read_text())["rows"][1]
+    assert set(row) <= set(schema("table1")["$defs"]["row"]["properties"])   # each described
+    assert row["status"] == "failed" and row["failed_at_step"] == 7
+    assert len(row["target_error_mm"]) == 7 and len(row["failed_pushes_mm"]) == 4
+    assert "stopped at step 7/10" in (tmp_path / "table1.md").read_text()
+    assert "closed loop failed: closed loop stopped at step 7/10" in lines[1]
+    page = write_mpc_report({"case": "phantom", "target": "T1", "task": 2, "status": "failed",
+                             "error": str(stop), **d}, tmp_path)
+    assert set(d) <= set(schema("mpc")["properties"])
+    text = page.read_text()
+    assert "Up to the stop" in text and "7 of 10" in text
+    assert (tmp_path / "mpc_T1_task2_error.png").read_bytes()[:4] == b"\x89PNG"
+
+
 def test_table1_files_and_summary(setup, tmp_path):
     import json
 

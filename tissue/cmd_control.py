@@ -116,7 +116,7 @@ def _write_mpc(args, d: dict, png: Path | None = None):
 
 def run_mpc(args) -> int:
     from tissue_reference.control.controllability import UnreachableGoalError
-    from tissue_reference.control.loop import plot_response
+    from tissue_reference.control.loop import LoopStopped, plot_response
 
     check_outputs(args, files=("json",), dirs=("out",))
     if args.out and Path(args.out).is_dir():
@@ -134,8 +134,9 @@ def run_mpc(args) -> int:
                           "closest_reachable_mm": np.asarray(exc.closest).tolist(),
                           "pushes_mm": np.asarray(exc.pushes).tolist()})
         raise
-    except ConvergenceError as exc:
-        _write_mpc(args, {**meta, "status": "failed", "error": str(exc)})
+    except ConvergenceError as exc:   # LoopStopped: with the step, pushes and history
+        _write_mpc(args, {**meta, "status": "failed", "error": str(exc),
+                          **(exc.to_json_dict() if isinstance(exc, LoopStopped) else {})})
         raise
     d = res.to_json_dict({**meta, "status": "completed"})
     png = None

@@ -129,6 +129,19 @@ def write_mpc_report(d: dict, out_dir, *, response_png: str | None = None) -> Pa
         if retries:
             parts.append(Raw("<div class='warn'><b>Cold retries</b><ul>" + "".join(
                 f"<li>{html.escape(str(r))}</li>" for r in retries) + "</ul></div>"))
+    elif d.get("time_s"):   # a loop that stopped (LoopStopped): how far it got
+        parts += [Raw("<h2>Up to the stop</h2>"), table(
+            ["quantity", "value"],
+            [("stopped at step", f"{d.get('failed_at_step')} of {d.get('steps')}"),
+             ("pushes asked there (mm)", fmt(d.get("failed_pushes_mm"))),
+             ("pushes at the step before (mm)", fmt(d["actuator_positions_mm"][-1])),
+             ("target error at the step before (mm)", d.get("last_error_mm")),
+             ("ITAE so far (mm·s², a lower bound)", d.get("itae_so_far")),
+             ("goal (mm)", fmt(d.get("goal_mm")))], row_headers=True)]
+        err = plot_errors(d, out / f"{stem}_error.png")
+        parts.append(image(err.name, "target error against time up to the stop",
+                           "distance of the target to the goal against time, up to the step "
+                           "the plant could not be solved at", 640))
     parts += [Raw("<h2>Settings</h2>"), kv_table(d.get("settings") or {}),
               Raw("<h2>Plant and model</h2>"),
               kv_table({k: d[k] for k in _META if k in d})]

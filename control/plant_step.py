@@ -1,0 +1,77 @@
+"""What a closed loop and its open-loop baseline share: one plant solve checked against the case
+(converged, valid, at the pushes asked; a warm start that fails is retried cold), the target
+measured on it, the ITAE of an error history, and the progress line of a step. Units: mm, s.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from tissue_reference.meshes.errors import ConvergenceError
+
+__all__ = ["check_prescribed", "itae", "measure", "solve_checked", "step_line"]
+
+
+def itae(t, e, dt) -> float:
+    """Eq. 26, rectangle rule: sum t_k |e_k| dt (t in s, e in mm)."""
+    return float(np.sum(np.asarray(t) * np.abs(np.asarray(e)) * dt))
+
+
+def solve_checked(solve, case, pushes, initial, who: str, retries: list | None = None):
+    """solve(case, pushes, initial) checked by :func:`check_prescribed`; when a warm-started solve
+    fails (ConvergenceError or a state that misses the pushes) it is retried once cold
+    (initial=None: the solver's own load path from the rest state) -- a warm start from a state far
+    from the new pushes can leave the solver's basin where the cold load path does not (reference,
+    phantom size 8: A2 = 52 mm converges cold, not warm-started from the previous open-loop step).
+    ``retries`` collects the warm failures' messages."""
+    try:
+        r = solve(case, pushes, initial)
+        check_prescribed(case, pushes, r, who)
+        return r
+    except ConvergenceError as exc:
+        if initial is None:
+            raise
+        if retries is not None:
+            retries.append(f"{who} at pushes {pushes}: {exc}")
+    r = solve(case, pushes, None)
+    check_prescribed(case, pushes, r, who + " (cold retry)")
+    return r
+
+
+def check_prescribed(case, pushes, r, who: str, *, rtol=1e-9):
+    """Raise ConvergenceError unless solve result ``r`` is converged, valid (no inverted cells, no
+    runaway growth: ``extra["valid"]``) and meets the Case's prescriptions at ``pushes`` (actuator
+    patches at their pushes, fixed regions at 0): a solver that reports success with the previous
+    step's boundary values, or with a folded mesh, is caught here, not differentiated or
+    measured."""
+    if not r.converged:
+        raise ConvergenceError(f"{who} solve did not converge at pushes {pushes} "
+                               f"(residual {r.residual:g})")
+    extra = getattr(r, "extra", None) or {}
+    if extra.get("valid", True) is False:
+        raise ConvergenceError(f"{who} state at pushes {pushes} is not valid: "
+                               f"{extra.get('invalid_reason')}")
+    c = case.with_pushes(pushes).constraints
+    if len(c.dofs):
+        u = np.asarray(r.u, float).reshape(-1)
+        gap = float(np.abs(u[c.dofs] - c.values).max())
+        if gap > rtol * max(1.0, float(np.abs(c.values).max())):
+            raise ConvergenceError(f"{who} solve reported success at pushes {pushes} but its state "
+                                   f"misses the prescribed displacements by {gap:.3g} mm "
+                                   f"({getattr(r, 'solver', '?')} solver)")
+
+
+def measure(r, target, case=None, pushes=None):
+    """The probe ``target`` of solve result ``r`` (mm); with ``case`` and ``pushes`` checked by
+    :func:`check_prescribed` first, otherwise only for convergence."""
+    if case is not None:
+        check_prescribed(case, pushes, r, "plant")
+    elif not r.converged:
+        raise ConvergenceError(f"plant solve did not converge (residual {r.residual:g})")
+    return np.asarray(r.probes[target], float)
+
+
+def step_line(what, k, n, pushes, error, mask, seconds) -> str:
+    """One progress line: the step, the pushes, the distance to the goal, the plant's time."""
+    return (f"{what} step {k}/{n}: pushes {np.round(np.asarray(pushes, float), 3).tolist()} mm, "
+            f"target error {np.linalg.norm(np.asarray(error)[mask]):.4g} mm, plant "
+            f"{seconds:.1f} s")
