@@ -142,7 +142,7 @@ def inverse_push(Js, p, *, solver="highs", tol=1e-7):
     if p.shape != (Js.shape[0],):
         raise CaseError(f"goal p of shape {p.shape} does not match J_s rows {Js.shape[0]}")
     scale = max(np.abs(Js).max(), 1e-300)
-    u0, res = nnls(Js / scale, p)
+    u0, _ = nnls(Js / scale, p)
     p_star = Js @ (u0 / scale)
     residual = float(np.linalg.norm(p - p_star))
     if residual <= tol * max(np.linalg.norm(p), 1.0):
@@ -174,7 +174,7 @@ def _travel_lp_casadi(Js, p_star, plugin):
 
     from .mpc import quiet_qpoases
 
-    m, r = Js.shape
+    _, r = Js.shape
     qp = {"h": ca.DM(r, r).sparsity(), "a": ca.DM(Js).sparsity()}
     opts = {"qpoases": {"printLevel": "none"}, "highs": {"highs": {"output_flag": False}}}
     with quiet_qpoases():

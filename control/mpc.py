@@ -219,7 +219,7 @@ class PushOnlyMPC:
         x_ref = np.asarray(x_ref, float).reshape(self.ny)
         s0 = np.zeros(self.na) if pushes is None else np.asarray(pushes, float).reshape(self.na)
         p = np.concatenate([J_s.ravel(order="F"), x, x_ref, s0, [self.push_weight(J_s)]])
-        args = dict(x0=self._warm, p=p, lbx=0.0, ubx=self._ubx)
+        args = {"x0": self._warm, "p": p, "lbx": 0.0, "ubx": self._ubx}
         if self.settings.max_travel is not None:
             if np.any(s0 > self.settings.max_travel + 1e-12):
                 raise CaseError(f"current pushes {s0.tolist()} mm exceed max_travel="

@@ -82,7 +82,7 @@ def _mesh(data, base: Path, src: str, size, max_cells=None) -> MeshData:
             raise CaseReadError(f"{src}: [mesh].file: {exc}") from None
         except CaseError as exc:
             raise CaseError(f"{src}: [mesh].file: {exc}") from None
-        except Exception as exc:  # a reader's own failure on a strange file
+        except Exception as exc:  # noqa: BLE001 (a reader's own failure on a strange file)
             raise CaseReadError(f"{src}: [mesh].file: cannot read {show(m['file'])}: {exc}") \
                 from None
     name = m["builtin"]
@@ -93,7 +93,7 @@ def _mesh(data, base: Path, src: str, size, max_cells=None) -> MeshData:
         return build(name, h, max_cells=MAX_CELLS if max_cells is None else max_cells, **local)
     except CaseError as exc:
         raise CaseError(f"{src}: [mesh]: {exc}") from None
-    except Exception as exc:  # gmsh raises plain Exception
+    except Exception as exc:  # noqa: BLE001 (gmsh raises plain Exception)
         raise CaseError(f"{src}: [mesh]: building {name!r} at size {h:g} mm failed: {exc}") \
             from None
 

@@ -42,7 +42,7 @@ def read_msh(path, *, overlap_check: bool = True) -> MeshData:
         raise ReadError(f"mesh file {str(path)!r} does not exist")
     try:
         m = meshio.read(str(path), file_format="gmsh")
-    except (Exception, SystemExit) as exc:  # meshio raises many types, even SystemExit
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 (meshio raises many, even SystemExit)
         raise ReadError(f"cannot read mesh file {str(path)!r} as gmsh .msh: {exc}") from None
     blocks = [(c.type, c.data) for c in m.cells]
     # second-order meshes (gmsh order 2): corners form the linear mesh, the mid-edge nodes its

@@ -176,7 +176,7 @@ def _write_xdmf(mesh, path, point_data=None, cell_data=None, all_regions=False):
         _as_time_series(tmp_x, m.field_data)
         os.replace(tmp_x.with_suffix(".h5"), h5)
         os.replace(tmp_x, path)
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001 (any writer failure is a WriteError naming the file)
         raise WriteError(f"cannot write {str(path)!r}: {exc}") from None
     finally:
         shutil.rmtree(tmpdir, ignore_errors=True)

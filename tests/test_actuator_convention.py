@@ -1,6 +1,7 @@
 """One actuator convention for every solve, the control Jacobians and the loop: a patch that is
 not pushed is held where it is (glued) unless the case or --free-actuators frees it."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -54,7 +55,7 @@ def test_the_jacobian_equals_central_differences_of_the_plain_solve(case):
 
 
 def test_a_case_file_may_free_its_patches_and_indenters_take_no_idle(tmp_path):
-    text = open(CASE).read()
+    text = Path(CASE).read_text()
     free = tmp_path / "free.toml"
     free.write_text(text.replace('direction = [-1.0, 0.0, 0.0]',
                                  'direction = [-1.0, 0.0, 0.0]\nidle = "free"', 1)

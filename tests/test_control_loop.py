@@ -62,7 +62,7 @@ def test_a_shorter_task_moves_the_target_by_that_distance(setup):
 
 
 def test_mismatched_model_closed_loop_beats_open_loop(setup):
-    case, K, plant = setup
+    case, _K, plant = setup
     Km = linear_p1_stiffness(case, nu=0.35)           # the controller's model is wrong
     model = LinearizedModel(case, LinearPlant(Km), linear_tangent(Km), "T2")
     res = run_closed_loop(plant, case, model, "T2", 1, settings=LoopSettings(steps=100))

@@ -16,7 +16,7 @@ J = np.array([[-0.13, 0.005, 0.125, 0.001],
 
 def reference_plan(J, x0, xr, mask, Np=5, q=3.0, r=2.0):
     """Bounded least squares of the stacked eq. 25 (du >= 0), solved by scipy BVLS."""
-    ny, na = J.shape
+    _ny, na = J.shape
     W = np.sqrt(q) * np.diag(mask.astype(float))
     rows, rhs = [], []
     for h in range(Np):

@@ -178,7 +178,7 @@ def test_anatomical_implant_has_its_fuller_pole_below():
     assert m.points[down, 2].max() > m.points[up, 2].max()
 
 
-@pytest.mark.parametrize("kw", [dict(shape="oval"), dict(volume_cc=-10.0), dict(width=0.0)])
+@pytest.mark.parametrize("kw", [{"shape": "oval"}, {"volume_cc": -10.0}, {"width": 0.0}])
 def test_bad_implant_specification_is_rejected(kw):
     with pytest.raises(CaseError):
         ImplantSpec(**kw)

@@ -190,7 +190,7 @@ def test_a_correction_that_inverts_elements_is_halved_not_fatal():
 
     case = load_case("meshes/cases/phantom.toml", size=10)
     push = {"A1": 15.0, "A2": 15.0, "A3": 15.0, "A4": 15.0}
-    one_step = dict(max_step_mm=100.0)
+    one_step = {"max_step_mm": 100.0}
     plain = fr.ReferenceSolver(case, settings=fr.NewtonSettings(line_search=0, **one_step))
     a = plain.solve(push)
     assert a.load_steps > 1  # the failure the line search exists for
