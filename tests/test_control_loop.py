@@ -195,6 +195,8 @@ def test_a_plant_that_fails_mid_loop_stops_it_with_the_history_so_far(setup, tmp
     them."""
     import json
 
+    from page_checks import check_page
+
     from tissue_reference.control.loop import LoopStopped
     from tissue_reference.control.table1 import run_table1
     from tissue_reference.tissue.mpc_report import write_mpc_report
@@ -237,6 +239,7 @@ def test_a_plant_that_fails_mid_loop_stops_it_with_the_history_so_far(setup, tmp
     assert set(d) <= set(schema("mpc")["properties"])
     text = page.read_text()
     assert "Up to the stop" in text and "7 of 10" in text
+    assert "mpc_T1_task2_error.png" in check_page(page)["images"]   # well formed, units named
     assert (tmp_path / "mpc_T1_task2_error.png").read_bytes()[:4] == b"\x89PNG"
 
 

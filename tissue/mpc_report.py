@@ -136,7 +136,7 @@ def write_mpc_report(d: dict, out_dir, *, response_png: str | None = None) -> Pa
              ("pushes asked there (mm)", fmt(d.get("failed_pushes_mm"))),
              ("pushes at the step before (mm)", fmt(d["actuator_positions_mm"][-1])),
              ("target error at the step before (mm)", d.get("last_error_mm")),
-             ("ITAE so far (mm·s², a lower bound)", d.get("itae_so_far")),
+             ("ITAE so far, a lower bound (mm·s²)", d.get("itae_so_far")),
              ("goal (mm)", fmt(d.get("goal_mm")))], row_headers=True)]
         err = plot_errors(d, out / f"{stem}_error.png")
         parts.append(image(err.name, "target error against time up to the stop",
