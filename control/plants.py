@@ -296,6 +296,8 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
                                             "contact": a.contact,
                                             "contact_regions": list(a.contact_regions)}
                                    for a in pcase.indenters()}
+        rule = pcase.reference_contact_quadrature
+        meta["plant_contact_rule"] = "nodal" if rule in (None, "nodal") else int(rule)
     sensitivity = None
     if mcase.indenters():
         if mname != "fem":

@@ -16,7 +16,7 @@ from tissue_reference.fem_reference.adapt import (
 )
 from tissue_reference.meshes.builders import box, cook_membrane
 from tissue_reference.meshes.case import Actuator, Boundary, Case, Material, Probe
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.refine import refine_uniform
 
 
@@ -72,10 +72,11 @@ def test_solve_to_accuracy_on_a_nonlinear_3d_block():
         ad.result.probes["T"])
 
 
-def test_a_refined_level_whose_warm_estimate_fails_is_solved_from_rest(monkeypatch):
-    """With indenters the degree-3 estimate of a refined level may not converge from the
-    interpolated answer (its surface nodes change the contact set): the level is then solved
-    along the load path from rest, and the loop goes on to the same answer."""
+def test_a_refined_glued_level_whose_warm_solves_fail_stops_with_the_last_answer(monkeypatch):
+    """Every warm start refused (as Newton from an interpolated answer can fail near a pushed
+    rim): the first level still solves from rest and reaches the same answers; the first refined
+    level of glued patches then stops the loop, handing back level 0's answer, where the loop
+    without refusals goes on to the accuracy."""
     from fem_checks import refuse_warm_starts
 
     case = Case(mesh=box(5.0), material=Material("neo-hookean", E=6.0, nu=0.45),
@@ -85,10 +86,24 @@ def test_a_refined_level_whose_warm_estimate_fails_is_solved_from_rest(monkeypat
     warm = solve_to_accuracy(case, {"A1": 1.0}, **kw)
     assert warm.reached and warm.steps[-1].level >= 1   # at least one refined level
     refuse_warm_starts(monkeypatch)
-    cold = solve_to_accuracy(case, {"A1": 1.0}, **kw)
-    assert cold.reached and len(cold.steps) == len(warm.steps)
-    np.testing.assert_allclose(cold.result.probes["T"], warm.result.probes["T"], rtol=1e-6,
-                               atol=1e-9)
+    with pytest.raises(AccuracyNotReached, match="the solves of level 1") as info:
+        solve_to_accuracy(case, {"A1": 1.0}, **kw)
+    kept = info.value.result
+    assert [s.level for s in kept.steps] == [0, 0]
+    np.testing.assert_allclose(kept.steps[-1].probes["T"], warm.steps[1].probes["T"],
+                               rtol=1e-6, atol=1e-9)
+
+
+def test_estimates_are_solved_again_from_rest_on_the_first_level_and_with_indenters():
+    from tissue_reference.fem_reference.adapt import estimate_from_rest
+
+    common = {"mesh": box(5.0), "material": Material("neo-hookean", E=6.0, nu=0.45),
+              "boundaries": [Boundary("zmin", "fixed")], "probes": [Probe("T", (5.0, 5.0, 5.0))]}
+    glued = Case(actuators=[Actuator("A1", "zmax", (0.0, 0.0, -1.0))], **common)
+    tip = Case(actuators=[Actuator("A1", "zmax", (0.0, 0.0, -1.0), type="indenter",
+                                   tip="sphere", radius=3.0)], **common)
+    assert [estimate_from_rest(glued, k) for k in (0, 1, 2)] == [True, False, False]
+    assert [estimate_from_rest(tip, k) for k in (0, 1, 2)] == [True, True, True]
 
 
 def test_predicted_dofs_match_the_solver():
@@ -193,3 +208,33 @@ def test_the_shipped_phantom_reaches_one_percent_at_a_two_mm_push():
                for n in s.probes) > 0.01
     first = ad.steps[0].cells
     assert first < ad.case.mesh.n_cells == ad.steps[-1].cells < 4 * first
+
+
+def test_a_refined_glued_level_whose_estimate_fails_warm_stops_the_loop(monkeypatch):
+    """Past the first level, a glued case's estimate is not solved again from rest when Newton
+    from the interpolated answer fails (near a pushed rim that crawls for many minutes): the loop
+    stops with AccuracyNotReached naming the level and carrying the last answer; the first
+    level's estimate may still start from rest."""
+    from tissue_reference.fem_reference import adapt
+
+    case = Case(mesh=box(5.0), material=Material("neo-hookean", E=6.0, nu=0.45),
+                boundaries=[Boundary("zmin", "fixed")], probes=[Probe("T", (5.0, 5.0, 5.0))],
+                actuators=[Actuator("A1", "zmax", (1.0, 0.0, -1.0))], name="block")
+    real = adapt.error_estimate
+    asked = []
+
+    def warm_fails(case, answer, **kw):
+        asked.append(kw["from_rest"])
+        if len(asked) > 2 and not kw["from_rest"]:   # refined levels: the warm start fails
+            raise ConvergenceError("block: Newton from the interpolated answer did not converge")
+        return real(case, answer, **kw)
+
+    monkeypatch.setattr(adapt, "error_estimate", warm_fails)
+    with pytest.raises(AccuracyNotReached) as info:
+        solve_to_accuracy(case, {"A1": 1.0}, accuracy=0.002, progress=False)
+    assert asked == [True, True, False]          # level 0 (P1, P2), then level 1
+    msg = str(info.value)
+    assert "the solves of level 1" in msg and "did not converge" in msg
+    kept = info.value.result
+    assert not kept.reached and kept.steps[-1].level == 0
+    assert "probe_error_estimates" in kept.result.extra

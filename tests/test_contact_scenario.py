@@ -234,6 +234,9 @@ def test_table1_runs_the_contact_scenario_and_its_outputs_match_the_schemas(bloc
     assert main([str(a) for a in base + ["--scenarios", "gravity", "--contact-plant",
                                          tmp_path / "tips.toml", "--out", tmp_path / "y"]]) == 2
     assert "--contact-plant: only with --scenarios contact" in capsys.readouterr().err
+    assert main([str(a) for a in base + ["--scenarios", "gravity", "--contact-quadrature", "2",
+                                         "--out", tmp_path / "y"]]) == 2
+    assert "--contact-quadrature: only with --scenarios contact" in capsys.readouterr().err
     assert main([str(a) for a in base + ["--scenarios", "contact", "--contact-plant",
                                          tmp_path / "nope.toml", "--out", tmp_path / "z"]]) == 2
     assert "--contact-plant: " in capsys.readouterr().err
@@ -247,6 +250,7 @@ def test_table1_runs_the_contact_scenario_and_its_outputs_match_the_schemas(bloc
     assert t["meta"]["plant_actuator_kind"] == "indenter"
     assert t["meta"]["model_actuator_kind"] == "patch"
     assert t["meta"]["plant_source"] == str(tmp_path / "tips.toml")
+    assert t["meta"]["plant_contact_rule"] == "nodal"      # the plant case's own
     assert t["meta"]["plant_indenters"]["A2"] == {"tip": "sphere", "radius_mm": 2.5,
                                                   "contact": "frictionless",
                                                   "contact_regions": ["pY", "skin"]}
@@ -261,6 +265,13 @@ def test_table1_runs_the_contact_scenario_and_its_outputs_match_the_schemas(bloc
     assert "<th scope='row'>plant actuator kind</th><td>indenter</td>" in page
     assert "<th scope='row'>model actuator kind</th><td>patch</td>" in page
     assert "<th scope='row'>plant indenters: A1: radius (mm)</th><td>2.5</td>" in page
+    # the plant's contact rule set from the command line, and recorded
+    gauss = tmp_path / "g"
+    assert main([str(a) for a in base + ["--scenarios", "contact", "--contact-plant",
+                                         tmp_path / "tips.toml", "--contact-quadrature", "2",
+                                         "--targets", "T1", "--out", gauss]]) == 0
+    assert validate_file("table1", gauss / "contact" / "table1.json")["meta"][
+        "plant_contact_rule"] == 2
 
 
 def test_a_contact_plant_too_coarse_for_its_tips_is_refused_before_any_loop():

@@ -7,6 +7,7 @@ purpose: --model admm --model-size 12 --model-E-factor 1.2), with the open-loop 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -26,6 +27,7 @@ from .common import (
     case_from_args,
     check_outputs,
     check_prescribed,
+    contact_rule,
     integer,
     real,
 )
@@ -168,9 +170,11 @@ def run_table1(args) -> int:
     from tissue_reference.control.table1 import run_table1 as run_all
 
     check_outputs(args, dirs=("out",))
-    if args.contact_plant is not None and "contact" not in (args.scenarios or ()):
-        raise CaseError("--contact-plant: only with --scenarios contact (it is that scenario's "
-                        "plant)")
+    for flag, value in (("--contact-plant", args.contact_plant),
+                        ("--contact-quadrature", args.plant_contact_quadrature)):
+        if value is not None and "contact" not in (args.scenarios or ()):
+            raise CaseError(f"{flag}: only with --scenarios contact (it is that scenario's "
+                            f"plant{'' if flag == '--contact-plant' else ' that it sets'})")
     case = case_from_args(args)
     targets = args.targets or [p.name for p in case.probes]
     for t in targets:
@@ -220,12 +224,19 @@ def _run_scenarios(args, case, targets, settings, base_meta) -> int:
     if "mesh" in args.scenarios:
         h = args.size if args.size is not None else 6.0
         coarse = case_from_args(args, size=2.0 * h)
+    rule = args.plant_contact_quadrature
     if args.contact_plant is not None:   # meshed as its file says: --size is the model's
         try:
-            plant = case_from_args(argparse.Namespace(**{**vars(args), "case": args.contact_plant,
-                                                         "size": None, "free_actuators": False}))
+            plant = case_from_args(argparse.Namespace(**{
+                **vars(args), "case": args.contact_plant, "size": None,
+                "free_actuators": False, "contact_quadrature": rule}))
         except CaseError as exc:   # CaseReadError stays one (its exit status)
             raise type(exc)(f"--contact-plant: {exc}") from None
+    elif rule is not None and "contact" in args.scenarios:
+        from tissue_reference.control.scenarios import indenter_plant_case
+
+        plant = dataclasses.replace(indenter_plant_case(case),
+                                    reference_contact_quadrature=rule)
     # every scenario's loop first: a plant that does not fit is refused before any solve
     loops = {name: scenario_loop(case, name, model=args.model or "admm", coarse_case=coarse,
                                  plant_case=plant if name == "contact" else None)
@@ -354,6 +365,12 @@ def add_parser(sub):
                         "default: "
                         "the case with each patch replaced by a sphere of the patch's area "
                         "touching the one free skin region")
+    p.add_argument("--contact-quadrature", type=contact_rule, default=None, metavar="RULE",
+                   dest="plant_contact_quadrature",
+                   help="the contact scenario's plant: where its contact is sampled, 'nodal' (the "
+                        "skin's nodes) or a Gauss degree on the skin's facets (2 holds tips "
+                        "pushed past two of their radii); default: the plant case's [reference] "
+                        "contact_quadrature, else nodal")
     p.add_argument("--out", required=True, help="folder for the tables, trajectories and plots")
     p.set_defaults(func=run_table1)
 
