@@ -14,7 +14,6 @@ on the nodal rule and complete on the Gauss rule.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import time
 from pathlib import Path
 
@@ -29,9 +28,8 @@ def run(rule, target: str, task: int, task_mm: float, progress: bool) -> str:
 
     case = load_case(ROOT / "meshes/cases/phantom.toml", size=10.0)
     plant = load_case(ROOT / "meshes/cases/phantom-indenter-control.toml")
-    plant = dataclasses.replace(plant, reference_contact_quadrature=rule)
     radius = min(a.radius for a in plant.indenters())
-    loop = scenario_loop(case, "contact", model="admm", plant_case=plant)
+    loop = scenario_loop(case, "contact", model="admm", plant_case=plant, contact_rule=rule)
     settings = LoopSettings(steps=60, task_mm=task_mm, mpc=MPCSettings(weights="gain"))
     t0 = time.perf_counter()
     try:

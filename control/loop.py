@@ -32,7 +32,14 @@ from .controllability import UnreachableGoalError, inverse_push, task_goal
 from .jacobian import dirichlet_jacobian
 from .mpc import MPCSettings, PushOnlyMPC
 from .open_loop import open_loop_json, run_open_loop
-from .plant_step import check_prescribed, itae, measure, solve_checked, step_line
+from .plant_step import (
+    check_prescribed,
+    itae,
+    measure,
+    solve_checked,
+    step_line,
+    target_errors,
+)
 
 __all__ = [
     "LinearizedModel",
@@ -179,7 +186,7 @@ class LoopStopped(ConvergenceError):
         """The stop at ``step`` after the states ``S`` (pushes) and ``X`` (target) reached."""
         S, X = np.array(S), np.array(X)
         t = settings.dt_s * np.arange(len(S))
-        err = np.linalg.norm((x_goal - X)[:, mask], axis=1)
+        err = target_errors(x_goal, X, mask)
         history = {"time_s": t.tolist(), "target_error_mm": err.tolist(),
                    "target_position_mm": X.tolist(), "actuator_positions_mm": S.tolist(),
                    "goal_mm": np.asarray(x_goal, float).tolist(),
@@ -276,16 +283,16 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
         X.append(x)
         if progress is not None:
             progress(step_line("closed loop", k + 1, settings.steps, s, x_goal - x, mask,
-                                time.perf_counter() - tk))
+                               time.perf_counter() - tk))
     S, X = np.array(S), np.array(X)
     t = settings.dt_s * np.arange(settings.steps + 1)
-    err = np.linalg.norm((x_goal - X)[:, mask], axis=1)
+    err = target_errors(x_goal, X, mask)
     retract = float(max(0.0, -np.diff(S, axis=0).min())) if len(S) > 1 else 0.0
     closed_s = time.perf_counter() - t_start
     ol = None
     if settings.open_loop:
         ol = run_open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, settings,
-                        progress)
+                           progress)
         ol["u_open_unclamped"] = u_open_raw
         ol["clamped"] = bool(np.any(np.abs(u_open_raw - u_open) > 1e-12))
     wall = time.perf_counter() - t_start

@@ -11,7 +11,7 @@ import numpy as np
 
 from tissue_reference.meshes.errors import ConvergenceError
 
-from .plant_step import itae, measure, solve_checked, step_line
+from .plant_step import itae, measure, solve_checked, step_line, target_errors
 
 __all__ = ["open_loop_json", "run_open_loop"]
 
@@ -46,9 +46,9 @@ def run_open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, s
         XO.append(x)
         if progress is not None:
             progress(step_line("open loop", k, len(phi) - 1, so, x_goal - x, mask,
-                                time.perf_counter() - tk))
+                               time.perf_counter() - tk))
     SO, XO = np.array(SO), np.array(XO)
-    eo = np.linalg.norm((x_goal - XO)[:, mask], axis=1)
+    eo = target_errors(x_goal, XO, mask)
     ol = {"itae": itae(t[:len(eo)], eo, settings.dt_s), "error_mm": eo, "pushes": SO,
           "time_s": t[:len(eo)],
           "target": XO, "u_open": u_open, "converged": failed is None, "retries": retries,

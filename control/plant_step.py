@@ -8,12 +8,19 @@ import numpy as np
 
 from tissue_reference.meshes.errors import ConvergenceError
 
-__all__ = ["check_prescribed", "itae", "measure", "solve_checked", "step_line"]
+__all__ = ["check_prescribed", "itae", "measure", "solve_checked", "step_line",
+           "target_errors"]
 
 
 def itae(t, e, dt) -> float:
     """Eq. 26, rectangle rule: sum t_k |e_k| dt (t in s, e in mm)."""
     return float(np.sum(np.asarray(t) * np.abs(np.asarray(e)) * dt))
+
+
+def target_errors(x_goal, X, mask) -> np.ndarray:
+    """Distance to the goal on the controlled coordinates of each target position in ``X``
+    ((steps, gdim), mm): ||mask * (x_goal - x_k)||_2."""
+    return np.linalg.norm((np.asarray(x_goal) - np.asarray(X))[:, mask], axis=1)
 
 
 def solve_checked(solve, case, pushes, initial, who: str, retries: list | None = None):

@@ -138,17 +138,18 @@ def check_contact_plant(model_case, plant_case):
 
 
 def scenario_loop(case, name: str, *, model: str = "admm", coarse_case=None,
-                  plant_case=None) -> LoopSetup:
+                  plant_case=None, contact_rule=None) -> LoopSetup:
     """A mismatch scenario of ``SCENARIOS``: the plant is the reference on ``case`` changed as
     the scenario says, the model the fast solver ``model`` on ``case`` (``coarse_case``, a coarser
     mesh of the same body, for "mesh"). "contact": the plant is ``plant_case`` (a case of the
     same body with indenters of the same names, e.g. meshed finer at the sites;
-    ``check_contact_plant``), by default ``indenter_plant_case(case)``."""
+    ``check_contact_plant``), by default ``indenter_plant_case(case)``; ``contact_rule`` ("nodal"
+    or a Gauss degree) replaces that plant's [reference] contact_quadrature."""
     if name not in SCENARIOS:
         raise CaseError(f"unknown mismatch scenario {name!r}; scenarios: {sorted(SCENARIOS)}")
-    if plant_case is not None and name != "contact":
-        raise CaseError(f"a plant case is given for the {name} scenario; only the contact "
-                        f"scenario takes one (its indenter plant)")
+    if (plant_case is not None or contact_rule is not None) and name != "contact":
+        raise CaseError(f"a plant case or contact rule is given for the {name} scenario; only "
+                        f"the contact scenario takes one (its indenter plant)")
     from dataclasses import replace
 
     model_case = case
@@ -167,6 +168,8 @@ def scenario_loop(case, name: str, *, model: str = "admm", coarse_case=None,
                             f"scenario's model is the glued-patch case")
         plant_case = (indenter_plant_case(case) if plant_case is None
                       else check_contact_plant(case, plant_case))
+        if contact_rule is not None:
+            plant_case = replace(plant_case, reference_contact_quadrature=contact_rule)
     else:
         plant_case = case
     loop = build_loop(case, plant="fem", model=model, model_case=model_case,

@@ -136,6 +136,8 @@ def test_a_plant_whose_actuators_differ_from_the_models_is_refused(block):
         scenario_loop(plant, "contact")
     with pytest.raises(CaseError, match="only the contact scenario takes one"):
         scenario_loop(block, "gravity", plant_case=plant)
+    with pytest.raises(CaseError, match="only the contact scenario takes one"):
+        scenario_loop(block, "gravity", contact_rule=2)
 
 
 def test_an_explicit_plant_in_another_actuator_order_is_taken_in_the_models(block):

@@ -7,7 +7,6 @@ purpose: --model admm --model-size 12 --model-E-factor 1.2), with the open-loop 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -173,8 +172,8 @@ def run_table1(args) -> int:
     for flag, value in (("--contact-plant", args.contact_plant),
                         ("--contact-quadrature", args.plant_contact_quadrature)):
         if value is not None and "contact" not in (args.scenarios or ()):
-            raise CaseError(f"{flag}: only with --scenarios contact (it is that scenario's "
-                            f"plant{'' if flag == '--contact-plant' else ' that it sets'})")
+            raise CaseError(f"{flag}: only with --scenarios contact (it sets that scenario's "
+                            f"plant)")
     case = case_from_args(args)
     targets = args.targets or [p.name for p in case.probes]
     for t in targets:
@@ -224,22 +223,16 @@ def _run_scenarios(args, case, targets, settings, base_meta) -> int:
     if "mesh" in args.scenarios:
         h = args.size if args.size is not None else 6.0
         coarse = case_from_args(args, size=2.0 * h)
-    rule = args.plant_contact_quadrature
     if args.contact_plant is not None:   # meshed as its file says: --size is the model's
         try:
-            plant = case_from_args(argparse.Namespace(**{
-                **vars(args), "case": args.contact_plant, "size": None,
-                "free_actuators": False, "contact_quadrature": rule}))
+            plant = case_from_args(argparse.Namespace(**{**vars(args), "case": args.contact_plant,
+                                                         "size": None, "free_actuators": False}))
         except CaseError as exc:   # CaseReadError stays one (its exit status)
             raise type(exc)(f"--contact-plant: {exc}") from None
-    elif rule is not None and "contact" in args.scenarios:
-        from tissue_reference.control.scenarios import indenter_plant_case
-
-        plant = dataclasses.replace(indenter_plant_case(case),
-                                    reference_contact_quadrature=rule)
     # every scenario's loop first: a plant that does not fit is refused before any solve
+    contact = {"plant_case": plant, "contact_rule": args.plant_contact_quadrature}
     loops = {name: scenario_loop(case, name, model=args.model or "admm", coarse_case=coarse,
-                                 plant_case=plant if name == "contact" else None)
+                                 **(contact if name == "contact" else {}))
              for name in dict.fromkeys(args.scenarios)}
     summaries, rows, metas = {}, {}, {}
     for name, loop in loops.items():
