@@ -1,11 +1,20 @@
 """ADMM time per iteration on the CPU path (compiled element kernel, SuperLU or AMG-CG x-step)
 and on the array backend (element pass and Jacobi-CG x-step written against numpy/CuPy: on the
-GPU when CuPy finds one, else on numpy, labelled "array on numpy (no GPU)"), on boxes from
-``meshes.builders.box`` sized to about 1e4, 1e5 and 1e6 tetrahedra; the growth exponent of the
+GPU when CuPy finds one, else on numpy, labelled "array on numpy (no GPU)"), on boxes of about
+1e4, 1e5 and 1e6 tetrahedra (``meshes.builders.structured_box``, n^3 cubes of six tets: the same
+meshes on every machine, gmsh not needed; ``--mesher gmsh``: ``meshes.builders.box``); the growth exponent of the
 time per iteration with the number of tets (log-log least squares), memory, and the ratio of the
 two backends at each size, all measured in this one run.
 
     .venv/bin/python bench/bench_admm_gpu.py [--tets 1e4 1e5 1e6] [--iters 20] [--repeats 2]
+        [--mesher structured|gmsh] [--agreement DATA.npz]
+
+``--agreement``: first the array backend's agreement with the CPU kernel on the phantom
+(``admm_gpu_agreement.py``, whose file carries the meshes and the reference answer to a machine
+without gmsh or dolfinx).
+
+The CPU path's element loop is the compiled C kernel where cffi and a C compiler are present,
+else its numpy loop; the first line says which.
 
 Case: box 10 x 10 x 10 mm, Neo-Hookean (E 6 kPa, nu 0.45), xmin fixed, xmax moved by
 (1.0, 0.5, -0.3) mm in one load step. Each timed solve starts from the ADMM state after 10
@@ -30,9 +39,10 @@ import tracemalloc
 
 import numpy as np
 
-from tissue_reference.meshes.builders import CELLS_PER_VOLUME, box
+from tissue_reference.meshes.builders import CELLS_PER_VOLUME, box, structured_box
 from tissue_reference.meshes.case import Boundary, Case, Material
 from tissue_reference.solvers import admm
+from tissue_reference.solvers.admm import kernel_c
 
 DEFAULT_BYTES_PER_TET = 10 * 1024  # host memory guess before a size has been measured
 
@@ -55,6 +65,15 @@ def _available_bytes():
 def box_size_for(tets):
     """Characteristic length (mm) of the 10 mm box with about ``tets`` tetrahedra."""
     return (CELLS_PER_VOLUME[3] * 1000.0 / tets) ** (1.0 / 3.0)
+
+
+def build_box(tets, mesher):
+    """(mesh, label) of the 10 mm box with about ``tets`` tetrahedra."""
+    if mesher == "gmsh":
+        h = box_size_for(tets)
+        return box(h), f"gmsh, size {h:.3g} mm"
+    n = max(1, round((tets / 6.0) ** (1.0 / 3.0)))
+    return structured_box(n), f"structured, {n}^3 cubes"
 
 
 def box_case(mesh):
@@ -120,9 +139,20 @@ def main():
     ap.add_argument("--tets", type=float, nargs="*", default=[1e4, 1e5, 1e6])
     ap.add_argument("--iters", type=int, default=20, help="ADMM iterations per timed solve")
     ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--mesher", choices=("structured", "gmsh"), default="structured")
+    ap.add_argument("--agreement", metavar="DATA.npz", default=None,
+                    help="first check the array backend against the CPU kernel on the phantom "
+                         "(file written by admm_gpu_agreement.py --write)")
     a = ap.parse_args()
     dev, label = array_device()
-    print(f"[machine] {_load()}; array backend: {label}", flush=True)
+    cpu = ("compiled C element kernel" if kernel_c.use_kernel()
+           else "numpy element loop (no compiled kernel: cffi or a C compiler missing)")
+    print(f"[machine] {_load()}; numpy {np.__version__}; CPU path: {cpu}; array backend: "
+          f"{label}", flush=True)
+    if a.agreement:
+        from admm_gpu_agreement import check
+
+        check(a.agreement, dev, label)
     bytes_per_tet = DEFAULT_BYTES_PER_TET
     rows = []
     for target in a.tets:
@@ -133,7 +163,7 @@ def main():
                   f"estimated, {avail / 2 ** 30:.1f} GiB available", flush=True)
             continue
         t = time.perf_counter()
-        mesh = box(box_size_for(target))
+        mesh, how = build_box(target, a.mesher)
         t_mesh = time.perf_counter() - t
         case = box_case(mesh)
         admm._CACHE.clear()
@@ -149,8 +179,7 @@ def main():
         rows.append(row)
         c, r = row["cpu"], row["array"]
         gpu_mem = f", GPU pool {row['mem_array'][1]:.0f} MiB" if row["mem_array"][1] else ""
-        print(f"[size] {mesh.n_cells} tets, {mesh.n_vertices} vertices (box size "
-              f"{box_size_for(target):.3g} mm, meshed in {t_mesh:.1f} s, operators "
+        print(f"[size] {mesh.n_cells} tets, {mesh.n_vertices} vertices ({how}, meshed in {t_mesh:.1f} s, operators "
               f"{setup_cpu:.2f} s): CPU kernel {c[0]:.2f} ms/iteration (median {c[1]:.2f}); "
               f"{label} {r[0]:.2f} ms/iteration (median {r[1]:.2f}, {r[2]:.1f} CG iterations "
               f"per x-step); array / CPU = {r[0] / c[0]:.2f}; host peak memory CPU "

@@ -21,8 +21,8 @@ quarter of the unknowns (meshes/cases/phantom-indenter-half.toml, -quarter.toml)
 
 Where each builder lives: ``meshes.builders_curved`` (``phantom``, ``phantom3``,
 ``shell_octant``: second-order curved bodies), ``meshes.builders_blocks`` (``box``,
-``rectangle``, ``cook_membrane``, ``indent_block``) and ``meshes.builders_gmsh`` (the gmsh
-session they share). This module names them (``BUILDERS``), estimates a build's cell count
+``rectangle``, ``cook_membrane``, ``indent_block``; ``structured_box``, a gmsh-free block)
+and ``meshes.builders_gmsh`` (the gmsh session they share). This module names them (``BUILDERS``), estimates a build's cell count
 (``estimate_cells``, ``check_cell_budget``) and builds by name (``build``); every builder is
 importable from here.
 """
@@ -39,6 +39,7 @@ from .builders_blocks import (
     cook_membrane,
     indent_block,
     rectangle,
+    structured_box,
 )
 from .builders_curved import (  # noqa: F401  (re-exported)
     ACTUATORS_3,
@@ -75,6 +76,7 @@ __all__ = [
     "phantom_half",
     "phantom_quarter",
     "rectangle",
+    "structured_box",
 ]
 
 

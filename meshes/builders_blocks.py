@@ -1,7 +1,9 @@
 """Flat-sided gmsh bodies, meshed at first order. Lengths in mm.
 
 ``box``: the block [0, Lx] x [0, Ly] x [0, Lz] with faces ``xmin`` .. ``zmax``; ``rectangle``:
-its 2D (plane strain) analogue with edges ``xmin`` .. ``ymax``; ``cook_membrane``: Cook's
+its 2D (plane strain) analogue with edges ``xmin`` .. ``ymax``; ``structured_box``: the same
+block cut into n_x x n_y x n_z cubes of six tetrahedra each, built with numpy alone (no gmsh:
+for machines without it, and meshes of a known count); ``cook_membrane``: Cook's
 tapered panel (2D); ``indent_block``: a large quarter block, graded from fine cells at the
 indentation point (``IndentBlock``), for indentation against half-space answers.
 """
@@ -15,7 +17,8 @@ from . import builders_gmsh
 from .builders_gmsh import _finish
 from .mesh import MeshData
 
-__all__ = ["INDENT_BLOCK", "IndentBlock", "box", "cook_membrane", "indent_block", "rectangle"]
+__all__ = ["INDENT_BLOCK", "IndentBlock", "box", "cook_membrane", "indent_block", "rectangle",
+           "structured_box"]
 
 
 def _axis_block(kind: str, size: float, lengths, out) -> MeshData:
@@ -43,6 +46,51 @@ def _axis_block(kind: str, size: float, lengths, out) -> MeshData:
 def box(size: float = 5.0, *, lengths=(10.0, 10.0, 10.0), out=None) -> MeshData:
     """Block [0, Lx] x [0, Ly] x [0, Lz] (mm) with faces xmin .. zmax."""
     return _axis_block("box", size, tuple(lengths), out)
+
+
+# the six tetrahedra of a unit cube around its diagonal 0-7 (corner k at bits x, y, z of k)
+_KUHN = np.array([(0, 1, 3, 7), (0, 1, 5, 7), (0, 2, 3, 7), (0, 2, 6, 7), (0, 4, 5, 7),
+                  (0, 4, 6, 7)])
+
+
+def structured_box(n, *, lengths=(10.0, 10.0, 10.0)) -> MeshData:
+    """Block [0, Lx] x [0, Ly] x [0, Lz] (mm) cut into ``n`` cubes per side (an int, or one per
+    axis), each into six tetrahedra sharing its main diagonal (Kuhn's subdivision: conforming,
+    6 n_x n_y n_z cells); faces xmin .. zmax as in ``box``, cell group ``tissue``."""
+    nx, ny, nz = (int(n),) * 3 if np.ndim(n) == 0 else (int(k) for k in n)
+    if min(nx, ny, nz) < 1:
+        raise ValueError(f"structured_box: need at least one cube per side, got {(nx, ny, nz)}")
+    axes = [np.linspace(0.0, float(L), k + 1) for L, k in zip(lengths, (nx, ny, nz))]
+    X, Y, Z = np.meshgrid(*axes, indexing="ij")
+    points = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
+    vid = np.arange(points.shape[0]).reshape(nx + 1, ny + 1, nz + 1)
+    i, j, k = (a.ravel() for a in np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz),
+                                              indexing="ij"))
+    corners = np.stack([vid[i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1)]
+                        for c in range(8)], axis=1)
+    cells = corners[:, _KUHN].reshape(-1, 4)
+    a, b, c, d = (points[cells[:, q]] for q in range(4))
+    flip = np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) < 0
+    cells[flip] = cells[flip][:, [0, 2, 1, 3]]
+    faces = {}
+    for axis, m in enumerate((nx, ny, nz)):
+        for end, idx in (("min", 0), ("max", m)):
+            grid = np.take(vid, idx, axis=axis)
+            q = np.stack([grid[:-1, :-1], grid[1:, :-1], grid[1:, 1:], grid[:-1, 1:]],
+                         axis=-1).reshape(-1, 4)
+            faces[f"{'xyz'[axis]}{end}"] = _split_quads(q, points)
+    return MeshData(points, cells, facet_regions=faces,
+                    cell_regions={"tissue": np.arange(cells.shape[0])})
+
+
+def _split_quads(q, points):
+    """Boundary triangles of the quads ``q`` (4 vertex ids in cycle order) that are faces of the
+    Kuhn tetrahedra: each quad is cut along the diagonal through its corner of smallest
+    coordinates (all of a cube's faces meet the cube's diagonal 0-7 there or at corner 7)."""
+    s = points[q].sum(axis=2)                       # x + y + z of each corner
+    lo = np.argmin(s, axis=1)
+    q = np.take_along_axis(q, (lo[:, None] + np.arange(4)) % 4, axis=1)
+    return np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
 
 
 def rectangle(size: float = 2.0, *, lengths=(10.0, 10.0), out=None) -> MeshData:
