@@ -4,11 +4,14 @@ steady-state error and retraction, written as JSON, Markdown and HTML (each file
 
 ``run_table1(case, targets, loop, settings, out)`` runs the scenarios (``loop`` from
 ``control.plants.build_loop``), writing the tables after every scenario so an interrupted run
-keeps what it finished.
+keeps what it finished. With ``jobs`` > 1 the scenarios run in that many worker processes, each
+building its own loop with ``loop_factory`` (the plant's solver state cannot cross processes);
+the rows are the serial run's, in the same order.
 """
 from __future__ import annotations
 
 import json
+import os
 import textwrap
 from html import escape as html_escape
 from pathlib import Path
@@ -128,41 +131,85 @@ def write_table1(out, meta, rows, n_expected):
     return summ
 
 
-def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
-               plots: bool = True) -> dict:
-    """Every target x task (1, 2, 3) on ``loop`` (``control.plants.LoopSetup``); returns the
-    summary. ``progress(line)`` gets one line per scenario; ``plots``: a time-response PNG per
-    scenario in ``out``."""
+def run_one(loop, t, task, settings, out, plots: bool = True) -> tuple[dict, str]:
+    """One scenario of Table I on ``loop``: (its row, its progress line); a time-response PNG
+    in ``out`` when it completes and ``plots``."""
     from tissue_reference.control.controllability import UnreachableGoalError
     from tissue_reference.control.loop import LoopStopped, plot_response
 
-    rows = []
-    n = 3 * len(targets)
-    summ = table1_summary(rows, n)
-    for t in targets:
-        for task in (1, 2, 3):
-            try:
-                res = loop.run(t, task, settings)
-            except UnreachableGoalError as exc:
-                rows.append({"target": t, "task": task, "status": "unreachable", "error": str(exc),
-                             "closest_reachable_mm": np.asarray(exc.closest).tolist()})
-                progress(f"{t} task {task}: unreachable: {exc}")
-            except ConvergenceError as exc:   # LoopStopped: with the step, pushes and history
-                rows.append({"target": t, "task": task, "status": "failed", "error": str(exc),
-                             **(exc.to_json_dict() if isinstance(exc, LoopStopped) else {})})
-                progress(f"{t} task {task}: closed loop failed: {exc}")
-            else:
-                row = table1_row(t, task, res)
-                rows.append(row)
-                progress(f"{t} task {task}: itae closed {row['closed_loop_itae']:.2f} open "
-                         f"{'' if row['open_loop_converged'] else '>= '}"
-                         f"{_fmt(row['open_loop_itae'], '.2f')} ({row['open_loop_status']})"
-                         f"  sse closed {row['closed_loop_sse_mm']:.2e} open "
-                         f"{_fmt(row['open_loop_sse_mm'], '.4f') or 'not reached'} mm  "
-                         f"retraction {row['max_retraction_mm']}  ({res.wall_time_s:.1f} s)")
-                if plots:
-                    plot_response(res, Path(out) / f"response_{t}_task{task}.png")
-            summ = write_table1(out, meta or {}, rows, n)   # after every scenario
+    try:
+        res = loop.run(t, task, settings)
+    except UnreachableGoalError as exc:
+        return ({"target": t, "task": task, "status": "unreachable", "error": str(exc),
+                 "closest_reachable_mm": np.asarray(exc.closest).tolist()},
+                f"{t} task {task}: unreachable: {exc}")
+    except ConvergenceError as exc:   # LoopStopped: with the step, pushes and history
+        return ({"target": t, "task": task, "status": "failed", "error": str(exc),
+                 **(exc.to_json_dict() if isinstance(exc, LoopStopped) else {})},
+                f"{t} task {task}: closed loop failed: {exc}")
+    row = table1_row(t, task, res)
+    line = (f"{t} task {task}: itae closed {row['closed_loop_itae']:.2f} open "
+            f"{'' if row['open_loop_converged'] else '>= '}"
+            f"{_fmt(row['open_loop_itae'], '.2f')} ({row['open_loop_status']})"
+            f"  sse closed {row['closed_loop_sse_mm']:.2e} open "
+            f"{_fmt(row['open_loop_sse_mm'], '.4f') or 'not reached'} mm  "
+            f"retraction {row['max_retraction_mm']}  ({res.wall_time_s:.1f} s)")
+    if plots:
+        plot_response(res, Path(out) / f"response_{t}_task{task}.png")
+    return row, line
+
+
+_WORKER = {}   # in a worker process: its loop factory and the loops it built, by key
+
+
+def _worker_init(factory, key):
+    _WORKER.update(factory=factory, key=key, loop=None)
+
+
+def _worker_run(t, task, settings, out, plots):
+    if _WORKER["loop"] is None:
+        _WORKER["loop"] = _WORKER["factory"](_WORKER["key"])
+    return run_one(_WORKER["loop"], t, task, settings, out, plots)
+
+
+def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
+               plots: bool = True, jobs: int = 1, loop_factory=None, factory_key=None) -> dict:
+    """Every target x task (1, 2, 3) on ``loop`` (``control.plants.LoopSetup``); returns the
+    summary. ``progress(line)`` gets one line per scenario as it ends; ``plots``: a
+    time-response PNG per scenario in ``out``. ``jobs`` > 1: that many worker processes, each
+    running ``loop_factory(factory_key)`` once for its own loop (a picklable callable: a
+    module-level function or a functools.partial of one); ``loop`` then serves nobody."""
+    pairs = [(t, task) for t in targets for task in (1, 2, 3)]
+    n = len(pairs)
+    summ = table1_summary([], n)
+    done = {}
+
+    def finish(i, row, line):
+        nonlocal summ
+        done[i] = row
+        progress(line)
+        summ = write_table1(out, meta or {}, [done[k] for k in sorted(done)], n)   # each time
+
+    if jobs <= 1 or n <= 1:
+        for i, pair in enumerate(pairs):
+            finish(i, *run_one(loop, *pair, settings, out, plots))
+        return summ
+    if loop_factory is None:
+        raise ValueError("run_table1: jobs > 1 needs a loop_factory")
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):   # one core per worker
+        os.environ.setdefault(var, "1")
+    Path(out).mkdir(parents=True, exist_ok=True)
+    with ProcessPoolExecutor(max_workers=min(jobs, n),
+                             mp_context=multiprocessing.get_context("spawn"),
+                             initializer=_worker_init,
+                             initargs=(loop_factory, factory_key)) as pool:
+        futures = {pool.submit(_worker_run, *pair, settings, out, plots): i
+                   for i, pair in enumerate(pairs)}
+        for fut in as_completed(futures):
+            finish(futures[fut], *fut.result())
     return summ
 
 

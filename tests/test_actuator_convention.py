@@ -122,6 +122,31 @@ def test_table1_runs_mismatch_scenarios_with_trajectories(tmp_path, capsys):
     assert g["plant_gravity_mm_s2"] == [0.0, 0.0, -9810.0] and g["model_gravity_mm_s2"] is None
 
 
+def test_table1_in_worker_processes_gives_the_serial_rows(tmp_path, capsys):
+    """--jobs 2: every loop in a worker process that builds its own plant and model; the rows
+    (figures, pushes, order) are the serial run's, for a plain table and a scenario."""
+    from tissue_reference.tissue.cli import main
+
+    timing = {"wall_time_s", "closed_loop_s", "model_time_s", "open_loop_s", "mpc_step_median_ms"}
+
+    def rows(path):
+        return [{k: v for k, v in r.items() if k not in timing}
+                for r in json.loads(path.read_text())["rows"]]
+
+    base = ["table1", CASE, "--size", "14", "--steps", "3", "-q"]
+    for extra, sub in ((["--targets", "T1", "T2"], "."),
+                       (["--targets", "T1", "--scenarios", "mesh"], "mesh")):
+        serial, par = tmp_path / f"s{len(extra)}", tmp_path / f"p{len(extra)}"
+        assert main(base + extra + ["--out", str(serial)]) == 0
+        assert main(base + extra + ["--jobs", "2", "--out", str(par)]) == 0
+        a, b = rows(serial / sub / "table1.json"), rows(par / sub / "table1.json")
+        assert [(r["target"], r["task"]) for r in b] == [(t, k) for t in extra[1:3]
+                                                          if t.startswith("T") for k in (1, 2, 3)]
+        assert a == b
+        assert sorted(q.name for q in (par / sub).glob("response_*.png")) == \
+            sorted(q.name for q in (serial / sub).glob("response_*.png"))
+
+
 def test_a_glued_patch_that_crushes_its_rim_is_named():
     """All four patches at 15 mm on the default mesh compress rim cells below J = 0.2 (the
     regime where the glued-patch answer does not converge); 2 mm pushes do not."""

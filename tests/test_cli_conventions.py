@@ -194,11 +194,11 @@ def test_quiet_silences_the_progress_of_the_table1_runs(monkeypatch):
     """The Table I command hands a no-op progress callback to its runs under -q."""
     from types import SimpleNamespace
 
-    from tissue_reference.tissue import cmd_control
+    from tissue_reference.tissue import cmd_table1
 
     lines = []
     monkeypatch.setattr("builtins.print", lambda *a, **k: lines.append(a))
-    cmd_control._progress(SimpleNamespace(quiet=True))("a line")
+    cmd_table1._progress(SimpleNamespace(quiet=True))("a line")
     assert lines == []
-    cmd_control._progress(SimpleNamespace(quiet=False))("a line")
+    cmd_table1._progress(SimpleNamespace(quiet=False))("a line")
     assert lines == [("a line",)]

@@ -1,4 +1,5 @@
-"""``tissue mpc``, ``tissue table1``, ``tissue manipulability``: seed 000 section III-IV.
+"""``tissue mpc``, ``tissue manipulability`` (and the loop options ``tissue table1`` shares,
+registered from ``cmd_table1``): seed 000 section III-IV.
 
 mpc: closed-loop push-only MPC steering one target (task 1: -x 5 mm, y free; 2: -y 5 mm, x free;
 3: +x and +y 5 mm), plant and controller model chosen independently (model-plant mismatch on
@@ -7,7 +8,6 @@ purpose: --model admm --model-size 12 --model-E-factor 1.2), with the open-loop 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -15,7 +15,6 @@ import numpy as np
 
 from tissue_reference.control.mpc import WEIGHTS
 from tissue_reference.control.plants import tangent_for
-from tissue_reference.control.scenarios import SCENARIOS
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.io import check_output_dir, check_output_file, save_figure
 from tissue_reference.meshes.results import write_json
@@ -26,7 +25,6 @@ from .common import (
     case_from_args,
     check_outputs,
     check_prescribed,
-    contact_rule,
     integer,
     real,
 )
@@ -165,28 +163,6 @@ def run_mpc(args) -> int:
     return 0
 
 
-def run_table1(args) -> int:
-    from tissue_reference.control.table1 import run_table1 as run_all
-
-    check_outputs(args, dirs=("out",))
-    for flag, value in (("--contact-plant", args.contact_plant),
-                        ("--contact-quadrature", args.plant_contact_quadrature)):
-        if value is not None and "contact" not in (args.scenarios or ()):
-            raise CaseError(f"{flag}: only with --scenarios contact (it sets that scenario's "
-                            f"plant)")
-    case = case_from_args(args)
-    targets = args.targets or [p.name for p in case.probes]
-    for t in targets:
-        case.probe(t)   # a missing target is named before any solve
-    loop, settings = _setup(args, case)
-    if args.scenarios:
-        return _run_scenarios(args, case, targets, settings, loop.meta)
-    summ = run_all(case, targets, loop, settings, args.out, meta=loop.meta,
-                   progress=_progress(args))
-    print(f"table1: {json.dumps(summ)}")
-    return 0
-
-
 def _median_text(task, index) -> str:
     """'task T median index M' over the grid points where the task is reachable (NaN elsewhere),
     or what it is when none is."""
@@ -202,55 +178,6 @@ def _step_progress(args):
     if args.quiet:
         return None
     return lambda line: print(f"tissue mpc: {line}", file=sys.stderr, flush=True)
-
-
-def _progress(args):
-    """Where the per-run progress lines go: stdout, or nowhere with -q/--quiet."""
-    if args.quiet:
-        return lambda line: None
-    return lambda line: print(line, flush=True)
-
-
-def _run_scenarios(args, case, targets, settings, base_meta) -> int:
-    """The Table I analog once per mismatch scenario, each in ``--out``/NAME, with a combined
-    summary (table1_scenarios.json) and the ITAE plot."""
-    from tissue_reference.control.scenarios import scenario_loop
-    from tissue_reference.control.table1 import plot_scenarios, write_scenarios_page
-    from tissue_reference.control.table1 import run_table1 as run_all
-
-    out = Path(args.out)
-    coarse = plant = None
-    if "mesh" in args.scenarios:
-        h = args.size if args.size is not None else 6.0
-        coarse = case_from_args(args, size=2.0 * h)
-    if args.contact_plant is not None:   # meshed as its file says: --size is the model's
-        try:
-            plant = case_from_args(argparse.Namespace(**{**vars(args), "case": args.contact_plant,
-                                                         "size": None, "free_actuators": False}))
-        except CaseError as exc:   # CaseReadError stays one (its exit status)
-            raise type(exc)(f"--contact-plant: {exc}") from None
-    # every scenario's loop first: a plant that does not fit is refused before any solve
-    contact = {"plant_case": plant, "contact_rule": args.plant_contact_quadrature}
-    loops = {name: scenario_loop(case, name, model=args.model or "admm", coarse_case=coarse,
-                                 **(contact if name == "contact" else {}))
-             for name in dict.fromkeys(args.scenarios)}
-    summaries, rows, metas = {}, {}, {}
-    for name, loop in loops.items():
-        loop.meta["settings"] = base_meta.get("settings")
-        metas[name] = loop.meta
-        _progress(args)(f"== scenario {name}: {loop.meta['scenario_description']}")
-        summaries[name] = run_all(loop.case, targets, loop, settings, out / name,
-                                  meta=loop.meta, progress=_progress(args))
-        rows[name] = json.loads((out / name / "table1.json").read_text())["rows"]
-        write_json({"case": case.name, "source": case.source, "targets": list(targets),
-                    "scenarios": summaries, "meta": metas,
-                    "settings": base_meta.get("settings")}, out / "table1_scenarios.json")
-    plot_scenarios(rows, out / "table1_scenarios.png")
-    write_scenarios_page(out, summaries, metas, base_meta.get("settings"),
-                         plot="table1_scenarios.png")
-    for name, s in summaries.items():
-        print(f"table1 {name}: {json.dumps(s)}")
-    return 0
 
 
 def run_manipulability(args) -> int:
@@ -340,32 +267,9 @@ def add_parser(sub):
     p.add_argument("--json", help="write the result here")
     p.set_defaults(func=run_mpc)
 
-    p = sub.add_parser("table1", help="5 targets x 3 tasks, open vs closed loop (seed Table I)")
-    add_case_args(p)
-    _loop_args(p)
-    p.add_argument("--targets", nargs="*", default=None,
-                   help="probes to steer (default: every probe of the case)")
-    p.add_argument("--scenarios", nargs="+", choices=tuple(SCENARIOS), default=None,
-                   help="run the table once per model-plant mismatch (plant: the reference; "
-                        "model: --model, default admm): gravity on the plant only, a nearly "
-                        "incompressible plant (nu 0.495, mixed), a model mesh twice as coarse, "
-                        "a plant pressed by rigid spherical indenters (frictionless contact) "
-                        "where the model has glued patches")
-    p.add_argument("--contact-plant", metavar="CASE.toml", default=None,
-                   help="the contact scenario's plant: a case of the same body whose actuators "
-                        "are indenters with the case's actuator names (e.g. "
-                        "meshes/cases/phantom-indenter-control.toml; meshed as its file says); "
-                        "default: "
-                        "the case with each patch replaced by a sphere of the patch's area "
-                        "touching the one free skin region")
-    p.add_argument("--contact-quadrature", type=contact_rule, default=None, metavar="RULE",
-                   dest="plant_contact_quadrature",
-                   help="the contact scenario's plant: where its contact is sampled, 'nodal' (the "
-                        "skin's nodes) or a Gauss degree on the skin's facets (2 holds tips "
-                        "pushed past two of their radii); default: the plant case's [reference] "
-                        "contact_quadrature, else nodal")
-    p.add_argument("--out", required=True, help="folder for the tables, trajectories and plots")
-    p.set_defaults(func=run_table1)
+    from . import cmd_table1  # after this module: it uses the loop options above
+
+    cmd_table1.add_parser(sub)
 
     p = sub.add_parser("manipulability", help="manipulability maps over the z = 15 mm section")
     add_case_args(p)

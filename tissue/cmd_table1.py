@@ -1,0 +1,143 @@
+"""``tissue table1``: seed 000's Table I analog, 5 targets x 3 tasks closed vs open loop, once
+or per model-plant mismatch scenario, optionally in worker processes (``--jobs``)."""
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+from pathlib import Path
+
+from tissue_reference.control.scenarios import SCENARIOS
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.results import write_json
+
+from .cmd_control import _loop_args, _setup
+from .common import add_case_args, case_from_args, check_outputs, contact_rule, integer
+
+
+def run_table1(args) -> int:
+    from tissue_reference.control.table1 import run_table1 as run_all
+
+    check_outputs(args, dirs=("out",))
+    for flag, value in (("--contact-plant", args.contact_plant),
+                        ("--contact-quadrature", args.plant_contact_quadrature)):
+        if value is not None and "contact" not in (args.scenarios or ()):
+            raise CaseError(f"{flag}: only with --scenarios contact (it sets that scenario's "
+                            f"plant)")
+    case = case_from_args(args)
+    targets = args.targets or [p.name for p in case.probes]
+    for t in targets:
+        case.probe(t)   # a missing target is named before any solve
+    loop, settings = _setup(args, case)
+    if args.scenarios:
+        return _run_scenarios(args, case, targets, settings, loop.meta)
+    summ = run_all(case, targets, loop, settings, args.out, meta=loop.meta,
+                   progress=_progress(args), **_jobs(args))
+    print(f"table1: {json.dumps(summ)}")
+    return 0
+
+
+def _progress(args):
+    """Where the per-run progress lines go: stdout, or nowhere with -q/--quiet."""
+    if args.quiet:
+        return lambda line: None
+    return lambda line: print(line, flush=True)
+
+
+def table1_loop(argv: dict, scenario: str | None):
+    """The loop of one Table I run built from the parsed command line (``vars(args)``): the
+    command's own (scenario None) or one mismatch scenario's. What each ``--jobs`` worker
+    process builds for itself."""
+    args = argparse.Namespace(**argv)
+    case = case_from_args(args)
+    if scenario is None:
+        return _setup(args, case)[0]
+    return _scenario_loops(args, case, [scenario])[scenario]
+
+
+def _jobs(args, scenario=None) -> dict:
+    """run_table1's keywords for ``--jobs``."""
+    if args.jobs <= 1:
+        return {}
+    return {"jobs": args.jobs, "loop_factory": functools.partial(table1_loop, vars(args)),
+            "factory_key": scenario}
+
+
+def _scenario_loops(args, case, names) -> dict:
+    """The loop of each mismatch scenario in ``names`` (a plant that does not fit is refused
+    here, before any solve)."""
+    from tissue_reference.control.scenarios import scenario_loop
+
+    coarse = plant = None
+    if "mesh" in names:
+        h = args.size if args.size is not None else 6.0
+        coarse = case_from_args(args, size=2.0 * h)
+    if args.contact_plant is not None and "contact" in names:   # meshed as its file says
+        try:
+            plant = case_from_args(argparse.Namespace(**{**vars(args), "case": args.contact_plant,
+                                                         "size": None, "free_actuators": False}))
+        except CaseError as exc:   # CaseReadError stays one (its exit status)
+            raise type(exc)(f"--contact-plant: {exc}") from None
+    contact = {"plant_case": plant, "contact_rule": args.plant_contact_quadrature}
+    return {name: scenario_loop(case, name, model=args.model or "admm", coarse_case=coarse,
+                                **(contact if name == "contact" else {}))
+            for name in dict.fromkeys(names)}
+
+
+def _run_scenarios(args, case, targets, settings, base_meta) -> int:
+    """The Table I analog once per mismatch scenario, each in ``--out``/NAME, with a combined
+    summary (table1_scenarios.json) and the ITAE plot."""
+    from tissue_reference.control.table1 import plot_scenarios, write_scenarios_page
+    from tissue_reference.control.table1 import run_table1 as run_all
+
+    out = Path(args.out)
+    loops = _scenario_loops(args, case, args.scenarios)   # every one first: refusals before solves
+    summaries, rows, metas = {}, {}, {}
+    for name, loop in loops.items():
+        loop.meta["settings"] = base_meta.get("settings")
+        metas[name] = loop.meta
+        _progress(args)(f"== scenario {name}: {loop.meta['scenario_description']}")
+        summaries[name] = run_all(loop.case, targets, loop, settings, out / name,
+                                  meta=loop.meta, progress=_progress(args), **_jobs(args, name))
+        rows[name] = json.loads((out / name / "table1.json").read_text())["rows"]
+        write_json({"case": case.name, "source": case.source, "targets": list(targets),
+                    "scenarios": summaries, "meta": metas,
+                    "settings": base_meta.get("settings")}, out / "table1_scenarios.json")
+    plot_scenarios(rows, out / "table1_scenarios.png")
+    write_scenarios_page(out, summaries, metas, base_meta.get("settings"),
+                         plot="table1_scenarios.png")
+    for name, s in summaries.items():
+        print(f"table1 {name}: {json.dumps(s)}")
+    return 0
+
+
+def add_parser(sub):
+    p = sub.add_parser("table1", help="5 targets x 3 tasks, open vs closed loop (seed Table I)")
+    add_case_args(p)
+    _loop_args(p)
+    p.add_argument("--targets", nargs="*", default=None,
+                   help="probes to steer (default: every probe of the case)")
+    p.add_argument("--scenarios", nargs="+", choices=tuple(SCENARIOS), default=None,
+                   help="run the table once per model-plant mismatch (plant: the reference; "
+                        "model: --model, default admm): gravity on the plant only, a nearly "
+                        "incompressible plant (nu 0.495, mixed), a model mesh twice as coarse, "
+                        "a plant pressed by rigid spherical indenters (frictionless contact) "
+                        "where the model has glued patches")
+    p.add_argument("--contact-plant", metavar="CASE.toml", default=None,
+                   help="the contact scenario's plant: a case of the same body whose actuators "
+                        "are indenters with the case's actuator names (e.g. "
+                        "meshes/cases/phantom-indenter-control.toml; meshed as its file says); "
+                        "default: "
+                        "the case with each patch replaced by a sphere of the patch's area "
+                        "touching the one free skin region")
+    p.add_argument("--contact-quadrature", type=contact_rule, default=None, metavar="RULE",
+                   dest="plant_contact_quadrature",
+                   help="the contact scenario's plant: where its contact is sampled, 'nodal' (the "
+                        "skin's nodes) or a Gauss degree on the skin's facets (2 holds tips "
+                        "pushed past two of their radii); default: the plant case's [reference] "
+                        "contact_quadrature, else nodal")
+    p.add_argument("--jobs", type=integer(1, 256), default=1, metavar="N",
+                   help="run the loops in N worker processes (one core each; every worker "
+                        "builds its own plant and model first); the tables are the same")
+    p.add_argument("--out", required=True, help="folder for the tables, trajectories and plots")
+    p.set_defaults(func=run_table1)
