@@ -95,8 +95,9 @@ def array_device():
 
 
 def per_iteration_ms(case, u0, device, iters, repeats):
-    """(min, median) ms per ADMM iteration and the x-step CG iterations per ADMM iteration (array
-    backend; None on the CPU path) of ``repeats`` solves of ``iters`` iterations from u0."""
+    """(min, median) ms per ADMM iteration, the x-step CG iterations per ADMM iteration (array
+    backend; None on the CPU path) and the last solve's displacement, of ``repeats`` solves of
+    ``iters`` iterations from u0."""
     per, cg = [], None
     for _ in range(repeats):
         r = admm.solve(case, initial=u0, polish=False, lift=False, load_steps=1, max_iter=iters,
@@ -105,7 +106,7 @@ def per_iteration_ms(case, u0, device, iters, repeats):
         per.append(1e3 * (c[-1] - c[2]) / (len(c) - 3))
         if "xstep_cg_iterations" in r.extra:
             cg = r.extra["xstep_cg_iterations"] / r.extra["admm_iterations"]
-    return min(per), float(np.median(per)), cg
+    return min(per), float(np.median(per)), cg, r.u
 
 
 def memory_mib(case, u0, device):
@@ -178,11 +179,14 @@ def main():
         bytes_per_tet = max(row["mem_cpu"][0], row["mem_array"][0]) * 2 ** 20 / mesh.n_cells * 1.5
         rows.append(row)
         c, r = row["cpu"], row["array"]
+        agree = np.abs(r[3] - c[3]).max() / np.abs(c[3]).max()
+        xstep = "AMG-PCG" if admm.prepare(case).device_data[dev].amg is not None else "Jacobi-CG"
         gpu_mem = f", GPU pool {row['mem_array'][1]:.0f} MiB" if row["mem_array"][1] else ""
         print(f"[size] {mesh.n_cells} tets, {mesh.n_vertices} vertices ({how}, meshed in {t_mesh:.1f} s, operators "
               f"{setup_cpu:.2f} s): CPU kernel {c[0]:.2f} ms/iteration (median {c[1]:.2f}); "
-              f"{label} {r[0]:.2f} ms/iteration (median {r[1]:.2f}, {r[2]:.1f} CG iterations "
-              f"per x-step); array / CPU = {r[0] / c[0]:.2f}; host peak memory CPU "
+              f"{label} {r[0]:.2f} ms/iteration (median {r[1]:.2f}, {r[2]:.1f} {xstep} iterations "
+              f"per x-step); array / CPU = {r[0] / c[0]:.2f}; their displacements after "
+              f"{a.iters} iterations differ by {agree:.1e} (relative); host peak memory CPU "
               f"{row['mem_cpu'][0]:.0f} MiB, array {row['mem_array'][0]:.0f} MiB{gpu_mem}; "
               f"{_load()}", flush=True)
     if rows:

@@ -185,6 +185,50 @@ def test_tissue_solve_device_applies_to_admm_only(capsys):
     assert rc == 2 and "--device gpu applies to the ADMM solver" in err
 
 
+@pytest.fixture(scope="module")
+def large_box():
+    """A block with more free vertices than PCG_MIN, so the CPU path's x-step is AMG-PCG."""
+    from tissue_reference.meshes.builders import structured_box
+
+    m = structured_box(17)
+    return Case(m, Material(model="neo-hookean", E=6.0, nu=0.45),
+                boundaries=[Boundary("xmin", "fixed"),
+                            Boundary("xmax", "displacement", value=(1.0, 0.5, -0.3))])
+
+
+LARGE = {"polish": False, "lift": False, "load_steps": 1, "max_iter": 40, "tol_mm": 1e-30}
+
+
+def _uses_device_amg(case, device):
+    return admm.prepare(case).device_data[device].amg is not None
+
+
+def test_array_backend_takes_the_cpu_paths_amg_x_step_on_large_meshes(large_box):
+    """Above PCG_MIN free vertices the array backend runs the CPU path's AMG-PCG x-step (its
+    hierarchy, iteration and stopping rules): on numpy the iterates are the CPU path's to
+    round-off, a few V-cycles per x-step, and the converged answers agree."""
+    ref = admm.solve(large_box, **LARGE)
+    res = admm.solve(large_box, device="array-cpu", **LARGE)
+    assert _uses_device_amg(large_box, "array-cpu")
+    assert admm.prepare(large_box).lu.kind == "AmgPcg"
+    _same_iterates(ref, res, tol=1e-10)
+    assert res.extra["xstep_cg_iterations"] <= 5 * LARGE["max_iter"]
+    conv = {**LARGE, "max_iter": 500, "tol_mm": 1e-4}
+    a = admm.solve(large_box, **conv)
+    b = admm.solve(large_box, device="array-cpu", **conv)
+    assert a.converged and b.converged
+    assert b.extra["admm_iterations"] == a.extra["admm_iterations"]
+    assert _rel(b.u, a.u) <= 1e-10
+
+
+@needs_gpu
+def test_gpu_takes_the_amg_x_step_with_the_cpu_paths_iterates(large_box):
+    ref = admm.solve(large_box, **LARGE)
+    res = admm.solve(large_box, device="gpu", **LARGE)
+    assert _uses_device_amg(large_box, "gpu")
+    _same_iterates(ref, res)
+
+
 @needs_gpu
 def test_gpu_gives_the_kernels_iterates_on_the_phantom(phantom):
     ref = admm.solve(phantom, pushes=PUSHES, **ITERATES)

@@ -94,6 +94,7 @@ class _AmgPcg:
             R = P.T.tocsr()
             self.levels.append((A, ((4.0 / 3.0 / lam) * dinv)[:, None], P, R))
             A = (R @ A @ P).tocsr()
+        self.coarse_matrix = A
         self.lu = _spd_splu(A.tocsc())
         mats = [lv[k] for lv in self.levels for k in (0, 2, 3)]
         self.bytes = sum(12 * M.nnz + 4 * M.shape[0] for M in mats) + 12 * (

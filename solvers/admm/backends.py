@@ -5,7 +5,10 @@
   or AMG-preconditioned CG on large meshes).
 * ``"gpu"``: the array backend on CuPy, float64: element pass (``kernel_array``) and x-step on
   the GPU. A prefactored sparse Cholesky is not available on CuPy in general, so the x-step is
-  conjugate gradients with a Jacobi preconditioner on the reduced x-step matrix
+  iterative. Where the CPU path solves it by AMG-preconditioned CG (PCG_MIN free vertices and
+  more, no oblique sliding) the same hierarchy and iteration run on the device
+  (``amg_array``): warm-started, a few V-cycles per x-step, the CPU path's stopping rules.
+  Otherwise it is conjugate gradients with a Jacobi preconditioner on the reduced x-step matrix
   K = Z^T (D^T W^2 D + M/dt^2) Z (cuSPARSE products), warm-started from the previous iterate and
   stopped at a relative residual |K q - b| <= ARRAY_XSTEP_RTOL |b| (1e-10). The data stay on
   the device between iterations; only the residual maxima (one number each) come back. Setup
@@ -24,9 +27,10 @@ import numpy as np
 
 from tissue_reference.meshes.errors import CaseError, TissueError
 
+from . import amg_array
 from .kernel_array import _ArrayElements, _NumpyElements, _ZStep
 from .kernel_c import _KernelElements, use_kernel
-from .operators import XSTEP_TOL
+from .operators import PCG_MIN, XSTEP_TOL
 
 DEVICES = ("cpu", "gpu")  # the choices offered to users ("array-cpu": tests and benchmarks)
 ARRAY_XSTEP_RTOL = 1e-10  # array backend x-step: CG to |K q - b| <= this * |b|
@@ -142,6 +146,13 @@ class _DeviceOperators:
         self.h = ops.h
         self.nbytes = sum(12 * M.nnz + 4 * M.shape[0] for M in (ops.DZ, ops.DZtW, red.Z, K)) \
             + 8 * K.shape[0]
+        self.amg = self.amg_shape = None
+        if red.separable and len(red.plain_dofs) >= PCG_MIN * ops.d:
+            lu = ops.lu    # the CPU path's x-step: its AMG hierarchy where it has one
+            if lu.whole is not None and amg_array.usable(lu.groups[0][0]):
+                self.amg = amg_array.ArrayAmgPcg(lu.groups[0][0], xp)
+                self.amg_shape = lu.whole
+                self.nbytes += self.amg.nbytes
 
 
 class _ArrayBackend:
@@ -159,6 +170,8 @@ class _ArrayBackend:
         self.inexactness = 0.0  # largest vertex update (mm) of the last CG iteration
 
     def harmonic(self, rhs):
+        if self.dev.amg is not None:
+            return self.get(self._amg(self.put(rhs), None, 0.0))
         q = self._pcg(self.put(rhs), self.xp.zeros(len(rhs)))
         return self.get(q)
 
@@ -169,9 +182,23 @@ class _ArrayBackend:
         return _ArrayElements(self.ops, zstep, up, F, lam, dev=self.dev)
 
     def xstep(self, rhs, q, tol_mm):
-        """The x-step from the previous iterate q; ``tol_mm`` is not used: the relative
-        residual ARRAY_XSTEP_RTOL decides."""
+        """The x-step from the previous iterate q: the AMG-PCG step to vertex updates below
+        XSTEP_TOL * tol_mm (mm) where the CPU path takes it, else Jacobi-CG to the relative
+        residual ARRAY_XSTEP_RTOL (``tol_mm`` not used)."""
+        if self.dev.amg is not None:
+            return self._amg(rhs, q, XSTEP_TOL * tol_mm)
         return self._pcg(rhs, q.copy())
+
+    def _amg(self, rhs, q, tol_mm):
+        """AMG-PCG on the reduced unknowns (component-major: one column per component); q None:
+        solved from zero to a relative residual of 1e-12."""
+        amg, (nv, nc) = self.dev.amg, self.dev.amg_shape
+        before = amg.iterations
+        B = rhs.reshape(nc, nv).T
+        X = amg.solve(B) if q is None else amg.step(B, q.reshape(nc, nv).T, tol_mm)
+        self.cg_iterations += amg.iterations - before
+        self.inexactness = amg.last_update
+        return self.xp.ascontiguousarray(X.T).reshape(-1)
 
     def step_norm(self, dq):
         """Largest vertex displacement (mm) of the reduced increment dq."""
