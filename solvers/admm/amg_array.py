@@ -2,9 +2,10 @@
 gradients (``amg._AmgPcg``) run on the arrays of ``xp`` (CuPy on a GPU, or numpy).
 
 The hierarchy (aggregates, smoothed prolongator, Galerkin coarse matrices) is the CPU path's,
-built once on the host; its matrices are copied as CSR, the Jacobi weights as columns, and the
-coarsest matrix as its dense inverse (one matrix product per V-cycle instead of a triangular
-solve, as the compiled kernel does). The iteration is ``_AmgPcg``'s, stopping rules included:
+built once on the host; its matrices are copied as CSR and the Jacobi weights as columns. The
+coarsest level is solved on a GPU by its dense inverse, computed there (one matrix product per
+V-cycle instead of triangular solves; on 1e6 tets the aggregation stops at about 20k coarse
+unknowns, 3 GiB), on numpy by the CPU path's own SuperLU factor. The iteration is ``_AmgPcg``'s, stopping rules included:
 the ADMM x-step is warm-started from the previous iterate and stops once its largest vertex
 update is below PCG_RTOL of the first or below the step tolerance, so the array backend's
 iterates follow the CPU path's (up to round-off) with a few V-cycles per x-step instead of the
@@ -15,7 +16,7 @@ import numpy as np
 
 from .amg import PCG_RTOL, _AmgPcg
 
-MAX_COARSE = 4000   # coarsest level's unknowns at most for its dense inverse on the device
+MAX_COARSE = 30_000   # coarsest level's unknowns at most for its dense inverse on a GPU (7 GiB)
 
 
 def usable(solver) -> bool:
@@ -37,14 +38,21 @@ class ArrayAmgPcg:
         self.A = sparse.csr_matrix(amg.A)
         self.levels = [(sparse.csr_matrix(A), xp.asarray(dw), sparse.csr_matrix(P),
                         sparse.csr_matrix(R)) for A, dw, P, R in amg.levels]
-        self.Ainv = xp.asarray(np.linalg.inv(amg.coarse_matrix.toarray()))
+        if xp is np:
+            self.Ainv = None
+            self._coarse_lu = amg.lu
+        else:
+            self.Ainv = xp.linalg.inv(xp.asarray(amg.coarse_matrix.toarray()))
         self.iterations = 0       # PCG iterations (statistics)
         self.last_update = 0.0    # largest vertex update (mm) of the last PCG iteration
         self.nbytes = sum(12 * M.nnz + 4 * M.shape[0] for lv in self.levels
-                          for M in (lv[0], lv[2], lv[3])) + 8 * self.Ainv.size
+                          for M in (lv[0], lv[2], lv[3])) \
+            + (0 if self.Ainv is None else 8 * self.Ainv.size)
 
     def _vcycle(self, b, level=0):
         if level == len(self.levels):
+            if self.Ainv is None:
+                return self._coarse_lu.solve(np.asfortranarray(b))
             return self.Ainv @ b
         A, dw, P, R = self.levels[level]
         x = dw * b
