@@ -56,7 +56,7 @@ class _AmgPcg:
     preconditioner. Work and memory are O(n) (a direct factor's fill grows like n^(4/3) and more
     on 3D meshes). With the compiled kernel the PCG and V-cycle run in C (``amg_pcg``, all
     right-hand sides at once, the coarsest level by its dense inverse), otherwise in numpy
-    (coarsest level by SuperLU); same arithmetic. ``step`` is the ADMM x-step: ``iters`` PCG
+    (``amg_array``'s iteration on numpy, coarsest level by SuperLU); same arithmetic. ``step`` is the ADMM x-step: ``iters`` PCG
     iterations warm-started from the previous x (inexact; the x-step matrix is constant and at
     an ADMM fixed point the warm start solves it, so the fixed point is unchanged); ``solve``
     iterates to a relative residual of 1e-12."""
@@ -96,6 +96,7 @@ class _AmgPcg:
             A = (R @ A @ P).tocsr()
         self.coarse_matrix = A
         self.lu = _spd_splu(A.tocsc())
+        self._arrays = None   # the numpy iteration (amg_array), built on first use
         mats = [lv[k] for lv in self.levels for k in (0, 2, 3)]
         self.bytes = sum(12 * M.nnz + 4 * M.shape[0] for M in mats) + 12 * (
             self.lu.L.nnz + self.lu.U.nnz)
@@ -157,50 +158,19 @@ class _AmgPcg:
         self.last_update = float(last[0])
         return X
 
-    def _vcycle(self, b, level=0):
-        if level == len(self.levels):
-            return self.lu.solve(np.asfortranarray(b))
-        A, dw, P, R = self.levels[level]
-        x = dw * b
-        r = b - A @ x
-        x += P @ self._vcycle(R @ r, level + 1)
-        r = b - A @ x
-        r *= dw
-        x += r
-        return x
-
     def _pcg(self, B, X, maxit, rtol, step_tol=0.0):
         if self._c is not None:
             return self._pcg_compiled(B, X, maxit, rtol, step_tol)
-        A = self.A
-        r = B - A @ X
-        stop = rtol * np.sqrt(np.einsum("ij,ij->j", B, B))
-        z = self._vcycle(r)
-        p = z
-        rz = np.einsum("ij,ij->j", r, z)
-        for it in range(maxit):
-            Ap = A @ p
-            pAp = np.einsum("ij,ij->j", p, Ap)
-            alpha = np.divide(rz, pAp, out=np.zeros_like(rz), where=pAp > 0)
-            dx = alpha * p
-            X += dx
-            r -= alpha * Ap
-            if it == maxit - 1 or np.all(np.sqrt(np.einsum("ij,ij->j", r, r)) <= stop):
-                break
-            if step_tol > 0:
-                dmax = float(np.einsum("ij,ij->i", dx, dx).max(initial=0.0))
-                if it == 0:
-                    lim = max(step_tol ** 2, (PCG_RTOL ** 2) * dmax)
-                if it + 1 >= self.iters and dmax <= lim:
-                    break
-            z = self._vcycle(r)
-            rzn = np.einsum("ij,ij->j", r, z)
-            beta = np.divide(rzn, rz, out=np.zeros_like(rz), where=rz > 0)
-            p = z + beta * p
-            rz = rzn
+        if self._arrays is None:   # the iteration the array backends run, here on numpy
+            from .amg_array import ArrayAmgPcg
+
+            self._arrays = ArrayAmgPcg(self, np)
+        it = self._arrays
+        before = it.iterations
+        X = it.pcg(B, X, maxit, rtol, step_tol)
         self.count[0] += 1
-        self.count[1] += it + 1
-        self.last_update = float(np.sqrt(np.einsum("ij,ij->i", dx, dx).max(initial=0.0)))
+        self.count[1] += it.iterations - before
+        self.last_update = it.last_update
         return X
 
     def solve(self, B):

@@ -26,7 +26,9 @@ def usable(solver) -> bool:
 
 
 class ArrayAmgPcg:
-    """``_AmgPcg``'s PCG and V-cycle on the arrays of ``xp`` (multi-column right-hand sides)."""
+    """``_AmgPcg``'s PCG and V-cycle on the arrays of ``xp`` (multi-column right-hand sides):
+    the array backends' x-step, and ``_AmgPcg``'s own iteration on numpy without the compiled
+    kernel."""
 
     def __init__(self, amg: _AmgPcg, xp):
         if xp is np:
@@ -63,7 +65,10 @@ class ArrayAmgPcg:
         x += r
         return x
 
-    def _pcg(self, B, X, maxit, rtol, step_tol=0.0):
+    def pcg(self, B, X, maxit, rtol, step_tol=0.0):
+        """PCG from X (updated in place) to a relative residual ``rtol`` per column, at most
+        ``maxit`` iterations; with ``step_tol`` > 0 also stopped (after ``iters``) once the
+        largest vertex update is below step_tol or PCG_RTOL times the first."""
         xp, A = self.xp, self.A
         r = B - A @ X
         stop = rtol * xp.sqrt(xp.einsum("ij,ij->j", B, B))
@@ -97,8 +102,8 @@ class ArrayAmgPcg:
 
     def solve(self, B):
         """K X = B to a relative residual of 1e-12 (from zero)."""
-        return self._pcg(B, self.xp.zeros_like(B), 500, 1e-12)
+        return self.pcg(B, self.xp.zeros_like(B), 500, 1e-12)
 
     def step(self, B, X0, tol_mm):
         """The ADMM x-step from X0 (see ``_AmgPcg.step``)."""
-        return self._pcg(B, X0.copy(), 25, 0.0, tol_mm)
+        return self.pcg(B, X0.copy(), 25, 0.0, tol_mm)
