@@ -184,8 +184,9 @@ def test_tangent_matches_fem_reference_tangent(phantom12):
     assert abs(K - Kref).max() <= 1e-9 * abs(Kref).max()
 
 
-def test_plain_admm_without_polish_meets_the_issue_tolerances_on_phantom(phantom12):
-    """Issue 3 target (probes 0.05 mm, vertices 0.1 mm), by ADMM iterations alone."""
+def test_plain_admm_without_polish_meets_the_fast_solver_tolerances_on_phantom(phantom12):
+    """The fast solvers' accuracy target (probes 0.05 mm, vertices 0.1 mm), by ADMM iterations
+    alone."""
     from tissue_reference.fem_reference import solve as fem_solve
     pushes = {"A1": 8.0, "A2": 8.0, "A3": 8.0, "A4": 8.0}
     ref = fem_solve(phantom12, degree=1, pushes=pushes)

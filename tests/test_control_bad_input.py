@@ -1,4 +1,4 @@
-"""Issue 4 'Bad input' at the command line: an actuator region or a target missing from the Case is
+"""Bad input to the control commands: an actuator region or a target missing from the Case is
 named (before any solve), an unknown actuator in --state-push is named."""
 import pytest
 

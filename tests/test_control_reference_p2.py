@@ -33,7 +33,7 @@ def test_degree2_dirichlet_jacobian_matches_central_fd_of_degree2_solves(case):
     p2 = compute(case, state, solver="fem", degree=2, fd_h=0.01)
     assert p2["degree"] == 2 and p2["actuators"] == ["A1", "A2"]
     assert np.asarray(p2["J"]).shape == (6, 2)
-    assert p2["fd_max_rel_error"] < 1e-4              # issue 4 figure (measured 3e-7)
+    assert p2["fd_max_rel_error"] < 1e-4              # the Jacobian's accuracy target (measured 3e-7)
     # the check has teeth: the degree-1 J_s of this coarse mesh differs from it by several %
     p1 = compute(case, state, solver="fem", degree=1, fd_h=0)
     assert max_rel_error(p1["J"], p2["J"]) > 1e-2

@@ -238,7 +238,7 @@ def test_oblique_sliding_equals_kkt_solution_and_points_stay_on_plane(cube):
 
 
 def test_case_with_oblique_sliding_conflicting_with_fixed_vertex_rejected_naming_it(cube):
-    """Rejected when the Case is built (issue 3), not discovered mid-solve."""
+    """Rejected when the Case is built, not discovered mid-solve."""
     nrm = [1.0, 1.0, 0.0]
     shared = np.intersect1d(cube.region_vertices("zmin"), cube.region_vertices("xmax"))
     with pytest.raises(CaseError, match=f"vertex {shared[0]}"):
