@@ -1,8 +1,9 @@
 """ADMM time per iteration on the CPU path (compiled element kernel, SuperLU or AMG-CG x-step)
-and on the array backend (element pass and Jacobi-CG x-step written against numpy/CuPy: on the
-GPU when CuPy finds one, else on numpy, labelled "array on numpy (no GPU)"), on boxes of about
-1e4, 1e5 and 1e6 tetrahedra (``meshes.builders.structured_box``, n^3 cubes of six tets: the same
-meshes on every machine, gmsh not needed; ``--mesher gmsh``: ``meshes.builders.box``); the growth exponent of the
+and on the array backend (element pass, and the CPU path's AMG-CG x-step or else Jacobi-CG,
+written against numpy/CuPy: on the GPU when CuPy finds one, else on numpy, labelled "array on
+numpy (no GPU)"), on boxes of about 1e4, 1e5 and 1e6 tetrahedra
+(``meshes.builders.structured_box``, n^3 cubes of six tets: the same meshes on every machine,
+gmsh not needed; ``--mesher gmsh``: ``meshes.builders.box``); the growth exponent of the
 time per iteration with the number of tets (log-log least squares), memory, and the ratio of the
 two backends at each size, all measured in this one run.
 
@@ -182,8 +183,9 @@ def main():
         agree = np.abs(r[3] - c[3]).max() / np.abs(c[3]).max()
         xstep = "AMG-PCG" if admm.prepare(case).device_data[dev].amg is not None else "Jacobi-CG"
         gpu_mem = f", GPU pool {row['mem_array'][1]:.0f} MiB" if row["mem_array"][1] else ""
-        print(f"[size] {mesh.n_cells} tets, {mesh.n_vertices} vertices ({how}, meshed in {t_mesh:.1f} s, operators "
-              f"{setup_cpu:.2f} s): CPU kernel {c[0]:.2f} ms/iteration (median {c[1]:.2f}); "
+        print(f"[size] {mesh.n_cells} tets, {mesh.n_vertices} vertices ({how}, meshed in "
+              f"{t_mesh:.1f} s, operators {setup_cpu:.2f} s): CPU kernel {c[0]:.2f} "
+              f"ms/iteration (median {c[1]:.2f}); "
               f"{label} {r[0]:.2f} ms/iteration (median {r[1]:.2f}, {r[2]:.1f} {xstep} iterations "
               f"per x-step); array / CPU = {r[0] / c[0]:.2f}; their displacements after "
               f"{a.iters} iterations differ by {agree:.1e} (relative); host peak memory CPU "

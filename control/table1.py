@@ -159,7 +159,7 @@ def run_one(loop, t, task, settings, out, plots: bool = True) -> tuple[dict, str
     return row, line
 
 
-_WORKER = {}   # in a worker process: its loop factory and the loops it built, by key
+_WORKER = {}   # in a worker process: its loop factory, its key and the loop it built
 
 
 def _worker_init(factory, key):

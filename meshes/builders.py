@@ -22,9 +22,9 @@ quarter of the unknowns (meshes/cases/phantom-indenter-half.toml, -quarter.toml)
 Where each builder lives: ``meshes.builders_curved`` (``phantom``, ``phantom3``,
 ``shell_octant``: second-order curved bodies), ``meshes.builders_blocks`` (``box``,
 ``rectangle``, ``cook_membrane``, ``indent_block``; ``structured_box``, a gmsh-free block)
-and ``meshes.builders_gmsh`` (the gmsh session they share). This module names them (``BUILDERS``), estimates a build's cell count
-(``estimate_cells``, ``check_cell_budget``) and builds by name (``build``); every builder is
-importable from here.
+and ``meshes.builders_gmsh`` (the gmsh session they share). This module names them
+(``BUILDERS``), estimates a build's cell count (``estimate_cells``, ``check_cell_budget``) and
+builds by name (``build``); every builder is importable from here.
 """
 from __future__ import annotations
 

@@ -13,6 +13,8 @@ from .factor import _spd_splu
 from .kernel_c import use_kernel
 
 PCG_RTOL = 0.3  # PCG x-step: ... or below PCG_RTOL times its first update
+STEP_MAXIT = 25  # PCG iterations of one x-step at most
+SOLVE_MAXIT, SOLVE_RTOL = 500, 1e-12  # a full solve (harmonic lift): its bounds
 
 
 def _aggregate(A):
@@ -52,14 +54,16 @@ class _AmgPcg:
     prolongator on the finest level, plain aggregation below: smoothed coarse operators densify,
     at 185k tets the third level had 456 nonzeros per row and cost 40% of a V-cycle, 1.5x
     slower per warm-started x-step for the same PCG iterations; one pre/post damped-Jacobi
-    sweep, omega = 4 / (3 rho(D^-1 A)); coarsest level <= 500 unknowns, solved directly) as
+    sweep, omega = 4 / (3 rho(D^-1 A)); coarsened to 500 unknowns or until aggregation stalls
+    (about 20k on 1e6 tets), the coarsest level solved directly) as
     preconditioner. Work and memory are O(n) (a direct factor's fill grows like n^(4/3) and more
     on 3D meshes). With the compiled kernel the PCG and V-cycle run in C (``amg_pcg``, all
     right-hand sides at once, the coarsest level by its dense inverse), otherwise in numpy
-    (``amg_array``'s iteration on numpy, coarsest level by SuperLU); same arithmetic. ``step`` is the ADMM x-step: ``iters`` PCG
+    (``amg_array``'s iteration on numpy, coarsest level by SuperLU); same arithmetic. ``step``
+    is the ADMM x-step: ``iters`` PCG
     iterations warm-started from the previous x (inexact; the x-step matrix is constant and at
     an ADMM fixed point the warm start solves it, so the fixed point is unchanged); ``solve``
-    iterates to a relative residual of 1e-12."""
+    iterates to a relative residual of SOLVE_RTOL."""
 
     theta = 0.08
     coarse = 500
@@ -175,10 +179,11 @@ class _AmgPcg:
 
     def solve(self, B):
         B = np.ascontiguousarray(B)
-        return self._pcg(B, np.zeros_like(B), 500, 1e-12)
+        return self._pcg(B, np.zeros_like(B), SOLVE_MAXIT, SOLVE_RTOL)
 
     def step(self, B, X0, tol_mm):
         """At least ``iters`` PCG iterations from X0, then until the largest vertex update is
         below tol_mm (mm) or PCG_RTOL times the first one (at most 25)."""
-        return self._pcg(np.ascontiguousarray(B), np.array(X0, order="C"), 25, 0.0, tol_mm)
+        return self._pcg(np.ascontiguousarray(B), np.array(X0, order="C"), STEP_MAXIT, 0.0,
+                         tol_mm)
 

@@ -5,16 +5,17 @@ The hierarchy (aggregates, smoothed prolongator, Galerkin coarse matrices) is th
 built once on the host; its matrices are copied as CSR and the Jacobi weights as columns. The
 coarsest level is solved on a GPU by its dense inverse, computed there (one matrix product per
 V-cycle instead of triangular solves; on 1e6 tets the aggregation stops at about 20k coarse
-unknowns, 3 GiB), on numpy by the CPU path's own SuperLU factor. The iteration is ``_AmgPcg``'s, stopping rules included:
-the ADMM x-step is warm-started from the previous iterate and stops once its largest vertex
-update is below PCG_RTOL of the first or below the step tolerance, so the array backend's
-iterates follow the CPU path's (up to round-off) with a few V-cycles per x-step instead of the
-hundreds of Jacobi-CG iterations an exact solve takes on 1e5-1e6 tets."""
+unknowns, 3 GiB), on numpy by the CPU path's own SuperLU factor. The iteration is
+``_AmgPcg``'s, stopping rules and bounds included: the ADMM x-step is warm-started from the
+previous iterate and stops once its largest vertex update is below PCG_RTOL of the first or
+below the step tolerance, so the array backend's iterates follow the CPU path's (up to
+round-off) with a few V-cycles per x-step instead of the hundreds of Jacobi-CG iterations an
+exact solve takes on 1e5-1e6 tets."""
 from __future__ import annotations
 
 import numpy as np
 
-from .amg import PCG_RTOL, _AmgPcg
+from .amg import PCG_RTOL, SOLVE_MAXIT, SOLVE_RTOL, STEP_MAXIT, _AmgPcg
 
 MAX_COARSE = 30_000   # coarsest level's unknowns at most for its dense inverse on a GPU (7 GiB)
 
@@ -101,9 +102,9 @@ class ArrayAmgPcg:
         return X
 
     def solve(self, B):
-        """K X = B to a relative residual of 1e-12 (from zero)."""
-        return self.pcg(B, self.xp.zeros_like(B), 500, 1e-12)
+        """K X = B to a relative residual of SOLVE_RTOL (from zero)."""
+        return self.pcg(B, self.xp.zeros_like(B), SOLVE_MAXIT, SOLVE_RTOL)
 
     def step(self, B, X0, tol_mm):
         """The ADMM x-step from X0 (see ``_AmgPcg.step``)."""
-        return self.pcg(B, X0.copy(), 25, 0.0, tol_mm)
+        return self.pcg(B, X0.copy(), STEP_MAXIT, 0.0, tol_mm)

@@ -191,7 +191,7 @@ class _ArrayBackend:
 
     def _amg(self, rhs, q, tol_mm):
         """AMG-PCG on the reduced unknowns (component-major: one column per component); q None:
-        solved from zero to a relative residual of 1e-12."""
+        solved from zero to the relative residual amg.SOLVE_RTOL."""
         amg, (nv, nc) = self.dev.amg, self.dev.amg_shape
         before = amg.iterations
         B = rhs.reshape(nc, nv).T
