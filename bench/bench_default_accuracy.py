@@ -21,6 +21,7 @@ displacements (mm) of each discretization, the relative difference of each to th
 
     .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--pushes 5 10 12.5]
         [--contact-quadrature nodal|2] [--study gauss|nodal] [--old] [--case indenter|wide|control]
+        [--mesh SIZE SITE PATH]
 """
 from __future__ import annotations
 
@@ -71,17 +72,21 @@ def finest(load: str, push: float, study: str = "gauss", case: str = "indenter")
 
 
 def solve(load: str, pushes, degree: int | None, site: float | None, rule,
-          case_name: str = "indenter") -> list[dict]:
-    """The case's default discretization (or ``degree`` on ``site`` cells) along one load path
-    through ``pushes``: one row per push reached."""
+          case_name: str = "indenter", mesh: tuple | None = None) -> list[dict]:
+    """The case's default discretization (or ``degree`` on ``site`` cells, or the case meshed
+    with ``mesh`` = (size, site_size, path_size) mm) along one load path through ``pushes``: one
+    row per push reached."""
     import tissue_reference.fem_reference as fr
-    from tissue_reference.meshes.builders import phantom
+    from tissue_reference.meshes.builders import build, phantom
     from tissue_reference.meshes.case import load_case
     from tissue_reference.meshes.errors import ConvergenceError
 
     case = load_case(CASES[case_name])
     if site is not None:
         case = case.with_mesh(phantom(6.0, site_size=site))
+    if mesh is not None:
+        size, site_size, path_size = mesh
+        case = case.with_mesh(build("phantom", size, site_size=site_size, path_size=path_size))
     s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=rule)
     rows, prev = [], None
     for push in pushes:
@@ -129,6 +134,9 @@ def main():
     ap.add_argument("--study", choices=["gauss", "nodal"], default="gauss",
                     help="the refinement study whose finest level is the converged answer "
                          "(the wide case has a Gauss-rule study only)")
+    ap.add_argument("--mesh", type=float, nargs=3, metavar=("SIZE", "SITE", "PATH"),
+                    help="solve the case on this mesh instead of its own (size, site_size, "
+                         "path_size in mm): what another default would give")
     ap.add_argument("--old", action="store_true",
                     help="also solve the previous default (P1, 1.6 mm sites) for the ratios")
     args = ap.parse_args()
@@ -136,8 +144,9 @@ def main():
         ap.error(f"the {args.case} case has no {args.study} study")
     for load in args.loads:
         what = "A1 alone" if load == "one" else "all four"
-        runs = [("default", solve(load, args.pushes, None, None, args.contact_quadrature,
-                                  args.case))]
+        label = "default" if args.mesh is None else "mesh"
+        runs = [(label, solve(load, args.pushes, None, None, args.contact_quadrature, args.case,
+                              args.mesh))]
         if args.old:
             runs.append(("old P1", solve(load, args.pushes, 1, 1.6, args.contact_quadrature,
                                          args.case)))
@@ -180,10 +189,10 @@ def main():
                 print("           targets (mm): " + ", ".join(
                     f"{n} {np.round(v, 4).tolist()}" for n, v in r["probes"].items()))
             if ref and len(errs) == 2:
-                worst = (max(errs["default"].values()), max(errs["old P1"].values()))
-                print(f"  ratios default / old: worst error {worst[0] / worst[1]:.3f} "
+                worst = (max(errs[label].values()), max(errs["old P1"].values()))
+                print(f"  ratios {label} / old: worst error {worst[0] / worst[1]:.3f} "
                       f"({100 * worst[0]:.2f} % vs {100 * worst[1]:.2f} %), wall time "
-                      f"{found['default']['wall_s'] / found['old P1']['wall_s']:.3f}")
+                      f"{found[label]['wall_s'] / found['old P1']['wall_s']:.3f}")
 
 
 if __name__ == "__main__":
