@@ -68,6 +68,7 @@ def test_array_backend_on_numpy_gives_the_kernels_iterates_on_the_phantom(phanto
     assert ref.extra["device"] == "cpu" and res.extra["device"] == "array-cpu"
     assert ref.extra["admm_iterations"] == 100
     assert res.extra["xstep_cg_iterations"] > 100  # the x-step is the CG one
+    assert admm.prepare(phantom.with_pushes(PUSHES)).device_data["array-cpu"].K is not None
     _same_iterates(ref, res)
 
 
@@ -211,6 +212,8 @@ def test_array_backend_takes_the_cpu_paths_amg_x_step_on_large_meshes(large_box)
     res = admm.solve(large_box, device="array-cpu", **LARGE)
     assert _uses_device_amg(large_box, "array-cpu")
     assert admm.prepare(large_box).lu.kind == "AmgPcg"
+    # the Jacobi-CG matrix is not built where the AMG x-step replaces it: no device memory
+    assert admm.prepare(large_box).device_data["array-cpu"].K is None
     _same_iterates(ref, res, tol=1e-10)
     assert res.extra["xstep_cg_iterations"] <= 5 * LARGE["max_iter"]
     conv = {**LARGE, "max_iter": 500, "tol_mm": 1e-4}

@@ -122,9 +122,10 @@ class _HostBackend:
 
 
 class _DeviceOperators:
-    """The operators the array backend needs, in the arrays of ``xp``: DZ, DZtW and Z (CSR), the
-    reduced x-step matrix K = Z^T Mx Z (CSR) and its inverse diagonal; ``h`` stays on the host
-    (the element pass copies h^2)."""
+    """The operators the array backend needs, in the arrays of ``xp``: DZ, DZtW and Z (CSR), and
+    the x-step's: the CPU path's AMG hierarchy where it has one, else the reduced x-step matrix
+    K = Z^T Mx Z (CSR) and its inverse diagonal for Jacobi-CG; ``h`` stays on the host (the
+    element pass copies h^2)."""
 
     def __init__(self, ops, xp):
         self.xp = xp
@@ -137,15 +138,11 @@ class _DeviceOperators:
 
             self.put, self.get = xp.asarray, xp.asnumpy
         red = ops.red
-        K = (red.ZT @ ops.Mx @ red.Z).tocsr()
         self.DZ = sparse.csr_matrix(ops.DZ)
         self.DZtW = sparse.csr_matrix(ops.DZtW)
         self.Z = sparse.csr_matrix(red.Z.tocsr())
-        self.K = sparse.csr_matrix(K)
-        self.dinv = self.put(1.0 / K.diagonal())
         self.h = ops.h
-        self.nbytes = sum(12 * M.nnz + 4 * M.shape[0] for M in (ops.DZ, ops.DZtW, red.Z, K)) \
-            + 8 * K.shape[0]
+        self.nbytes = sum(12 * M.nnz + 4 * M.shape[0] for M in (ops.DZ, ops.DZtW, red.Z))
         self.amg = self.amg_shape = None
         if red.separable and len(red.plain_dofs) >= PCG_MIN * ops.d:
             lu = ops.lu    # the CPU path's x-step: its AMG hierarchy where it has one
@@ -153,6 +150,12 @@ class _DeviceOperators:
                 self.amg = amg_array.ArrayAmgPcg(lu.groups[0][0], xp)
                 self.amg_shape = lu.whole
                 self.nbytes += self.amg.nbytes
+        self.K = self.dinv = None
+        if self.amg is None:   # the Jacobi-CG x-step's matrix, only where it is taken
+            K = (red.ZT @ ops.Mx @ red.Z).tocsr()
+            self.K = sparse.csr_matrix(K)
+            self.dinv = self.put(1.0 / K.diagonal())
+            self.nbytes += 12 * K.nnz + 4 * K.shape[0] + 8 * K.shape[0]
 
 
 class _ArrayBackend:
