@@ -42,12 +42,15 @@ STUDIES = {("indenter", "gauss"): ("{load}_gauss", "{load}"), ("indenter", "noda
 """Per case and ``--study``: the studies in DATA searched for the push, in order."""
 DATA = ROOT / "tests" / "data" / "phantom_indenter_reference.json"
 LOADS = {"one": ("A1",), "four": ("A1", "A2", "A3", "A4")}
+MAX_BAND = 0.1
+"""The largest GCI band on the force (relative) of a finest level used as the converged answer."""
 
 
 def finest(load: str, push: float, study: str = "gauss", case: str = "indenter") -> dict | None:
     """The finest level's answer at ``push`` (of the Gauss-rule study where it has the push) and
-    the spread of all levels (relative); None when no study has three assessed levels there or
-    when its levels do not contract (the force's last change not smaller than the one before)."""
+    the spread of all levels (relative); None when no study has three assessed levels there, when
+    its levels do not contract (the force's last change not smaller than the one before) or when
+    the force's GCI band is above MAX_BAND."""
     loads = json.loads(DATA.read_text())["loads"]
     for key in (k.format(load=load) for k in STUDIES[case, study]):
         entry = next((e for e in loads.get(key, {}).get("pushes", [])
@@ -60,6 +63,9 @@ def finest(load: str, push: float, study: str = "gauss", case: str = "indenter")
     force = np.array(entry["force_mN"])
     if abs(force[-1] - force[-2]) >= abs(force[-2] - force[-3]):
         return None         # the levels do not contract: no converged value to compare with
+    band = entry.get("quantities", {}).get("force A1", {}).get("gci_rel")
+    if band is not None and band > MAX_BAND:
+        return None         # contracting, but known only to more than MAX_BAND
     probes = {n: np.array(v) for n, v in entry["probes_mm"].items()}
     spread = {"force": float(np.ptp(force) / abs(force[-1]))}
     for n, v in probes.items():
