@@ -77,19 +77,21 @@ def finest(load: str, push: float, study: str = "gauss", case: str = "indenter")
             "probes": {n: v[-1] for n, v in probes.items()}, "spread": spread, "gci": gci}
 
 
-def solve(load: str, pushes, degree: int | None, site: float | None, rule,
-          case_name: str = "indenter", mesh: tuple | None = None) -> list[dict]:
-    """The case's default discretization (or ``degree`` on ``site`` cells, or the case meshed
-    with ``mesh`` = (size, site_size, path_size) mm) along one load path through ``pushes``: one
-    row per push reached."""
+OLD_MESH = (6.0, 1.6, None)
+"""The previous default's mesh (size, site_size, path_size; mm), solved at P1."""
+
+
+def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indenter",
+          mesh: tuple | None = None) -> list[dict]:
+    """The case's default discretization (or ``degree``, or the case meshed with ``mesh`` =
+    (size, site_size, path_size) mm) along one load path through ``pushes``: one row per push
+    reached."""
     import tissue_reference.fem_reference as fr
-    from tissue_reference.meshes.builders import build, phantom
+    from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
     from tissue_reference.meshes.errors import ConvergenceError
 
     case = load_case(CASES[case_name])
-    if site is not None:
-        case = case.with_mesh(phantom(6.0, site_size=site))
     if mesh is not None:
         size, site_size, path_size = mesh
         case = case.with_mesh(build("phantom", size, site_size=site_size, path_size=path_size))
@@ -151,11 +153,11 @@ def main():
     for load in args.loads:
         what = "A1 alone" if load == "one" else "all four"
         label = "default" if args.mesh is None else "mesh"
-        runs = [(label, solve(load, args.pushes, None, None, args.contact_quadrature, args.case,
+        runs = [(label, solve(load, args.pushes, None, args.contact_quadrature, args.case,
                               args.mesh))]
         if args.old:
-            runs.append(("old P1", solve(load, args.pushes, 1, 1.6, args.contact_quadrature,
-                                         args.case)))
+            runs.append(("old P1", solve(load, args.pushes, 1, args.contact_quadrature,
+                                         args.case, OLD_MESH)))
         for push in args.pushes:
             ref = finest(load, push, args.study, args.case)
             print(f"\n{what} at {push:g} mm; ", end="")

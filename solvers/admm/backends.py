@@ -121,6 +121,11 @@ class _HostBackend:
         return self.ops.lu.inexactness
 
 
+def _csr_nbytes(M) -> int:
+    """Bytes of M as CSR with float64 values and int32 indices."""
+    return 12 * M.nnz + 4 * M.shape[0]
+
+
 class _DeviceOperators:
     """The operators the array backend needs, in the arrays of ``xp``: DZ, DZtW and Z (CSR), and
     the x-step's: the CPU path's AMG hierarchy where it has one, else the reduced x-step matrix
@@ -142,7 +147,7 @@ class _DeviceOperators:
         self.DZtW = sparse.csr_matrix(ops.DZtW)
         self.Z = sparse.csr_matrix(red.Z.tocsr())
         self.h = ops.h
-        self.nbytes = sum(12 * M.nnz + 4 * M.shape[0] for M in (ops.DZ, ops.DZtW, red.Z))
+        self.nbytes = sum(_csr_nbytes(M) for M in (ops.DZ, ops.DZtW, red.Z))
         self.amg = self.amg_shape = None
         if red.separable and len(red.plain_dofs) >= PCG_MIN * ops.d:
             lu = ops.lu    # the CPU path's x-step: its AMG hierarchy where it has one
@@ -155,7 +160,7 @@ class _DeviceOperators:
             K = (red.ZT @ ops.Mx @ red.Z).tocsr()
             self.K = sparse.csr_matrix(K)
             self.dinv = self.put(1.0 / K.diagonal())
-            self.nbytes += 12 * K.nnz + 4 * K.shape[0] + 8 * K.shape[0]
+            self.nbytes += _csr_nbytes(K) + 8 * K.shape[0]
 
 
 class _ArrayBackend:
