@@ -21,7 +21,7 @@ displacements (mm) of each discretization, the relative difference of each to th
 
     .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--pushes 5 10 12.5]
         [--contact-quadrature nodal|2] [--study gauss|nodal] [--old] [--case indenter|wide|control]
-        [--mesh SIZE SITE PATH]
+        [--mesh SIZE SITE PATH [--builder phantom-symmetric]]
 """
 from __future__ import annotations
 
@@ -82,10 +82,10 @@ OLD_MESH = (6.0, 1.6, None)
 
 
 def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indenter",
-          mesh: tuple | None = None) -> list[dict]:
-    """The case's default discretization (or ``degree``, or the case meshed with ``mesh`` =
-    (size, site_size, path_size) mm) along one load path through ``pushes``: one row per push
-    reached."""
+          mesh: tuple | None = None, builder: str = "phantom") -> list[dict]:
+    """The case's default discretization (or ``degree``, or the case meshed by ``builder`` with
+    ``mesh`` = (size, site_size, path_size) mm) along one load path through ``pushes``: one row
+    per push reached."""
     import tissue_reference.fem_reference as fr
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
@@ -94,7 +94,7 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
     case = load_case(CASES[case_name])
     if mesh is not None:
         size, site_size, path_size = mesh
-        case = case.with_mesh(build("phantom", size, site_size=site_size, path_size=path_size))
+        case = case.with_mesh(build(builder, size, site_size=site_size, path_size=path_size))
     s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=rule)
     rows, prev = [], None
     for push in pushes:
@@ -113,6 +113,9 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
                      "force": float(ind["force"]),
                      "probes": {n: np.asarray(v) for n, v in res.probes.items()},
                      "newton": res.iterations, "wall_s": time.perf_counter() - t0})
+        r = rows[-1]
+        print(f"  [{load} at {push:g} mm: reached {r['reached']:.2f} mm, force {r['force']:.2f} "
+              f"mN, {r['newton']} Newton, {r['wall_s']:.0f} s]", flush=True)
         if not converged:
             break
         prev = res
@@ -145,6 +148,9 @@ def main():
     ap.add_argument("--mesh", type=float, nargs=3, metavar=("SIZE", "SITE", "PATH"),
                     help="solve the case on this mesh instead of its own (size, site_size, "
                          "path_size in mm): what another default would give")
+    ap.add_argument("--builder", choices=["phantom", "phantom-symmetric"], default="phantom",
+                    help="the builder of --mesh: the whole phantom's own gmsh mesh, or the "
+                         "quarter's mirrored (exactly symmetric)")
     ap.add_argument("--old", action="store_true",
                     help="also solve the previous default (P1, 1.6 mm sites) for the ratios")
     args = ap.parse_args()
@@ -154,7 +160,7 @@ def main():
         what = "A1 alone" if load == "one" else "all four"
         label = "default" if args.mesh is None else "mesh"
         runs = [(label, solve(load, args.pushes, None, args.contact_quadrature, args.case,
-                              args.mesh))]
+                              args.mesh, args.builder))]
         if args.old:
             runs.append(("old P1", solve(load, args.pushes, 1, args.contact_quadrature,
                                          args.case, OLD_MESH)))

@@ -15,13 +15,16 @@
 planes as regions ``sym_y0`` and ``sym_x0`` (patches on a plane cut in half; the targets on the
 part): with sliding planes they stand for the whole phantom under symmetric loads at a half or a
 quarter of the unknowns (meshes/cases/phantom-indenter-half.toml, -quarter.toml).
+``phantom-symmetric`` is the whole phantom meshed as the quarter and its mirror images
+(``meshes.mirror``): the regions of ``phantom`` on a mesh symmetric about x = 0 and y = 0.
 
 ``box`` is an axis-aligned block with faces ``xmin``, ``xmax``, ``ymin``, ``ymax``, ``zmin``,
 ``zmax``; ``rectangle`` is its 2D (plane strain) analogue with edges ``xmin`` .. ``ymax``.
 
 Where each builder lives: ``meshes.builders_curved`` (``phantom``, ``phantom3``,
-``shell_octant``: second-order curved bodies), ``meshes.builders_blocks`` (``box``,
-``rectangle``, ``cook_membrane``, ``indent_block``; ``structured_box``, a gmsh-free block)
+``shell_octant``, ``phantom_symmetric``: second-order curved bodies),
+``meshes.builders_blocks`` (``box``, ``rectangle``, ``cook_membrane``, ``indent_block``;
+``structured_box``, a gmsh-free block)
 and ``meshes.builders_gmsh`` (the gmsh session they share). This module names them
 (``BUILDERS``), estimates a build's cell count (``estimate_cells``, ``check_cell_budget``) and
 builds by name (``build``); every builder is importable from here.
@@ -54,6 +57,7 @@ from .builders_curved import (  # noqa: F401  (re-exported)
     phantom3,
     phantom_half,
     phantom_quarter,
+    phantom_symmetric,
     shell_octant,
 )
 from .builders_gmsh import _GMSH_STATE, _finish, _gmsh_session  # noqa: F401  (re-exported)
@@ -75,6 +79,7 @@ __all__ = [
     "phantom3",
     "phantom_half",
     "phantom_quarter",
+    "phantom_symmetric",
     "rectangle",
     "structured_box",
 ]
@@ -100,7 +105,8 @@ def _indent_block_cells(size: float, g: IndentBlock = INDENT_BLOCK) -> float:
 
 
 BUILDERS = {"phantom": phantom, "phantom-half": phantom_half, "phantom-quarter": phantom_quarter,
-            "phantom-3": phantom3, "box": box, "rectangle": rectangle,
+            "phantom-symmetric": phantom_symmetric, "phantom-3": phantom3, "box": box,
+            "rectangle": rectangle,
             "shell-octant": shell_octant, "indent-block": indent_block}
 
 
@@ -110,6 +116,7 @@ BODY_VOLUMES = {
     "phantom": 2.0 / 3.0 * math.pi * PHANTOM.radius ** 2 * PHANTOM.height,
     "phantom-half": 1.0 / 3.0 * math.pi * PHANTOM.radius ** 2 * PHANTOM.height,
     "phantom-quarter": 1.0 / 6.0 * math.pi * PHANTOM.radius ** 2 * PHANTOM.height,
+    "phantom-symmetric": 2.0 / 3.0 * math.pi * PHANTOM.radius ** 2 * PHANTOM.height,
     "phantom-3": 2.0 / 3.0 * math.pi * PHANTOM.radius ** 2 * PHANTOM.height,
     "box": 1000.0,
     "rectangle": 100.0,
@@ -193,7 +200,8 @@ def check_cell_budget(name: str, size: float, max_cells: int | None = MAX_CELLS)
     return est
 
 
-SITES = {"phantom": 4, "phantom-half": 2, "phantom-quarter": 1, "phantom-3": 3}
+SITES = {"phantom": 4, "phantom-half": 2, "phantom-quarter": 1, "phantom-symmetric": 4,
+         "phantom-3": 3}
 """Actuator sites of each builder that takes ``site_size`` (in whole-site equivalents: a half
 site on a mirror plane counts a half)."""
 SITE_BUILDERS = tuple(SITES)

@@ -407,7 +407,8 @@ def projector_for(builder: str):
     if builder == "shell-octant":
         return ShellProjection()
     patches = {"phantom": ACTUATORS_4, "phantom-half": ACTUATORS_4,
-               "phantom-quarter": ACTUATORS_4, "phantom-3": ACTUATORS_3}.get(builder)
+               "phantom-quarter": ACTUATORS_4, "phantom-symmetric": ACTUATORS_4,
+               "phantom-3": ACTUATORS_3}.get(builder)
     if patches is None:
         return None
     g = PHANTOM

@@ -182,22 +182,47 @@ def _write_xdmf(mesh, path, point_data=None, cell_data=None, all_regions=False):
         shutil.rmtree(tmpdir, ignore_errors=True)
 
 
+def _second_order(mesh):
+    """(nodes, cells, facets_of): a curved mesh's nodes (vertices first) and cells in meshio's
+    second-order node order (tetra10 / triangle6), and a function giving a facet region's
+    second-order facets (triangle6 / line3)."""
+    from .curved import _MESHIO_EDGES, EDGES, FACET_EDGES, p2_cells, p2_facets
+
+    d = mesh.gdim
+    x, cells, edges = p2_cells(mesh)
+    order = [d + 1 + EDGES[d].index(e) for e in _MESHIO_EDGES[d]]
+    cells = cells[:, list(range(d + 1)) + order]
+    if d == 3:  # triangle6: mid-edge nodes of (0, 1), (1, 2), (0, 2)
+        f_order = [0, 1, 2] + [3 + FACET_EDGES[3].index(e) for e in ((0, 1), (1, 2), (0, 2))]
+    else:
+        f_order = [0, 1, 2]
+    return x, cells, lambda facets: p2_facets(mesh, facets, edges)[:, f_order]
+
+
 def _write_msh(mesh, path, point_data=None, cell_data=None, all_regions=True):
-    """gmsh 2.2 ASCII with the named regions as physical groups (tags of ``region_tags``)."""
+    """gmsh 2.2 ASCII with the named regions as physical groups (tags of ``region_tags``); a
+    curved mesh (``geometry_order`` 2) as second-order cells and facets, which ``read_msh``
+    reads back curved."""
     import meshio
 
     d = mesh.gdim
+    pts, cells, facets_of = mesh.points, mesh.cells, (lambda f: f)
+    types = (_CELL[d], _FACET[d])
+    if mesh.geometry_order == 2:
+        pts, cells, facets_of = _second_order(mesh)
+        types = ({3: "tetra10", 2: "triangle6"}[d], {3: "triangle6", 2: "line3"}[d])
     blocks, phys, field = [], [], {}
     for name, tag, dim, members in region_tags(mesh):
         if dim == d:
-            blocks.append((_CELL[d], mesh.cells[members]))
+            blocks.append((types[0], cells[members]))
         elif dim == 0:
             blocks.append(("vertex", members.reshape(-1, 1)))
         else:
-            blocks.append((_FACET[d], members))
+            blocks.append((types[1], facets_of(members)))
         phys.append(np.full(len(members), tag))
         field[name] = np.array([tag, dim])
-    pts = mesh.points if d == 3 else np.column_stack([mesh.points, np.zeros(mesh.n_vertices)])
+    if d == 2:
+        pts = np.column_stack([pts, np.zeros(len(pts))])
     m = meshio.Mesh(pts, blocks, cell_data={"gmsh:physical": phys, "gmsh:geometrical": phys},
                     field_data=field)
     with atomic_path(path) as tmp:
