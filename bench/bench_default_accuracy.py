@@ -2,12 +2,13 @@
 and what it costs, against the previous default, measured in one run.
 
 The default is what ``tissue solve meshes/cases/phantom-indenter.toml --push ...`` solves: the
-case's mesh (size, site_size), the case's ``[reference] degree`` and contact rule; ``--case wide``:
-the same for meshes/cases/phantom-indenter-wide.toml (8 mm tips), against its own study
-(``four_wide`` / ``one_wide``, to 15 mm); ``--case control``: phantom-indenter-control.toml
-(the 5 mm tips on a coarser body, the contact scenario's plant of control loops). The previous
-default was P1 on 1.6 mm site cells (``--old``: solved in the same run, for the ratios). The
-converged answer is the finest level of a refinement study shipped in
+case's mesh (builder, size, site_size, path_size), the case's ``[reference] degree`` and contact
+rule; ``--case wide``: the same for meshes/cases/phantom-indenter-wide.toml (8 mm tips), against
+its own study (``four_wide`` / ``one_wide``, to 15 mm); ``--case control``:
+phantom-indenter-control.toml (the 5 mm tips on a coarser body, the contact scenario's plant of
+control loops). Earlier defaults (``--old p1``: P1 on 1.6 mm site cells; ``--old p2``: P2 on
+the whole phantom's own gmsh mesh, 3.2 mm sites, 59k unknowns) are solved in the same run, for
+the ratios. The converged answer is the finest level of a refinement study shipped in
 tests/data/phantom_indenter_reference.json (P2 on the phantom's symmetric parts, cells divided by
 sqrt 2 per level, from bench/bench_indenter_convergence.py): by default the study with the
 Gauss contact rule and refined paths (``four_gauss`` / ``one_gauss``, to 12.5 mm; 15 mm has no
@@ -20,7 +21,8 @@ displacements (mm) of each discretization, the relative difference of each to th
 (targets: |u - u_ref| / |u_ref|), Newton iterations, wall time, and the ratios new / old.
 
     .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--pushes 5 10 12.5]
-        [--contact-quadrature nodal|2] [--study gauss|nodal] [--old] [--case indenter|wide|control]
+        [--contact-quadrature nodal|2] [--study gauss|nodal] [--old [p1|p2]]
+        [--case indenter|wide|control]
         [--mesh SIZE SITE PATH [--builder phantom-symmetric]]
 """
 from __future__ import annotations
@@ -77,8 +79,11 @@ def finest(load: str, push: float, study: str = "gauss", case: str = "indenter")
             "probes": {n: v[-1] for n, v in probes.items()}, "spread": spread, "gci": gci}
 
 
-OLD_MESH = (6.0, 1.6, None)
-"""The previous default's mesh (size, site_size, path_size; mm), solved at P1."""
+OLD = {"p1": ("old P1", 1, "phantom", (6.0, 1.6, None)),
+       "p2": ("old P2", None, "phantom", (6.0, 3.2, None))}
+"""The earlier defaults of the indenter phantom (``--old``): label, degree (None: the case's),
+builder and mesh (size, site_size, path_size; mm). p1: P1 on 1.6 mm sites; p2 (until the
+symmetric mesh): P2 on the whole phantom's own gmsh mesh with 3.2 mm sites, 59k unknowns."""
 
 
 def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indenter",
@@ -151,8 +156,10 @@ def main():
     ap.add_argument("--builder", choices=["phantom", "phantom-symmetric"], default="phantom",
                     help="the builder of --mesh: the whole phantom's own gmsh mesh, or the "
                          "quarter's mirrored (exactly symmetric)")
-    ap.add_argument("--old", action="store_true",
-                    help="also solve the previous default (P1, 1.6 mm sites) for the ratios")
+    ap.add_argument("--old", nargs="?", const="p1", choices=sorted(OLD),
+                    help="also solve an earlier default for the ratios: p1 (the default "
+                         "without a value: P1, 1.6 mm sites) or p2 (P2, 3.2 mm sites, the "
+                         "whole phantom's own mesh)")
     args = ap.parse_args()
     if (args.case, args.study) not in STUDIES:
         ap.error(f"the {args.case} case has no {args.study} study")
@@ -162,8 +169,9 @@ def main():
         runs = [(label, solve(load, args.pushes, None, args.contact_quadrature, args.case,
                               args.mesh, args.builder))]
         if args.old:
-            runs.append(("old P1", solve(load, args.pushes, 1, args.contact_quadrature,
-                                         args.case, OLD_MESH)))
+            old, degree, builder, mesh = OLD[args.old]
+            runs.append((old, solve(load, args.pushes, degree, args.contact_quadrature,
+                                    args.case, mesh, builder)))
         for push in args.pushes:
             ref = finest(load, push, args.study, args.case)
             print(f"\n{what} at {push:g} mm; ", end="")
@@ -203,10 +211,11 @@ def main():
                 print("           targets (mm): " + ", ".join(
                     f"{n} {np.round(v, 4).tolist()}" for n, v in r["probes"].items()))
             if ref and len(errs) == 2:
-                worst = (max(errs[label].values()), max(errs["old P1"].values()))
-                print(f"  ratios {label} / old: worst error {worst[0] / worst[1]:.3f} "
+                old = runs[1][0]
+                worst = (max(errs[label].values()), max(errs[old].values()))
+                print(f"  ratios {label} / {old}: worst error {worst[0] / worst[1]:.3f} "
                       f"({100 * worst[0]:.2f} % vs {100 * worst[1]:.2f} %), wall time "
-                      f"{found[label]['wall_s'] / found['old P1']['wall_s']:.3f}")
+                      f"{found[label]['wall_s'] / found[old]['wall_s']:.3f}")
 
 
 if __name__ == "__main__":

@@ -12,7 +12,8 @@ Settings (``--settings``, any of):
 
 Models: ``--model half`` (meshes/cases/phantom-indenter-half.toml, forces doubled) or ``whole``
 (phantom-indenter.toml); ``--load one`` pushes A1, ``four`` all four actuators; the mesh is the
-case's at ``--level 0`` (size 6 mm, 3.2 mm sites), every size / sqrt 2 per level; P2.
+phantom's own (or its half's) gmsh mesh, at ``--level 0`` size 6 mm with 3.2 mm sites (the whole
+case's default before its symmetric mesh), every size / sqrt 2 per level; P2.
 Prints Newton iterations, tangent shifts, load steps, cut-backs, wall time, the A1 force and
 T1, and the ratios against the first setting.
 

@@ -142,3 +142,24 @@ def test_the_symmetric_whole_phantom_gives_the_quarters_answer_under_four_equal_
     assert abs(fw[0]) > 1.0                                      # mN
     assert fw[0] == pytest.approx(2.0 * fq[0], rel=1e-6)    # the quarter holds half of act_px
     assert w.reactions["base"][2] == pytest.approx(4.0 * q.reactions["base"][2], rel=1e-6)
+
+
+def test_the_shipped_indenter_phantom_gives_the_quarter_cases_answer_on_its_mesh():
+    """phantom-indenter.toml on ``phantom-symmetric`` and phantom-indenter-quarter.toml on the
+    quarter it mirrors, all four tips pushed 2 mm (P2, nodal contact rule): the same tips at the
+    same sites, so the same answer; the cut tip A1 carries half the force."""
+    import tissue_reference.fem_reference as fr
+
+    out = {}
+    for name, builder in (("phantom-indenter", "phantom-symmetric"),
+                          ("phantom-indenter-quarter", "phantom-quarter")):
+        case = load_case(CASES / f"{name}.toml").with_mesh(build(builder, 16.0, site_size=8.0))
+        out[name] = fr.ReferenceSolver(case, degree=2).solve(
+            {a.name: 2.0 for a in case.actuators})
+    w, q = out["phantom-indenter"], out["phantom-indenter-quarter"]
+    fw, fq = (r.extra["indenters"]["A1"]["force"] for r in (w, q))
+    assert fw > 10.0                                             # mN: the tips press
+    assert fw == pytest.approx(2.0 * fq, rel=1e-7)
+    scale = np.linalg.norm(q.probes["T1"])
+    for t in ("T1", "T2", "T3"):
+        assert np.linalg.norm(w.probes[t] - q.probes[t]) < 1e-7 * scale

@@ -1,0 +1,58 @@
+"""The indenter phantom's shipped default (meshes/cases/phantom-indenter.toml: 5 mm tips) with all
+four tips pushed to 5 and then 10 mm, against the finest level of the refinement study shipped as
+test data (tests/data/phantom_indenter_reference.json, ``four_gauss``: levels -2..1 of
+bench/bench_indenter_convergence.py, P2 with the Gauss contact rule on the quarter phantom, every
+cell size divided by sqrt 2 per level; the finest has 160k unknowns on the quarter).
+
+The default's mesh is ``phantom-symmetric``: the quarter phantom's mesh and its mirror images.
+Under all four pushed equally it is the same discrete problem as the quarter with its planes
+sliding (tests/test_mirror.py checks that on a coarser mesh), so this test solves the quarter
+meshed at the default's sizes, with the default's degree and contact rule, at a quarter of the
+cost. The cut tip A1 carries half its force.
+"""
+import dataclasses
+import json
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tissue_reference.fem_reference as fr
+from tissue_reference.meshes.builders import build
+from tissue_reference.meshes.case import load_case
+
+ROOT = Path(__file__).resolve().parents[1]
+CASES = ROOT / "meshes" / "cases"
+DATA = ROOT / "tests" / "data" / "phantom_indenter_reference.json"
+
+
+@pytest.mark.slow
+def test_the_indenter_default_is_within_2_percent_of_the_finest_level_at_5_and_10_mm():
+    whole = load_case(CASES / "phantom-indenter.toml")
+    spec = tomllib.loads((CASES / "phantom-indenter.toml").read_text())["mesh"]
+    assert spec["builtin"] == "phantom-symmetric"
+    quarter = load_case(CASES / "phantom-indenter-quarter.toml")
+    mesh = build("phantom-quarter", spec["size"], site_size=spec["site_size"],
+                 path_size=spec["path_size"])
+    assert {a.radius for a in whole.actuators} == {a.radius for a in quarter.actuators}
+    case = dataclasses.replace(quarter, mesh=mesh)
+    solver = fr.ReferenceSolver(case, degree=whole.reference_degree,
+                                contact_quadrature=whole.reference_contact_quadrature)
+    study = json.loads(DATA.read_text())["loads"]["four_gauss"]
+    assert study["tip_radius_mm"] == whole.actuators[0].radius
+    assert study["levels"][-1]["cells"] > 6 * case.mesh.n_cells  # a far finer discretization
+    prev = None
+    for push in (5.0, 10.0):
+        res = solver.solve({a.name: push for a in case.actuators}, initial=prev)
+        prev = res
+        assert res.extra.get("valid", True), res.extra.get("invalid_reason")
+        entry = next(e for e in study["pushes"] if e["push_mm"] == push)
+        # the finest level stands for the converged answer: its levels contract here
+        f = entry["force_mN"]
+        assert abs(f[-1] - f[-2]) < abs(f[-2] - f[-3]) < abs(f[-3] - f[-4])
+        force = 2.0 * res.extra["indenters"]["A1"]["force"]
+        assert force == pytest.approx(f[-1], rel=0.02)
+        for name, values in entry["probes_mm"].items():
+            ref = np.asarray(values[-1])
+            assert np.linalg.norm(res.probes[name] - ref) < 0.02 * np.linalg.norm(ref), name
