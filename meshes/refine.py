@@ -10,10 +10,11 @@ Without projection the children of an affine cell fill it exactly, so the volume
 A curved boundary is followed with ``project``: a callable ``project(x, regions) -> x'`` that
 receives the midpoints ``x`` (k, gdim) mm of the boundary edges and, for each, the frozenset of
 facet-region names of the boundary facets sharing that edge, and returns the points moved onto
-the true geometry. ``projector_for(builder)`` gives the one of each builtin mesh (None for the flat
-``box`` and ``rectangle``). The old vertices never move (they lie on the boundary already), so the
-meshes stay nested away from the curved boundary. Since a midpoint can move by a good part of its
-edge (a patch rim drawn by a few chords goes onto its circle), the moves are spread:
+the true geometry. ``projector_for(builder)`` (``meshes.projection``) gives the one of each
+builtin mesh (None for the flat ``box`` and ``rectangle``). The old vertices never move (they
+lie on the boundary already), so the meshes stay nested away from the curved boundary. Since a
+midpoint can move by a good part of its edge (a patch rim drawn by a few chords goes onto its
+circle), the moves are spread:
 
 1. every boundary midpoint is projected;
 2. the midpoints of edges inside one region follow the moves of the region borders along the
@@ -25,13 +26,11 @@ two or three chords) raises MeshQualityError naming the largest move. Lengths in
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
 import numpy as np
 
 from .errors import CaseError, MeshQualityError
 from .mesh import MeshData, boundary_facets, check_cells, orient_cells
+from .projection import DomeProjection, ShellProjection, projector_for  # noqa: F401 (re-exported)
 
 __all__ = ["DomeProjection", "mesh_hierarchy", "projector_for", "refine_uniform"]
 
@@ -286,130 +285,3 @@ def mesh_hierarchy(mesh: MeshData, levels: int, *, project=None) -> list:
             raise MeshQualityError(f"refinement {k} of {levels - 1} (from {out[-1].n_cells:,} "
                                    f"cells): {exc}") from None
     return out
-
-
-# --------------------------------------------------------------------------- curved builtins
-def _ellipsoid(x, R, H):
-    """f = (x^2 + y^2) / R^2 + z^2 / H^2 - 1 and its gradient (1/mm)."""
-    f = (x[:, 0] ** 2 + x[:, 1] ** 2) / R ** 2 + x[:, 2] ** 2 / H ** 2 - 1.0
-    g = np.stack([2 * x[:, 0] / R ** 2, 2 * x[:, 1] / R ** 2, 2 * x[:, 2] / H ** 2], axis=1)
-    return f, g
-
-
-def _cylinder(x, p, axis, r):
-    """f = (|w_perp|^2 - r^2) / r^2 for the cylinder of radius r (mm) through p along unit axis."""
-    w = x - p
-    wp = w - (w @ axis)[:, None] * axis
-    return (np.sum(wp * wp, axis=1) - r * r) / (r * r), 2 * wp / (r * r)
-
-
-@dataclass(frozen=True)
-class ShellProjection:
-    """Projection onto the spheres of ``meshes.builders.shell_octant``: a boundary edge of the
-    ``inner`` (``outer``) region goes radially onto the sphere of radius ``inner`` (``outer``),
-    mm; edges only on the symmetry planes stay (radial scaling keeps them in their planes)."""
-
-    inner: float = 10.0
-    outer: float = 20.0
-
-    def __call__(self, x: np.ndarray, regions) -> np.ndarray:
-        x = np.array(x, dtype=np.float64)
-        for i, reg in enumerate(regions):
-            r = self.inner if "inner" in reg else self.outer if "outer" in reg else None
-            if r is not None:
-                x[i] *= r / max(float(np.linalg.norm(x[i])), 1e-300)
-        return x
-
-
-@dataclass(frozen=True)
-class DomeProjection:
-    """Projection onto the phantom of ``meshes.builders``: the half-ellipsoid
-    (x^2 + y^2) / R^2 + z^2 / H^2 = 1, z >= 0, on the flat base z = 0, with actuator patches
-    bounded by cylinders of radius ``patch_radius`` along the inward horizontal radial direction
-    at height ``actuator_height`` (mm).
-
-    A boundary edge only on ``base`` and mirror-plane facets (``mirrors``: the half and quarter
-    phantoms' cuts) stays (flat); one between ``base`` and the curved
-    surface goes to the base circle of radius R; one between an actuator patch and the skin goes
-    to the patch rim (ellipsoid and cylinder, by minimum-norm Newton); any other boundary edge
-    with a named region goes to the ellipsoid (minimum-norm Newton from the chord midpoint, close
-    to the nearest surface point for these short chords). Edges of unnamed facets stay.
-    """
-
-    radius: float
-    height: float
-    actuator_height: float
-    patch_radius: float
-    patches: tuple          # ((region name, azimuth in degrees), ...)
-    base: str = "base"
-    mirrors: tuple = ("sym_y0", "sym_x0")  # flat mirror planes of the half and quarter parts
-
-    def _rim(self, name):
-        az = dict(self.patches)[name]
-        z = self.actuator_height
-        rr = self.radius * math.sqrt(1.0 - (z / self.height) ** 2)
-        a = math.radians(az)
-        p = np.array([rr * math.cos(a), rr * math.sin(a), z])
-        axis = -np.array([math.cos(a), math.sin(a), 0.0])
-        return p, axis
-
-    def __call__(self, x: np.ndarray, regions) -> np.ndarray:
-        x = np.array(x, dtype=np.float64)
-        R, H = self.radius, self.height
-        patch_names = {name for name, _ in self.patches}
-        groups: dict = {}
-        flat = {self.base, *self.mirrors}
-        for i, reg in enumerate(regions):
-            if not reg or reg <= flat:
-                continue
-            curved = reg - flat
-            if self.base in reg:
-                key = ("circle",)
-            else:
-                rims = sorted(curved & patch_names)
-                key = ("rim", rims[0]) if rims and len(curved) > 1 else ("ellipsoid",)
-            groups.setdefault(key, []).append(i)
-        for key, idx in groups.items():
-            idx = np.array(idx)
-            y = x[idx]
-            if key[0] == "circle":
-                rxy = np.linalg.norm(y[:, :2], axis=1, keepdims=True)
-                y[:, :2] *= R / np.maximum(rxy, 1e-300)
-                y[:, 2] = 0.0
-            elif key[0] == "ellipsoid":
-                for _ in range(30):
-                    f, g = _ellipsoid(y, R, H)
-                    y -= (f / np.sum(g * g, axis=1))[:, None] * g
-                    if np.abs(f).max() < 1e-15:
-                        break
-            else:
-                p, axis = self._rim(key[1])
-                for _ in range(30):
-                    f1, g1 = _ellipsoid(y, R, H)
-                    f2, g2 = _cylinder(y, p, axis, self.patch_radius)
-                    J = np.stack([g1, g2], axis=1)                 # (k, 2, 3)
-                    JJ = J @ np.transpose(J, (0, 2, 1))             # (k, 2, 2)
-                    lam = np.linalg.solve(JJ, np.stack([f1, f2], axis=1)[:, :, None])
-                    y -= (np.transpose(J, (0, 2, 1)) @ lam)[:, :, 0]
-                    if max(np.abs(f1).max(), np.abs(f2).max()) < 1e-15:
-                        break
-            x[idx] = y
-        return x
-
-
-def projector_for(builder: str):
-    """The boundary projection of a builtin mesh (see ``meshes.builders.BUILDERS``): a
-    DomeProjection for ``phantom`` and ``phantom-3``, None for the flat ``box`` and ``rectangle``."""
-    from .builders import ACTUATORS_3, ACTUATORS_4, BUILDERS, PHANTOM
-
-    if builder not in BUILDERS:
-        raise CaseError(f"unknown mesh builder {builder!r}; builders: {sorted(BUILDERS)}")
-    if builder == "shell-octant":
-        return ShellProjection()
-    patches = {"phantom": ACTUATORS_4, "phantom-half": ACTUATORS_4,
-               "phantom-quarter": ACTUATORS_4, "phantom-symmetric": ACTUATORS_4,
-               "phantom-3": ACTUATORS_3}.get(builder)
-    if patches is None:
-        return None
-    g = PHANTOM
-    return DomeProjection(g.radius, g.height, g.actuator_height, g.patch_radius, tuple(patches))
