@@ -192,8 +192,8 @@ def _second_order(mesh):
     x, cells, edges = p2_cells(mesh)
     order = [d + 1 + EDGES[d].index(e) for e in _MESHIO_EDGES[d]]
     cells = cells[:, list(range(d + 1)) + order]
-    if d == 3:  # triangle6: mid-edge nodes of (0, 1), (1, 2), (0, 2)
-        f_order = [0, 1, 2] + [3 + FACET_EDGES[3].index(e) for e in ((0, 1), (1, 2), (0, 2))]
+    if d == 3:  # triangle6: its mid-edge nodes in meshio's order of a triangle's edges
+        f_order = [0, 1, 2] + [3 + FACET_EDGES[3].index(e) for e in _MESHIO_EDGES[2]]
     else:
         f_order = [0, 1, 2]
     return x, cells, lambda facets: p2_facets(mesh, facets, edges)[:, f_order]
