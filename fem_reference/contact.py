@@ -47,7 +47,9 @@ contact radius the degree-2 rule's force is +22 % (degree 4: -6.7 %; nodal +0.17
 of 1-1.5 contact radii +3.5-4.3 % (nodal +3.1-3.2 %); a solve with a Gauss rule warns when a
 contact is narrower than GAUSS_NARROW times its cells. So the nodal rule stays the default, for
 the shallow pushes of control tasks, and a push past about two tip radii asks for the Gauss
-rule (``failure_hint``).
+rule (``failure_hint``). Deeper than UNCONVERGED_RADII (2.5) of its radius a rounded tip has
+no mesh-converged answer known (the indenter phantom's 5 mm tips at 15 mm part from level to
+level): a solve there warns that its answer has no error bar.
 k = beta E / h (kPa/mm): beta is the dimensionless ``contact_penalty`` of ReferenceSolver, E
 Young's modulus, h the longest edge of the cell at the point (mm). phi is the penalty's kink
 smoothed over eps = h / beta: phi(x) = 0 (x <= 0), x^3 / (6 eps) (x < eps),
@@ -112,7 +114,8 @@ from .contact_indenter import (  # noqa: F401  (re-exported)
     _Indenter,
 )
 
-__all__ = ["DEFAULT_CONTACT_PENALTY", "Contact", "TipShape", "contact_key", "nodal_rule"]
+__all__ = ["DEFAULT_CONTACT_PENALTY", "UNCONVERGED_RADII", "Contact", "TipShape", "contact_key",
+           "nodal_rule"]
 
 DEFAULT_CONTACT_PENALTY = 1e3
 """beta in k = beta E / h: the penetration is (p_c / E + 1 / 2) h / beta (mm)."""
@@ -121,6 +124,13 @@ DEFAULT_CONTACT_PENALTY = 1e3
 DEEP_RADII = 1.8
 """Depth (in tip radii) past which a failed solve with the nodal rule names the contact rule as
 a likely cause: a ball-ended rod stops at 2.0-2.9 radii on cells of 0.6-0.2 radii."""
+
+
+UNCONVERGED_RADII = 2.5
+"""Depth (in tip radii) past which no mesh-converged answer is known for a rounded tip: on the
+indenter phantom the 5 mm tips converge at 2.5 radii (12.5 mm; GCI bands 1.5-4 %) and part by
+2-5 % per level at 3 radii (15 mm), where the skin has slid over the buried ball onto its rod;
+8 mm tips converge at 1.9 radii (15 mm). A solve with a tip deeper than this warns."""
 
 
 GAUSS_NARROW = 0.75
@@ -285,13 +295,24 @@ class Contact:
                 f"contact_quadrature=2)")
 
     def warnings(self) -> list[str]:
-        """With a Gauss rule: one line per indenter whose contact is narrower than the cells
-        under it (``_Indenter.contact_width``: radius below GAUSS_NARROW x their longest edge),
-        where the rule over-constrains the skin (module docstring); [] otherwise."""
-        if self.quadrature == "nodal":
-            return []
+        """One line per indenter deeper than UNCONVERGED_RADII of its radius (no mesh-converged
+        answer is known there) and, with a Gauss rule, per indenter whose contact is narrower
+        than the cells under it (``_Indenter.contact_width``: radius below GAUSS_NARROW x their
+        longest edge), where the rule over-constrains the skin (module docstring); [] when
+        neither."""
         out = []
         for ind in self.indenters:
+            depth, radius = ind.push_now(), ind.shape.radius
+            if depth > UNCONVERGED_RADII * radius * (1.0 + 1e-9):
+                out.append(f"indenter {ind.name}: {depth / radius:.2f} radii deep ({depth:.3g} "
+                           f"mm, tip radius {radius:.3g} mm): past {UNCONVERGED_RADII:g} radii "
+                           f"no mesh-converged answer is known (on the indenter phantom the "
+                           f"refinement levels part by 2-5 % at 3 radii, the skin slid over "
+                           f"the buried tip: docs/verification.md, \"Indenters at 15 mm\"); "
+                           f"this answer has no error bar. A wider tip converges "
+                           f"(meshes/cases/phantom-indenter-wide.toml at 15 mm)")
+            if self.quadrature == "nodal":
+                continue
             a, h = ind.contact_width()
             if 0.0 < a < GAUSS_NARROW * h:
                 out.append(f"indenter {ind.name}: contact radius {a:.2f} mm is narrower than the "
