@@ -94,6 +94,7 @@ class Case(CaseConstraintsMixin, CaseVariantsMixin):
     source: str | None = None
     reference_degree: int | None = None
     reference_contact_quadrature: str | int | None = None
+    reference_measured: tuple = ()   # [reference.measured] rows (dicts): fem_reference.measured
 
     def __post_init__(self):
         object.__setattr__(self, "boundaries", tuple(self.boundaries))

@@ -23,7 +23,7 @@ def _branches(table: dict) -> list[tuple]:
     return out
 
 
-def _keys(table: dict) -> list[str]:
+def _keys(table: dict, prefix: str = "") -> list[str]:
     table = _resolve(table)
     required = set(table.get("required", ()))
     varies = {k for _, then in _branches(table) for k, v in then.get("properties", {}).items()
@@ -32,10 +32,10 @@ def _keys(table: dict) -> list[str]:
     for key, s in table.get("properties", {}).items():
         s = _resolve(s)
         want = "depends on `type` (below)" if key in varies else expected(s)
-        if _is_table(s):
-            want = f"a table, see [{key}]"
+        if _is_table(s) and s.get("properties"):
+            want = f"a table, see [{prefix}{key}]"
         elif s.get("type") == "array" and _is_table(s.get("items")):
-            want = f"tables, see [[{key}]]"
+            want = f"tables, see [[{prefix}{key}]]"
         default = "required" if key in required else \
             f"`{show(s['default'])}`" if "default" in s else ""
         rows.append(f"| `{key}` | {_cell(want)} | {default} | {_cell(s.get('description', ''))} |")
@@ -60,6 +60,31 @@ def _types(table: dict) -> list[str]:
     return rows
 
 
+def _section(name: str, s: dict, heading: str) -> list[str]:
+    """The section of the table (or array of tables) ``name`` and of the tables nested in it;
+    [] for a key that holds no table."""
+    s = _resolve(s)
+    if _is_table(s) and s.get("properties"):
+        title, table = f"[{name}]", s
+    elif s.get("type") == "array" and _is_table(s.get("items")):
+        title, table = f"[[{name}]]", _resolve(s["items"])
+    else:
+        return []
+    lines = ["", f"{heading} {title}", "", s.get("description", "")]
+    if "oneOf" in table:
+        keys = [b["required"][0] for b in table["oneOf"]]
+        lines += ["", f"Exactly one of {' or '.join(f'`{k}`' for k in keys)}."]
+    for k, deps in table.get("dependentRequired", {}).items():
+        lines += ["", f"`{k}` only together with {', '.join(f'`{d}`' for d in deps)}."]
+    lines += [""] + _keys(table, f"{name}.")
+    if _branches(table):
+        lines += ["", "Each `type` takes its own keys; any other key is an error.", ""]
+        lines += _types(table)
+    for key, sub in table.get("properties", {}).items():
+        lines += _section(f"{name}.{key}", sub, heading + "#")
+    return lines
+
+
 def case_file_markdown() -> str:
     """The reference of the case-file format as Markdown text."""
     schema = case_schema()
@@ -77,23 +102,7 @@ def case_file_markdown() -> str:
              "## Top level", ""]
     lines += _keys(schema)
     for key, s in schema["properties"].items():
-        s = _resolve(s)
-        if _is_table(s):
-            title, table = f"[{key}]", s
-        elif s.get("type") == "array" and _is_table(s.get("items")):
-            title, table = f"[[{key}]]", _resolve(s["items"])
-        else:
-            continue
-        lines += ["", f"## {title}", "", s.get("description", "")]
-        if "oneOf" in table:
-            keys = [b["required"][0] for b in table["oneOf"]]
-            lines += ["", f"Exactly one of {' or '.join(f'`{k}`' for k in keys)}."]
-        for k, deps in table.get("dependentRequired", {}).items():
-            lines += ["", f"`{k}` only together with {', '.join(f'`{d}`' for d in deps)}."]
-        lines += [""] + _keys(table)
-        if _branches(table):
-            lines += ["", "Each `type` takes its own keys; any other key is an error.", ""]
-            lines += _types(table)
+        lines += _section(key, s, "##")
     lines += ["", "## Vectors", "",
               ("A vector has one number per space dimension: 3 on a 3D mesh, 2 on a 2D mesh "
                "(checked once the mesh is read); a gradient is a square matrix of that size. "

@@ -267,10 +267,20 @@ def load_case(path, *, mesh: MeshData | None = None, size: float | None = None,
                     reference_degree=data.get("reference", {}).get("degree"),
                     reference_contact_quadrature=data.get("reference", {}).get(
                         "contact_quadrature"),
+                    reference_measured=tuple(data.get("reference", {}).get("measured", ())),
                     name=data.get("name", Path(path).stem), source=src)
     except CaseError as exc:  # conflicting prescriptions, rigid-body freedom, inverted cells
         if str(exc).startswith(f"{src}: "):
             raise
         raise type(exc)(f"{src}: {exc}") from None
-    _raise(_probe_errors(case, src))
+    _raise(_probe_errors(case, src) + _measured_errors(case, src))
     return case
+
+
+def _measured_errors(case: Case, src: str) -> list[str]:
+    """A measured load may push only the case's actuators."""
+    names = [a.name for a in case.actuators]
+    return [f"{src}: [reference].measured[{i}].pushes.{k}: expected one of the case's actuators "
+            f"({', '.join(names) or 'none'}), found {k!r}"
+            for i, row in enumerate(case.reference_measured, start=1)
+            for k in row["pushes"] if k not in names]

@@ -57,6 +57,8 @@ def _child(s, key, instance):
     if isinstance(key, int):
         return s.get("items")
     out = s.get("properties", {}).get(key)
+    if out is None and isinstance(s.get("additionalProperties"), dict):
+        return s["additionalProperties"]     # a table of free names (name -> value)
     if out is None:
         return None
     for branch in s.get("allOf", ()):
@@ -158,6 +160,10 @@ def expected(s) -> str:
         return (repr(s["enum"][0]) if len(s["enum"]) == 1 else
                 "one of " + ", ".join(repr(v) for v in s["enum"]))
     kind = s.get("type")
+    if kind == "object" and not s.get("properties") and isinstance(s.get("additionalProperties"),
+                                                                     dict):
+        return f"a table of at least {s.get('minProperties', 0)} name = " \
+               f"{expected(s['additionalProperties'])}"
     if kind == "object":
         return f"a table with keys {', '.join(s.get('properties', {}))}"
     if kind == "array":
@@ -176,6 +182,8 @@ def expected(s) -> str:
         return f"an integer{_range(s)}"
     if kind == "string":
         return "a non-empty string" if s.get("minLength") else "a string"
+    if kind == "boolean":
+        return "true or false"
     if isinstance(kind, list):
         return " or ".join({"array": "a list", "object": "a table"}.get(k, f"a {k}") for k in kind)
     return "a value"

@@ -146,6 +146,10 @@ def run(args) -> int:
 
                 res = auto_estimate(case, res, pushes=pushes, progress=not args.quiet,
                                     degree=args.degree, formulation=args.formulation)
+            if args.solver == "fem":
+                from tissue_reference.fem_reference.measured import with_measured_accuracy
+
+                res = with_measured_accuracy(case, res, pushes)
     except AccuracyNotReached as exc:
         if exc.result is not None:   # the last answer, on the mesh it was solved on
             write_outputs(exc.result.case.with_pushes(pushes), exc.result.result, args.out,
@@ -182,6 +186,10 @@ def run(args) -> int:
         for line in res.extra.get("warnings") or \
                 case.with_pushes(pushes).glued_patch_warnings(res.u):
             print(f"tissue solve: warning: {line}", file=sys.stderr)
+        if not (res.extra.get("measured_accuracy") or {}).get("converged", True):
+            print(f"tissue solve: warning: no converged value is known at this load "
+                  f"({res.extra['measured_accuracy']['why']}): this answer has no error bar",
+                  file=sys.stderr)
         return report_validity("solve", res)
     return 0 if res.extra.get("valid", True) else 1
 
@@ -243,6 +251,10 @@ def print_answer(res):
         print(f"  smallest J = det F: {res.extra['min_J']:.3f}")
     if res.extra.get("estimate_note"):
         print(f"  error estimate: none: {res.extra['estimate_note']}")
+    if res.extra.get("measured_accuracy"):
+        from tissue_reference.fem_reference.measured import describe
+
+        print(f"  accuracy: {describe(res.extra['measured_accuracy'])}")
     if pe:
         ed = res.extra.get("estimate_discretization") or {}
         print(f"  error estimate: {res.extra.get('estimate_method')} against "

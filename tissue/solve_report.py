@@ -178,6 +178,10 @@ def _answer(d: dict) -> list:
                      f"{fmt(d.get('estimate_cost_ratio'), 2)} x the solve.")
     elif d.get("estimate_note"):
         parts.append(f"No error estimate: {d['estimate_note']}.")
+    if d.get("measured_accuracy"):
+        from tissue_reference.fem_reference.measured import describe
+
+        parts.append(f"Accuracy: {describe(d['measured_accuracy'])}.")
     ind = d.get("indenters") or {}
     if ind:
         parts += [Raw("<h3>Indenters</h3>"),

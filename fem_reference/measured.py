@@ -1,0 +1,76 @@
+"""What a case file says its own discretization's answers are worth (``[reference.measured]``).
+
+A default discretization fine enough to be accurate is often too large for the automatic error
+estimate (one solve at degree + 1): the indenter phantom's P3 estimate would have 303k unknowns.
+Its error is measured instead, once, against the converged answers of refinement studies
+(docs/verification.md), for the loads the case is meant for. The case file keeps each
+measurement as a row: the load (actuator -> push, mm), the discretization measured (its unknowns,
+degree and contact rule) and the largest relative differences of the indenters' forces and of
+the probes' displacement vectors from the converged values, with what those values are; a load
+at which no converged value is known is a row with ``converged = false`` and why.
+
+``measured_accuracy`` hands back the row that describes a given answer: the same unknowns,
+degree, contact rule and pushes (to PUSH_TOL mm). Another mesh, degree, rule or load matches no
+row, so a measurement is never stretched to an answer it was not made for. Dimensionless
+fractions (0.01 = 1 %); pushes in mm.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+from tissue_reference.meshes.case import Case
+from tissue_reference.meshes.results import SolveResult
+
+__all__ = ["PUSH_TOL", "describe", "measured_accuracy", "with_measured_accuracy"]
+
+PUSH_TOL = 1e-9
+"""A measured load matches an answer's when every push agrees to this (mm)."""
+
+
+def _rule(case: Case, result: SolveResult):
+    """The contact rule of ``result`` ("nodal" or a Gauss degree); the case's without
+    indenters."""
+    for report in (result.extra.get("indenters") or {}).values():
+        return report.get("quadrature", "nodal")
+    return case.reference_contact_quadrature or "nodal"
+
+
+def measured_accuracy(case: Case, result: SolveResult, pushes=None) -> dict | None:
+    """The ``[reference.measured]`` row of ``case`` that describes ``result`` (a reference answer
+    of ``case`` under ``pushes``, actuator name -> mm; the others at 0), with ``converged``
+    filled in; None when no row has its unknowns, degree, contact rule and pushes."""
+    if not case.reference_measured or result.solver != "fem":
+        return None
+    from .solver import default_degree
+
+    disc = result.extra.get("discretization") or {}
+    load = {a.name: float((pushes or {}).get(a.name, 0.0)) for a in case.actuators}
+    case_degree = default_degree(case, disc.get("formulation", "displacement"))
+    case_rule = case.reference_contact_quadrature or "nodal"
+    rule = _rule(case, result)
+    for row in case.reference_measured:
+        if row["dofs"] != disc.get("dofs") or row.get("degree", case_degree) != result.degree \
+                or row.get("contact_quadrature", case_rule) != rule:
+            continue
+        if all(abs(float(row["pushes"].get(name, 0.0)) - push) <= PUSH_TOL
+               for name, push in load.items()):
+            return {"converged": True, **row}
+    return None
+
+
+def with_measured_accuracy(case: Case, result: SolveResult, pushes=None) -> SolveResult:
+    """``result`` with ``extra["measured_accuracy"]`` (``measured_accuracy``) where a row of the
+    case describes it; unchanged otherwise."""
+    row = measured_accuracy(case, result, pushes)
+    if row is None:
+        return result
+    return dataclasses.replace(result, extra={**result.extra, "measured_accuracy": row})
+
+
+def describe(row: dict) -> str:
+    """One line for a measured row: the differences and their reference, or why there is none."""
+    if not row.get("converged", True):
+        return f"none: no converged value is known at this load ({row['why']})"
+    force = f"indenter force within {row['force']:.2%}, " if "force" in row else ""
+    return f"measured for this discretization and load: {force}probes within " \
+           f"{row['probes']:.2%} of the converged value ({row['against']})"

@@ -1,0 +1,142 @@
+"""A case file's measured accuracy (``[reference.measured]``): a solve reports the row of exactly
+its discretization (unknowns, degree, contact rule) and load, and no row for anything else; a bad
+row is refused naming the file and the key; the shipped rows describe their cases' defaults.
+Units: mm."""
+import dataclasses
+import itertools
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tissue_reference.fem_reference as fr
+from tissue_reference.fem_reference.measured import measured_accuracy, with_measured_accuracy
+from tissue_reference.meshes.case import load_case
+from tissue_reference.meshes.errors import CaseError
+
+CASES = Path(__file__).resolve().parents[1] / "meshes" / "cases"
+QUARTER = CASES / "phantom-quarter.toml"    # glued patches, P1 by default
+
+
+def _row(dofs, pushes, **kw):
+    row = {"pushes": pushes, "dofs": dofs, **kw}
+    if kw.get("converged") is not False:
+        row.setdefault("probes", 0.05)
+        row.setdefault("against", "a finer mesh")
+    return row
+
+
+@pytest.fixture(scope="module")
+def coarse():
+    case = load_case(QUARTER, size=14)
+    return case, fr.solve(case, pushes={"A1": 1.0})
+
+
+def test_a_row_describes_exactly_its_discretization_and_load(coarse):
+    case, res = coarse
+    n = res.extra["discretization"]["dofs"]
+    assert n == 3 * case.mesh.n_vertices     # P1 displacement: three unknowns per vertex
+    rows = (_row(n, {"A1": 2.0}, probes=0.2), _row(n + 3, {"A1": 1.0}, probes=0.3),
+            _row(n, {"A1": 1.0}, degree=2, probes=0.4), _row(n, {"A1": 1.0, "A2": 1.0}),
+            _row(n, {"A1": 1.0}, contact_quadrature=2, probes=0.6),
+            _row(n, {"A1": 1.0, "A2": 0.0}, probes=0.07))
+    with_rows = dataclasses.replace(case, reference_measured=rows)
+    got = measured_accuracy(with_rows, res, {"A1": 1.0})
+    assert got == {"converged": True, **rows[-1]}     # the actuators not named are at 0
+    assert measured_accuracy(with_rows, res, {"A1": 1.0 + 1e-6}) is None
+    assert measured_accuracy(case, res, {"A1": 1.0}) is None      # a case without rows
+    assert "measured_accuracy" not in with_measured_accuracy(case, res, {"A1": 1.0}).extra
+    # the same load at degree 2 is another discretization: no row
+    p2 = fr.solve(case, pushes={"A1": 1.0}, degree=2)
+    assert measured_accuracy(with_rows, p2, {"A1": 1.0}) is None
+
+
+def _with_rows(tmp_path, rows: str) -> Path:
+    path = tmp_path / "quarter.toml"
+    path.write_text(QUARTER.read_text() + "\n" + rows)
+    return path
+
+
+UNKNOWN_ACTUATOR = """
+[[reference.measured]]
+pushes = {A9 = 5.0}
+dofs = 100
+probes = 0.01
+against = "x"
+"""
+
+
+def test_bad_rows_are_refused_naming_the_file_and_the_key(tmp_path):
+    path = _with_rows(tmp_path, UNKNOWN_ACTUATOR + """
+[[reference.measured]]
+pushes = {A1 = -1.0}
+dofs = 100
+converged = false
+probes = 0.01
+""")
+    with pytest.raises(CaseError) as err:   # the schema's faults first, one line each
+        load_case(path)
+    msg = str(err.value)
+    assert f"{path}: [reference].measured[2].pushes.A1: expected a finite number >= 0, found -1" \
+        in msg
+    assert "[reference].measured[2].probes: expected no probes with converged = false" in msg
+    assert "[reference].measured[2].why: expected a string, found nothing" in msg
+    with pytest.raises(CaseError, match=r"measured\[1\]\.pushes\.A9: expected one of the "
+                                        r"case's actuators \(A1, A2\), found 'A9'"):
+        load_case(_with_rows(tmp_path, UNKNOWN_ACTUATOR))
+
+
+def test_the_command_line_prints_the_row_and_warns_where_nothing_converged(tmp_path, capsys):
+    from tissue_reference.tissue.cli import main
+
+    n = 3 * load_case(QUARTER, size=14).mesh.n_vertices
+    path = _with_rows(tmp_path, f"""
+[[reference.measured]]
+pushes = {{A1 = 1.0}}
+dofs = {n}
+probes = 0.05
+against = "a finer mesh of the test"
+
+[[reference.measured]]
+pushes = {{A1 = 1.5}}
+dofs = {n}
+converged = false
+why = "the test says so"
+""")
+    js = tmp_path / "s.json"
+    assert main(["solve", str(path), "--size", "14", "--push", "A1=1", "-q",
+                 "--json", str(js), "--out", str(tmp_path / "o")]) == 0
+    out = capsys.readouterr()
+    assert "Accuracy: measured for this discretization and load: probes within 5.00%" in \
+        (tmp_path / "o" / "report.html").read_text()
+    assert "accuracy: measured for this discretization and load: probes within 5.00% of the " \
+           "converged value (a finer mesh of the test)" in out.out
+    assert json.loads(js.read_text())["measured_accuracy"]["against"] == \
+        "a finer mesh of the test"
+    assert main(["solve", str(path), "--size", "14", "--push", "A1=1.5", "-q"]) == 0
+    out = capsys.readouterr()
+    assert "accuracy: none: no converged value is known at this load (the test says so)" in \
+        out.out
+    assert "warning: no converged value is known at this load (the test says so): this answer " \
+           "has no error bar" in out.err
+    assert main(["solve", str(path), "--size", "14", "--push", "A1=1", "--degree", "2",
+                 "-q", "--no-estimate"]) == 0
+    assert "accuracy:" not in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("name", ["phantom-indenter", "phantom-indenter-quarter",
+                                  "phantom-indenter-wide", "phantom-indenter-control"])
+def test_the_shipped_rows_describe_their_cases_defaults(name):
+    """Each row's unknowns are the case's own at its degree (P2: three per vertex and per edge),
+    so a change of the default mesh cannot leave its measurements behind unnoticed."""
+    case = load_case(CASES / f"{name}.toml")
+    assert case.reference_measured and case.reference_degree == 2
+    cells = case.mesh.cells
+    edges = np.unique(np.sort(np.vstack([cells[:, e] for e in itertools.combinations(range(4),
+                                                                                    2)]), axis=1),
+                      axis=0)
+    dofs = 3 * (case.mesh.n_vertices + len(edges))
+    for row in case.reference_measured:
+        assert row["dofs"] == dofs and row.get("degree", 2) == 2
+        assert row.get("converged", True) == ("why" not in row)
