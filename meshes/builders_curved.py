@@ -22,6 +22,7 @@ from .builders_gmsh import _finish
 from .errors import CaseError
 from .mesh import MeshData
 from .mirror import mirror
+from .projection import dome_side_point
 
 __all__ = [
     "ACTUATORS_3",
@@ -53,10 +54,7 @@ class PhantomGeometry:
 
     def side_point(self, azimuth_deg: float) -> np.ndarray:
         """Point of the dome surface at the actuator height and the given azimuth."""
-        z = self.actuator_height
-        r = self.radius * math.sqrt(1.0 - (z / self.height) ** 2)
-        a = math.radians(azimuth_deg)
-        return np.array([r * math.cos(a), r * math.sin(a), z])
+        return dome_side_point(self.radius, self.height, self.actuator_height, azimuth_deg)
 
 
 PHANTOM = PhantomGeometry()

@@ -16,7 +16,15 @@ import numpy as np
 
 from .errors import CaseError
 
-__all__ = ["DomeProjection", "ShellProjection", "projector_for"]
+__all__ = ["DomeProjection", "ShellProjection", "dome_side_point", "projector_for"]
+
+
+def dome_side_point(radius: float, height: float, z: float, azimuth_deg: float) -> np.ndarray:
+    """The point (mm) of the half-ellipsoid (x^2 + y^2) / radius^2 + z^2 / height^2 = 1 at
+    height ``z`` and the given azimuth (degrees from +x): an actuator site of the phantom."""
+    r = radius * math.sqrt(1.0 - (z / height) ** 2)
+    a = math.radians(azimuth_deg)
+    return np.array([r * math.cos(a), r * math.sin(a), z])
 
 
 def _ellipsoid(x, R, H):
@@ -75,13 +83,10 @@ class DomeProjection:
     mirrors: tuple = ("sym_y0", "sym_x0")  # flat mirror planes of the half and quarter parts
 
     def _rim(self, name):
-        az = dict(self.patches)[name]
-        z = self.actuator_height
-        rr = self.radius * math.sqrt(1.0 - (z / self.height) ** 2)
-        a = math.radians(az)
-        p = np.array([rr * math.cos(a), rr * math.sin(a), z])
-        axis = -np.array([math.cos(a), math.sin(a), 0.0])
-        return p, axis
+        """A patch's site (mm) and the unit axis of its rim cylinder (inward, horizontal)."""
+        p = dome_side_point(self.radius, self.height, self.actuator_height,
+                            dict(self.patches)[name])
+        return p, -np.array([p[0], p[1], 0.0]) / math.hypot(p[0], p[1])
 
     def __call__(self, x: np.ndarray, regions) -> np.ndarray:
         x = np.array(x, dtype=np.float64)
