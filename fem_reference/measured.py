@@ -73,4 +73,4 @@ def describe(row: dict) -> str:
         return f"none: no converged value is known at this load ({row['why']})"
     force = f"indenter force within {row['force']:.2%}, " if "force" in row else ""
     return f"measured for this discretization and load: {force}probes within " \
-           f"{row['probes']:.2%} of the converged value ({row['against']})"
+           f"{row['probes']:.2%} of the converged value: {row['against']}"

@@ -111,7 +111,7 @@ why = "the test says so"
     assert "Accuracy: measured for this discretization and load: probes within 5.00%" in \
         (tmp_path / "o" / "report.html").read_text()
     assert "accuracy: measured for this discretization and load: probes within 5.00% of the " \
-           "converged value (a finer mesh of the test)" in out.out
+           "converged value: a finer mesh of the test" in out.out
     assert json.loads(js.read_text())["measured_accuracy"]["against"] == \
         "a finer mesh of the test"
     assert main(["solve", str(path), "--size", "14", "--push", "A1=1.5", "-q"]) == 0
