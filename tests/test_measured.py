@@ -140,3 +140,41 @@ def test_the_shipped_rows_describe_their_cases_defaults(name):
     for row in case.reference_measured:
         assert row["dofs"] == dofs and row.get("degree", 2) == 2
         assert row.get("converged", True) == ("why" not in row)
+
+
+DATA = Path(__file__).resolve().parent / "data" / "phantom_indenter_reference.json"
+
+
+def _from_study(key: str, level: int, push: float) -> tuple[float, float]:
+    """(force, worst probe) differences of ``level`` of a study in the data file from the
+    finest level of the Gauss-rule study of all four, at ``push`` (mm)."""
+    loads = json.loads(DATA.read_text())["loads"]
+    row = next(e for e in loads[key]["pushes"] if e["push_mm"] == push)
+    ref = next(e for e in loads["four_gauss"]["pushes"] if e["push_mm"] == push)
+    i = row["levels"].index(level)
+    force = abs(row["force_mN"][i] / ref["force_mN"][-1] - 1.0)
+    probes = max(np.linalg.norm(np.subtract(row["probes_mm"][n][i], v[-1])) / np.linalg.norm(v[-1])
+                 for n, v in ref["probes_mm"].items())
+    return force, probes
+
+
+@pytest.mark.parametrize("name, level", [("phantom-indenter", -1),
+                                         ("phantom-indenter-quarter", 0)])
+def test_the_all_four_rows_are_the_study_data_s(name, level):
+    """All four pushed equally, the whole indenter case's default is the quarter's level -1 of
+    the studies (its mesh is that level's mirrored) and the quarter case's default their level
+    0: their rows hold the differences the data file's levels give (nodal rule: the path
+    study; Gauss rule: the Gauss-rule study), not numbers typed in by hand."""
+    case = load_case(CASES / f"{name}.toml")
+    checked = 0
+    for row in case.reference_measured:
+        pushes = set(row["pushes"].values())
+        if len(row["pushes"]) != len(case.actuators) or not row.get("converged", True):
+            continue
+        (push,) = pushes
+        key = "four_gauss" if row.get("contact_quadrature", "nodal") == 2 else "four_path"
+        force, probes = _from_study(key, level, push)
+        assert row["force"] == pytest.approx(force, abs=6e-5)
+        assert row["probes"] == pytest.approx(probes, abs=6e-5)
+        checked += 1
+    assert checked == 5
