@@ -345,12 +345,18 @@ def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None, d
     dirichlet_override: (node-major Case dofs, values in mm) added to the Case's prescriptions.
     estimate: add the estimated discretization error (``fem_reference.estimate``: one more solve
     at degree + 1) to ``extra``: probe_error_estimates (mm), reaction_error_estimates (mN), ...
+    A case file's measured accuracy for exactly this load and discretization
+    (``[reference.measured]``, ``fem_reference.measured``) is in ``extra["measured_accuracy"]``.
     """
+    from .measured import with_measured_accuracy
+
     if estimate and dirichlet_override is not None:
         raise CaseError("estimate=True: the error estimate does not take dirichlet_override")
     s = _solver_for(case, degree, **kw)
     res = s.solve(pushes, case=case, initial=initial, dirichlet_override=dirichlet_override,
                   progress=progress)
+    if dirichlet_override is None:   # another problem than the case's: no row describes it
+        res = with_measured_accuracy(case, res, pushes)
     if estimate:
         from .estimate import estimate as with_estimate
 

@@ -50,6 +50,9 @@ def test_a_row_describes_exactly_its_discretization_and_load(coarse):
     # the same load at degree 2 is another discretization: no row
     p2 = fr.solve(case, pushes={"A1": 1.0}, degree=2)
     assert measured_accuracy(with_rows, p2, {"A1": 1.0}) is None
+    # fr.solve reports the row itself, and only for its own load
+    assert fr.solve(with_rows, pushes={"A1": 1.0}).extra["measured_accuracy"] == got
+    assert "measured_accuracy" not in fr.solve(with_rows, pushes={"A1": 0.5}).extra
 
 
 def _with_rows(tmp_path, rows: str) -> Path:

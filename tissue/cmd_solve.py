@@ -146,10 +146,6 @@ def run(args) -> int:
 
                 res = auto_estimate(case, res, pushes=pushes, progress=not args.quiet,
                                     degree=args.degree, formulation=args.formulation)
-            if args.solver == "fem":
-                from tissue_reference.fem_reference.measured import with_measured_accuracy
-
-                res = with_measured_accuracy(case, res, pushes)
     except AccuracyNotReached as exc:
         if exc.result is not None:   # the last answer, on the mesh it was solved on
             write_outputs(exc.result.case.with_pushes(pushes), exc.result.result, args.out,
