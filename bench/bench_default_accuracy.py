@@ -23,7 +23,9 @@ displacements (mm) of each discretization, the relative difference of each to th
     .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--pushes 5 10 12.5]
         [--contact-quadrature nodal|2] [--study gauss|nodal] [--old [p1|p2]]
         [--case indenter|wide|control]
-        [--mesh SIZE SITE PATH [--builder phantom-symmetric]]
+        [--mesh SIZE SITE PATH [--builder phantom-symmetric]] [--rows]
+
+``--rows`` prints the default's rows for its case file's ``[[reference.measured]]``.
 """
 from __future__ import annotations
 
@@ -127,6 +129,25 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
     return rows
 
 
+def measured_row(load: str, push: float, r: dict, e: dict, ref: dict | None,
+                 case_rule) -> str:
+    """The ``[[reference.measured]]`` table (TOML) of the default's answer ``r`` with its
+    differences ``e`` from the converged answer ``ref`` (or, without one, converged = false)."""
+    lines = ["[[reference.measured]]",
+             "pushes = {" + ", ".join(f"{a} = {push:g}" for a in LOADS[load]) + "}",
+             f"dofs = {r['dofs']}"]
+    if r["rule"] != (case_rule or "nodal"):
+        lines.append(f"contact_quadrature = {json.dumps(r['rule'])}")
+    if ref is None:
+        lines += ["converged = false", 'why = "no study converges at this push"']
+    else:
+        lines += [f"force = {e['force']:.4f}",
+                  f"probes = {max(v for k, v in e.items() if k != 'force'):.4f}",
+                  (f'against = "tests/data/{DATA.name} {ref["study"]} level {ref["level"]} '
+                   f'({ref["dofs"]} dofs)"')]
+    return "\n".join(lines)
+
+
 def errors(row: dict, ref: dict) -> dict:
     out = {"force": abs(row["force"] - ref["force"]) / abs(ref["force"])}
     for n, v in ref["probes"].items():
@@ -156,6 +177,8 @@ def main():
     ap.add_argument("--builder", choices=["phantom", "phantom-symmetric"], default="phantom",
                     help="the builder of --mesh: the whole phantom's own gmsh mesh, or the "
                          "quarter's mirrored (exactly symmetric)")
+    ap.add_argument("--rows", action="store_true",
+                    help="print the default's [[reference.measured]] rows for its case file")
     ap.add_argument("--old", nargs="?", const="p1", choices=sorted(OLD),
                     help="also solve an earlier default for the ratios: p1 (the default "
                          "without a value: P1, 1.6 mm sites) or p2 (P2, 3.2 mm sites, the "
@@ -210,6 +233,11 @@ def main():
                     print(f"           not valid: {r['why']}")
                 print("           targets (mm): " + ", ".join(
                     f"{n} {np.round(v, 4).tolist()}" for n, v in r["probes"].items()))
+            if args.rows and args.mesh is None and label in found:
+                from tissue_reference.meshes.case import load_case
+
+                print(measured_row(load, push, found[label], errs[label], ref,
+                                   load_case(CASES[args.case]).reference_contact_quadrature))
             if ref and len(errs) == 2:
                 old = runs[1][0]
                 worst = (max(errs[label].values()), max(errs[old].values()))
