@@ -21,7 +21,8 @@ import dataclasses
 from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.results import SolveResult
 
-__all__ = ["PUSH_TOL", "describe", "measured_accuracy", "with_measured_accuracy"]
+__all__ = ["PUSH_TOL", "describe", "measured_accuracy", "unmatched_note",
+           "with_measured_accuracy"]
 
 PUSH_TOL = 1e-9
 """A measured load matches an answer's when every push agrees to this (mm)."""
@@ -41,30 +42,52 @@ def measured_accuracy(case: Case, result: SolveResult, pushes=None) -> dict | No
     filled in; None when no row has its unknowns, degree, contact rule and pushes."""
     if not case.reference_measured or result.solver != "fem":
         return None
-    from .solver import default_degree
-
-    disc = result.extra.get("discretization") or {}
     load = {a.name: float((pushes or {}).get(a.name, 0.0)) for a in case.actuators}
-    case_degree = default_degree(case, disc.get("formulation", "displacement"))
-    case_rule = case.reference_contact_quadrature or "nodal"
-    rule = _rule(case, result)
     for row in case.reference_measured:
-        if row["dofs"] != disc.get("dofs") or row.get("degree", case_degree) != result.degree \
-                or row.get("contact_quadrature", case_rule) != rule:
-            continue
-        if all(abs(float(row["pushes"].get(name, 0.0)) - push) <= PUSH_TOL
-               for name, push in load.items()):
+        if _same_discretization(case, result, row) and all(
+                abs(float(row["pushes"].get(name, 0.0)) - push) <= PUSH_TOL
+                for name, push in load.items()):
             return {"converged": True, **row}
     return None
 
 
+def _same_discretization(case: Case, result: SolveResult, row: dict) -> bool:
+    """Whether ``row`` was measured on ``result``'s discretization: its unknowns, degree and
+    contact rule (a row's degree and rule default to the case's)."""
+    from .solver import default_degree
+
+    disc = result.extra.get("discretization") or {}
+    degree = row.get("degree", default_degree(case, disc.get("formulation", "displacement")))
+    rule = row.get("contact_quadrature", case.reference_contact_quadrature or "nodal")
+    return row["dofs"] == disc.get("dofs") and degree == result.degree and \
+        rule == _rule(case, result)
+
+
 def with_measured_accuracy(case: Case, result: SolveResult, pushes=None) -> SolveResult:
     """``result`` with ``extra["measured_accuracy"]`` (``measured_accuracy``) where a row of the
-    case describes it; unchanged otherwise."""
-    row = measured_accuracy(case, result, pushes)
-    if row is None:
+    case describes it; where the case has rows and none does, ``extra["measured_note"]`` names
+    the loads it measured (``unmatched_note``); unchanged for a case without rows."""
+    if not case.reference_measured or result.solver != "fem":
         return result
-    return dataclasses.replace(result, extra={**result.extra, "measured_accuracy": row})
+    row = measured_accuracy(case, result, pushes)
+    extra = {"measured_accuracy": row} if row is not None else \
+        {"measured_note": unmatched_note(case, result)}
+    return dataclasses.replace(result, extra={**result.extra, **extra})
+
+
+def unmatched_note(case: Case, result: SolveResult) -> str:
+    """Why no row describes ``result``: the loads measured on its discretization, or that its
+    discretization (unknowns, contact rule) is not the one measured."""
+    same = [r for r in case.reference_measured if _same_discretization(case, result, r)]
+    rule = _rule(case, result)
+    disc = result.extra.get("discretization") or {}
+    if not same:
+        dofs = sorted({r["dofs"] for r in case.reference_measured})
+        return f"not measured: the case's measurements are of {', '.join(map(str, dofs))} " \
+               f"unknowns, this answer has {disc.get('dofs')} (contact rule {rule})"
+    loads = "; ".join(", ".join(f"{k} = {v:g}" for k, v in r["pushes"].items()) for r in same)
+    return f"not measured for this load: on this discretization (contact rule {rule}) the " \
+           f"case measured {loads} mm"
 
 
 def describe(row: dict) -> str:

@@ -50,9 +50,20 @@ def test_a_row_describes_exactly_its_discretization_and_load(coarse):
     # the same load at degree 2 is another discretization: no row
     p2 = fr.solve(case, pushes={"A1": 1.0}, degree=2)
     assert measured_accuracy(with_rows, p2, {"A1": 1.0}) is None
-    # fr.solve reports the row itself, and only for its own load
+    # fr.solve reports the row itself, and only for its own load; otherwise it names the
+    # loads measured on this discretization (the nodal rule's: not the Gauss rule's row)
     assert fr.solve(with_rows, pushes={"A1": 1.0}).extra["measured_accuracy"] == got
-    assert "measured_accuracy" not in fr.solve(with_rows, pushes={"A1": 0.5}).extra
+    other = fr.solve(with_rows, pushes={"A1": 0.5}).extra
+    assert "measured_accuracy" not in other
+    assert other["measured_note"] == (
+        "not measured for this load: on this discretization (contact rule nodal) the case "
+        "measured A1 = 2; A1 = 1, A2 = 1; A1 = 1, A2 = 0 mm")
+    assert "this answer has 3 unknowns" not in other["measured_note"]
+    assert "measured_note" not in fr.solve(case, pushes={"A1": 0.5}).extra   # no rows
+    assert p2.extra.get("measured_note") is None   # fr.solve on the case without rows
+    note = with_measured_accuracy(with_rows, p2, {"A1": 1.0}).extra["measured_note"]
+    assert note == f"not measured: the case's measurements are of {n}, {n + 3} unknowns, this " \
+                   f"answer has {p2.extra['discretization']['dofs']} (contact rule nodal)"
 
 
 def _with_rows(tmp_path, rows: str) -> Path:
@@ -125,7 +136,7 @@ why = "the test says so"
            "has no error bar" in out.err
     assert main(["solve", str(path), "--size", "14", "--push", "A1=1", "--degree", "2",
                  "-q", "--no-estimate"]) == 0
-    assert "accuracy:" not in capsys.readouterr().out
+    assert "accuracy: not measured: the case's measurements are of " in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("name", ["phantom-indenter", "phantom-indenter-quarter",

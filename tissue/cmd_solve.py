@@ -251,6 +251,8 @@ def print_answer(res):
         from tissue_reference.fem_reference.measured import describe
 
         print(f"  accuracy: {describe(res.extra['measured_accuracy'])}")
+    elif res.extra.get("measured_note") and not pe:
+        print(f"  accuracy: {res.extra['measured_note']}")
     if pe:
         ed = res.extra.get("estimate_discretization") or {}
         print(f"  error estimate: {res.extra.get('estimate_method')} against "

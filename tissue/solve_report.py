@@ -182,6 +182,8 @@ def _answer(d: dict) -> list:
         from tissue_reference.fem_reference.measured import describe
 
         parts.append(f"Accuracy: {describe(d['measured_accuracy'])}.")
+    elif d.get("measured_note") and not pe:
+        parts.append(f"Accuracy: {d['measured_note']}.")
     ind = d.get("indenters") or {}
     if ind:
         parts += [Raw("<h3>Indenters</h3>"),
