@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -186,6 +187,9 @@ def main():
     args = ap.parse_args()
     if (args.case, args.study) not in STUDIES:
         ap.error(f"the {args.case} case has no {args.study} study")
+    # the case's own contact rule, for --rows (read from the file: no mesh to build)
+    case_rule = tomllib.loads(CASES[args.case].read_text()).get("reference", {}).get(
+        "contact_quadrature")
     for load in args.loads:
         what = "A1 alone" if load == "one" else "all four"
         label = "default" if args.mesh is None else "mesh"
@@ -234,10 +238,7 @@ def main():
                 print("           targets (mm): " + ", ".join(
                     f"{n} {np.round(v, 4).tolist()}" for n, v in r["probes"].items()))
             if args.rows and args.mesh is None and label in found:
-                from tissue_reference.meshes.case import load_case
-
-                print(measured_row(load, push, found[label], errs[label], ref,
-                                   load_case(CASES[args.case]).reference_contact_quadrature))
+                print(measured_row(load, push, found[label], errs[label], ref, case_rule))
             if ref and len(errs) == 2:
                 old = runs[1][0]
                 worst = (max(errs[label].values()), max(errs[old].values()))

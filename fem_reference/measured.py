@@ -21,7 +21,7 @@ import dataclasses
 from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.results import SolveResult
 
-__all__ = ["PUSH_TOL", "describe", "measured_accuracy", "unmatched_note",
+__all__ = ["PUSH_TOL", "accuracy_line", "describe", "measured_accuracy", "unmatched_note",
            "with_measured_accuracy"]
 
 PUSH_TOL = 1e-9
@@ -70,14 +70,21 @@ def with_measured_accuracy(case: Case, result: SolveResult, pushes=None) -> Solv
     if not case.reference_measured or result.solver != "fem":
         return result
     row = measured_accuracy(case, result, pushes)
-    extra = {"measured_accuracy": row} if row is not None else \
-        {"measured_note": unmatched_note(case, result)}
+    if row is None:
+        extra = {"measured_note": unmatched_note(case, result)}
+    elif row["converged"]:
+        extra = {"measured_accuracy": row}
+    else:   # a warning like the solve's own: the CLI, the report and the JSON carry it
+        warn = f"no converged value is known at this load ({row['why']}): this answer has no " \
+               f"error bar"
+        extra = {"measured_accuracy": row,
+                 "warnings": [*(result.extra.get("warnings") or ()), warn]}
     return dataclasses.replace(result, extra={**result.extra, **extra})
 
 
 def unmatched_note(case: Case, result: SolveResult) -> str:
     """Why no row describes ``result``: the loads measured on its discretization, or that its
-    discretization (unknowns, contact rule) is not the one measured."""
+    discretization (unknowns, degree, contact rule) is not the one measured."""
     same = [r for r in case.reference_measured if _same_discretization(case, result, r)]
     rule = _rule(case, result)
     disc = result.extra.get("discretization") or {}
@@ -88,6 +95,17 @@ def unmatched_note(case: Case, result: SolveResult) -> str:
     loads = "; ".join(", ".join(f"{k} = {v:g}" for k, v in r["pushes"].items()) for r in same)
     return f"not measured for this load: on this discretization (contact rule {rule}) the " \
            f"case measured {loads} mm"
+
+
+def accuracy_line(extra: dict) -> str | None:
+    """The accuracy an answer's ``extra`` states from the case's measurements: its row
+    (``describe``), or, where it carries no error estimate of its own, why no row describes it;
+    None when neither applies."""
+    if extra.get("measured_accuracy"):
+        return describe(extra["measured_accuracy"])
+    if extra.get("measured_note") and not extra.get("probe_error_estimates"):
+        return extra["measured_note"]
+    return None
 
 
 def describe(row: dict) -> str:

@@ -23,6 +23,16 @@ def _branches(table: dict) -> list[tuple]:
     return out
 
 
+def _nested(name: str, s: dict):
+    """(its title, the table) when key ``name`` with schema ``s`` holds a table with keys
+    (``[name]``) or an array of tables (``[[name]]``); None otherwise."""
+    if _is_table(s) and s.get("properties"):
+        return f"[{name}]", s
+    if s.get("type") == "array" and _is_table(s.get("items")):
+        return f"[[{name}]]", _resolve(s["items"])
+    return None
+
+
 def _keys(table: dict, prefix: str = "") -> list[str]:
     table = _resolve(table)
     required = set(table.get("required", ()))
@@ -32,10 +42,8 @@ def _keys(table: dict, prefix: str = "") -> list[str]:
     for key, s in table.get("properties", {}).items():
         s = _resolve(s)
         want = "depends on `type` (below)" if key in varies else expected(s)
-        if _is_table(s) and s.get("properties"):
-            want = f"a table, see [{prefix}{key}]"
-        elif s.get("type") == "array" and _is_table(s.get("items")):
-            want = f"tables, see [[{prefix}{key}]]"
+        if nested := _nested(f"{prefix}{key}", s):
+            want = f"{'tables' if s.get('type') == 'array' else 'a table'}, see {nested[0]}"
         default = "required" if key in required else \
             f"`{show(s['default'])}`" if "default" in s else ""
         rows.append(f"| `{key}` | {_cell(want)} | {default} | {_cell(s.get('description', ''))} |")
@@ -64,12 +72,9 @@ def _section(name: str, s: dict, heading: str) -> list[str]:
     """The section of the table (or array of tables) ``name`` and of the tables nested in it;
     [] for a key that holds no table."""
     s = _resolve(s)
-    if _is_table(s) and s.get("properties"):
-        title, table = f"[{name}]", s
-    elif s.get("type") == "array" and _is_table(s.get("items")):
-        title, table = f"[[{name}]]", _resolve(s["items"])
-    else:
+    if not (nested := _nested(name, s)):
         return []
+    title, table = nested
     lines = ["", f"{heading} {title}", "", s.get("description", "")]
     if "oneOf" in table:
         keys = [b["required"][0] for b in table["oneOf"]]

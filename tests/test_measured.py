@@ -128,8 +128,11 @@ why = "the test says so"
            "converged value: a finer mesh of the test" in out.out
     assert json.loads(js.read_text())["measured_accuracy"]["against"] == \
         "a finer mesh of the test"
-    assert main(["solve", str(path), "--size", "14", "--push", "A1=1.5", "-q"]) == 0
+    assert main(["solve", str(path), "--size", "14", "--push", "A1=1.5", "-q",
+                 "--json", str(js)]) == 0
     out = capsys.readouterr()
+    assert "no converged value is known at this load (the test says so): this answer has no " \
+           "error bar" in json.loads(js.read_text())["warnings"]   # one of the answer's warnings
     assert "accuracy: none: no converged value is known at this load (the test says so)" in \
         out.out
     assert "warning: no converged value is known at this load (the test says so): this answer " \

@@ -178,12 +178,10 @@ def _answer(d: dict) -> list:
                      f"{fmt(d.get('estimate_cost_ratio'), 2)} x the solve.")
     elif d.get("estimate_note"):
         parts.append(f"No error estimate: {d['estimate_note']}.")
-    if d.get("measured_accuracy"):
-        from tissue_reference.fem_reference.measured import describe
+    from tissue_reference.fem_reference.measured import accuracy_line
 
-        parts.append(f"Accuracy: {describe(d['measured_accuracy'])}.")
-    elif d.get("measured_note") and not pe:
-        parts.append(f"Accuracy: {d['measured_note']}.")
+    if line := accuracy_line(d):
+        parts.append(f"Accuracy: {line}.")
     ind = d.get("indenters") or {}
     if ind:
         parts += [Raw("<h3>Indenters</h3>"),
