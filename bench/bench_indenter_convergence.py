@@ -5,7 +5,8 @@ A1 alone (``--load one``) is symmetric about y = 0: the half phantom
 (meshes/cases/phantom-indenter-half.toml); all four equal (``--load four``) about x = 0 and
 y = 0: the quarter (phantom-indenter-quarter.toml). Level k has characteristic size 6 / 2^(k/2)
 mm and sites 3.2 / 2^(k/2) mm; ``--path RATIO`` refines each tip's path into the tissue further
-(cells of RATIO x the site size within 6 mm of the axis, 20 mm deep). Each level's pushes are
+(cells of RATIO x the site size within 6 mm of the axis, 20 mm deep) and ``--base-rim RATIO``
+the base rim, where the fixed base meets the free dome. Each level's pushes are
 one warm-started load path; after every push the level's JSON (``--out``) is rewritten whole, so
 a long run keeps what it reached.
 
@@ -46,7 +47,7 @@ def level_sizes(k: int) -> tuple[float, float]:
 def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool = False,
               path: float | None = None, radius: float | None = None,
               volumetric: str | None = None, contact_quadrature="nodal",
-              idle_tips: bool = True) -> dict:
+              idle_tips: bool = True, base_rim: float | None = None) -> dict:
     import tissue_reference.fem_reference as fr
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
@@ -57,7 +58,9 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
     size, site = level_sizes(k)
     case = load_case(ROOT / "meshes" / "cases" / name)
     path_mm = None if path is None else site * path
-    case = dataclasses.replace(case, mesh=build(builder, size, site_size=site, path_size=path_mm))
+    base_rim_mm = None if base_rim is None else site * base_rim
+    case = dataclasses.replace(case, mesh=build(builder, size, site_size=site, path_size=path_mm,
+                                                base_rim_size=base_rim_mm))
     if volumetric is not None:   # the Neo-Hookean volumetric law (default: the case's)
         case = case.with_material(volumetric=volumetric)
     if radius is not None:   # a diagnostic: tips of another radius on the same meshes
@@ -71,6 +74,7 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
     s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=contact_quadrature)
     actuators = ["A1"] if load == "one" else [a.name for a in case.actuators]
     doc = {"load": load, "level": k, "size_mm": size, "site_mm": site, "path_mm": path_mm,
+           "base_rim_mm": base_rim_mm, "base_rim_ratio": base_rim,
            "tip_radius_mm": case.actuators[0].radius,
            "contact": case.actuators[0].contact,   # an indenter's, defaulted when loaded
            "volumetric": case.material.volumetric, "idle_tips": idle_tips,
@@ -121,7 +125,7 @@ def summarize(load: str, out: Path) -> None:
         raise SystemExit(f"no level results under {out} for --load {load}")
     defaults = {"contact_quadrature": "nodal", "contact": "frictionless", "idle_tips": True}
     for key in ("contact_quadrature", "contact", "volumetric", "degree", "tip_radius_mm",
-                "idle_tips"):
+                "idle_tips", "base_rim_ratio"):
         if len({str(d.get(key) or defaults.get(key)) for d in docs}) > 1:
             raise SystemExit(f"the level results under {out} differ in {key}: "
                              f"{[(d['level'], d.get(key)) for d in docs]}; summarize one "
@@ -137,7 +141,8 @@ def summarize(load: str, out: Path) -> None:
                "tip_radius_mm": docs[0].get("tip_radius_mm"),
                "contact": docs[0].get("contact") or "frictionless",
                "idle_tips": docs[0].get("idle_tips", True),
-               "levels": [{k: d.get(k) for k in ("level", "size_mm", "site_mm", "path_mm", "cells")}
+               "levels": [{k: d.get(k) for k in ("level", "size_mm", "site_mm", "path_mm",
+                                                 "base_rim_mm", "cells")}
                           for d in docs], "pushes": []}
     for p in pushes:
         rows = [next((r for r in d["pushes"] if r["push"] == p and r["converged"]), None)
@@ -211,6 +216,9 @@ def main():
     ap.add_argument("--path", type=float, metavar="RATIO",
                     help="cells of RATIO x the site size along each tip's path into the tissue "
                          "(meshes.builders_curved.PATH_DEPTH / PATH_REACH); default: none")
+    ap.add_argument("--base-rim", type=float, metavar="RATIO",
+                    help="cells of RATIO x the site size at the base rim, where the fixed base "
+                         "meets the free dome; default: none")
     ap.add_argument("--volumetric", choices=["quadratic", "log"],
                     help="the Neo-Hookean volumetric law (default: the case's, the seed's)")
     ap.add_argument("--contact-quadrature", type=contact_rule,
@@ -226,7 +234,7 @@ def main():
         for k in ([args.level] if args.level is not None else range(args.levels)):
             run_level(args.load, k, args.pushes, args.degree, args.out, args.progress, args.path,
                       args.radius, args.volumetric, args.contact_quadrature,
-                      not args.without_idle_tips)
+                      not args.without_idle_tips, args.base_rim)
     if args.level is None:
         summarize(args.load, args.out)
 

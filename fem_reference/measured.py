@@ -33,7 +33,9 @@ def _rule(case: Case, result: SolveResult):
     indenters."""
     for report in (result.extra.get("indenters") or {}).values():
         return report.get("quadrature", "nodal")
-    return case.reference_contact_quadrature or "nodal"
+    from .solver import default_contact_rule
+
+    return default_contact_rule(case)
 
 
 def measured_accuracy(case: Case, result: SolveResult, pushes=None) -> dict | None:
@@ -54,11 +56,11 @@ def measured_accuracy(case: Case, result: SolveResult, pushes=None) -> dict | No
 def _same_discretization(case: Case, result: SolveResult, row: dict) -> bool:
     """Whether ``row`` was measured on ``result``'s discretization: its unknowns, degree and
     contact rule (a row's degree and rule default to the case's)."""
-    from .solver import default_degree
+    from .solver import default_contact_rule, default_degree
 
     disc = result.extra.get("discretization") or {}
     degree = row.get("degree", default_degree(case, disc.get("formulation", "displacement")))
-    rule = row.get("contact_quadrature", case.reference_contact_quadrature or "nodal")
+    rule = row.get("contact_quadrature", default_contact_rule(case))
     return row["dofs"] == disc.get("dofs") and degree == result.degree and \
         rule == _rule(case, result)
 

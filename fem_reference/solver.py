@@ -84,6 +84,12 @@ def default_degree(case: Case, formulation: str) -> int:
     return 2 if formulation == "mixed" else 1
 
 
+def default_contact_rule(case: Case):
+    """Where a solve that names none samples the contact penalty: the case's own
+    (``[reference] contact_quadrature``, a Gauss degree), else "nodal"."""
+    return case.reference_contact_quadrature or "nodal"
+
+
 class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin):
     """Neo-Hookean / linear-elastic reference on one Case mesh; build once, solve many times.
 
@@ -205,7 +211,7 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
                     penalty = penalty + beta / 2 * (ufl.dot(u, nn) - self.load * gval) ** 2 * \
                         ds(self.dm.region_tags[b.region])
         if contact_quadrature is None:
-            contact_quadrature = case.reference_contact_quadrature or "nodal"
+            contact_quadrature = default_contact_rule(case)
         self.contact = Contact(self, case, penalty=contact_penalty,  # rigid indenters
                                quadrature=contact_quadrature)
         penalty = penalty + self.contact.energy

@@ -47,6 +47,7 @@ from .builders_blocks import (
 from .builders_curved import (  # noqa: F401  (re-exported)
     ACTUATORS_3,
     ACTUATORS_4,
+    LOCAL_SIZES,
     PATH_DEPTH,
     PATH_REACH,
     PHANTOM,
@@ -134,7 +135,8 @@ command line's ``--max-cells`` raise it."""
 
 
 def estimate_cells(name: str, size: float, *, site_size: float | None = None,
-                   path_size: float | None = None, rim_size: float | None = None) -> int | None:
+                   path_size: float | None = None, rim_size: float | None = None,
+                   base_rim_size: float | None = None) -> int | None:
     """Estimated cells (tetrahedra, or triangles for the rectangle) of builder ``name`` at
     characteristic length ``size`` (mm): about CELLS_PER_VOLUME * V / size^d, within ~10 %
     above a few thousand cells; None for a builder whose body volume is not in BODY_VOLUMES."""
@@ -170,22 +172,29 @@ def estimate_cells(name: str, size: float, *, site_size: float | None = None,
                 path = n_sites * tube * (1.0 / path_size ** 3 - 1.0 / site_size ** 3)
                 est += CELLS_PER_VOLUME[d] * min(path, BODY_VOLUMES[name] / path_size ** 3)
         if rim_size is not None and name in SITE_BUILDERS and rim_size < size:
-            est += CELLS_PER_VOLUME[d] * SITES[name] * _rim_cells(rim_size, size)
+            est += CELLS_PER_VOLUME[d] * SITES[name] * _rim_cells(
+                rim_size, size, 2.0 * math.pi * PHANTOM.patch_radius, math.pi, 1.2)
+        if base_rim_size is not None and name in SITE_BUILDERS and base_rim_size < size:
+            est += CELLS_PER_VOLUME[d] * _rim_cells(
+                base_rim_size, size, 2.0 * math.pi * PHANTOM.radius * BASE_RIM[name],
+                0.5 * math.pi, 1.0)
     return int(min(est, 1e18)) if math.isfinite(est) else 10 ** 18
 
 
-def _rim_cells(rim: float, coarse: float) -> float:
-    """Extra cells (in units of CELLS_PER_VOLUME) around one patch rim refined to ``rim``: a
-    half tube along the rim (length 2 pi patch_radius) whose cells grow from ``rim`` at
-    distance ``rim`` by RIM_GRADING to ``coarse``, less the coarse cells it replaces:
-    the integral of pi r L (1 / h(r)^3 - 1 / coarse^3) dr, times 1.2 for gmsh's own
-    gradation (fitted to builds of the quarter and whole phantoms at size 6, rims 0.6-1.6 mm:
-    1.15-1.38 times the integral)."""
-    length = 2.0 * math.pi * PHANTOM.patch_radius
+def _rim_cells(rim: float, coarse: float, length: float, angle: float, fit: float) -> float:
+    """Extra cells (in units of CELLS_PER_VOLUME) around a rim of ``length`` mm refined to
+    ``rim``: a wedge of the tube along it (``angle``: pi for a patch rim on the skin, pi / 2
+    for the base rim's right-angled corner) whose cells grow from ``rim`` at distance ``rim``
+    by RIM_GRADING to ``coarse``, less the coarse cells it replaces: the integral of
+    angle r L (1 / h(r)^3 - 1 / coarse^3) dr, times ``fit``. Patch rims: 1.2, gmsh's own
+    gradation (builds of the quarter and whole phantoms at size 6, rims 0.6-1.6 mm: 1.15-1.38
+    times the integral). Base rim: 1.0 (builds of the half and quarter phantoms at sizes 6-12
+    mm, rims 1.5-3.2 mm: 0.94-1.07 times the integral; with finer sites, which already cover
+    part of the rim, 0.57-0.79: an over-estimate, on the safe side of a budget)."""
     far = rim + (coarse - rim) / RIM_GRADING
     r = np.linspace(0.0, far, 2001)
     h = np.where(r < rim, rim, rim + RIM_GRADING * (r - rim))
-    return 1.2 * float(np.trapz(math.pi * r * length * (1.0 / h ** 3 - 1.0 / coarse ** 3), r))
+    return fit * float(np.trapz(angle * r * length * (1.0 / h ** 3 - 1.0 / coarse ** 3), r))
 
 
 def check_cell_budget(name: str, size: float, max_cells: int | None = MAX_CELLS) -> int | None:
@@ -204,38 +213,45 @@ SITES = {"phantom": 4, "phantom-half": 2, "phantom-quarter": 1, "phantom-symmetr
          "phantom-3": 3}
 """Actuator sites of each builder that takes ``site_size`` (in whole-site equivalents: a half
 site on a mirror plane counts a half)."""
+BASE_RIM = {"phantom": 1.0, "phantom-half": 0.5, "phantom-quarter": 0.25,
+            "phantom-symmetric": 1.0, "phantom-3": 1.0}
+"""The part of the base rim's circle each phantom builder keeps."""
 SITE_BUILDERS = tuple(SITES)
 """The builders that take ``site_size`` (finer cells at the actuator sites)."""
 
 
 def build(name: str, size: float, *, out=None, max_cells: int | None = MAX_CELLS,
           site_size: float | None = None, path_size: float | None = None,
-          rim_size: float | None = None) -> MeshData:
+          rim_size: float | None = None, base_rim_size: float | None = None) -> MeshData:
     """Build a named mesh (see ``BUILDERS``) with characteristic length ``size`` (mm).
 
     max_cells: refuse (CaseError with the estimate, before gmsh starts) a mesh whose estimated
     cell count (``estimate_cells``) exceeds it; None: no limit. site_size: finer cells at the
     actuator sites (``SITE_BUILDERS`` only); path_size: finer still along each actuator's path
     into the tissue (with a site_size); rim_size: finer cells at the rims of the actuator
-    patches (``SITE_BUILDERS`` only), where glued patches are singular."""
+    patches (``SITE_BUILDERS`` only), where glued patches are singular; base_rim_size: finer
+    cells at the base rim (``SITE_BUILDERS`` only), where the fixed base meets the free dome."""
     if name not in BUILDERS:
         raise CaseError(f"unknown mesh builder {name!r}; builders: {sorted(BUILDERS)}")
     if site_size is None and path_size is not None:
         raise CaseError(f"path_size {path_size!r} mm refines within the actuator sites: give a "
                         f"site_size too")
-    if site_size is None and rim_size is None:
+    local = {k: v for k, v in (("site_size", site_size), ("path_size", path_size),
+                               ("rim_size", rim_size), ("base_rim_size", base_rim_size))
+             if v is not None}
+    for k, v in local.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                or v <= 0:
+            raise CaseError(f"{k} must be a positive length in mm, got {v!r}")
+    if not local:
         check_cell_budget(name, size, max_cells)
         return BUILDERS[name](size, out=out)
     if name not in SITE_BUILDERS:
-        which = "site_size" if site_size is not None else "rim_size"
-        raise CaseError(f"{which} applies to the builders {list(SITE_BUILDERS)}, not {name!r}")
-    est = estimate_cells(name, size, site_size=site_size, path_size=path_size,
-                         rim_size=rim_size)
+        raise CaseError(f"{next(iter(local))} applies to the builders {list(SITE_BUILDERS)}, "
+                        f"not {name!r}")
+    est = estimate_cells(name, size, **local)
     if max_cells is not None and est > max_cells:
-        local = ", ".join(f"{k} {v:g} mm" for k, v in (("site_size", site_size),
-                                                        ("path_size", path_size),
-                                                        ("rim_size", rim_size)) if v is not None)
-        raise CaseError(f"builtin mesh {name!r} at size {size:g} mm, {local}: about {est:,} "
+        sizes = ", ".join(f"{k} {v:g} mm" for k, v in local.items())
+        raise CaseError(f"builtin mesh {name!r} at size {size:g} mm, {sizes}: about {est:,} "
                         f"cells (estimate), more than the limit {max_cells:,}")
-    return BUILDERS[name](size, out=out, site_size=site_size, path_size=path_size,
-                          rim_size=rim_size)
+    return BUILDERS[name](size, out=out, **local)

@@ -6,7 +6,8 @@ in mm.
 its side and the targets T1..T5 as mesh vertices; the regions are listed in the
 ``meshes.builders`` module docstring. ``site_size`` gives finer cells within ``SITE_REACH`` mm
 of each actuator site, ``path_size`` along each actuator's path into the tissue and
-``rim_size`` at the rims of the actuator patches.
+``rim_size`` at the rims of the actuator patches and ``base_rim_size`` at the base rim, where
+the fixed base meets the free dome.
 
 ``shell_octant``: one octant of a thick spherical shell (radii 10 and 20 mm by default).
 """
@@ -74,7 +75,8 @@ wrapped around it); the cells grow to ``site_size`` over the next PATH_REACH / 2
 RIM_GRADING = 0.25
 """Growth (mm of cell size per mm of distance) of the cells away from the actuator patches'
 rims when ``rim_size`` refines them: the cells are ``rim_size`` within ``rim_size`` of the rim
-and grow linearly to the size around them."""
+and grow linearly to the size around them. ``base_rim_size`` grades the same way from the base
+rim."""
 
 
 SYMMETRY_PLANES = {"full": (), "half": ("sym_y0",), "quarter": ("sym_y0", "sym_x0")}
@@ -84,10 +86,11 @@ plane y = 0 (the part keeps y >= 0), ``sym_x0`` the plane x = 0 (the part keeps 
 
 def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANTOM,
              site_size: float | None = None, part: str = "full",
-             path_size: float | None = None, rim_size: float | None = None) -> MeshData:
+             path_size: float | None = None, rim_size: float | None = None,
+             base_rim_size: float | None = None) -> MeshData:
     g = geometry
     for name, v in (("site_size", site_size), ("path_size", path_size),
-                    ("rim_size", rim_size)):
+                    ("rim_size", rim_size), ("base_rim_size", base_rim_size)):
         if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and 0 < v):
             raise CaseError(f"{name} must be a positive length in mm, got {v!r}")
     if path_size is not None and (site_size is None or path_size > site_size):
@@ -193,15 +196,19 @@ def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANT
                   for _, az in actuators]
         paths = None if path_size is None else [(p, p + PATH_DEPTH * n)
                                                 for p, n in zip(sites, inward)]
-        rims = None
-        if rim_size is not None:  # the patches' rims, less any cut along a mirror plane
-            rims = [t for _, t in gmsh.model.getBoundary(
-                [(2, s_) for g_ in patches.values() for s_ in g_], combined=True, oriented=False)
+        def outline(surfaces):  # their boundary curves, less any cut along a mirror plane
+            return [t for _, t in gmsh.model.getBoundary(
+                [(2, s_) for s_ in surfaces], combined=True, oriented=False)
                 if not any(abs(gmsh.model.occ.getCenterOfMass(1, t)[keep[pl]]) <= tol
                            for pl in planes)]
-        if site_size is not None or rim_size is not None:
+
+        rims = None if rim_size is None else outline([s_ for g_ in patches.values()
+                                                      for s_ in g_])
+        base_rim = None if base_rim_size is None else outline(base)
+        if site_size is not None or rim_size is not None or base_rim_size is not None:
             _local_sizes(gmsh, sites, site_size, size, paths=paths, path_size=path_size,
-                         rims=rims, rim_size=rim_size)
+                         rims=rims, rim_size=rim_size, base_rim=base_rim,
+                         base_rim_size=base_rim_size)
         return _finish(gmsh, 3, out, curved=True)
 
 
@@ -214,13 +221,15 @@ def _vertex_at(gmsh, xyz, tag: int, tol: float) -> int:
 
 
 def _local_sizes(gmsh, sites, fine: float | None, coarse: float, *, paths=None,
-                 path_size: float | None = None, rims=None, rim_size: float | None = None):
+                 path_size: float | None = None, rims=None, rim_size: float | None = None,
+                 base_rim=None, base_rim_size: float | None = None):
     """A gmsh background size field, the smallest of: cells of size ``fine`` within SITE_REACH
     of every site, growing linearly to ``coarse`` over the next SITE_REACH mm; with ``paths``
     (segments (start, end), mm) and ``path_size``, cells of ``path_size`` within PATH_REACH of
     each segment, growing to ``fine`` over the next PATH_REACH / 2 mm; with ``rims`` (curve
     tags) and ``rim_size``, cells of ``rim_size`` within ``rim_size`` of those curves, growing
-    by RIM_GRADING to ``coarse``. The points and segments are free geometry, not part of the
+    by RIM_GRADING to ``coarse``; likewise with ``base_rim`` (curve tags) and ``base_rim_size``.
+    The points and segments are free geometry, not part of the
     body: they are neither meshed into it nor written."""
     f = gmsh.model.mesh.field
     occ = gmsh.model.occ
@@ -250,15 +259,16 @@ def _local_sizes(gmsh, sites, fine: float | None, coarse: float, *, paths=None,
         f.setNumber(along, "NumPointsPerCurve", 200)
         fields.append(threshold(along, path_size, fine, PATH_REACH, 1.5 * PATH_REACH))
         smallest = path_size
-    if rims and rim_size is not None and rim_size < coarse:
-        rim = f.add("Distance")
-        f.setNumbers(rim, "CurvesList", rims)
-        # samples closer than the rim cells, so the distance is smooth along the rim
-        length = 2.0 * math.pi * PHANTOM.patch_radius
-        f.setNumber(rim, "NumPointsPerCurve", max(200, math.ceil(4.0 * length / rim_size)))
-        fields.append(threshold(rim, rim_size, coarse, rim_size,
-                                rim_size + (coarse - rim_size) / RIM_GRADING))
-        smallest = min(smallest, rim_size)
+    for curves, small, length in ((rims, rim_size, 2.0 * math.pi * PHANTOM.patch_radius),
+                                  (base_rim, base_rim_size, 2.0 * math.pi * PHANTOM.radius)):
+        if curves and small is not None and small < coarse:
+            rim = f.add("Distance")
+            f.setNumbers(rim, "CurvesList", curves)
+            # samples closer than the rim cells, so the distance is smooth along the rim
+            f.setNumber(rim, "NumPointsPerCurve", max(200, math.ceil(4.0 * length / small)))
+            fields.append(threshold(rim, small, coarse, small,
+                                    small + (coarse - small) / RIM_GRADING))
+            smallest = min(smallest, small)
     if not fields:
         return
     field = fields[0]
@@ -269,48 +279,46 @@ def _local_sizes(gmsh, sites, fine: float | None, coarse: float, *, paths=None,
     gmsh.option.setNumber("Mesh.CharacteristicLengthMin", smallest)
 
 
-def phantom(size: float = 6.0, *, out=None, site_size: float | None = None,
-            path_size: float | None = None, rim_size: float | None = None) -> MeshData:
+LOCAL_SIZES = ("site_size", "path_size", "rim_size", "base_rim_size")
+"""The phantom builders' optional local cell sizes (mm, keywords)."""
+
+
+def phantom(size: float = 6.0, *, out=None, **local: float | None) -> MeshData:
     """Seed 000 breast phantom with four side actuators (see module docstring). size in mm;
-    site_size: the cell size (mm) near each actuator site (``SITE_REACH``), e.g. a third of an
-    indenter's radius; path_size: a finer size along each actuator's path into the tissue
-    (``PATH_DEPTH``, ``PATH_REACH``), where a tip pushed 10-15 mm crushes the tissue;
-    rim_size: the cell size at the rims of the actuator patches (``RIM_GRADING``), where a
-    glued patch's pushed skin meets the free skin and the strain is singular."""
-    return _phantom(size, ACTUATORS_4, out, site_size=site_size, path_size=path_size,
-                    rim_size=rim_size)
+    ``local`` (``LOCAL_SIZES``): site_size, the cell size (mm) near each actuator site
+    (``SITE_REACH``), e.g. a third of an indenter's radius; path_size, a finer size along each
+    actuator's path into the tissue (``PATH_DEPTH``, ``PATH_REACH``), where a tip pushed 10-15
+    mm crushes the tissue; rim_size, the cell size at the rims of the actuator patches
+    (``RIM_GRADING``), where a glued patch's pushed skin meets the free skin and the strain is
+    singular; base_rim_size, the cell size at the base rim, where the fixed base meets the free
+    dome (a clamped-free corner, singular under a sideways push)."""
+    return _phantom(size, ACTUATORS_4, out, **local)
 
 
-def phantom_half(size: float = 6.0, *, out=None, site_size: float | None = None,
-                 path_size: float | None = None, rim_size: float | None = None) -> MeshData:
+def phantom_half(size: float = 6.0, *, out=None, **local: float | None) -> MeshData:
     """The part y >= 0 of ``phantom``: its mirror plane is the region ``sym_y0``, and it keeps
     act_px, act_py and act_nx (the first and last cut in half) and T1..T4. With sliding on
     ``sym_y0`` it is the whole phantom under loads symmetric about y = 0 (A1 or A3 alone, or
     A2 with A4 equal), at about half the unknowns; forces on cut actuators are halves."""
-    return _phantom(size, ACTUATORS_4, out, site_size=site_size, part="half",
-                    path_size=path_size, rim_size=rim_size)
+    return _phantom(size, ACTUATORS_4, out, part="half", **local)
 
 
-def phantom_quarter(size: float = 6.0, *, out=None, site_size: float | None = None,
-                    path_size: float | None = None, rim_size: float | None = None) -> MeshData:
+def phantom_quarter(size: float = 6.0, *, out=None, **local: float | None) -> MeshData:
     """The part x >= 0, y >= 0 of ``phantom``: mirror planes ``sym_y0`` and ``sym_x0``, halves
     of act_px and act_py, and T1..T3. With sliding on both planes it is the whole phantom under
     loads symmetric about both (A1 = A3 and A2 = A4, e.g. all four equal), at about a quarter
     of the unknowns."""
-    return _phantom(size, ACTUATORS_4, out, site_size=site_size, part="quarter",
-                    path_size=path_size, rim_size=rim_size)
+    return _phantom(size, ACTUATORS_4, out, part="quarter", **local)
 
 
-def phantom_symmetric(size: float = 6.0, *, out=None, site_size: float | None = None,
-                      path_size: float | None = None, rim_size: float | None = None) -> MeshData:
+def phantom_symmetric(size: float = 6.0, *, out=None, **local: float | None) -> MeshData:
     """The whole ``phantom`` meshed as ``phantom_quarter`` mirrored across x = 0 and then y = 0
     (``meshes.mirror``): the same regions and targets, and a mesh symmetric about both planes.
     Under loads symmetric about both (all four equal) its answer is the quarter's; under any
     other load nothing drifts sideways for want of a symmetric mesh (a gmsh mesh of the whole
     dome is not symmetric: at 5 mm its T1 drifts 0.003 mm). About four times the quarter's
     cells. out: also written there (.msh, second order)."""
-    quarter = _phantom(size, ACTUATORS_4, None, site_size=site_size, part="quarter",
-                       path_size=path_size, rim_size=rim_size)
+    quarter = _phantom(size, ACTUATORS_4, None, part="quarter", **local)
     half = mirror(quarter, "sym_x0", 0, {"act_px": "act_nx", "T2": "T4"})
     whole = mirror(half, "sym_y0", 1, {"act_py": "act_ny", "T3": "T5"})
     if out is not None:
@@ -320,11 +328,9 @@ def phantom_symmetric(size: float = 6.0, *, out=None, site_size: float | None = 
     return whole
 
 
-def phantom3(size: float = 6.0, *, out=None, site_size: float | None = None,
-             path_size: float | None = None, rim_size: float | None = None) -> MeshData:
+def phantom3(size: float = 6.0, *, out=None, **local: float | None) -> MeshData:
     """Seed 000 phantom with three actuators 120 deg apart (minimal positive basis)."""
-    return _phantom(size, ACTUATORS_3, out, site_size=site_size, path_size=path_size,
-                    rim_size=rim_size)
+    return _phantom(size, ACTUATORS_3, out, **local)
 
 
 def shell_octant(size: float = 2.5, *, inner: float = 10.0, outer: float = 20.0,

@@ -68,7 +68,7 @@ def _read(path) -> dict:
 
 
 def _mesh(data, base: Path, src: str, size, max_cells=None) -> MeshData:
-    from .builders import MAX_CELLS, build
+    from .builders import LOCAL_SIZES, MAX_CELLS, build
     from .io import read_mesh
 
     m = data["mesh"]
@@ -88,7 +88,7 @@ def _mesh(data, base: Path, src: str, size, max_cells=None) -> MeshData:
     name = m["builtin"]
     default = case_schema()["properties"]["mesh"]["properties"]["size"]["default"]
     h = float(size if size is not None else m.get("size", default))
-    local = {k: float(m[k]) for k in ("site_size", "path_size", "rim_size") if k in m}
+    local = {k: float(m[k]) for k in LOCAL_SIZES if k in m}
     try:
         return build(name, h, max_cells=MAX_CELLS if max_cells is None else max_cells, **local)
     except CaseError as exc:

@@ -1,6 +1,7 @@
 """``rim_size``: finer cells at the rims of the phantom's actuator patches, where a glued patch
-is singular. The rim is computed here from the geometry (the patch's cylinder met with the dome),
-not taken from the builder."""
+is singular; ``base_rim_size``: at the base rim, where the fixed base meets the free dome. The
+rims are computed here from the geometry (the patch's cylinder met with the dome; the base's
+circle), not taken from the builder."""
 import numpy as np
 import pytest
 
@@ -65,7 +66,37 @@ def test_rim_size_refines_the_patch_rims_and_nothing_else():
     assert abs(est - refined.n_cells) <= 0.15 * refined.n_cells, (est, refined.n_cells)
 
 
+def test_base_rim_size_refines_the_base_rim_and_nothing_else():
+    size, rim = 8.0, 1.5
+    refined = build("phantom-half", size, base_rim_size=rim)
+    plain = build("phantom-half", size)
+
+    def sizes_and_distance(mesh):
+        pts = mesh.points[mesh.cells]
+        c = pts.mean(axis=1)
+        h = np.linalg.norm(pts[:, [0, 0, 0, 1, 1, 2]] - pts[:, [1, 2, 3, 2, 3, 3]],
+                           axis=2).mean(axis=1)
+        # distance to the circle x^2 + y^2 = radius^2, z = 0
+        return h, np.hypot(np.hypot(c[:, 0], c[:, 1]) - PHANTOM.radius, c[:, 2])
+
+    h, dist = sizes_and_distance(refined)
+    hp, dp = sizes_and_distance(plain)
+    at_rim = dist < 1.5 * rim
+    assert at_rim.sum() > 100
+    assert np.median(h[at_rim]) < 1.6 * rim < 0.5 * np.median(hp[dp < 1.5 * rim])
+    far = dist > 1.2 * (size - rim) / RIM_GRADING     # beyond the grading: the plain size
+    assert np.median(h[far]) > 0.85 * np.median(hp[dp > 1.2 * (size - rim) / RIM_GRADING])
+    # the base's straight edge on the mirror plane y = 0 is not a rim: at the base's centre
+    # the cells keep the plain size
+    centre = (dist > 30.0) & (refined.points[refined.cells].mean(axis=1)[:, 2] < 3.0)
+    assert np.median(h[centre]) > 3.0 * rim
+    est = estimate_cells("phantom-half", size, base_rim_size=rim)
+    assert abs(est - refined.n_cells) <= 0.15 * refined.n_cells, (est, refined.n_cells)
+
+
 @pytest.mark.parametrize("name, kw, match", [
+    ("phantom-half", {"base_rim_size": 0.0}, "base_rim_size must be a positive length"),
+    ("box", {"base_rim_size": 1.0}, "base_rim_size applies to the builders"),
     ("phantom-quarter", {"rim_size": -1.0}, "rim_size must be a positive length"),
     ("phantom-quarter", {"rim_size": float("nan")}, "rim_size must be a positive length"),
     ("box", {"rim_size": 1.0}, "rim_size applies to the builders"),
@@ -88,6 +119,10 @@ def test_a_rim_size_in_a_case_file_reaches_the_builder(tmp_path):
     bad.write_text(text.replace("size = 6.0 ", "size = 8.0\nrim_size = 0 ", 1))
     with pytest.raises(CaseError, match="rim_size"):
         load_case(bad)
+    base = tmp_path / "base.toml"
+    base.write_text(text.replace("size = 6.0 ", "size = 8.0\nbase_rim_size = 2.0 ", 1))
+    assert load_case(base).mesh.n_cells == build("phantom-quarter", 8.0,
+                                                 base_rim_size=2.0).n_cells
 
 
 def test_a_path_is_refined_when_the_site_size_is_the_mesh_size():
