@@ -6,7 +6,8 @@ A1 alone (``--load one``) is symmetric about y = 0: the half phantom
 y = 0: the quarter (phantom-indenter-quarter.toml). Level k has characteristic size 6 / 2^(k/2)
 mm and sites 3.2 / 2^(k/2) mm; ``--path RATIO`` refines each tip's path into the tissue further
 (cells of RATIO x the site size within 6 mm of the axis, 20 mm deep) and ``--base-rim RATIO``
-the base rim, where the fixed base meets the free dome. Each level's pushes are
+the base rim, where the fixed base meets the free dome; ``--path-reach MM`` widens the refined
+path (default 6 mm). Each level's pushes are
 one warm-started load path; after every push the level's JSON (``--out``) is rewritten whole, so
 a long run keeps what it reached.
 
@@ -47,7 +48,8 @@ def level_sizes(k: int) -> tuple[float, float]:
 def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool = False,
               path: float | None = None, radius: float | None = None,
               volumetric: str | None = None, contact_quadrature="nodal",
-              idle_tips: bool = True, base_rim: float | None = None) -> dict:
+              idle_tips: bool = True, base_rim: float | None = None,
+              path_reach: float | None = None) -> dict:
     import tissue_reference.fem_reference as fr
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
@@ -60,7 +62,8 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
     path_mm = None if path is None else site * path
     base_rim_mm = None if base_rim is None else site * base_rim
     case = dataclasses.replace(case, mesh=build(builder, size, site_size=site, path_size=path_mm,
-                                                base_rim_size=base_rim_mm))
+                                                base_rim_size=base_rim_mm,
+                                                path_reach=path_reach))
     if volumetric is not None:   # the Neo-Hookean volumetric law (default: the case's)
         case = case.with_material(volumetric=volumetric)
     if radius is not None:   # a diagnostic: tips of another radius on the same meshes
@@ -74,7 +77,7 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
     s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=contact_quadrature)
     actuators = ["A1"] if load == "one" else [a.name for a in case.actuators]
     doc = {"load": load, "level": k, "size_mm": size, "site_mm": site, "path_mm": path_mm,
-           "base_rim_mm": base_rim_mm, "base_rim_ratio": base_rim,
+           "base_rim_mm": base_rim_mm, "base_rim_ratio": base_rim, "path_reach_mm": path_reach,
            "tip_radius_mm": case.actuators[0].radius,
            "contact": case.actuators[0].contact,   # an indenter's, defaulted when loaded
            "volumetric": case.material.volumetric, "idle_tips": idle_tips,
@@ -125,7 +128,7 @@ def summarize(load: str, out: Path) -> None:
         raise SystemExit(f"no level results under {out} for --load {load}")
     defaults = {"contact_quadrature": "nodal", "contact": "frictionless", "idle_tips": True}
     for key in ("contact_quadrature", "contact", "volumetric", "degree", "tip_radius_mm",
-                "idle_tips", "base_rim_ratio"):
+                "idle_tips", "base_rim_ratio", "path_reach_mm"):
         if len({str(d.get(key) or defaults.get(key)) for d in docs}) > 1:
             raise SystemExit(f"the level results under {out} differ in {key}: "
                              f"{[(d['level'], d.get(key)) for d in docs]}; summarize one "
@@ -142,7 +145,7 @@ def summarize(load: str, out: Path) -> None:
                "contact": docs[0].get("contact") or "frictionless",
                "idle_tips": docs[0].get("idle_tips", True),
                "levels": [{k: d.get(k) for k in ("level", "size_mm", "site_mm", "path_mm",
-                                                 "base_rim_mm", "cells")}
+                                                 "path_reach_mm", "base_rim_mm", "cells")}
                           for d in docs], "pushes": []}
     for p in pushes:
         rows = [next((r for r in d["pushes"] if r["push"] == p and r["converged"]), None)
@@ -216,6 +219,9 @@ def main():
     ap.add_argument("--path", type=float, metavar="RATIO",
                     help="cells of RATIO x the site size along each tip's path into the tissue "
                          "(meshes.builders_curved.PATH_DEPTH / PATH_REACH); default: none")
+    ap.add_argument("--path-reach", type=float, metavar="MM",
+                    help="the radius around each path that --path refines (default: the "
+                         "builders' PATH_REACH, 6 mm)")
     ap.add_argument("--base-rim", type=float, metavar="RATIO",
                     help="cells of RATIO x the site size at the base rim, where the fixed base "
                          "meets the free dome; default: none")
@@ -234,7 +240,7 @@ def main():
         for k in ([args.level] if args.level is not None else range(args.levels)):
             run_level(args.load, k, args.pushes, args.degree, args.out, args.progress, args.path,
                       args.radius, args.volumetric, args.contact_quadrature,
-                      not args.without_idle_tips, args.base_rim)
+                      not args.without_idle_tips, args.base_rim, args.path_reach)
     if args.level is None:
         summarize(args.load, args.out)
 

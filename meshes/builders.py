@@ -136,7 +136,8 @@ command line's ``--max-cells`` raise it."""
 
 def estimate_cells(name: str, size: float, *, site_size: float | None = None,
                    path_size: float | None = None, rim_size: float | None = None,
-                   base_rim_size: float | None = None) -> int | None:
+                   base_rim_size: float | None = None,
+                   path_reach: float | None = None) -> int | None:
     """Estimated cells (tetrahedra, or triangles for the rectangle) of builder ``name`` at
     characteristic length ``size`` (mm): about CELLS_PER_VOLUME * V / size^d, within ~10 %
     above a few thousand cells; None for a builder whose body volume is not in BODY_VOLUMES."""
@@ -165,10 +166,11 @@ def estimate_cells(name: str, size: float, *, site_size: float | None = None,
             est += CELLS_PER_VOLUME[d] * min(local, BODY_VOLUMES[name] / site_size ** 3)
             if path_size is not None and path_size < site_size:
                 # each path: a tube of cells of path_size in place of site_size; the size
-                # field's grading and gmsh's own gradation make the tube about twice
-                # PATH_REACH wide (fitted to builds of the quarter and whole phantoms, sites
-                # 3.2 and 2.26 mm, paths half of them: 9.5-10.0e3 mm^3 per path)
-                tube = math.pi * (2.0 * PATH_REACH) ** 2 * PATH_DEPTH
+                # field's grading and gmsh's own gradation widen it by about PATH_REACH
+                # (fitted to builds of the quarter and whole phantoms, sites 3.2 and 2.26 mm,
+                # paths half of them, the default reach: 9.5-10.0e3 mm^3 per path; a 10 mm
+                # reach on the half phantom at size 8: 20 % over)
+                tube = math.pi * ((path_reach or PATH_REACH) + PATH_REACH) ** 2 * PATH_DEPTH
                 path = n_sites * tube * (1.0 / path_size ** 3 - 1.0 / site_size ** 3)
                 est += CELLS_PER_VOLUME[d] * min(path, BODY_VOLUMES[name] / path_size ** 3)
         if rim_size is not None and name in SITE_BUILDERS and rim_size < size:
@@ -222,13 +224,14 @@ SITE_BUILDERS = tuple(SITES)
 
 def build(name: str, size: float, *, out=None, max_cells: int | None = MAX_CELLS,
           site_size: float | None = None, path_size: float | None = None,
-          rim_size: float | None = None, base_rim_size: float | None = None) -> MeshData:
+          rim_size: float | None = None, base_rim_size: float | None = None,
+          path_reach: float | None = None) -> MeshData:
     """Build a named mesh (see ``BUILDERS``) with characteristic length ``size`` (mm).
 
     max_cells: refuse (CaseError with the estimate, before gmsh starts) a mesh whose estimated
     cell count (``estimate_cells``) exceeds it; None: no limit. site_size: finer cells at the
     actuator sites (``SITE_BUILDERS`` only); path_size: finer still along each actuator's path
-    into the tissue (with a site_size); rim_size: finer cells at the rims of the actuator
+    into the tissue (with a site_size), within path_reach (mm) of its axis; rim_size: finer cells at the rims of the actuator
     patches (``SITE_BUILDERS`` only), where glued patches are singular; base_rim_size: finer
     cells at the base rim (``SITE_BUILDERS`` only), where the fixed base meets the free dome."""
     if name not in BUILDERS:
@@ -237,8 +240,8 @@ def build(name: str, size: float, *, out=None, max_cells: int | None = MAX_CELLS
         raise CaseError(f"path_size {path_size!r} mm refines within the actuator sites: give a "
                         f"site_size too")
     local = {k: v for k, v in (("site_size", site_size), ("path_size", path_size),
-                               ("rim_size", rim_size), ("base_rim_size", base_rim_size))
-             if v is not None}
+                               ("path_reach", path_reach), ("rim_size", rim_size),
+                               ("base_rim_size", base_rim_size)) if v is not None}
     for k, v in local.items():
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
                 or v <= 0:

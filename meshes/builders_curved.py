@@ -70,8 +70,9 @@ PATH_DEPTH = 20.0
 """Length (mm) of each actuator's path refined by ``path_size``: from the site inward along the
 actuator's direction, as deep as a 15 mm push of a 5 mm tip reaches."""
 PATH_REACH = 6.0
-"""Radius (mm) around each path inside which ``path_size`` applies (a 5 mm tip and the skin
-wrapped around it); the cells grow to ``site_size`` over the next PATH_REACH / 2 mm."""
+"""Radius (mm) around each path inside which ``path_size`` applies by default (a 5 mm tip and
+the skin wrapped around it; ``path_reach`` sets another); the cells grow to ``site_size`` over
+the next half reach."""
 RIM_GRADING = 0.25
 """Growth (mm of cell size per mm of distance) of the cells away from the actuator patches'
 rims when ``rim_size`` refines them: the cells are ``rim_size`` within ``rim_size`` of the rim
@@ -87,12 +88,17 @@ plane y = 0 (the part keeps y >= 0), ``sym_x0`` the plane x = 0 (the part keeps 
 def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANTOM,
              site_size: float | None = None, part: str = "full",
              path_size: float | None = None, rim_size: float | None = None,
-             base_rim_size: float | None = None) -> MeshData:
+             base_rim_size: float | None = None,
+             path_reach: float | None = None) -> MeshData:
     g = geometry
     for name, v in (("site_size", site_size), ("path_size", path_size),
-                    ("rim_size", rim_size), ("base_rim_size", base_rim_size)):
+                    ("rim_size", rim_size), ("base_rim_size", base_rim_size),
+                    ("path_reach", path_reach)):
         if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and 0 < v):
             raise CaseError(f"{name} must be a positive length in mm, got {v!r}")
+    if path_reach is not None and path_size is None:
+        raise CaseError(f"path_reach {path_reach!r} mm is the reach of path_size: give a "
+                        f"path_size too")
     if path_size is not None and (site_size is None or path_size > site_size):
         raise CaseError(f"path_size {path_size!r} mm refines within the actuator sites: it "
                         f"needs a site_size at least as large, got site_size={site_size!r}")
@@ -207,7 +213,7 @@ def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANT
         base_rim = None if base_rim_size is None else outline(base)
         if site_size is not None or rim_size is not None or base_rim_size is not None:
             _local_sizes(gmsh, sites, site_size, size, paths=paths, path_size=path_size,
-                         rims=rims, rim_size=rim_size, base_rim=base_rim,
+                         path_reach=path_reach or PATH_REACH, rims=rims, rim_size=rim_size, base_rim=base_rim,
                          base_rim_size=base_rim_size)
         return _finish(gmsh, 3, out, curved=True)
 
@@ -221,12 +227,13 @@ def _vertex_at(gmsh, xyz, tag: int, tol: float) -> int:
 
 
 def _local_sizes(gmsh, sites, fine: float | None, coarse: float, *, paths=None,
-                 path_size: float | None = None, rims=None, rim_size: float | None = None,
+                 path_size: float | None = None, path_reach: float = PATH_REACH, rims=None,
+                 rim_size: float | None = None,
                  base_rim=None, base_rim_size: float | None = None):
     """A gmsh background size field, the smallest of: cells of size ``fine`` within SITE_REACH
     of every site, growing linearly to ``coarse`` over the next SITE_REACH mm; with ``paths``
-    (segments (start, end), mm) and ``path_size``, cells of ``path_size`` within PATH_REACH of
-    each segment, growing to ``fine`` over the next PATH_REACH / 2 mm; with ``rims`` (curve
+    (segments (start, end), mm) and ``path_size``, cells of ``path_size`` within ``path_reach``
+    of each segment, growing to ``fine`` over the next half reach; with ``rims`` (curve
     tags) and ``rim_size``, cells of ``rim_size`` within ``rim_size`` of those curves, growing
     by RIM_GRADING to ``coarse``; likewise with ``base_rim`` (curve tags) and ``base_rim_size``.
     The points and segments are free geometry, not part of the
@@ -257,7 +264,7 @@ def _local_sizes(gmsh, sites, fine: float | None, coarse: float, *, paths=None,
         along = f.add("Distance")
         f.setNumbers(along, "CurvesList", lines)
         f.setNumber(along, "NumPointsPerCurve", 200)
-        fields.append(threshold(along, path_size, fine, PATH_REACH, 1.5 * PATH_REACH))
+        fields.append(threshold(along, path_size, fine, path_reach, 1.5 * path_reach))
         smallest = path_size
     for curves, small, length in ((rims, rim_size, 2.0 * math.pi * PHANTOM.patch_radius),
                                   (base_rim, base_rim_size, 2.0 * math.pi * PHANTOM.radius)):
@@ -279,16 +286,17 @@ def _local_sizes(gmsh, sites, fine: float | None, coarse: float, *, paths=None,
     gmsh.option.setNumber("Mesh.CharacteristicLengthMin", smallest)
 
 
-LOCAL_SIZES = ("site_size", "path_size", "rim_size", "base_rim_size")
-"""The phantom builders' optional local cell sizes (mm, keywords)."""
+LOCAL_SIZES = ("site_size", "path_size", "path_reach", "rim_size", "base_rim_size")
+"""The phantom builders' optional local cell sizes and the paths' reach (mm, keywords)."""
 
 
 def phantom(size: float = 6.0, *, out=None, **local: float | None) -> MeshData:
     """Seed 000 breast phantom with four side actuators (see module docstring). size in mm;
     ``local`` (``LOCAL_SIZES``): site_size, the cell size (mm) near each actuator site
     (``SITE_REACH``), e.g. a third of an indenter's radius; path_size, a finer size along each
-    actuator's path into the tissue (``PATH_DEPTH``, ``PATH_REACH``), where a tip pushed 10-15
-    mm crushes the tissue; rim_size, the cell size at the rims of the actuator patches
+    actuator's path into the tissue (``PATH_DEPTH``), where a tip pushed 10-15 mm crushes the
+    tissue, within path_reach of its axis (default ``PATH_REACH``; a tip's contact radius at
+    its deepest push at least); rim_size, the cell size at the rims of the actuator patches
     (``RIM_GRADING``), where a glued patch's pushed skin meets the free skin and the strain is
     singular; base_rim_size, the cell size at the base rim, where the fixed base meets the free
     dome (a clamped-free corner, singular under a sideways push)."""

@@ -267,7 +267,7 @@ MISTAKES = [
      "FILE: [material].E: expected a finite number in [1e-09, 1e+12], found true (a boolean)"),
     ("unknown key", PHANTOM.replace("size = 6.0", "sise = 6.0"),
      ("FILE: [mesh].sise: expected a key of [mesh] (file, builtin, size, site_size, path_size, "
-      "rim_size, base_rim_size), found unknown key 'sise' "
+      "path_reach, rim_size, base_rim_size), found unknown key 'sise' "
       "(did you mean 'size'?)")),
     ("file and builtin", PHANTOM.replace('builtin = "phantom"',
                                          'builtin = "phantom"\nfile = "part.msh"'),

@@ -97,6 +97,9 @@ def test_base_rim_size_refines_the_base_rim_and_nothing_else():
 @pytest.mark.parametrize("name, kw, match", [
     ("phantom-half", {"base_rim_size": 0.0}, "base_rim_size must be a positive length"),
     ("box", {"base_rim_size": 1.0}, "base_rim_size applies to the builders"),
+    ("phantom-half", {"site_size": 4.0, "path_reach": 8.0}, "path_reach 8.0 mm is the reach"),
+    ("phantom-half", {"site_size": 4.0, "path_size": 2.0, "path_reach": -1.0},
+     "path_reach must be a positive length"),
     ("phantom-quarter", {"rim_size": -1.0}, "rim_size must be a positive length"),
     ("phantom-quarter", {"rim_size": float("nan")}, "rim_size must be a positive length"),
     ("box", {"rim_size": 1.0}, "rim_size applies to the builders"),
@@ -131,6 +134,32 @@ def test_a_path_is_refined_when_the_site_size_is_the_mesh_size():
     plain = build("phantom-quarter", 8.0, site_size=8.0)
     path = build("phantom-quarter", 8.0, site_size=8.0, path_size=3.0)
     assert path.n_cells > 1.5 * plain.n_cells
+
+
+def test_path_reach_widens_the_refined_path():
+    """Cells of path_size within path_reach of each tip's axis (from the site 20 mm inward):
+    at 7-9 mm from A1's axis the default reach (6 mm) has graded up towards site_size, a
+    reach of 10 mm has not. The axis is computed here from the geometry."""
+    site, path = 4.0, 1.5
+    site_pt = PHANTOM.side_point(0.0)              # A1's site; its axis runs along -x
+
+    def ring_size(mesh):
+        pts = mesh.points[mesh.cells]
+        c = pts.mean(axis=1)
+        h = np.linalg.norm(pts[:, [0, 0, 0, 1, 1, 2]] - pts[:, [1, 2, 3, 2, 3, 3]],
+                           axis=2).mean(axis=1)
+        along = site_pt[0] - c[:, 0]
+        off = np.hypot(c[:, 1], c[:, 2] - site_pt[2])
+        ring = (along > 3.0) & (along < 17.0) & (off > 7.0) & (off < 9.0)
+        assert ring.sum() > 50
+        return np.median(h[ring])
+
+    default = build("phantom-half", 8.0, site_size=site, path_size=path)
+    wide = build("phantom-half", 8.0, site_size=site, path_size=path, path_reach=10.0)
+    assert ring_size(wide) < 1.4 * path < ring_size(default)
+    assert wide.n_cells > default.n_cells
+    est = estimate_cells("phantom-half", 8.0, site_size=site, path_size=path, path_reach=10.0)
+    assert abs(est - wide.n_cells) <= 0.25 * wide.n_cells, (est, wide.n_cells)
 
 
 @pytest.mark.slow
