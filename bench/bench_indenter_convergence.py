@@ -45,16 +45,12 @@ def level_sizes(k: int) -> tuple[float, float]:
     return SIZE / RATIO ** k, SITE / RATIO ** k
 
 
-def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool = False,
-              path: float | None = None, radius: float | None = None,
-              volumetric: str | None = None, contact_quadrature="nodal",
-              idle_tips: bool = True, base_rim: float | None = None,
-              path_reach: float | None = None) -> dict:
-    import tissue_reference.fem_reference as fr
+def level_case(load: str, k: int, path: float | None = None, radius: float | None = None,
+               volumetric: str | None = None, idle_tips: bool = True,
+               base_rim: float | None = None, path_reach: float | None = None):
+    """The case of level ``k`` of the study of ``load`` (``run_level``'s options)."""
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
-    from tissue_reference.meshes.errors import ConvergenceError
-    from tissue_reference.meshes.results import write_json
 
     name, builder = CASES[load]
     size, site = level_sizes(k)
@@ -74,6 +70,22 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
             raise SystemExit("--without-idle-tips: only with --load one (all four are pushed)")
         case = dataclasses.replace(case, actuators=tuple(a for a in case.actuators
                                                          if a.name == "A1"))
+    return case
+
+
+def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool = False,
+              path: float | None = None, radius: float | None = None,
+              volumetric: str | None = None, contact_quadrature="nodal",
+              idle_tips: bool = True, base_rim: float | None = None,
+              path_reach: float | None = None) -> dict:
+    import tissue_reference.fem_reference as fr
+    from tissue_reference.meshes.errors import ConvergenceError
+    from tissue_reference.meshes.results import write_json
+
+    size, site = level_sizes(k)
+    path_mm = None if path is None else site * path
+    base_rim_mm = None if base_rim is None else site * base_rim
+    case = level_case(load, k, path, radius, volumetric, idle_tips, base_rim, path_reach)
     s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=contact_quadrature)
     actuators = ["A1"] if load == "one" else [a.name for a in case.actuators]
     doc = {"load": load, "level": k, "size_mm": size, "site_mm": site, "path_mm": path_mm,

@@ -19,7 +19,10 @@ negative inside the tip. The candidate surface Gamma_c is the facet regions
 around the site: contact spreads as the tip goes in). At push 0 the tip touches Gamma_c: on its
 axis through the site (``point``, or the area centroid of ``region``) it sits where the first
 node of Gamma_c within R_o of the axis has zero gap (nodes more than R_o behind the site are
-ignored). A push p (mm) moves it to q = q0 + p d. An indenter that is not pushed stays at its
+ignored). The first point of contact with the body it meshes generally lies between nodes, so the
+tip starts deeper than on that body by up to the surface's sag between nodes, differently on
+every mesh (the indenter phantom's 8 mm tip: 0.0002-0.019 mm, up to 0.55 % of its force at 5 mm;
+bench/bench_tip_start.py). A push p (mm) moves it to q = q0 + p d. An indenter that is not pushed stays at its
 start: a rigid obstacle the skin may press against (a negative push retracts it).
 
 Method: a node-to-surface penalty added to the energy that the reference minimizes,
