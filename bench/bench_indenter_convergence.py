@@ -77,7 +77,7 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
               path: float | None = None, radius: float | None = None,
               volumetric: str | None = None, contact_quadrature="nodal",
               idle_tips: bool = True, base_rim: float | None = None,
-              path_reach: float | None = None) -> dict:
+              path_reach: float | None = None, tip_start: str = "nodes") -> dict:
     import tissue_reference.fem_reference as fr
     from tissue_reference.meshes.errors import ConvergenceError
     from tissue_reference.meshes.results import write_json
@@ -86,10 +86,12 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
     path_mm = None if path is None else site * path
     base_rim_mm = None if base_rim is None else site * base_rim
     case = level_case(load, k, path, radius, volumetric, idle_tips, base_rim, path_reach)
-    s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=contact_quadrature)
+    s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=contact_quadrature,
+                           tip_start=tip_start)
     actuators = ["A1"] if load == "one" else [a.name for a in case.actuators]
     doc = {"load": load, "level": k, "size_mm": size, "site_mm": site, "path_mm": path_mm,
            "base_rim_mm": base_rim_mm, "base_rim_ratio": base_rim, "path_reach_mm": path_reach,
+           "tip_start": tip_start,
            "tip_radius_mm": case.actuators[0].radius,
            "contact": case.actuators[0].contact,   # an indenter's, defaulted when loaded
            "volumetric": case.material.volumetric, "idle_tips": idle_tips,
@@ -138,9 +140,10 @@ def summarize(load: str, out: Path) -> None:
                   key=lambda d: d["level"])
     if not docs:
         raise SystemExit(f"no level results under {out} for --load {load}")
-    defaults = {"contact_quadrature": "nodal", "contact": "frictionless", "idle_tips": True}
+    defaults = {"contact_quadrature": "nodal", "contact": "frictionless", "idle_tips": True,
+                "tip_start": "nodes"}
     for key in ("contact_quadrature", "contact", "volumetric", "degree", "tip_radius_mm",
-                "idle_tips", "base_rim_ratio", "path_reach_mm"):
+                "idle_tips", "base_rim_ratio", "path_reach_mm", "tip_start"):
         if len({str(d.get(key) or defaults.get(key)) for d in docs}) > 1:
             raise SystemExit(f"the level results under {out} differ in {key}: "
                              f"{[(d['level'], d.get(key)) for d in docs]}; summarize one "
@@ -231,6 +234,9 @@ def main():
     ap.add_argument("--path", type=float, metavar="RATIO",
                     help="cells of RATIO x the site size along each tip's path into the tissue "
                          "(meshes.builders_curved.PATH_DEPTH / PATH_REACH); default: none")
+    ap.add_argument("--tip-start", choices=["nodes", "surface"], default="nodes",
+                    help="where each tip starts: touching the skin's nodes (the reference's "
+                         "default) or its curved facets")
     ap.add_argument("--path-reach", type=float, metavar="MM",
                     help="the radius around each path that --path refines (default: the "
                          "builders' PATH_REACH, 6 mm)")
@@ -252,7 +258,8 @@ def main():
         for k in ([args.level] if args.level is not None else range(args.levels)):
             run_level(args.load, k, args.pushes, args.degree, args.out, args.progress, args.path,
                       args.radius, args.volumetric, args.contact_quadrature,
-                      not args.without_idle_tips, args.base_rim, args.path_reach)
+                      not args.without_idle_tips, args.base_rim, args.path_reach,
+                      args.tip_start)
     if args.level is None:
         summarize(args.load, args.out)
 

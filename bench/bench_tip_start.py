@@ -70,6 +70,8 @@ def main():
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--study", default="one_wide", help="an entry of the study data")
     ap.add_argument("--summary", type=Path, help="a summary JSON of the convergence bench")
+    ap.add_argument("--tip-start", choices=["nodes", "surface"], default="nodes",
+                    help="the reference's tip start to measure (default: the study's, nodes)")
     args = ap.parse_args()
     study = (json.loads(args.summary.read_text()) if args.summary else
              json.loads(DATA.read_text())["loads"][args.study])
@@ -85,7 +87,8 @@ def main():
         case = level_case("one", k, path, study.get("tip_radius_mm"), base_rim=base_rim,
                           path_reach=level.get("path_reach_mm"))
         s = fr.ReferenceSolver(case, degree=study["degree"],
-                               contact_quadrature=study["contact_quadrature"])
+                               contact_quadrature=study["contact_quadrature"],
+                               tip_start=args.tip_start)
         ind = next(i for i in s.contact.indenters if i.name == "A1")
         a1 = next(a for a in case.actuators if a.name == "A1")
         site = np.asarray(a1.point, float)

@@ -22,8 +22,10 @@ node of Gamma_c within R_o of the axis has zero gap (nodes more than R_o behind 
 ignored). The first point of contact with the body it meshes generally lies between nodes, so the
 tip starts deeper than on that body by up to the surface's sag between nodes, differently on
 every mesh (the indenter phantom's 8 mm tip: 0.0002-0.019 mm, up to 0.55 % of its force at 5 mm;
-bench/bench_tip_start.py). A push p (mm) moves it to q = q0 + p d. An indenter that is not pushed stays at its
-start: a rigid obstacle the skin may press against (a negative push retracts it).
+bench/bench_tip_start.py); ``tip_start = "surface"`` starts it where it first touches the
+facets as the geometry curves them instead (``TIP_STARTS``). A push p (mm) moves it to
+q = q0 + p d. An indenter that is not pushed stays at its start: a rigid obstacle the skin may
+press against (a negative push retracts it).
 
 Method: a node-to-surface penalty added to the energy that the reference minimizes,
 
@@ -113,6 +115,7 @@ from .contact_geometry import TipShape, _gap_ufl, nodal_rule  # noqa: F401  (re-
 from .contact_indenter import (  # noqa: F401  (re-exported)
     SLIP_FRACTION,
     SURFACE_SAMPLES,
+    TIP_STARTS,
     _facet_samples,
     _Indenter,
 )
@@ -156,14 +159,17 @@ class Contact:
     indenters) joins the solver's energy; ``ramps`` moves the tips with the load stepping;
     ``extra`` reports them; ``accepts`` is Newton's line search with indenters. penalty: beta,
     the ``contact_penalty`` (module docstring); quadrature: "nodal" (``nodal_rule``) or the
-    degree (int) of a Gauss rule on each facet for the contact integrals (module docstring)."""
+    degree (int) of a Gauss rule on each facet for the contact integrals (module docstring);
+    tip_start: where each tip starts, "nodes" or "surface" (``TIP_STARTS``)."""
 
     def __init__(self, solver, case: Case, *, penalty: float = DEFAULT_CONTACT_PENALTY,
-                 quadrature: str | int = "nodal"):
+                 quadrature: str | int = "nodal", tip_start: str = "nodes"):
         if not (isinstance(penalty, (int, float)) and np.isfinite(penalty) and penalty > 0):
             raise CaseError(f"contact_penalty must be a finite number > 0, got {penalty!r}")
         if not is_contact_rule(quadrature):
             raise CaseError(f"contact_quadrature must be {CONTACT_RULES}, got {quadrature!r}")
+        if tip_start not in TIP_STARTS:
+            raise CaseError(f"tip_start must be one of {list(TIP_STARTS)}, got {tip_start!r}")
         self.quadrature = quadrature
         self.solver = solver
         self.comm = solver.comm
@@ -184,7 +190,8 @@ class Contact:
         ds = ufl.Measure("ds", domain=mesh, subdomain_data=solver.dm.facet_tags, metadata=md)
         X = ufl.SpatialCoordinate(mesh)
         for a in case.indenters():
-            ind = _Indenter(a, solver, case, penalty, ds, X, solver.u_ufl, self._cell_sizes())
+            ind = _Indenter(a, solver, case, penalty, ds, X, solver.u_ufl, self._cell_sizes(),
+                            tip_start)
             self.indenters.append(ind)
             self.energy = self.energy + ind.energy
             self.normal_energy = self.normal_energy + ind.normal_energy

@@ -27,7 +27,7 @@ from tissue_reference.meshes.errors import CaseError
 
 from .contact_geometry import TipShape, _gap_ufl
 
-__all__ = ["SLIP_FRACTION", "SURFACE_SAMPLES"]
+__all__ = ["SLIP_FRACTION", "START_SAMPLES", "SURFACE_SAMPLES", "TIP_STARTS"]
 
 
 SLIP_FRACTION = 0.05
@@ -37,9 +37,19 @@ SURFACE_SAMPLES = 4
 """Sampling of each contact facet for that check: points per facet edge."""
 
 
-def _facet_samples(nv: int) -> np.ndarray:
-    """Barycentric sample points (s, nv) of a facet with nv vertices (2: edge, 3: triangle)."""
-    n = SURFACE_SAMPLES
+TIP_STARTS = ("nodes", "surface")
+"""Where a tip starts: touching the contact surface's displacement nodes ("nodes"), or the
+surface itself, its facets as the mesh's geometry curves them ("surface", sampled at
+START_SAMPLES points per facet edge near the tip's axis): the first point of contact generally
+lies between nodes, which then start the tip deeper than on the meshed body."""
+START_SAMPLES = 24
+"""Sampling of each facet near a tip's axis for the "surface" start: points per facet edge."""
+
+
+def _facet_samples(nv: int, n: int | None = None) -> np.ndarray:
+    """Barycentric sample points (s, nv) of a facet with nv vertices (2: edge, 3: triangle),
+    ``n`` (default SURFACE_SAMPLES) per edge."""
+    n = SURFACE_SAMPLES if n is None else n
     if nv == 2:
         t = np.linspace(0.0, 1.0, n + 1)
         return np.stack([1 - t, t], axis=1)
@@ -64,10 +74,39 @@ def _facet_sample_points(mesh, facets, f2c):
     return pts, cells
 
 
+def _curved_facet_points(mesh, facets, f2c, n: int) -> np.ndarray:
+    """Points (m, gdim) on the facets as the mesh's geometry maps them, ``n`` per facet edge:
+    on a second-order geometry each facet is the quadratic through its vertices and the
+    cell's mid-edge nodes on its edges (found as the cell's nodes nearest the chords' middles),
+    on a first-order one the flat facet."""
+    gdim, fdim = mesh.geometry.dim, mesh.topology.dim - 1
+    if not len(facets):
+        return np.zeros((0, gdim))
+    x = mesh.geometry.x[:, :gdim]
+    geo = dolfinx.cpp.mesh.entities_to_geometry(getattr(mesh, "_mesh", mesh), fdim,
+                                                np.asarray(facets, np.int32), False)
+    verts = x[geo[:, :fdim + 1]]                                    # (f, nv, gdim)
+    bary = _facet_samples(fdim + 1, n)                               # (s, nv)
+    dofmap = mesh.geometry.dofmap
+    if len(dofmap.links(0)) == fdim + 2:                             # straight cells
+        return np.einsum("sk,fkd->fsd", bary, verts).reshape(-1, gdim)
+    pairs = [(i, j) for i in range(fdim + 1) for j in range(i + 1, fdim + 1)]
+    out = []
+    for f, v in zip(facets, verts):
+        nodes = x[dofmap.links(f2c.links(f)[0])]
+        mids = [nodes[np.argmin(np.linalg.norm(nodes - (v[i] + v[j]) / 2, axis=1))]
+                for i, j in pairs]
+        shape = [bary[:, i] * (2 * bary[:, i] - 1) for i in range(fdim + 1)] + \
+            [4 * bary[:, i] * bary[:, j] for i, j in pairs]
+        out.append(np.stack(shape, axis=1) @ np.vstack([v, mids]))
+    return np.vstack(out)
+
+
 class _Indenter:
     """One indenter's constants, forms and start position on a ReferenceSolver."""
 
-    def __init__(self, a: Actuator, solver, case: Case, beta: float, ds, X, u, h_cell):
+    def __init__(self, a: Actuator, solver, case: Case, beta: float, ds, X, u, h_cell,
+                 tip_start: str = "nodes"):
         dm, gdim = solver.dm, solver.gdim
         mesh = dm.mesh
         self.name, self.actuator = a.name, a
@@ -98,7 +137,7 @@ class _Indenter:
         self.dofs = self.dofs[self.dofs < V.dofmap.index_map.size_local]
         self.x_nodes = V.tabulate_dof_coordinates()[self.dofs, :gdim]
         self.site = self._site(a, case)
-        self.q0 = self._start(a)
+        self.q0 = self._start(a, (mesh, facets, f2c) if tip_start == "surface" else None)
         # the tip must not pass between the contact surface's nodes: sample points on its
         # undeformed facets and the cell of each, where the displacement is evaluated
         self._u_field = solver.u
@@ -158,15 +197,34 @@ class _Indenter:
         facets, area = case.mesh.facet_measures(a.region)
         return (area[:, None] * case.mesh.points[facets].mean(axis=1)).sum(0) / area.sum()
 
-    def _start(self, a: Actuator) -> np.ndarray:
+    def _start(self, a: Actuator, surface=None) -> np.ndarray:
         """The tip's front point at push 0: where it first touches the contact surface's nodes
-        within its radius of the axis (those more than a radius behind the site ignored)."""
-        w = self.x_nodes - self.site
-        s = w @ self.d
-        rho = np.linalg.norm(w - s[:, None] * self.d, axis=1)
+        within its radius of the axis (those more than a radius behind the site ignored); with
+        ``surface`` (mesh, facets, facet-to-cell connectivity), where it first touches those
+        facets as the geometry curves them (TIP_STARTS)."""
         R = self.shape.radius
-        under = (rho <= R) & (s >= -R)
+
+        def along(pts):
+            w = pts - self.site
+            s = w @ self.d
+            rho = np.linalg.norm(w - s[:, None] * self.d, axis=1)
+            return s, rho, (rho <= R) & (s >= -R)
+
+        s, rho, under = along(self.x_nodes)
         t = float(np.min(s[under] + self.shape.lift(rho[under]), initial=np.inf))
+        if surface is not None:
+            mesh, facets, f2c = surface
+            geo = dolfinx.cpp.mesh.entities_to_geometry(
+                getattr(mesh, "_mesh", mesh), mesh.topology.dim - 1,
+                np.asarray(facets, np.int32), False)
+            # facets with a vertex within a radius (and a cell) of the axis
+            corner = mesh.geometry.x[geo, :len(self.d)]
+            cs, crho, _ = along(corner.reshape(-1, len(self.d)))
+            reach = R + float(self.h_range[1])
+            near = ((crho <= reach) & (cs >= -reach)).reshape(len(facets), -1).any(axis=1)
+            pts = _curved_facet_points(mesh, facets[near], f2c, START_SAMPLES)
+            s, rho, under = along(pts)
+            t = min(t, float(np.min(s[under] + self.shape.lift(rho[under]), initial=np.inf)))
         t = self.comm.allreduce(t, op=MPI.MIN)
         if not np.isfinite(t):
             raise CaseError(

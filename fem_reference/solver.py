@@ -128,6 +128,9 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
             contact_quadrature``), else "nodal". The nodal rule is the more accurate for shallow
             pushes, a Gauss rule holds the skin on a tip pushed deeper than about two of its
             radii (``contact``).
+        tip_start: where each indenter starts: "nodes", touching the skin's displacement nodes,
+            or "surface", touching the skin's facets as the geometry curves them, which the
+            first contact with the meshed body generally lies between (``contact``).
     """
 
     def __init__(self, case: Case, *, degree: int | None = None, formulation: str = "auto",
@@ -135,7 +138,7 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
                  comm=MPI.COMM_WORLD, sliding_penalty: float = 1e4, body_force=None,
                  linear_solver: str = "auto", curved: bool | None = None,
                  contact_penalty: float = DEFAULT_CONTACT_PENALTY,
-                 contact_quadrature: str | int | None = None):
+                 contact_quadrature: str | int | None = None, tip_start: str = "nodes"):
         self.formulation = resolve_formulation(formulation, case.material)
         if degree is None:
             degree = default_degree(case, self.formulation)
@@ -213,7 +216,7 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
         if contact_quadrature is None:
             contact_quadrature = default_contact_rule(case)
         self.contact = Contact(self, case, penalty=contact_penalty,  # rigid indenters
-                               quadrature=contact_quadrature)
+                               quadrature=contact_quadrature, tip_start=tip_start)
         penalty = penalty + self.contact.energy
         self.energy_internal = internal
         total = internal - self.load * external + penalty
