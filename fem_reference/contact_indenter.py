@@ -137,6 +137,7 @@ class _Indenter:
         self.dofs = self.dofs[self.dofs < V.dofmap.index_map.size_local]
         self.x_nodes = V.tabulate_dof_coordinates()[self.dofs, :gdim]
         self.site = self._site(a, case)
+        self.tip_start = tip_start
         self.q0 = self._start(a, (mesh, facets, f2c) if tip_start == "surface" else None)
         # the tip must not pass between the contact surface's nodes: sample points on its
         # undeformed facets and the cell of each, where the displacement is evaluated
@@ -290,7 +291,7 @@ class _Indenter:
                 "max_penetration": pen, "penalty_beta": self.beta,
                 "penalty": [float(self.beta * self.E.value / h) for h in self.h_range[::-1]],
                 "tip": self.actuator.tip, "contact": self.actuator.contact,
-                "tip_start": [float(v) for v in self.q0],
+                "tip_start": [float(v) for v in self.q0], "started_on": self.tip_start,
                 **self._slip_check(pen)}
 
     def _slip_check(self, nodal_pen) -> dict:

@@ -5,7 +5,7 @@ estimate (one solve at degree + 1): the indenter phantom's P3 estimate would hav
 Its error is measured instead, once, against the converged answers of refinement studies
 (docs/verification.md), for the loads the case is meant for. The case file keeps each
 measurement as a row: the load (actuator -> push, mm), the discretization measured (its unknowns,
-degree and contact rule) and the largest relative differences of the indenters' forces and of
+degree, contact rule and tip start) and the largest relative differences of the indenters' forces and of
 the probes' displacement vectors from the converged values, with what those values are; a load
 at which no converged value is known is a row with ``converged = false`` and why.
 
@@ -26,6 +26,16 @@ __all__ = ["PUSH_TOL", "accuracy_line", "describe", "measured_accuracy", "unmatc
 
 PUSH_TOL = 1e-9
 """A measured load matches an answer's when every push agrees to this (mm)."""
+
+
+def _start(case: Case, result: SolveResult) -> str:
+    """Where ``result``'s indenters started ("nodes" or "surface"); the case's without
+    indenters."""
+    from .solver import default_tip_start
+
+    for report in (result.extra.get("indenters") or {}).values():
+        return report.get("started_on", "nodes")
+    return default_tip_start(case)
 
 
 def _rule(case: Case, result: SolveResult):
@@ -55,14 +65,16 @@ def measured_accuracy(case: Case, result: SolveResult, pushes=None) -> dict | No
 
 def _same_discretization(case: Case, result: SolveResult, row: dict) -> bool:
     """Whether ``row`` was measured on ``result``'s discretization: its unknowns, degree and
-    contact rule (a row's degree and rule default to the case's)."""
-    from .solver import default_contact_rule, default_degree
+    contact rule and where its indenters started (a row's degree, rule and start default to the
+    case's)."""
+    from .solver import default_contact_rule, default_degree, default_tip_start
 
     disc = result.extra.get("discretization") or {}
     degree = row.get("degree", default_degree(case, disc.get("formulation", "displacement")))
     rule = row.get("contact_quadrature", default_contact_rule(case))
+    start = row.get("tip_start", default_tip_start(case))
     return row["dofs"] == disc.get("dofs") and degree == result.degree and \
-        rule == _rule(case, result)
+        rule == _rule(case, result) and start == _start(case, result)
 
 
 def with_measured_accuracy(case: Case, result: SolveResult, pushes=None) -> SolveResult:

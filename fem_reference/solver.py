@@ -90,6 +90,12 @@ def default_contact_rule(case: Case):
     return case.reference_contact_quadrature or "nodal"
 
 
+def default_tip_start(case: Case) -> str:
+    """Where a solve that names none starts its indenters: the case's own (``[reference]
+    tip_start``), else "nodes"."""
+    return case.reference_tip_start or "nodes"
+
+
 class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin):
     """Neo-Hookean / linear-elastic reference on one Case mesh; build once, solve many times.
 
@@ -130,7 +136,8 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
             radii (``contact``).
         tip_start: where each indenter starts: "nodes", touching the skin's displacement nodes,
             or "surface", touching the skin's facets as the geometry curves them, which the
-            first contact with the meshed body generally lies between (``contact``).
+            first contact with the meshed body generally lies between (``contact``); None: the
+            case's (``[reference] tip_start``), else "nodes".
     """
 
     def __init__(self, case: Case, *, degree: int | None = None, formulation: str = "auto",
@@ -138,7 +145,7 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
                  comm=MPI.COMM_WORLD, sliding_penalty: float = 1e4, body_force=None,
                  linear_solver: str = "auto", curved: bool | None = None,
                  contact_penalty: float = DEFAULT_CONTACT_PENALTY,
-                 contact_quadrature: str | int | None = None, tip_start: str = "nodes"):
+                 contact_quadrature: str | int | None = None, tip_start: str | None = None):
         self.formulation = resolve_formulation(formulation, case.material)
         if degree is None:
             degree = default_degree(case, self.formulation)
@@ -216,7 +223,8 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
         if contact_quadrature is None:
             contact_quadrature = default_contact_rule(case)
         self.contact = Contact(self, case, penalty=contact_penalty,  # rigid indenters
-                               quadrature=contact_quadrature, tip_start=tip_start)
+                               quadrature=contact_quadrature,
+                               tip_start=tip_start or default_tip_start(case))
         penalty = penalty + self.contact.energy
         self.energy_internal = internal
         total = internal - self.load * external + penalty
@@ -332,7 +340,7 @@ def _solver_for(case: Case, degree: int | None, **kw) -> ReferenceSolver:
            case.material.density,
            tuple((b.region, b.type, str(b.normal), str(b.value)) for b in case.boundaries
                  if b.type in ("traction", "sliding")), tuple(sorted(kw.items())),
-           contact_key(case), case.reference_contact_quadrature)
+           contact_key(case), case.reference_contact_quadrature, case.reference_tip_start)
     s = _CACHE.get(key)
     if s is None or s.case.mesh is not case.mesh:
         if len(_CACHE) > 8:

@@ -94,6 +94,7 @@ class Case(CaseConstraintsMixin, CaseVariantsMixin):
     source: str | None = None
     reference_degree: int | None = None
     reference_contact_quadrature: str | int | None = None
+    reference_tip_start: str | None = None   # "nodes" or "surface" (fem_reference.contact)
     reference_measured: tuple = ()   # [reference.measured] rows (dicts): fem_reference.measured
 
     def __post_init__(self):
@@ -136,6 +137,9 @@ class Case(CaseConstraintsMixin, CaseVariantsMixin):
         if rule is not None and not is_contact_rule(rule):
             raise CaseError(f"{where}: reference contact_quadrature must be {CONTACT_RULES}, "
                             f"got {rule!r}")
+        if self.reference_tip_start not in (None, "nodes", "surface"):
+            raise CaseError(f"{where}: reference tip_start must be 'nodes' or 'surface', got "
+                            f"{self.reference_tip_start!r}")
         _ = self.constraints  # validates the prescriptions (raises on conflicts)
         self._check_rigid_body(where)
 

@@ -267,6 +267,7 @@ def load_case(path, *, mesh: MeshData | None = None, size: float | None = None,
                     reference_degree=data.get("reference", {}).get("degree"),
                     reference_contact_quadrature=data.get("reference", {}).get(
                         "contact_quadrature"),
+                    reference_tip_start=data.get("reference", {}).get("tip_start"),
                     reference_measured=tuple(data.get("reference", {}).get("measured", ())),
                     name=data.get("name", Path(path).stem), source=src)
     except CaseError as exc:  # conflicting prescriptions, rigid-body freedom, inverted cells

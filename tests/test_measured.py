@@ -1,5 +1,5 @@
 """A case file's measured accuracy (``[reference.measured]``): a solve reports the row of exactly
-its discretization (unknowns, degree, contact rule) and load, and no row for anything else; a bad
+its discretization (unknowns, degree, contact rule, tip start) and load, and no row for anything else; a bad
 row is refused naming the file and the key; the shipped rows describe their cases' defaults.
 Units: mm."""
 import dataclasses
@@ -64,6 +64,28 @@ def test_a_row_describes_exactly_its_discretization_and_load(coarse):
     note = with_measured_accuracy(with_rows, p2, {"A1": 1.0}).extra["measured_note"]
     assert note == f"not measured: the case's measurements are of {n}, {n + 3} unknowns, this " \
                    f"answer has {p2.extra['discretization']['dofs']} (contact rule nodal)"
+
+
+def test_a_row_is_of_one_tip_start(coarse):
+    """Where the indenters started is part of the discretization: a row measured with tips
+    started on the skin's nodes (the default) does not describe an answer whose tips started
+    on its curved facets, and a row that names that start does."""
+    case, res = coarse
+    n = res.extra["discretization"]["dofs"]
+    started = {}
+    for how in ("nodes", "surface"):
+        extra = {**res.extra, "indenters": {"A1": {"quadrature": "nodal", "started_on": how}}}
+        started[how] = dataclasses.replace(res, extra=extra)
+    rows = (_row(n, {"A1": 1.0}, probes=0.1), _row(n, {"A1": 1.0}, tip_start="surface",
+                                                   probes=0.2))
+    with_rows = dataclasses.replace(case, reference_measured=rows)
+    assert measured_accuracy(with_rows, started["nodes"], {"A1": 1.0})["probes"] == 0.1
+    assert measured_accuracy(with_rows, started["surface"], {"A1": 1.0})["probes"] == 0.2
+    only_nodes = dataclasses.replace(case, reference_measured=rows[:1])
+    assert measured_accuracy(only_nodes, started["surface"], {"A1": 1.0}) is None
+    # a case whose own start is "surface" makes that the rows' default
+    surface_case = dataclasses.replace(only_nodes, reference_tip_start="surface")
+    assert measured_accuracy(surface_case, started["surface"], {"A1": 1.0})["probes"] == 0.1
 
 
 def _with_rows(tmp_path, rows: str) -> Path:

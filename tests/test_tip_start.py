@@ -3,6 +3,7 @@ geometry maps them (``tip_start = "surface"``). The exact start is computed here
 dome's equation, not from the mesh."""
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -88,3 +89,19 @@ def test_on_straight_cells_the_start_is_the_flat_facets(wide_half):
         starts[how] = float((ind.q0 - ind.site) @ ind.d)
     sag = 4.525 ** 2 / (8 * 40.0)      # a facet of the site cells on the dome (radius >= 40 mm)
     assert starts["nodes"] - sag <= starts["surface"] <= starts["nodes"] + 1e-12
+
+
+def test_a_case_file_names_its_tip_start(tmp_path):
+    import tissue_reference.fem_reference as fr
+
+    text = Path("meshes/cases/phantom-indenter-half.toml").read_text()
+    good = tmp_path / "surface.toml"
+    good.write_text(text.replace("[reference]\n", '[reference]\ntip_start = "surface"\n', 1))
+    case = load_case(good, size=16.0)
+    assert case.reference_tip_start == "surface"
+    s = fr.ReferenceSolver(case, degree=1)
+    assert all(i.tip_start == "surface" for i in s.contact.indenters)
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace("[reference]\n", '[reference]\ntip_start = "vertex"\n', 1))
+    with pytest.raises(CaseError, match=r"bad.toml.*\[reference\]\.tip_start"):
+        load_case(bad, size=16.0)

@@ -218,6 +218,10 @@ def add_discretization_args(p: argparse.ArgumentParser):
                         "Gauss degree on the skin's facets (2 holds tips pushed past two of "
                         "their radii); default: the case's [reference] contact_quadrature, "
                         "else nodal")
+    p.add_argument("--tip-start", choices=("nodes", "surface"), default=None,
+                   help="where indenters start: touching the skin's nodes or its curved facets "
+                        "(the first contact lies between nodes); default: the case's "
+                        "[reference] tip_start, else nodes")
 
 
 def builtin_of(path, size=None):
@@ -258,6 +262,8 @@ def case_from_args(args, *, size: float | None = None) -> Case:
     case = load_case(Path(args.case), size=size, max_cells=max_cells)
     if getattr(args, "contact_quadrature", None) is not None:
         case = dataclasses.replace(case, reference_contact_quadrature=args.contact_quadrature)
+    if getattr(args, "tip_start", None) is not None:
+        case = dataclasses.replace(case, reference_tip_start=args.tip_start)
     return case.with_free_actuators() if getattr(args, "free_actuators", False) else case
 
 
