@@ -11,8 +11,8 @@ at which no converged value is known is a row with ``converged = false`` and why
 
 ``measured_accuracy`` hands back the row that describes a given answer: the same unknowns,
 degree, contact rule, tip start and pushes (to PUSH_TOL mm). Another mesh, degree, rule, start
-or load matches no row, so a measurement is never stretched to an answer it was not made for. Dimensionless
-fractions (0.01 = 1 %); pushes in mm.
+or load matches no row, so a measurement is never stretched to an answer it was not made for.
+Dimensionless fractions (0.01 = 1 %); pushes in mm.
 """
 from __future__ import annotations
 
