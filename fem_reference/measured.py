@@ -6,8 +6,9 @@ Its error is measured instead, once, against the converged answers of refinement
 (docs/verification.md), for the loads the case is meant for. The case file keeps each
 measurement as a row: the load (actuator -> push, mm), the discretization measured (its unknowns,
 degree, contact rule and tip start) and the largest relative differences of the indenters'
-forces and of the probes' displacement vectors from the converged values, with what those values are; a load
-at which no converged value is known is a row with ``converged = false`` and why.
+forces and of the probes' displacement vectors from the converged values, with what those
+values are; a load at which no converged value is known is a row with ``converged = false``
+and why.
 
 ``measured_accuracy`` hands back the row that describes a given answer: the same unknowns,
 degree, contact rule, tip start and pushes (to PUSH_TOL mm). Another mesh, degree, rule, start
