@@ -1,0 +1,28 @@
+"""Fixtures shared by the test modules."""
+import math
+
+import pytest
+from case_texts import COARSE
+
+from tissue_reference.meshes import builders
+from tissue_reference.meshes.errors import CaseError
+
+
+@pytest.fixture(scope="module")
+def coarse_builders():
+    """Builtin meshes built once at a coarse size, whatever size the case asks for."""
+    cache = {}
+
+    def cached(name, real):
+        def build(size, *, out=None):
+            if not (size > 0 and math.isfinite(size)):
+                raise CaseError(f"mesh size must be a positive length in mm, got {size!r}")
+            if name not in cache:
+                cache[name] = real(COARSE.get(name, 6.0))
+            return cache[name]
+        return build
+
+    with pytest.MonkeyPatch.context() as mp:
+        for name, real in list(builders.BUILDERS.items()):
+            mp.setitem(builders.BUILDERS, name, cached(name, real))
+        yield cache
