@@ -217,6 +217,7 @@ def summarize(load: str, out: Path) -> None:
 
 
 def main():
+    from tissue_reference.meshes.case import TIP_STARTS
     from tissue_reference.tissue.common import contact_rule
 
     ap = argparse.ArgumentParser(description=__doc__,
@@ -234,7 +235,7 @@ def main():
     ap.add_argument("--path", type=float, metavar="RATIO",
                     help="cells of RATIO x the site size along each tip's path into the tissue "
                          "(meshes.builders_curved.PATH_DEPTH / PATH_REACH); default: none")
-    ap.add_argument("--tip-start", choices=["nodes", "surface"], default="nodes",
+    ap.add_argument("--tip-start", choices=TIP_STARTS, default="nodes",
                     help="where each tip starts: touching the skin's nodes (the reference's "
                          "default) or its curved facets")
     ap.add_argument("--path-reach", type=float, metavar="MM",

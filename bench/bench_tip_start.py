@@ -65,12 +65,13 @@ def exact_start(site, d, radius: float) -> float:
 def main():
     import tissue_reference.fem_reference as fr
     from tissue_reference.fem_reference.richardson import assess
+    from tissue_reference.meshes.case import TIP_STARTS
 
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--study", default="one_wide", help="an entry of the study data")
     ap.add_argument("--summary", type=Path, help="a summary JSON of the convergence bench")
-    ap.add_argument("--tip-start", choices=["nodes", "surface"], default="nodes",
+    ap.add_argument("--tip-start", choices=TIP_STARTS, default="nodes",
                     help="the reference's tip start to measure (default: the study's, nodes)")
     args = ap.parse_args()
     study = (json.loads(args.summary.read_text()) if args.summary else

@@ -107,7 +107,7 @@ import numpy as np
 import ufl
 from mpi4py import MPI
 
-from tissue_reference.meshes.case import CONTACT_RULES, Case, is_contact_rule
+from tissue_reference.meshes.case import CONTACT_RULES, TIP_STARTS, Case, is_contact_rule
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import SolveResult
 
@@ -115,7 +115,6 @@ from .contact_geometry import TipShape, _gap_ufl, nodal_rule  # noqa: F401  (re-
 from .contact_indenter import (  # noqa: F401  (re-exported)
     SLIP_FRACTION,
     SURFACE_SAMPLES,
-    TIP_STARTS,
     _facet_samples,
     _Indenter,
 )

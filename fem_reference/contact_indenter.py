@@ -27,7 +27,7 @@ from tissue_reference.meshes.errors import CaseError
 
 from .contact_geometry import TipShape, _gap_ufl
 
-__all__ = ["SLIP_FRACTION", "START_SAMPLES", "SURFACE_SAMPLES", "TIP_STARTS"]
+__all__ = ["SLIP_FRACTION", "START_SAMPLES", "SURFACE_SAMPLES"]
 
 
 SLIP_FRACTION = 0.05
@@ -37,13 +37,10 @@ SURFACE_SAMPLES = 4
 """Sampling of each contact facet for that check: points per facet edge."""
 
 
-TIP_STARTS = ("nodes", "surface")
-"""Where a tip starts: touching the contact surface's displacement nodes ("nodes"), or the
-surface itself, its facets as the mesh's geometry curves them ("surface", sampled at
-START_SAMPLES points per facet edge near the tip's axis): the first point of contact generally
-lies between nodes, which then start the tip deeper than on the meshed body."""
 START_SAMPLES = 24
-"""Sampling of each facet near a tip's axis for the "surface" start: points per facet edge."""
+"""Sampling of each facet near a tip's axis for the "surface" start (``meshes.case.TIP_STARTS``):
+points per facet edge. The first point of contact generally lies between nodes, which would
+start the tip deeper than on the meshed body."""
 
 
 def _facet_samples(nv: int, n: int | None = None) -> np.ndarray:

@@ -47,6 +47,7 @@ __all__ = [
     "E_RANGE_KPA",
     "MATERIAL_MODELS",
     "TIP_SHAPES",
+    "TIP_STARTS",
     "Actuator",
     "Boundary",
     "Case",
@@ -57,6 +58,10 @@ __all__ = [
     "load_case",
 ]
 
+TIP_STARTS = ("nodes", "surface")
+"""Where an indenter starts (``[reference] tip_start``): touching the contact surface's
+displacement nodes, or the surface itself as the mesh's geometry curves it
+(``fem_reference.contact``)."""
 CONTACT_RULES = "'nodal' or a Gauss degree 1-8"
 """What a contact rule (``contact_quadrature``) may be, as error messages name it."""
 
@@ -137,9 +142,9 @@ class Case(CaseConstraintsMixin, CaseVariantsMixin):
         if rule is not None and not is_contact_rule(rule):
             raise CaseError(f"{where}: reference contact_quadrature must be {CONTACT_RULES}, "
                             f"got {rule!r}")
-        if self.reference_tip_start not in (None, "nodes", "surface"):
-            raise CaseError(f"{where}: reference tip_start must be 'nodes' or 'surface', got "
-                            f"{self.reference_tip_start!r}")
+        if self.reference_tip_start is not None and self.reference_tip_start not in TIP_STARTS:
+            raise CaseError(f"{where}: reference tip_start must be one of {list(TIP_STARTS)}, "
+                            f"got {self.reference_tip_start!r}")
         _ = self.constraints  # validates the prescriptions (raises on conflicts)
         self._check_rigid_body(where)
 

@@ -26,6 +26,7 @@ from tissue_reference.meshes.case import (
     CONTACT_TYPES,
     MATERIAL_MODELS,
     TIP_SHAPES,
+    TIP_STARTS,
     Actuator,
     load_case,
 )
@@ -69,6 +70,9 @@ def test_schema_enums_follow_the_code():
     actuator = case_schema()["$defs"]["actuator"]["properties"]
     assert (actuator["type"]["enum"], actuator["tip"]["enum"], actuator["contact"]["enum"]) == \
         (list(ACTUATOR_TYPES), list(TIP_SHAPES), list(CONTACT_TYPES))
+    reference = p["reference"]["properties"]
+    assert reference["tip_start"]["enum"] == list(TIP_STARTS)
+    assert reference["measured"]["items"]["properties"]["tip_start"]["enum"] == list(TIP_STARTS)
     point = case_schema()["$defs"]["probe"]["properties"]["point"]["description"]
     assert float(re.search(r"at most ([0-9.e-]+) of", point)[1]) == PROBE_TOLERANCE
 

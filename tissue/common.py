@@ -18,7 +18,13 @@ from pathlib import Path
 import numpy as np
 
 from tissue_reference.meshes.builders import MAX_CELLS, estimate_cells
-from tissue_reference.meshes.case import CONTACT_RULES, Case, is_contact_rule, load_case
+from tissue_reference.meshes.case import (
+    CONTACT_RULES,
+    TIP_STARTS,
+    Case,
+    is_contact_rule,
+    load_case,
+)
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.io import check_output_dir, check_output_file
 from tissue_reference.meshes.mesh import RUNAWAY_FACTOR
@@ -218,7 +224,7 @@ def add_discretization_args(p: argparse.ArgumentParser):
                         "Gauss degree on the skin's facets (2 holds tips pushed past two of "
                         "their radii); default: the case's [reference] contact_quadrature, "
                         "else nodal")
-    p.add_argument("--tip-start", choices=("nodes", "surface"), default=None,
+    p.add_argument("--tip-start", choices=TIP_STARTS, default=None,
                    help="where indenters start: touching the skin's nodes or its curved facets "
                         "(the first contact lies between nodes); default: the case's "
                         "[reference] tip_start, else nodes")
