@@ -54,6 +54,7 @@ from .builders_curved import (  # noqa: F401  (re-exported)
     RIM_GRADING,
     SITE_REACH,
     PhantomGeometry,
+    check_local_sizes,
     phantom,
     phantom3,
     phantom_half,
@@ -231,9 +232,10 @@ def build(name: str, size: float, *, out=None, max_cells: int | None = MAX_CELLS
     max_cells: refuse (CaseError with the estimate, before gmsh starts) a mesh whose estimated
     cell count (``estimate_cells``) exceeds it; None: no limit. site_size: finer cells at the
     actuator sites (``SITE_BUILDERS`` only); path_size: finer still along each actuator's path
-    into the tissue (with a site_size), within path_reach (mm) of its axis; rim_size: finer cells at the rims of the actuator
-    patches (``SITE_BUILDERS`` only), where glued patches are singular; base_rim_size: finer
-    cells at the base rim (``SITE_BUILDERS`` only), where the fixed base meets the free dome."""
+    into the tissue (with a site_size), within path_reach (mm) of its axis; rim_size: finer
+    cells at the rims of the actuator patches (``SITE_BUILDERS`` only), where glued patches are
+    singular; base_rim_size: finer cells at the base rim (``SITE_BUILDERS`` only), where the
+    fixed base meets the free dome."""
     if name not in BUILDERS:
         raise CaseError(f"unknown mesh builder {name!r}; builders: {sorted(BUILDERS)}")
     if site_size is None and path_size is not None:
@@ -242,10 +244,7 @@ def build(name: str, size: float, *, out=None, max_cells: int | None = MAX_CELLS
     local = {k: v for k, v in (("site_size", site_size), ("path_size", path_size),
                                ("path_reach", path_reach), ("rim_size", rim_size),
                                ("base_rim_size", base_rim_size)) if v is not None}
-    for k, v in local.items():
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
-                or v <= 0:
-            raise CaseError(f"{k} must be a positive length in mm, got {v!r}")
+    check_local_sizes(local)
     if not local:
         check_cell_budget(name, size, max_cells)
         return BUILDERS[name](size, out=out)

@@ -28,12 +28,14 @@ from .projection import dome_side_point
 __all__ = [
     "ACTUATORS_3",
     "ACTUATORS_4",
+    "LOCAL_SIZES",
     "PATH_DEPTH",
     "PATH_REACH",
     "PHANTOM",
     "RIM_GRADING",
     "SITE_REACH",
     "PhantomGeometry",
+    "check_local_sizes",
     "phantom",
     "phantom3",
     "phantom_half",
@@ -85,17 +87,23 @@ SYMMETRY_PLANES = {"full": (), "half": ("sym_y0",), "quarter": ("sym_y0", "sym_x
 plane y = 0 (the part keeps y >= 0), ``sym_x0`` the plane x = 0 (the part keeps x >= 0)."""
 
 
+def check_local_sizes(local: dict) -> None:
+    """CaseError naming the first of the local sizes ``local`` (name -> mm or None) that is not
+    a positive finite length."""
+    for name, v in local.items():
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
+                              or not math.isfinite(v) or v <= 0):
+            raise CaseError(f"{name} must be a positive length in mm, got {v!r}")
+
+
 def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANTOM,
              site_size: float | None = None, part: str = "full",
              path_size: float | None = None, rim_size: float | None = None,
              base_rim_size: float | None = None,
              path_reach: float | None = None) -> MeshData:
     g = geometry
-    for name, v in (("site_size", site_size), ("path_size", path_size),
-                    ("rim_size", rim_size), ("base_rim_size", base_rim_size),
-                    ("path_reach", path_reach)):
-        if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and 0 < v):
-            raise CaseError(f"{name} must be a positive length in mm, got {v!r}")
+    check_local_sizes({"site_size": site_size, "path_size": path_size, "rim_size": rim_size,
+                       "base_rim_size": base_rim_size, "path_reach": path_reach})
     if path_reach is not None and path_size is None:
         raise CaseError(f"path_reach {path_reach!r} mm is the reach of path_size: give a "
                         f"path_size too")
@@ -202,6 +210,7 @@ def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANT
                   for _, az in actuators]
         paths = None if path_size is None else [(p, p + PATH_DEPTH * n)
                                                 for p, n in zip(sites, inward)]
+
         def outline(surfaces):  # their boundary curves, less any cut along a mirror plane
             return [t for _, t in gmsh.model.getBoundary(
                 [(2, s_) for s_ in surfaces], combined=True, oriented=False)
@@ -213,8 +222,8 @@ def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANT
         base_rim = None if base_rim_size is None else outline(base)
         if site_size is not None or rim_size is not None or base_rim_size is not None:
             _local_sizes(gmsh, sites, site_size, size, paths=paths, path_size=path_size,
-                         path_reach=path_reach or PATH_REACH, rims=rims, rim_size=rim_size, base_rim=base_rim,
-                         base_rim_size=base_rim_size)
+                         path_reach=path_reach or PATH_REACH, rims=rims, rim_size=rim_size,
+                         base_rim=base_rim, base_rim_size=base_rim_size)
         return _finish(gmsh, 3, out, curved=True)
 
 
@@ -236,8 +245,8 @@ def _local_sizes(gmsh, sites, fine: float | None, coarse: float, *, paths=None,
     of each segment, growing to ``fine`` over the next half reach; with ``rims`` (curve
     tags) and ``rim_size``, cells of ``rim_size`` within ``rim_size`` of those curves, growing
     by RIM_GRADING to ``coarse``; likewise with ``base_rim`` (curve tags) and ``base_rim_size``.
-    The points and segments are free geometry, not part of the
-    body: they are neither meshed into it nor written."""
+    The points and segments are free geometry, not part of the body: they are neither meshed
+    into it nor written."""
     f = gmsh.model.mesh.field
     occ = gmsh.model.occ
 
