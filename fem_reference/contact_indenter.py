@@ -71,18 +71,23 @@ def _facet_sample_points(mesh, facets, f2c):
     return pts, cells
 
 
-def _curved_facet_points(mesh, facets, f2c, n: int) -> np.ndarray:
+def _curved_facet_points(mesh, facets, f2c, n: int, keep=None) -> np.ndarray:
     """Points (m, gdim) on the facets as the mesh's geometry maps them, ``n`` per facet edge:
     on a second-order geometry each facet is the quadratic through its vertices and the
     cell's mid-edge nodes on its edges (found as the cell's nodes nearest the chords' middles),
-    on a first-order one the flat facet."""
+    on a first-order one the flat facet. keep: a mask of the facets to sample from their
+    vertices' coordinates (f, nv, gdim); default all."""
     gdim, fdim = mesh.geometry.dim, mesh.topology.dim - 1
+    x = mesh.geometry.x[:, :gdim]
+    if len(facets):
+        geo = dolfinx.cpp.mesh.entities_to_geometry(getattr(mesh, "_mesh", mesh), fdim,
+                                                    np.asarray(facets, np.int32), False)
+        verts = x[geo[:, :fdim + 1]]                                # (f, nv, gdim)
+        if keep is not None:
+            mask = keep(verts)
+            facets, verts = np.asarray(facets)[mask], verts[mask]
     if not len(facets):
         return np.zeros((0, gdim))
-    x = mesh.geometry.x[:, :gdim]
-    geo = dolfinx.cpp.mesh.entities_to_geometry(getattr(mesh, "_mesh", mesh), fdim,
-                                                np.asarray(facets, np.int32), False)
-    verts = x[geo[:, :fdim + 1]]                                    # (f, nv, gdim)
     bary = _facet_samples(fdim + 1, n)                               # (s, nv)
     dofmap = mesh.geometry.dofmap
     if len(dofmap.links(0)) == fdim + 2:                             # straight cells
@@ -211,16 +216,13 @@ class _Indenter:
         s, rho, under = along(self.x_nodes)
         t = float(np.min(s[under] + self.shape.lift(rho[under]), initial=np.inf))
         if surface is not None:
-            mesh, facets, f2c = surface
-            geo = dolfinx.cpp.mesh.entities_to_geometry(
-                getattr(mesh, "_mesh", mesh), mesh.topology.dim - 1,
-                np.asarray(facets, np.int32), False)
-            # facets with a vertex within a radius (and a cell) of the axis
-            corner = mesh.geometry.x[geo, :len(self.d)]
-            cs, crho, _ = along(corner.reshape(-1, len(self.d)))
             reach = R + float(self.h_range[1])
-            near = ((crho <= reach) & (cs >= -reach)).reshape(len(facets), -1).any(axis=1)
-            pts = _curved_facet_points(mesh, facets[near], f2c, START_SAMPLES)
+
+            def near(verts):   # facets with a vertex within a radius (and a cell) of the axis
+                cs, crho, _ = along(verts.reshape(-1, verts.shape[-1]))
+                return ((crho <= reach) & (cs >= -reach)).reshape(len(verts), -1).any(axis=1)
+
+            pts = _curved_facet_points(*surface, START_SAMPLES, keep=near)
             s, rho, under = along(pts)
             t = min(t, float(np.min(s[under] + self.shape.lift(rho[under]), initial=np.inf)))
         t = self.comm.allreduce(t, op=MPI.MIN)
