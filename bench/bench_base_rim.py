@@ -23,11 +23,10 @@ from bench_indenter_convergence import level_sizes  # the levels' cell sizes (th
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data" / "phantom_indenter_reference.json"
 RADIUS = 8.0   # mm, the wide tips
-DOME = 50.0    # mm, the phantom's base radius (meshes.builders.PHANTOM)
 
 
 def refined_case(level: int, passes: int, band: float):
-    from tissue_reference.meshes.builders import build
+    from tissue_reference.meshes.builders import PHANTOM, build
     from tissue_reference.meshes.case import load_case
     from tissue_reference.meshes.refine import projector_for
     from tissue_reference.meshes.refine_local import refine_local
@@ -38,7 +37,8 @@ def refined_case(level: int, passes: int, band: float):
     for i in range(passes):
         c = mesh.points[mesh.cells].mean(axis=1)
         near = band / 2 ** i
-        mesh = refine_local(mesh, (c[:, 2] < near) & (np.hypot(c[:, 0], c[:, 1]) > DOME - near),
+        mesh = refine_local(mesh, (c[:, 2] < near) &
+                            (np.hypot(c[:, 0], c[:, 1]) > PHANTOM.radius - near),
                             project=project)
     case = load_case(ROOT / "meshes" / "cases" / "phantom-indenter-half.toml").with_mesh(mesh)
     return dataclasses.replace(case, actuators=tuple(dataclasses.replace(a, radius=RADIUS)

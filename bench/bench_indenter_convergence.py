@@ -45,6 +45,14 @@ def level_sizes(k: int) -> tuple[float, float]:
     return SIZE / RATIO ** k, SITE / RATIO ** k
 
 
+def level_lengths(k: int, path: float | None = None, base_rim: float | None = None):
+    """(size, site, path, base rim) cell sizes (mm; None where not refined) of level ``k``:
+    ``path`` and ``base_rim`` are ratios to the site size."""
+    size, site = level_sizes(k)
+    return (size, site, None if path is None else site * path,
+            None if base_rim is None else site * base_rim)
+
+
 def level_case(load: str, k: int, path: float | None = None, radius: float | None = None,
                volumetric: str | None = None, idle_tips: bool = True,
                base_rim: float | None = None, path_reach: float | None = None):
@@ -53,10 +61,8 @@ def level_case(load: str, k: int, path: float | None = None, radius: float | Non
     from tissue_reference.meshes.case import load_case
 
     name, builder = CASES[load]
-    size, site = level_sizes(k)
+    size, site, path_mm, base_rim_mm = level_lengths(k, path, base_rim)
     case = load_case(ROOT / "meshes" / "cases" / name)
-    path_mm = None if path is None else site * path
-    base_rim_mm = None if base_rim is None else site * base_rim
     case = dataclasses.replace(case, mesh=build(builder, size, site_size=site, path_size=path_mm,
                                                 base_rim_size=base_rim_mm,
                                                 path_reach=path_reach))
@@ -82,9 +88,7 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
     from tissue_reference.meshes.errors import ConvergenceError
     from tissue_reference.meshes.results import write_json
 
-    size, site = level_sizes(k)
-    path_mm = None if path is None else site * path
-    base_rim_mm = None if base_rim is None else site * base_rim
+    size, site, path_mm, base_rim_mm = level_lengths(k, path, base_rim)
     case = level_case(load, k, path, radius, volumetric, idle_tips, base_rim, path_reach)
     s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=contact_quadrature,
                            tip_start=tip_start)

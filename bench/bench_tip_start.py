@@ -10,9 +10,9 @@ is then a push of p + delta. This bench computes, per level of a study in
 tests/data/phantom_indenter_reference.json (``--study``) or in a summary written by
 ``bench_indenter_convergence.py --summarize`` (``--summary FILE``):
 
-- the exact start: the minimum over the dome x^2/a^2 + y^2/a^2 + z^2/c^2 = 1 (a = 50, c = 45 mm)
-  of the distance along the tip's axis at which the sphere touches it (solved here with scipy,
-  from the geometry, not from the mesh);
+- the exact start: the minimum over the dome x^2/a^2 + y^2/a^2 + z^2/c^2 = 1 (a = 50, c = 45
+  mm: ``meshes.builders.PHANTOM``) of the distance along the tip's axis at which the sphere
+  touches it (solved here with scipy, from the geometry, not from the mesh);
 - the mesh's start (the reference's own, read off its indenter after set-up) and delta;
 - A1's force corrected to first order, F(p) - delta dF/dp, with dF/dp from a cubic through the
   origin and the level's own forces; the corrected sequence is assessed like the study's
@@ -33,18 +33,18 @@ from bench_indenter_convergence import RATIO, level_case  # (this folder)
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data" / "phantom_indenter_reference.json"
-DOME_A, DOME_C = 50.0, 45.0     # mm, the phantom's base radius and height (meshes.builders)
 
 
-def exact_start(site, d, radius: float) -> float:
+def exact_start(site, d, radius: float, dome_a: float, dome_c: float) -> float:
     """Distance (mm, along the unit axis d from ``site``) of the sphere's front point when it
-    first touches the true dome: min over the dome of s + R - sqrt(R^2 - rho^2)."""
+    first touches the true dome x^2/a^2 + y^2/a^2 + z^2/c^2 = 1 (a = ``dome_a``, c =
+    ``dome_c``, mm): min over the dome of s + R - sqrt(R^2 - rho^2)."""
     from scipy.optimize import minimize
 
     def surface(v):
         az, el = v
-        return np.array([DOME_A * math.cos(el) * math.cos(az),
-                         DOME_A * math.cos(el) * math.sin(az), DOME_C * math.sin(el)])
+        return np.array([dome_a * math.cos(el) * math.cos(az),
+                         dome_a * math.cos(el) * math.sin(az), dome_c * math.sin(el)])
 
     def along(v):
         w = surface(v) - site
@@ -55,7 +55,7 @@ def exact_start(site, d, radius: float) -> float:
         return s + radius - math.sqrt(radius * radius - rho * rho)
 
     az0 = math.atan2(site[1], site[0])
-    el0 = math.asin(max(-1.0, min(1.0, site[2] / DOME_C)))
+    el0 = math.asin(max(-1.0, min(1.0, site[2] / dome_c)))
     tries = [minimize(along, [az0 + da, el0 + de], method="Nelder-Mead",
                       options={"xatol": 1e-12, "fatol": 1e-13, "maxiter": 4000})
              for da in (-0.05, 0.0, 0.05) for de in (-0.1, -0.05, 0.0, 0.05)]
@@ -65,6 +65,7 @@ def exact_start(site, d, radius: float) -> float:
 def main():
     import tissue_reference.fem_reference as fr
     from tissue_reference.fem_reference.richardson import assess
+    from tissue_reference.meshes.builders import PHANTOM
     from tissue_reference.meshes.case import TIP_STARTS
 
     ap = argparse.ArgumentParser(description=__doc__,
@@ -94,7 +95,7 @@ def main():
         a1 = next(a for a in case.actuators if a.name == "A1")
         site = np.asarray(a1.point, float)
         d = np.asarray(a1.direction, float) / np.linalg.norm(a1.direction)
-        exact = exact_start(site, d, radius)
+        exact = exact_start(site, d, radius, PHANTOM.radius, PHANTOM.height)
         deltas[k] = float((ind.q0 - site) @ d) - exact
         h[k] = level.get("path_mm") or level["site_mm"]
         print(f"level {k}: {case.mesh.n_cells} cells; exact start {exact:.5f} mm along the "
