@@ -13,7 +13,9 @@ tests/data/phantom_indenter_reference.json (P2 on the phantom's symmetric parts,
 sqrt 2 per level, from bench/bench_indenter_convergence.py): by default the study with the
 Gauss contact rule and refined paths (``four_gauss`` / ``one_gauss``, to 12.5 mm; 15 mm has no
 converged value) where it has the push, else the nodal one (``--study nodal``: the nodal one
-only). The spread of its levels and, where assessed, its GCI band are printed with it, so the
+only). A default whose tips start on the skin's curved facets (``--tip-start surface``, or the
+case's ``[reference] tip_start``) is compared with the studies started there (``*_surface``).
+The spread of its levels and, where assessed, its GCI band are printed with it, so the
 comparison says how well the converged value itself is known.
 
 Per load and push (the pushes one warm-started load path): the A1 force (mN) and the targets'
@@ -22,7 +24,7 @@ displacements (mm) of each discretization, the relative difference of each to th
 
     .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--pushes 5 10 12.5]
         [--contact-quadrature nodal|2] [--study gauss|nodal] [--old [p1|p2]]
-        [--case indenter|wide|control]
+        [--case indenter|wide|control] [--tip-start nodes|surface]
         [--mesh SIZE SITE PATH [--builder phantom-symmetric]] [--rows]
 
 ``--rows`` prints the default's rows for its case file's ``[[reference.measured]]``.
@@ -44,20 +46,26 @@ CASES = {"indenter": ROOT / "meshes" / "cases" / "phantom-indenter.toml",
 STUDIES = {("indenter", "gauss"): ("{load}_gauss", "{load}"), ("indenter", "nodal"): ("{load}",),
            ("wide", "gauss"): ("{load}_wide",),
            ("control", "gauss"): ("{load}_gauss", "{load}"), ("control", "nodal"): ("{load}",)}
-"""Per case and ``--study``: the studies in DATA searched for the push, in order."""
+"""Per case and ``--study``: the studies in DATA searched for the push, in order (the tips started
+on the skin's nodes; ``SURFACE`` for the curved facets)."""
+SURFACE = "_surface"
+"""The suffix of a study whose tips start on the skin's curved facets (``tip_start =
+"surface"``): a default started there is compared with those studies only."""
 DATA = ROOT / "tests" / "data" / "phantom_indenter_reference.json"
 LOADS = {"one": ("A1",), "four": ("A1", "A2", "A3", "A4")}
 MAX_BAND = 0.1
 """The largest GCI band on the force (relative) of a finest level used as the converged answer."""
 
 
-def finest(load: str, push: float, study: str = "gauss", case: str = "indenter") -> dict | None:
-    """The finest level's answer at ``push`` (of the Gauss-rule study where it has the push) and
-    the spread of all levels (relative); None when no study has three assessed levels there, when
-    its levels do not contract (the force's last change not smaller than the one before) or when
-    the force's GCI band is above MAX_BAND."""
+def finest(load: str, push: float, study: str = "gauss", case: str = "indenter",
+           start: str = "nodes") -> dict | None:
+    """The finest level's answer at ``push`` (of the Gauss-rule study where it has the push, its
+    tips started as ``start``) and the spread of all levels (relative); None when no study has
+    three assessed levels there, when its levels do not contract (the force's last change not
+    smaller than the one before) or when the force's GCI band is above MAX_BAND."""
     loads = json.loads(DATA.read_text())["loads"]
-    for key in (k.format(load=load) for k in STUDIES[case, study]):
+    suffix = SURFACE if start == "surface" else ""
+    for key in (k.format(load=load) + suffix for k in STUDIES[case, study]):
         entry = next((e for e in loads.get(key, {}).get("pushes", [])
                       if e["push_mm"] == push and e.get("assessed")),   # >= 3 levels
                      None)
@@ -90,10 +98,11 @@ symmetric mesh): P2 on the whole phantom's own gmsh mesh with 3.2 mm sites, 59k 
 
 
 def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indenter",
-          mesh: tuple | None = None, builder: str = "phantom") -> list[dict]:
+          mesh: tuple | None = None, builder: str = "phantom",
+          start: str | None = None) -> list[dict]:
     """The case's default discretization (or ``degree``, or the case meshed by ``builder`` with
-    ``mesh`` = (size, site_size, path_size) mm) along one load path through ``pushes``: one row
-    per push reached."""
+    ``mesh`` = (size, site_size, path_size) mm; tips started as ``start``, None: the case's)
+    along one load path through ``pushes``: one row per push reached."""
     import tissue_reference.fem_reference as fr
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
@@ -103,7 +112,7 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
     if mesh is not None:
         size, site_size, path_size = mesh
         case = case.with_mesh(build(builder, size, site_size=site_size, path_size=path_size))
-    s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=rule)
+    s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=rule, tip_start=start)
     rows, prev = [], None
     for push in pushes:
         t0 = time.perf_counter()
@@ -114,7 +123,8 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
         ind = res.extra["indenters"]["A1"]
         rows.append({"push": push, "reached": float(ind["push"]),
                      "degree": res.extra["discretization"]["degree"],
-                     "rule": ind.get("quadrature"), "cells": case.mesh.n_cells,
+                     "rule": ind.get("quadrature"), "start": ind.get("started_on"),
+                     "cells": case.mesh.n_cells,
                      "dofs": res.extra["discretization"]["dofs"], "converged": converged,
                      "valid": bool(res.extra.get("valid", True)),
                      "why": res.extra.get("invalid_reason"), "min_J": res.extra.get("min_J"),
@@ -131,22 +141,44 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
 
 
 def measured_row(load: str, push: float, r: dict, e: dict, ref: dict | None,
-                 case_rule) -> str:
+                 case_rule, case_start: str) -> str:
     """The ``[[reference.measured]]`` table (TOML) of the default's answer ``r`` with its
-    differences ``e`` from the converged answer ``ref`` (or, without one, converged = false)."""
+    differences ``e`` from the converged answer ``ref`` (or, without one, converged = false);
+    its contact rule and tip start where they are not the case's (``case_rule``,
+    ``case_start``)."""
     lines = ["[[reference.measured]]",
              "pushes = {" + ", ".join(f"{a} = {push:g}" for a in LOADS[load]) + "}",
              f"dofs = {r['dofs']}"]
     if r["rule"] != (case_rule or "nodal"):
         lines.append(f"contact_quadrature = {json.dumps(r['rule'])}")
+    if r["start"] != case_start:
+        lines.append(f"tip_start = {json.dumps(r['start'])}")
     if ref is None:
         lines += ["converged = false", 'why = "no study converges at this push"']
     else:
+        force, probes = bands(ref)
+        known = "" if force is None else \
+            f", itself within {100 * force:.1f} % (force) and {100 * (probes or 0.0):.1f} % " \
+            f"(targets) of the converged value by its GCI bands"
         lines += [f"force = {e['force']:.4f}",
                   f"probes = {max(v for k, v in e.items() if k != 'force'):.4f}",
                   (f'against = "tests/data/{DATA.name} {ref["study"]} level {ref["level"]} '
-                   f'({ref["dofs"]} dofs)"')]
+                   f'({ref["dofs"]} dofs){known}"')]
     return "\n".join(lines)
+
+
+def bands(ref: dict) -> tuple[float | None, float | None]:
+    """How well the converged answer ``ref`` itself is known: its force's GCI band and the
+    targets' worst (each target's components' bands combined as its displacement's norm is,
+    relative to it); None where the study gives no band."""
+    gci = ref["gci"]
+    worst = None
+    for name, u in ref["probes"].items():
+        parts = [gci.get(f"{name} u{'xyz'[i]}") for i in range(len(u))]
+        if any(p is not None for p in parts):
+            band = np.linalg.norm([(p or 0.0) * abs(c) for p, c in zip(parts, u)])
+            worst = max(worst or 0.0, float(band / np.linalg.norm(u)))
+    return gci.get("force A1"), worst
 
 
 def errors(row: dict, ref: dict) -> dict:
@@ -157,6 +189,7 @@ def errors(row: dict, ref: dict) -> dict:
 
 
 def main():
+    from tissue_reference.meshes.case import DEFAULT_TIP_START, TIP_STARTS
     from tissue_reference.tissue.common import contact_rule
 
     ap = argparse.ArgumentParser(description=__doc__,
@@ -172,6 +205,9 @@ def main():
     ap.add_argument("--study", choices=["gauss", "nodal"], default="gauss",
                     help="the refinement study whose finest level is the converged answer "
                          "(the wide case has a Gauss-rule study only)")
+    ap.add_argument("--tip-start", choices=TIP_STARTS, default=None,
+                    help="where the default's tips start (default: the case's); the converged "
+                         "answer is then a study whose tips started there")
     ap.add_argument("--mesh", type=float, nargs=3, metavar=("SIZE", "SITE", "PATH"),
                     help="solve the case on this mesh instead of its own (size, site_size, "
                          "path_size in mm): what another default would give")
@@ -187,20 +223,22 @@ def main():
     args = ap.parse_args()
     if (args.case, args.study) not in STUDIES:
         ap.error(f"the {args.case} case has no {args.study} study")
-    # the case's own contact rule, for --rows (read from the file: no mesh to build)
-    case_rule = tomllib.loads(CASES[args.case].read_text()).get("reference", {}).get(
-        "contact_quadrature")
+    # the case's own contact rule and tip start, for --rows (read from the file: no mesh to build)
+    reference = tomllib.loads(CASES[args.case].read_text()).get("reference", {})
+    case_rule = reference.get("contact_quadrature")
+    case_start = reference.get("tip_start", DEFAULT_TIP_START)
+    start = args.tip_start or case_start
     for load in args.loads:
         what = "A1 alone" if load == "one" else "all four"
         label = "default" if args.mesh is None else "mesh"
         runs = [(label, solve(load, args.pushes, None, args.contact_quadrature, args.case,
-                              args.mesh, args.builder))]
+                              args.mesh, args.builder, start))]
         if args.old:
             old, degree, builder, mesh = OLD[args.old]
             runs.append((old, solve(load, args.pushes, degree, args.contact_quadrature,
-                                    args.case, mesh, builder)))
+                                    args.case, mesh, builder, start)))
         for push in args.pushes:
-            ref = finest(load, push, args.study, args.case)
+            ref = finest(load, push, args.study, args.case, start)
             print(f"\n{what} at {push:g} mm; ", end="")
             if ref is None:
                 print("no study converges at this push (three assessed levels whose changes "
@@ -238,7 +276,8 @@ def main():
                 print("           targets (mm): " + ", ".join(
                     f"{n} {np.round(v, 4).tolist()}" for n, v in r["probes"].items()))
             if args.rows and args.mesh is None and label in found:
-                print(measured_row(load, push, found[label], errs[label], ref, case_rule))
+                print(measured_row(load, push, found[label], errs[label], ref, case_rule,
+                                   case_start))
             if ref and len(errs) == 2:
                 old = runs[1][0]
                 worst = (max(errs[label].values()), max(errs[old].values()))

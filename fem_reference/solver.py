@@ -27,7 +27,7 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from tissue_reference.meshes.case import Case, Material
+from tissue_reference.meshes.case import DEFAULT_TIP_START, Case, Material
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import SolveResult
 
@@ -92,8 +92,8 @@ def default_contact_rule(case: Case):
 
 def default_tip_start(case: Case) -> str:
     """Where a solve that names none starts its indenters: the case's own (``[reference]
-    tip_start``), else "nodes"."""
-    return case.reference_tip_start or "nodes"
+    tip_start``), else ``DEFAULT_TIP_START``."""
+    return case.reference_tip_start or DEFAULT_TIP_START
 
 
 class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin):

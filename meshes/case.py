@@ -44,6 +44,7 @@ __all__ = [
     "BOUNDARY_TYPES",
     "CONTACT_RULES",
     "CONTACT_TYPES",
+    "DEFAULT_TIP_START",
     "E_RANGE_KPA",
     "MATERIAL_MODELS",
     "TIP_SHAPES",
@@ -62,6 +63,8 @@ TIP_STARTS = ("nodes", "surface")
 """Where an indenter starts (``[reference] tip_start``): touching the contact surface's
 displacement nodes, or the surface itself as the mesh's geometry curves it
 (``fem_reference.contact``)."""
+DEFAULT_TIP_START = "nodes"
+"""Where an indenter starts when neither the solve nor its case names a start."""
 CONTACT_RULES = "'nodal' or a Gauss degree 1-8"
 """What a contact rule (``contact_quadrature``) may be, as error messages name it."""
 

@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 import tissue_reference.fem_reference as fr
+from tissue_reference.fem_reference.solver import default_tip_start
 from tissue_reference.meshes.builders import build
 from tissue_reference.meshes.case import load_case
 
@@ -28,6 +29,8 @@ ROOT = Path(__file__).resolve().parents[1]
 CASES = ROOT / "meshes" / "cases"
 DATA = ROOT / "tests" / "data" / "phantom_indenter_reference.json"
 PUSHES = (5.0, 10.0, 15.0)
+STUDY = {"nodes": "four_wide", "surface": "four_wide_surface"}
+"""The all-four study of the 8 mm tips per tip start (``[reference] tip_start``)."""
 
 
 @pytest.mark.slow
@@ -40,9 +43,12 @@ def test_the_wide_tip_default_is_within_2_percent_of_the_finest_level_at_10_and_
     radius = wide.actuators[0].radius
     case = dataclasses.replace(quarter, mesh=mesh, actuators=tuple(
         dataclasses.replace(a, radius=radius) for a in quarter.actuators))
+    start = default_tip_start(wide)
     solver = fr.ReferenceSolver(case, degree=wide.reference_degree,
-                                contact_quadrature=wide.reference_contact_quadrature)
-    study = json.loads(DATA.read_text())["loads"]["four_wide"]
+                                contact_quadrature=wide.reference_contact_quadrature,
+                                tip_start=start)
+    # the study whose tips started where the case starts them
+    study = json.loads(DATA.read_text())["loads"][STUDY[start]]
     assert study["tip_radius_mm"] == radius
     assert study["contact_quadrature"] == wide.reference_contact_quadrature
     finest_cells = study["levels"][-1]["cells"]
@@ -58,6 +64,7 @@ def test_the_wide_tip_default_is_within_2_percent_of_the_finest_level_at_10_and_
         res = solver.solve({a.name: push for a in case.actuators}, initial=prev)
         prev = res
         assert res.extra.get("valid", True), res.extra.get("invalid_reason")
+        assert res.extra["indenters"]["A1"]["started_on"] == start
         if push not in contracting:
             continue                                # a load step on the way
         ref = next(e for e in study["pushes"] if e["push_mm"] == push)
