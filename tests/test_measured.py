@@ -68,9 +68,10 @@ def test_a_row_describes_exactly_its_discretization_and_load(coarse):
 
 def test_a_row_is_of_one_tip_start(coarse):
     """Where the indenters started is part of the discretization: a row measured with tips
-    started on the skin's nodes (the default) does not describe an answer whose tips started
-    on its curved facets, and a row that names that start does."""
+    started on the skin's nodes (the case's start) does not describe an answer whose tips
+    started on its curved facets, and a row that names that start does."""
     case, res = coarse
+    case = dataclasses.replace(case, reference_tip_start="nodes")
     n = res.extra["discretization"]["dofs"]
     started = {}
     for how in ("nodes", "surface"):
