@@ -16,9 +16,9 @@ import numpy as np
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import material_json
 
-__all__ = ["ADMM_CONTROL_OPTIONS", "FD_FLOOR", "LoopSetup", "actuator_kind", "build_loop",
-           "indenter_sensitivity", "jacobian_at", "material_json", "plant_for",
-           "reference_state", "solver_description", "tangent_for"]
+__all__ = ["ADMM_CONTROL_OPTIONS", "FD_FLOOR", "PRESS_WIDTHS", "LoopSetup", "actuator_kind",
+           "build_loop", "indenter_sensitivity", "jacobian_at", "material_json", "plant_for",
+           "pressing", "reference_state", "solver_description", "tangent_for"]
 
 # ADMM as a control plant/model: the ADMM stage hands over to the Newton polish (part of
 # solvers.admm.solve, iteration budget left to the solver: 20 per load step) which finishes to
@@ -313,17 +313,37 @@ def actuator_kind(case) -> str:
     return kinds.pop() if len(kinds) == 1 else ("mixed" if kinds else "none")
 
 
+PRESS_WIDTHS = 4.0
+"""The controller's model linearizes a tip pushed less than this many of its penalty's smoothing
+widths (``smoothing_width``: h / beta, about a thousandth of a cell) at that push: a tip that
+touches the skin without pressing it (started on the curved surface, ``tip_start =
+"surface"``) has a zero Jacobian column, the derivative of a penalty that is flat at zero
+penetration, and turns into the pressing one within a few widths (a side tip's column on the
+block of tests/test_indenter_jacobian.py, widths of 0.00125 mm: 0 at 0 mm, -0.425 at 0.0005 mm,
+-0.495 at 0.005 mm, -0.506 at 0.01 mm). A push-only controller needs the pressing one."""
+
+
+def pressing(solver, pushes: dict) -> dict:
+    """``pushes`` (name -> mm) with each indenter of ``solver`` at 0 <= push < PRESS_WIDTHS of
+    its smoothing widths pushed to that depth; retracted tips (< 0) and the others unchanged."""
+    floor = {i.name: PRESS_WIDTHS * i.smoothing_width for i in solver.contact.indenters}
+    return {n: floor[n] if n in floor and 0.0 <= float(p) < floor[n] else float(p)
+            for n, p in pushes.items()}
+
+
 def indenter_sensitivity(degree: int | None = None):
     """sensitivity(case, pushes, u, target) -> (gdim, n_act) mm/mm: the reference's indenter
     Jacobian (``fem_reference.contact_jacobian``) of ``target`` at the state of ``case`` with
-    ``pushes`` that starts from ``u`` (the model's answer there: the warm start is the state)."""
+    ``pushes`` that starts from ``u`` (the model's answer there: the warm start is the state),
+    each tip at least PRESS_WIDTHS of its smoothing widths in (``pressing``)."""
     def sensitivity(case, pushes, u, target):
         from tissue_reference.fem_reference.contact_jacobian import indenter_jacobian
         from tissue_reference.fem_reference.solver import _solver_for
 
         s = _solver_for(case, degree)
-        res = s.solve(pushes, case=case, initial=u)
+        at = pressing(s, pushes)
+        res = s.solve(at, case=case, initial=u)
         if not res.converged:
-            raise CaseError(f"the model's state at pushes {pushes} did not converge")
-        return indenter_jacobian(s, case.with_pushes(pushes), targets=[target])
+            raise CaseError(f"the model's state at pushes {at} did not converge")
+        return indenter_jacobian(s, case.with_pushes(at), targets=[target])
     return sensitivity

@@ -133,6 +133,9 @@ class _Indenter:
         hs = h_cell.x.array[cells]
         self.h_range = (self.comm.allreduce(float(hs.min(initial=np.inf)), op=MPI.MIN),
                         self.comm.allreduce(float(hs.max(initial=0.0)), op=MPI.MAX))
+        # the penalty's smoothing width eps = h / beta (mm) on the coarsest contact cell: a tip
+        # touching the skin presses with the full penalty stiffness once this far in
+        self.smoothing_width = self.h_range[1] / self.beta
         # the displacement nodes of the contact surface: start position and penetration
         V = solver.V
         self.dofs = dolfinx.fem.locate_dofs_topological(V, mesh.topology.dim - 1, facets)

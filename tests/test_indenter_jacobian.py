@@ -1,6 +1,8 @@
 """The control Jacobian of rigid indenters (fem_reference.contact_jacobian): mm of target per mm
 of tip travel at a contact state, against central differences of the nonlinear contact solves
 themselves (every other indenter held where it is)."""
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -98,3 +100,42 @@ def test_mixing_indenters_and_patches_is_refused(case):
         build_loop(mixed, plant="fem")
     with pytest.raises(CaseError, match="does not model contact"):
         build_loop(case, plant="fem", model="admm")
+
+
+def test_the_model_linearizes_a_touching_tip_where_it_presses(case):
+    """Tips started on the curved surface touch the skin without pressing: the Jacobian there
+    is zero. The loop's model takes it a few smoothing widths in, where a push moves the
+    targets, and leaves retracted and deeper tips where they are."""
+    from tissue_reference.control.plants import PRESS_WIDTHS, pressing
+
+    touching = dataclasses.replace(case, reference_contact_quadrature=2,
+                                   reference_tip_start="surface")
+    s = fr.ReferenceSolver(touching)
+    s.solve({"I": 0.0, "S": 0.0})
+    assert np.abs(indenter_jacobian(s, touching.with_pushes({"I": 0.0, "S": 0.0}))).max() == 0.0
+    width = {i.name: i.smoothing_width for i in s.contact.indenters}
+    assert 0.0 < width["S"] < 0.01
+    at = pressing(s, {"I": -0.5, "S": 0.0})
+    assert at == {"I": -0.5, "S": PRESS_WIDTHS * width["S"]}
+    assert pressing(s, {"I": 1.0, "S": 0.2}) == {"I": 1.0, "S": 0.2}
+    s.solve(at)
+    J = indenter_jacobian(s, touching.with_pushes(at))
+    # S pushes along -x: T2 (7, 5, 8) moves along -x, by most of a millimetre per millimetre
+    assert J[3, 1] < -0.3 and J[3, 0] == 0.0
+
+
+@pytest.mark.slow
+def test_a_closed_loop_from_rest_steers_with_tips_started_on_the_surface(case):
+    from tissue_reference.control.loop import LinearizedModel, LoopSettings, run_closed_loop
+
+    touching = dataclasses.replace(case, reference_contact_quadrature=2,
+                                   reference_tip_start="surface")
+    setup = build_loop(touching, plant="fem")
+    model = LinearizedModel(setup.model_case, setup.model_solve, setup.model_tangent, "T2",
+                            setup.model_sensitivity)
+    res = run_closed_loop(setup.plant, setup.case, model, "T2", 1,
+                          goal=[-0.3, np.nan, np.nan],
+                          settings=LoopSettings(steps=12, open_loop=False))
+    moved = res.target[-1] - res.target[0]
+    assert abs(moved[0] + 0.3) <= 0.05 and res.steady_state_error_mm <= 0.05
+    assert res.max_retraction_mm == 0.0
