@@ -68,10 +68,10 @@ def test_the_jacobian_page_of_indenters_names_their_kind(case, tmp_path):
     assert "Not checked against finite differences" in page
 
 
-@pytest.mark.slow
-def test_a_closed_loop_steers_a_target_with_indenters(case):
-    """The push-only MPC, its model linearized with the indenter Jacobian at every step, moves
-    T2 0.3 mm along -x on the contact plant (the same reference: no mismatch)."""
+def steer_t2(case):
+    """The push-only MPC, its model linearized with the indenter Jacobian at every step, moving
+    T2 0.3 mm along -x on the contact plant (the same reference: no mismatch): (setup, result),
+    the move checked."""
     from tissue_reference.control.loop import LinearizedModel, LoopSettings, run_closed_loop
 
     setup = build_loop(case, plant="fem")
@@ -84,6 +84,12 @@ def test_a_closed_loop_steers_a_target_with_indenters(case):
     moved = res.target[-1] - res.target[0]
     assert abs(moved[0] + 0.3) <= 0.05 and res.steady_state_error_mm <= 0.05
     assert res.max_retraction_mm == 0.0 and res.pushes[-1].max() > 0.1
+    return setup, res
+
+
+@pytest.mark.slow
+def test_a_closed_loop_steers_a_target_with_indenters(case):
+    setup, res = steer_t2(case)
     # the plant's final state is a valid contact answer with the tips pressing
     final = setup.plant(setup.case, dict(zip(res.actuators, res.pushes[-1])), None)
     assert final.extra["valid"] and max(r["force"] for r in final.extra["indenters"].values()) > 0
@@ -126,16 +132,5 @@ def test_the_model_linearizes_a_touching_tip_where_it_presses(case):
 
 @pytest.mark.slow
 def test_a_closed_loop_from_rest_steers_with_tips_started_on_the_surface(case):
-    from tissue_reference.control.loop import LinearizedModel, LoopSettings, run_closed_loop
-
-    touching = dataclasses.replace(case, reference_contact_quadrature=2,
-                                   reference_tip_start="surface")
-    setup = build_loop(touching, plant="fem")
-    model = LinearizedModel(setup.model_case, setup.model_solve, setup.model_tangent, "T2",
-                            setup.model_sensitivity)
-    res = run_closed_loop(setup.plant, setup.case, model, "T2", 1,
-                          goal=[-0.3, np.nan, np.nan],
-                          settings=LoopSettings(steps=12, open_loop=False))
-    moved = res.target[-1] - res.target[0]
-    assert abs(moved[0] + 0.3) <= 0.05 and res.steady_state_error_mm <= 0.05
-    assert res.max_retraction_mm == 0.0
+    steer_t2(dataclasses.replace(case, reference_contact_quadrature=2,
+                                 reference_tip_start="surface"))
