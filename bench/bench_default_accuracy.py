@@ -189,7 +189,7 @@ def errors(row: dict, ref: dict) -> dict:
 
 
 def main():
-    from tissue_reference.meshes.case import DEFAULT_TIP_START, TIP_STARTS
+    from tissue_reference.meshes.case import TIP_STARTS, tip_start_for
     from tissue_reference.tissue.common import contact_rule
 
     ap = argparse.ArgumentParser(description=__doc__,
@@ -226,7 +226,7 @@ def main():
     # the case's own contact rule and tip start, for --rows (read from the file: no mesh to build)
     reference = tomllib.loads(CASES[args.case].read_text()).get("reference", {})
     case_rule = reference.get("contact_quadrature")
-    case_start = reference.get("tip_start", DEFAULT_TIP_START)
+    case_start = reference.get("tip_start") or tip_start_for(case_rule or "nodal")
     start = args.tip_start or case_start
     for load in args.loads:
         what = "A1 alone" if load == "one" else "all four"

@@ -23,7 +23,11 @@ ignored). The first point of contact with the body it meshes generally lies betw
 tip starts deeper than on that body by up to the surface's sag between nodes, differently on
 every mesh (the indenter phantom's 8 mm tip: 0.0002-0.019 mm, up to 0.55 % of its force at 5 mm;
 bench/bench_tip_start.py); ``tip_start = "surface"`` starts it where it first touches the
-facets as the geometry curves them instead (``TIP_STARTS``). A push p (mm) moves it to
+facets as the geometry curves them instead (``TIP_STARTS``). Each start goes with a contact rule
+and is its default (``meshes.case.tip_start_for``): the nodal rule knows the gap only at the
+nodes, so a tip started on the surface would travel through the skin until it reached one; a
+Gauss rule samples the facets' interiors, so a tip started on the nodes would start inside
+them, pressing at rest. A push p (mm) moves it to
 q = q0 + p d. An indenter that is not pushed stays at its start: a rigid obstacle the skin may
 press against (a negative push retracts it).
 

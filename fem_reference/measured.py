@@ -66,14 +66,14 @@ def measured_accuracy(case: Case, result: SolveResult, pushes=None) -> dict | No
 
 def _same_discretization(case: Case, result: SolveResult, row: dict) -> bool:
     """Whether ``row`` was measured on ``result``'s discretization: its unknowns, degree and
-    contact rule and where its indenters started (a row's degree, rule and start default to the
-    case's)."""
+    contact rule and where its indenters started (a row's degree and rule default to the case's,
+    its start to the case's or, where the case names none, to the one of the row's rule)."""
     from .solver import default_contact_rule, default_degree, default_tip_start
 
     disc = result.extra.get("discretization") or {}
     degree = row.get("degree", default_degree(case, disc.get("formulation", "displacement")))
     rule = row.get("contact_quadrature", default_contact_rule(case))
-    start = row.get("tip_start", default_tip_start(case))
+    start = row.get("tip_start", default_tip_start(case, rule))
     return row["dofs"] == disc.get("dofs") and degree == result.degree and \
         rule == _rule(case, result) and start == _start(case, result)
 

@@ -27,7 +27,7 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from tissue_reference.meshes.case import DEFAULT_TIP_START, Case, Material
+from tissue_reference.meshes.case import Case, Material, tip_start_for
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import SolveResult
 
@@ -90,10 +90,13 @@ def default_contact_rule(case: Case):
     return case.reference_contact_quadrature or "nodal"
 
 
-def default_tip_start(case: Case) -> str:
+def default_tip_start(case: Case, rule=None) -> str:
     """Where a solve that names none starts its indenters: the case's own (``[reference]
-    tip_start``), else ``DEFAULT_TIP_START``."""
-    return case.reference_tip_start or DEFAULT_TIP_START
+    tip_start``), else the one that goes with its contact rule ``rule`` (None: the case's;
+    ``meshes.case.tip_start_for``: "nodes" with the nodal rule, "surface" with a Gauss rule)."""
+    if case.reference_tip_start:
+        return case.reference_tip_start
+    return tip_start_for(default_contact_rule(case) if rule is None else rule)
 
 
 class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin):
@@ -137,7 +140,8 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
         tip_start: where each indenter starts: "nodes", touching the skin's displacement nodes,
             or "surface", touching the skin's facets as the geometry curves them, which the
             first contact with the meshed body generally lies between (``contact``); None: the
-            case's (``[reference] tip_start``), else "nodes".
+            case's (``[reference] tip_start``), else "nodes" with the nodal contact rule and
+            "surface" with a Gauss rule (``default_tip_start``).
     """
 
     def __init__(self, case: Case, *, degree: int | None = None, formulation: str = "auto",
@@ -224,7 +228,8 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
             contact_quadrature = default_contact_rule(case)
         self.contact = Contact(self, case, penalty=contact_penalty,  # rigid indenters
                                quadrature=contact_quadrature,
-                               tip_start=tip_start or default_tip_start(case))
+                               tip_start=tip_start or default_tip_start(case,
+                                                                        contact_quadrature))
         penalty = penalty + self.contact.energy
         self.energy_internal = internal
         total = internal - self.load * external + penalty

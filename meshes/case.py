@@ -44,7 +44,6 @@ __all__ = [
     "BOUNDARY_TYPES",
     "CONTACT_RULES",
     "CONTACT_TYPES",
-    "DEFAULT_TIP_START",
     "E_RANGE_KPA",
     "MATERIAL_MODELS",
     "TIP_SHAPES",
@@ -57,14 +56,22 @@ __all__ = [
     "ProbeLocation",
     "VertexConstraints",
     "load_case",
+    "tip_start_for",
 ]
 
 TIP_STARTS = ("nodes", "surface")
 """Where an indenter starts (``[reference] tip_start``): touching the contact surface's
 displacement nodes, or the surface itself as the mesh's geometry curves it
 (``fem_reference.contact``)."""
-DEFAULT_TIP_START = "nodes"
-"""Where an indenter starts when neither the solve nor its case names a start."""
+
+
+def tip_start_for(rule) -> str:
+    """Where an indenter starts when neither the solve nor its case names a start, by the
+    contact rule ``rule``: on the nodes with the nodal rule, which knows the gap only there (a
+    tip started on the surface between nodes would travel through the skin until it reached
+    one), on the surface with a Gauss rule, which samples the facets' interiors (a tip started
+    on the nodes would start inside them, pressing at rest)."""
+    return "nodes" if rule == "nodal" else "surface"
 CONTACT_RULES = "'nodal' or a Gauss degree 1-8"
 """What a contact rule (``contact_quadrature``) may be, as error messages name it."""
 

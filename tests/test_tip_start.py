@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tissue_reference.meshes.builders import build
+from tissue_reference.meshes.builders import box, build
 from tissue_reference.meshes.case import load_case
 from tissue_reference.meshes.errors import CaseError
 
@@ -95,13 +95,51 @@ def test_a_case_file_names_its_tip_start(tmp_path):
     import tissue_reference.fem_reference as fr
 
     text = Path("meshes/cases/phantom-indenter-half.toml").read_text()
+    named = 'tip_start = "nodes"'
+    assert named in text
     good = tmp_path / "surface.toml"
-    good.write_text(text.replace("[reference]\n", '[reference]\ntip_start = "surface"\n', 1))
+    good.write_text(text.replace(named, 'tip_start = "surface"', 1))
     case = load_case(good, size=16.0)
     assert case.reference_tip_start == "surface"
     s = fr.ReferenceSolver(case, degree=1)
     assert all(i.tip_start == "surface" for i in s.contact.indenters)
     bad = tmp_path / "bad.toml"
-    bad.write_text(text.replace("[reference]\n", '[reference]\ntip_start = "vertex"\n', 1))
+    bad.write_text(text.replace(named, 'tip_start = "vertex"', 1))
     with pytest.raises(CaseError, match=r"bad.toml.*\[reference\]\.tip_start"):
         load_case(bad, size=16.0)
+
+
+def test_without_a_named_start_each_contact_rule_has_its_own():
+    """The nodal rule knows the gap only at the nodes and starts there; a Gauss rule samples the
+    facets' interiors and starts on the surface; a start the case names overrides both."""
+    import tissue_reference.fem_reference as fr
+
+    case = load_case("meshes/cases/phantom-indenter-half.toml", size=16.0)
+    assert case.reference_tip_start == "nodes"     # the start its rows were measured with
+    unnamed = dataclasses.replace(case, reference_tip_start=None)
+    for rule, start in (("nodal", "nodes"), (2, "surface")):
+        s = fr.ReferenceSolver(unnamed, degree=1, contact_quadrature=rule)
+        assert {i.tip_start for i in s.contact.indenters} == {start}
+        s = fr.ReferenceSolver(case, degree=1, contact_quadrature=rule)
+        assert {i.tip_start for i in s.contact.indenters} == {"nodes"}
+    gauss = dataclasses.replace(unnamed, reference_contact_quadrature=2)
+    s = fr.ReferenceSolver(gauss, degree=1)
+    assert {i.tip_start for i in s.contact.indenters} == {"surface"}
+
+
+def test_with_a_gauss_rule_a_tip_started_on_the_nodes_presses_at_rest():
+    """Why a Gauss rule starts on the surface: on a block whose nodes miss the side tip's axis,
+    the nodal start puts the tip inside the facets, so at push 0 it already pushes the skin;
+    started on the surface it touches without force."""
+    import tissue_reference.fem_reference as fr
+    from tissue_reference.meshes.case import Actuator, Boundary, Case, Material
+
+    block = Case(mesh=box(1.25), material=Material("neo-hookean", E=6.0, nu=0.3), name="side",
+                 boundaries=(Boundary("zmin", "fixed"),),
+                 actuators=(Actuator("S", "xmax", (-1.0, 0.0, 0.0), type="indenter",
+                                     tip="sphere", radius=4.0, point=(10.0, 5.0, 6.0)),))
+    force = {}
+    for start in ("nodes", "surface"):
+        res = fr.ReferenceSolver(block, contact_quadrature=2, tip_start=start).solve({"S": 0.0})
+        force[start] = res.extra["indenters"]["S"]["force"]
+    assert force["surface"] == 0.0 and force["nodes"] > 1e-3

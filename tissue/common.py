@@ -227,7 +227,8 @@ def add_discretization_args(p: argparse.ArgumentParser):
     p.add_argument("--tip-start", choices=TIP_STARTS, default=None,
                    help="where indenters start: touching the skin's nodes or its curved facets "
                         "(the first contact lies between nodes); default: the case's "
-                        "[reference] tip_start, else nodes")
+                        "[reference] tip_start, else nodes with the nodal contact rule and "
+                        "surface with a Gauss rule")
 
 
 def builtin_of(path, size=None):
