@@ -1,16 +1,17 @@
 """The wide-tip indenter phantom (meshes/cases/phantom-indenter-wide.toml: 8 mm spheres, wider
 than the seed's deepest push) at its shipped default discretization, all four tips pushed to
 5, 10 and 15 mm (one load path), against the finest level of its refinement study shipped as
-test data (tests/data/phantom_indenter_reference.json, ``four_wide``: levels -2..0 of
-bench/bench_indenter_convergence.py, P2 on meshes whose every cell size is divided by sqrt 2 per
-level; the finest has 2.4x the unknowns of the default).
+test data (tests/data/phantom_indenter_reference.json, the study whose tips started where the
+case starts them: ``four_wide_surface`` on the curved skin, ``four_wide`` on its nodes; levels
+-2..0 of bench/bench_indenter_convergence.py, P2 on meshes whose every cell size is divided by
+sqrt 2 per level; the finest has 2.4x the unknowns of the default).
 
-The finest level stands for the converged answer only where the levels' changes shrink: for
-all four at 10 and 15 mm (at 5 mm consecutive levels differ by 0.6 then 1.1 %, not contracting,
-and the comparison is skipped). All four tips pushed equally is symmetric about x = 0 and
-y = 0, so the quarter phantom (phantom-indenter-quarter.toml, mirror planes sliding) meshed at
-the wide case's sizes carries the whole phantom's answer at a quarter of the unknowns; the cut
-tip A1 carries half its force.
+The finest level stands for the converged answer only where the levels' changes shrink: with
+the tips started on the curved skin at every push, on the nodes at 10 and 15 mm only (at 5 mm
+consecutive levels differ by 0.6 then 1.1 %; that comparison is skipped). All four tips pushed
+equally is symmetric about x = 0 and y = 0, so the quarter phantom (phantom-indenter-quarter.toml,
+mirror planes sliding) meshed at the wide case's sizes carries the whole phantom's answer at a
+quarter of the unknowns; the cut tip A1 carries half its force.
 """
 import dataclasses
 import json
@@ -34,7 +35,7 @@ STUDY = {"nodes": "four_wide", "surface": "four_wide_surface"}
 
 
 @pytest.mark.slow
-def test_the_wide_tip_default_is_within_2_percent_of_the_finest_level_at_10_and_15_mm():
+def test_the_wide_tip_default_is_within_2_percent_of_the_finest_level_where_it_contracts():
     wide = load_case(CASES / "phantom-indenter-wide.toml")
     spec = tomllib.loads((CASES / "phantom-indenter-wide.toml").read_text())["mesh"]
     quarter = load_case(CASES / "phantom-indenter-quarter.toml")
@@ -59,6 +60,8 @@ def test_the_wide_tip_default_is_within_2_percent_of_the_finest_level_at_10_and_
                    and abs(e["force_mN"][-1] - e["force_mN"][-2])
                    < abs(e["force_mN"][-2] - e["force_mN"][-3])}
     assert {10.0, 15.0} <= contracting
+    if start == "surface":
+        assert 5.0 in contracting
     prev = None
     for push in PUSHES:
         res = solver.solve({a.name: push for a in case.actuators}, initial=prev)
