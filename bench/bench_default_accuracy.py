@@ -4,7 +4,8 @@ and what it costs, against the previous default, measured in one run.
 The default is what ``tissue solve meshes/cases/phantom-indenter.toml --push ...`` solves: the
 case's mesh (builder, size, site_size, path_size), the case's ``[reference] degree`` and contact
 rule; ``--case wide``: the same for meshes/cases/phantom-indenter-wide.toml (8 mm tips), against
-its own study (``four_wide`` / ``one_wide``, to 15 mm); ``--case control``:
+its own study (``four_wide_surface`` / ``one_wide_surface``, to 15 mm, its tips started on the
+curved skin); ``--case control``:
 phantom-indenter-control.toml (the 5 mm tips on a coarser body, the contact scenario's plant of
 control loops). Earlier defaults (``--old p1``: P1 on 1.6 mm site cells; ``--old p2``: P2 on
 the whole phantom's own gmsh mesh, 3.2 mm sites, 59k unknowns) are solved in the same run, for
@@ -13,8 +14,9 @@ tests/data/phantom_indenter_reference.json (P2 on the phantom's symmetric parts,
 sqrt 2 per level, from bench/bench_indenter_convergence.py): by default the study with the
 Gauss contact rule and refined paths (``four_gauss`` / ``one_gauss``, to 12.5 mm; 15 mm has no
 converged value) where it has the push, else the nodal one (``--study nodal``: the nodal one
-only). A default whose tips start on the skin's curved facets (``--tip-start surface``, or the
-case's ``[reference] tip_start``) is compared with the studies started there (``*_surface``).
+only). A default whose tips start on the skin's curved facets (``--tip-start surface``, the
+case's ``[reference] tip_start``, or its Gauss rule's own start) is compared with the studies
+started there (``*_surface``).
 The spread of its levels and, where assessed, its GCI band are printed with it, so the
 comparison says how well the converged value itself is known.
 
