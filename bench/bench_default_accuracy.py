@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import textwrap
 import time
 import tomllib
 from pathlib import Path
@@ -162,10 +163,12 @@ def measured_row(load: str, push: float, r: dict, e: dict, ref: dict | None,
         known = "" if force is None else \
             f", itself within {100 * force:.1f} % (force) and {100 * (probes or 0.0):.1f} % " \
             f"(targets) of the converged value by its GCI bands"
+        against = f"tests/data/{DATA.name} {ref['study']} level {ref['level']} " \
+                  f"({ref['dofs']} dofs){known}"
         lines += [f"force = {e['force']:.4f}",
                   f"probes = {max(v for k, v in e.items() if k != 'force'):.4f}",
-                  (f'against = "tests/data/{DATA.name} {ref["study"]} level {ref["level"]} '
-                   f'({ref["dofs"]} dofs){known}"')]
+                  # a multi-line TOML string whose line-ending backslashes join the lines
+                  'against = """\\\n' + " \\\n".join(textwrap.wrap(against, 92)) + '"""']
     return "\n".join(lines)
 
 
