@@ -64,14 +64,6 @@ TIP_STARTS = ("nodes", "surface")
 displacement nodes, or the surface itself as the mesh's geometry curves it
 (``fem_reference.contact``)."""
 
-
-def tip_start_for(rule) -> str:
-    """Where an indenter starts when neither the solve nor its case names a start, by the
-    contact rule ``rule``: on the nodes with the nodal rule, which knows the gap only there (a
-    tip started on the surface between nodes would travel through the skin until it reached
-    one), on the surface with a Gauss rule, which samples the facets' interiors (a tip started
-    on the nodes would start inside them, pressing at rest)."""
-    return "nodes" if rule == "nodal" else "surface"
 CONTACT_RULES = "'nodal' or a Gauss degree 1-8"
 """What a contact rule (``contact_quadrature``) may be, as error messages name it."""
 
@@ -80,6 +72,15 @@ def is_contact_rule(rule) -> bool:
     """Whether ``rule`` is a contact rule: "nodal" or an int (not a bool) from 1 to 8."""
     return rule == "nodal" or (isinstance(rule, int) and not isinstance(rule, bool)
                                and 1 <= rule <= 8)
+
+
+def tip_start_for(rule) -> str:
+    """Where an indenter starts when neither the solve nor its case names a start, by the
+    contact rule ``rule``: on the nodes with the nodal rule, which knows the gap only there (a
+    tip started on the surface between nodes would travel through the skin until it reached
+    one), on the surface with a Gauss rule, which samples the facets' interiors (a tip started
+    on the nodes would start inside them, pressing at rest)."""
+    return "nodes" if rule == "nodal" else "surface"
 
 
 def _closest_barycentric(verts: np.ndarray, x: np.ndarray) -> np.ndarray:
