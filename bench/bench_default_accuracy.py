@@ -144,17 +144,20 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
 
 
 def measured_row(load: str, push: float, r: dict, e: dict, ref: dict | None,
-                 case_rule, case_start: str) -> str:
+                 case_rule, case_pin: str | None) -> str:
     """The ``[[reference.measured]]`` table (TOML) of the default's answer ``r`` with its
     differences ``e`` from the converged answer ``ref`` (or, without one, converged = false);
-    its contact rule and tip start where they are not the case's (``case_rule``,
-    ``case_start``)."""
+    its contact rule where it is not the case's (``case_rule``) and its tip start where a row
+    would not take it by default: the case's ``[reference] tip_start`` (``case_pin``), else the
+    start of the row's rule (``fem_reference.measured`` reads rows so)."""
+    from tissue_reference.meshes.case import tip_start_for
+
     lines = ["[[reference.measured]]",
              "pushes = {" + ", ".join(f"{a} = {push:g}" for a in LOADS[load]) + "}",
              f"dofs = {r['dofs']}"]
     if r["rule"] != (case_rule or "nodal"):
         lines.append(f"contact_quadrature = {json.dumps(r['rule'])}")
-    if r["start"] != case_start:
+    if r["start"] != (case_pin or tip_start_for(r["rule"])):
         lines.append(f"tip_start = {json.dumps(r['start'])}")
     if ref is None:
         lines += ["converged = false", 'why = "no study converges at this push"']
@@ -194,7 +197,7 @@ def errors(row: dict, ref: dict) -> dict:
 
 
 def main():
-    from tissue_reference.meshes.case import TIP_STARTS, tip_start_for
+    from tissue_reference.meshes.case import TIP_STARTS
     from tissue_reference.tissue.common import contact_rule
 
     ap = argparse.ArgumentParser(description=__doc__,
@@ -211,8 +214,9 @@ def main():
                     help="the refinement study whose finest level is the converged answer "
                          "(the wide case has a Gauss-rule study only)")
     ap.add_argument("--tip-start", choices=TIP_STARTS, default=None,
-                    help="where the default's tips start (default: the case's); the converged "
-                         "answer is then a study whose tips started there")
+                    help="where the default's tips start (default: the solver's: the case's, "
+                         "else its contact rule's); the converged answer is then a study whose "
+                         "tips started there")
     ap.add_argument("--mesh", type=float, nargs=3, metavar=("SIZE", "SITE", "PATH"),
                     help="solve the case on this mesh instead of its own (size, site_size, "
                          "path_size in mm): what another default would give")
@@ -230,20 +234,19 @@ def main():
         ap.error(f"the {args.case} case has no {args.study} study")
     # the case's own contact rule and tip start, for --rows (read from the file: no mesh to build)
     reference = tomllib.loads(CASES[args.case].read_text()).get("reference", {})
-    case_rule = reference.get("contact_quadrature")
-    case_start = reference.get("tip_start") or tip_start_for(case_rule or "nodal")
-    start = args.tip_start or case_start
+    case_rule, case_pin = reference.get("contact_quadrature"), reference.get("tip_start")
     for load in args.loads:
         what = "A1 alone" if load == "one" else "all four"
         label = "default" if args.mesh is None else "mesh"
         runs = [(label, solve(load, args.pushes, None, args.contact_quadrature, args.case,
-                              args.mesh, args.builder, start))]
+                              args.mesh, args.builder, args.tip_start))]
         if args.old:
             old, degree, builder, mesh = OLD[args.old]
             runs.append((old, solve(load, args.pushes, degree, args.contact_quadrature,
-                                    args.case, mesh, builder, start)))
+                                    args.case, mesh, builder, args.tip_start)))
+        started = runs[0][1][0]["start"]    # where the solver started the tips, every push
         for push in args.pushes:
-            ref = finest(load, push, args.study, args.case, start)
+            ref = finest(load, push, args.study, args.case, started)
             print(f"\n{what} at {push:g} mm; ", end="")
             if ref is None:
                 print("no study converges at this push (three assessed levels whose changes "
@@ -282,7 +285,7 @@ def main():
                     f"{n} {np.round(v, 4).tolist()}" for n, v in r["probes"].items()))
             if args.rows and args.mesh is None and label in found:
                 print(measured_row(load, push, found[label], errs[label], ref, case_rule,
-                                   case_start))
+                                   case_pin))
             if ref and len(errs) == 2:
                 old = runs[1][0]
                 worst = (max(errs[label].values()), max(errs[old].values()))
