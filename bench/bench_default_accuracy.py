@@ -27,9 +27,11 @@ displacements (mm) of each discretization, the relative difference of each to th
     .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--pushes 5 10 12.5]
         [--contact-quadrature nodal|2] [--study gauss|nodal] [--old [p1|p2]]
         [--case indenter|wide|control] [--tip-start nodes|surface]
-        [--mesh SIZE SITE PATH [--builder phantom-symmetric]] [--rows]
+        [--mesh SIZE SITE PATH [--builder phantom-symmetric]] [--rows] [--answers FILE]
 
 ``--rows`` prints the default's rows for its case file's ``[[reference.measured]]``.
+``--answers FILE`` keeps the default's answers (JSON): a later run with the same file, load and
+pushes compares them again, with a study refined since, without solving them again.
 """
 from __future__ import annotations
 
@@ -38,6 +40,7 @@ import json
 import textwrap
 import time
 import tomllib
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -143,6 +146,29 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
     return rows
 
 
+def answers(path: Path | None, load: str, pushes, asked: dict, solve_them) -> list[dict]:
+    """The default's rows of ``load`` along ``pushes``: read from ``path`` (JSON) when it holds
+    that load path, else ``solve_them()`` and written there (whole or not at all). ``asked`` (the
+    case, contact rule, tip start and mesh asked for) must be the file's: answers of another
+    discretization are refused, not compared."""
+    if path is None:
+        return solve_them()
+    from tissue_reference.meshes.results import write_json
+
+    kept = json.loads(path.read_text()) if path.exists() else {"asked": asked}
+    if kept.get("asked") != asked:
+        raise SystemExit(f"{path}: holds the answers of {kept.get('asked')}, not of {asked}")
+    entry = kept.get(load)
+    if entry is not None and entry["pushes"] == list(pushes):
+        print(f"  [{load}: the default's answers read from {path}]", flush=True)
+        return [dict(r, probes={n: np.asarray(v) for n, v in r["probes"].items()})
+                for r in entry["rows"]]
+    rows = solve_them()
+    kept[load] = {"pushes": list(pushes), "rows": rows}
+    write_json(kept, path)
+    return rows
+
+
 def measured_row(load: str, push: float, r: dict, e: dict, ref: dict | None,
                  case_rule, case_pin: str | None) -> str:
     """The ``[[reference.measured]]`` table (TOML) of the default's answer ``r`` with its
@@ -225,6 +251,9 @@ def main():
                          "quarter's mirrored (exactly symmetric)")
     ap.add_argument("--rows", action="store_true",
                     help="print the default's [[reference.measured]] rows for its case file")
+    ap.add_argument("--answers", type=Path, metavar="FILE",
+                    help="keep the default's answers in FILE (JSON) and, where it already "
+                         "holds a load's path, compare those instead of solving again")
     ap.add_argument("--old", nargs="?", const="p1", choices=sorted(OLD),
                     help="also solve an earlier default for the ratios: p1 (the default "
                          "without a value: P1, 1.6 mm sites) or p2 (P2, 3.2 mm sites, the "
@@ -238,8 +267,12 @@ def main():
     for load in args.loads:
         what = "A1 alone" if load == "one" else "all four"
         label = "default" if args.mesh is None else "mesh"
-        runs = [(label, solve(load, args.pushes, None, args.contact_quadrature, args.case,
-                              args.mesh, args.builder, args.tip_start))]
+        asked = {"case": args.case, "contact_quadrature": args.contact_quadrature,
+                "tip_start": args.tip_start, "mesh": args.mesh, "builder": args.builder}
+        runs = [(label, answers(args.answers, load, args.pushes, asked,
+                                partial(solve, load, args.pushes, None,
+                                        args.contact_quadrature, args.case, args.mesh,
+                                        args.builder, args.tip_start)))]
         if args.old:
             old, degree, builder, mesh = OLD[args.old]
             runs.append((old, solve(load, args.pushes, degree, args.contact_quadrature,
