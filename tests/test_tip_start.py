@@ -95,18 +95,20 @@ def test_a_case_file_names_its_tip_start(tmp_path):
     import tissue_reference.fem_reference as fr
 
     text = Path("meshes/cases/phantom-indenter-half.toml").read_text()
-    named = 'tip_start = "nodes"'
-    assert named in text
-    good = tmp_path / "surface.toml"
-    good.write_text(text.replace(named, 'tip_start = "surface"', 1))
-    case = load_case(good, size=16.0)
+    section = "[reference]\ndegree = 2"
+    assert section in text and "tip_start" not in text
+
+    def named(start):
+        path = tmp_path / f"{start}.toml"
+        path.write_text(text.replace(section, f'{section}\ntip_start = "{start}"', 1))
+        return path
+
+    case = load_case(named("surface"), size=16.0)
     assert case.reference_tip_start == "surface"
-    s = fr.ReferenceSolver(case, degree=1)
+    s = fr.ReferenceSolver(case, degree=1)         # the nodal rule's own start would be nodes
     assert all(i.tip_start == "surface" for i in s.contact.indenters)
-    bad = tmp_path / "bad.toml"
-    bad.write_text(text.replace(named, 'tip_start = "vertex"', 1))
-    with pytest.raises(CaseError, match=r"bad.toml.*\[reference\]\.tip_start"):
-        load_case(bad, size=16.0)
+    with pytest.raises(CaseError, match=r"vertex.toml.*\[reference\]\.tip_start"):
+        load_case(named("vertex"), size=16.0)
 
 
 def test_without_a_named_start_each_contact_rule_has_its_own():
@@ -115,14 +117,14 @@ def test_without_a_named_start_each_contact_rule_has_its_own():
     import tissue_reference.fem_reference as fr
 
     case = load_case("meshes/cases/phantom-indenter-half.toml", size=16.0)
-    assert case.reference_tip_start == "nodes"     # the start its rows were measured with
-    unnamed = dataclasses.replace(case, reference_tip_start=None)
+    assert case.reference_tip_start is None
+    named = dataclasses.replace(case, reference_tip_start="nodes")
     for rule, start in (("nodal", "nodes"), (2, "surface")):
-        s = fr.ReferenceSolver(unnamed, degree=1, contact_quadrature=rule)
-        assert {i.tip_start for i in s.contact.indenters} == {start}
         s = fr.ReferenceSolver(case, degree=1, contact_quadrature=rule)
+        assert {i.tip_start for i in s.contact.indenters} == {start}
+        s = fr.ReferenceSolver(named, degree=1, contact_quadrature=rule)
         assert {i.tip_start for i in s.contact.indenters} == {"nodes"}
-    gauss = dataclasses.replace(unnamed, reference_contact_quadrature=2)
+    gauss = dataclasses.replace(case, reference_contact_quadrature=2)
     s = fr.ReferenceSolver(gauss, degree=1)
     assert {i.tip_start for i in s.contact.indenters} == {"surface"}
 
