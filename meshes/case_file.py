@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .case import Actuator, Boundary, Case, Material, Probe
+from .case import Actuator, Boundary, Case, Material, Probe, tip_start_for
 from .case_schema import case_schema, schema_errors, show, where
 from .errors import CaseError, CaseReadError, ReadError
 from .mesh import MeshData, boundary_facets
@@ -268,7 +268,7 @@ def load_case(path, *, mesh: MeshData | None = None, size: float | None = None,
                     reference_contact_quadrature=data.get("reference", {}).get(
                         "contact_quadrature"),
                     reference_tip_start=data.get("reference", {}).get("tip_start"),
-                    reference_measured=tuple(data.get("reference", {}).get("measured", ())),
+                    reference_measured=_measured_rows(data.get("reference", {})),
                     name=data.get("name", Path(path).stem), source=src)
     except CaseError as exc:  # conflicting prescriptions, rigid-body freedom, inverted cells
         if str(exc).startswith(f"{src}: "):
@@ -276,6 +276,21 @@ def load_case(path, *, mesh: MeshData | None = None, size: float | None = None,
         raise type(exc)(f"{src}: {exc}") from None
     _raise(_probe_errors(case, src) + _measured_errors(case, src))
     return case
+
+
+def _measured_rows(reference: dict) -> tuple[dict, ...]:
+    """The ``[reference.measured]`` rows, each with the contact rule and tip start it was
+    measured with made explicit (a row names them where they are not the file's: the file's
+    ``[reference]`` rule, else the nodal one; its ``tip_start``, else the row's rule's start). A
+    solve that overrides the case's rule or start (``--contact-quadrature``, ``--tip-start``)
+    is then matched with the rows of what it solves, not with rows whose file default it
+    replaced."""
+    rows = []
+    for row in reference.get("measured", ()):
+        rule = row.get("contact_quadrature", reference.get("contact_quadrature") or "nodal")
+        start = row.get("tip_start", reference.get("tip_start") or tip_start_for(rule))
+        rows.append({**row, "contact_quadrature": rule, "tip_start": start})
+    return tuple(rows)
 
 
 def _measured_errors(case: Case, src: str) -> list[str]:

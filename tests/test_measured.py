@@ -95,6 +95,44 @@ def _with_rows(tmp_path, rows: str) -> Path:
     return path
 
 
+def test_a_solve_that_overrides_the_rule_or_start_gets_the_row_of_what_it_solved(tmp_path,
+                                                                                 coarse):
+    """A row that names no contact rule or tip start was measured with the case file's; the
+    command line's --contact-quadrature and --tip-start replace the case's, not the rows'."""
+    _, res = coarse
+    n = res.extra["discretization"]["dofs"]
+    case = load_case(_with_rows(tmp_path, f"""
+[[reference.measured]]
+pushes = {{A1 = 1.0}}
+dofs = {n}
+probes = 0.01
+against = "the nodal rule, on the nodes"
+
+[[reference.measured]]
+pushes = {{A1 = 1.0}}
+dofs = {n}
+contact_quadrature = 2
+probes = 0.02
+against = "a Gauss rule, on the surface"
+
+[[reference.measured]]
+pushes = {{A1 = 1.0}}
+dofs = {n}
+contact_quadrature = 2
+tip_start = "nodes"
+probes = 0.03
+against = "a Gauss rule, on the nodes"
+"""), size=14)
+    for rule, start, probes in (("nodal", "nodes", 0.01), (2, "surface", 0.02),
+                                (2, "nodes", 0.03)):
+        extra = {**res.extra, "indenters": {"A1": {"quadrature": rule, "started_on": start}}}
+        answer = dataclasses.replace(res, extra=extra)
+        for override in ({}, {"reference_contact_quadrature": rule},
+                         {"reference_contact_quadrature": rule, "reference_tip_start": start}):
+            solved = dataclasses.replace(case, **override)     # as the command line does
+            assert measured_accuracy(solved, answer, {"A1": 1.0})["probes"] == probes
+
+
 UNKNOWN_ACTUATOR = """
 [[reference.measured]]
 pushes = {A9 = 5.0}
