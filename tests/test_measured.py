@@ -101,28 +101,13 @@ def test_a_solve_that_overrides_the_rule_or_start_gets_the_row_of_what_it_solved
     command line's --contact-quadrature and --tip-start replace the case's, not the rows'."""
     _, res = coarse
     n = res.extra["discretization"]["dofs"]
-    case = load_case(_with_rows(tmp_path, f"""
-[[reference.measured]]
-pushes = {{A1 = 1.0}}
-dofs = {n}
-probes = 0.01
-against = "the nodal rule, on the nodes"
-
-[[reference.measured]]
-pushes = {{A1 = 1.0}}
-dofs = {n}
-contact_quadrature = 2
-probes = 0.02
-against = "a Gauss rule, on the surface"
-
-[[reference.measured]]
-pushes = {{A1 = 1.0}}
-dofs = {n}
-contact_quadrature = 2
-tip_start = "nodes"
-probes = 0.03
-against = "a Gauss rule, on the nodes"
-"""), size=14)
+    measured = (("", 0.01, "the nodal rule, on the nodes"),
+                ("contact_quadrature = 2\n", 0.02, "a Gauss rule, on the surface"),
+                ('contact_quadrature = 2\ntip_start = "nodes"\n', 0.03,
+                 "a Gauss rule, on the nodes"))
+    case = load_case(_with_rows(tmp_path, "".join(
+        f'\n[[reference.measured]]\npushes = {{A1 = 1.0}}\ndofs = {n}\n{named}probes = {probes}\n'
+        f'against = "{what}"\n' for named, probes, what in measured)), size=14)
     for rule, start, probes in (("nodal", "nodes", 0.01), (2, "surface", 0.02),
                                 (2, "nodes", 0.03)):
         extra = {**res.extra, "indenters": {"A1": {"quadrature": rule, "started_on": start}}}
