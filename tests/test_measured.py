@@ -12,7 +12,7 @@ import pytest
 
 import tissue_reference.fem_reference as fr
 from tissue_reference.fem_reference.measured import measured_accuracy, with_measured_accuracy
-from tissue_reference.meshes.case import load_case, tip_start_for
+from tissue_reference.meshes.case import load_case
 from tissue_reference.meshes.errors import CaseError
 
 CASES = Path(__file__).resolve().parents[1] / "meshes" / "cases"
@@ -248,8 +248,7 @@ def test_the_all_four_rows_are_the_study_data_s(name, level):
         if len(row["pushes"]) != len(case.actuators) or not row.get("converged", True):
             continue
         (push,) = pushes
-        rule = row.get("contact_quadrature", "nodal")
-        start = row.get("tip_start", case.reference_tip_start or tip_start_for(rule))
+        rule, start = row["contact_quadrature"], row["tip_start"]   # made explicit on loading
         key, ref_key = STUDY_OF_ROW[rule, start]
         force, probes = _from_study(key, level, push, ref_key)
         assert row["force"] == pytest.approx(force, abs=6e-5)
