@@ -8,8 +8,8 @@ its own study (``four_wide_surface`` / ``one_wide_surface``, to 15 mm, its tips 
 curved skin); ``--case control``:
 phantom-indenter-control.toml (the 5 mm tips on a coarser body, the contact scenario's plant of
 control loops). Earlier defaults (``--old p1``: P1 on 1.6 mm site cells; ``--old p2``: P2 on
-the whole phantom's own gmsh mesh, 3.2 mm sites, 59k unknowns) are solved in the same run, for
-the ratios. The converged answer is the finest level of a refinement study shipped in
+the whole phantom's own gmsh mesh, 3.2 mm sites, 59k unknowns; ``--old paths``: the symmetric
+mesh with 2.26 mm paths, 93k unknowns) are solved in the same run, for the ratios. The converged answer is the finest level of a refinement study shipped in
 tests/data/phantom_indenter_reference.json (P2 on the phantom's symmetric parts, cells divided by
 sqrt 2 per level, from bench/bench_indenter_convergence.py): by default the study with the
 Gauss contact rule and refined paths (``four_gauss`` / ``one_gauss``, to 12.5 mm; 15 mm has no
@@ -20,12 +20,16 @@ started there (``*_surface``).
 The spread of its levels and, where assessed, its GCI band are printed with it, so the
 comparison says how well the converged value itself is known.
 
+All four pushed on ``phantom-indenter.toml`` (meshed as ``phantom-symmetric``: the quarter's mesh
+and its mirror images) are solved on the quarter phantom at the same sizes: the same discrete
+problem (tests/test_mirror.py) at a quarter of the unknowns.
+
 Per load and push (the pushes one warm-started load path): the A1 force (mN) and the targets'
 displacements (mm) of each discretization, the relative difference of each to the finest level
 (targets: |u - u_ref| / |u_ref|), Newton iterations, wall time, and the ratios new / old.
 
     .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--pushes 5 10 12.5]
-        [--contact-quadrature nodal|2] [--study gauss|nodal] [--old [p1|p2]]
+        [--contact-quadrature nodal|2] [--study gauss|nodal] [--old [p1|p2|paths]]
         [--case indenter|wide|control] [--tip-start nodes|surface]
         [--mesh SIZE SITE PATH [--builder phantom-symmetric]] [--rows] [--answers FILE]
 
@@ -97,10 +101,29 @@ def finest(load: str, push: float, study: str = "gauss", case: str = "indenter",
 
 
 OLD = {"p1": ("old P1", 1, "phantom", (6.0, 1.6, None)),
-       "p2": ("old P2", None, "phantom", (6.0, 3.2, None))}
+       "p2": ("old P2", None, "phantom", (6.0, 3.2, None)),
+       "paths": ("old path", None, "phantom-symmetric",
+                 (6.0 * 2 ** 0.5, 3.2 * 2 ** 0.5, 1.6 * 2 ** 0.5))}
 """The earlier defaults of the indenter phantom (``--old``): label, degree (None: the case's),
 builder and mesh (size, site_size, path_size; mm). p1: P1 on 1.6 mm sites; p2 (until the
-symmetric mesh): P2 on the whole phantom's own gmsh mesh with 3.2 mm sites, 59k unknowns."""
+symmetric mesh): P2 on the whole phantom's own gmsh mesh with 3.2 mm sites, 59k unknowns;
+paths (until the paths were refined as the quarter study's level 0): the symmetric mesh with
+2.26 mm paths, the quarter study's level -1, 93k unknowns."""
+
+
+QUARTER = ROOT / "meshes" / "cases" / "phantom-indenter-quarter.toml"
+"""The quarter of the 5 mm tip phantom, its mirror planes sliding: all four pushed equally on a
+case meshed as ``phantom-symmetric`` (the quarter's mesh and its mirror images) are the same
+discrete problem as this case on the same sizes (tests/test_mirror.py), at a quarter of the
+unknowns."""
+
+
+def p2_dofs(mesh) -> int:
+    """Unknowns of a P2 displacement on ``mesh``: gdim per vertex and per edge."""
+    d = mesh.gdim
+    pairs = [mesh.cells[:, [i, j]] for i in range(d + 1) for j in range(i)]
+    edges = np.unique(np.sort(np.vstack(pairs), axis=1), axis=0)
+    return d * (mesh.n_vertices + len(edges))
 
 
 def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indenter",
@@ -108,33 +131,53 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
           start: str | None = None) -> list[dict]:
     """The case's default discretization (or ``degree``, or the case meshed by ``builder`` with
     ``mesh`` = (size, site_size, path_size) mm; tips started as ``start``, None: the case's)
-    along one load path through ``pushes``: one row per push reached."""
+    along one load path through ``pushes``: one row per push reached. All four pushed on the 5 mm
+    tip case meshed as ``phantom-symmetric`` are solved on its quarter (``QUARTER``, same sizes,
+    same answer); the row then gives the whole case's cells and unknowns and A1's whole force."""
     import tissue_reference.fem_reference as fr
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
     from tissue_reference.meshes.errors import ConvergenceError
 
     case = load_case(CASES[case_name])
-    if mesh is not None:
+    spec = tomllib.loads(CASES[case_name].read_text())["mesh"]
+    if mesh is None:
+        builder = spec.get("builtin")
+        mesh = (spec.get("size"), spec.get("site_size"), spec.get("path_size"))
+    else:
         size, site_size, path_size = mesh
         case = case.with_mesh(build(builder, size, site_size=site_size, path_size=path_size))
+    whole = {"cells": case.mesh.n_cells, "dofs": None, "cut": 1.0}
+    if load == "four" and builder == "phantom-symmetric" and case_name == "indenter":
+        quarter = load_case(QUARTER)
+        assert {a.radius for a in quarter.actuators} == {a.radius for a in case.actuators}
+        size, site_size, path_size = mesh
+        if (degree or case.reference_degree) == 2:
+            whole["dofs"] = p2_dofs(case.mesh)
+        whole["cut"] = 2.0                    # A1 is cut in half by the plane y = 0
+        case = quarter.with_mesh(build("phantom-quarter", size, site_size=site_size,
+                                       path_size=path_size))
+        print(f"  [all four on the quarter of the symmetric mesh: {case.mesh.n_cells} of "
+              f"{whole['cells']} cells]", flush=True)
+    pushed = [a for a in LOADS[load] if a in {b.name for b in case.actuators}]
     s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=rule, tip_start=start)
     rows, prev = [], None
     for push in pushes:
         t0 = time.perf_counter()
         try:
-            res, converged = s.solve({a: push for a in LOADS[load]}, initial=prev), True
+            res, converged = s.solve({a: push for a in pushed}, initial=prev), True
         except ConvergenceError as exc:
             res, converged = exc.last_converged, False
         ind = res.extra["indenters"]["A1"]
         rows.append({"push": push, "reached": float(ind["push"]),
                      "degree": res.extra["discretization"]["degree"],
                      "rule": ind.get("quadrature"), "start": ind.get("started_on"),
-                     "cells": case.mesh.n_cells,
-                     "dofs": res.extra["discretization"]["dofs"], "converged": converged,
+                     "cells": whole["cells"],
+                     "dofs": whole["dofs"] or res.extra["discretization"]["dofs"],
+                     "converged": converged,
                      "valid": bool(res.extra.get("valid", True)),
                      "why": res.extra.get("invalid_reason"), "min_J": res.extra.get("min_J"),
-                     "force": float(ind["force"]),
+                     "force": whole["cut"] * float(ind["force"]),
                      "probes": {n: np.asarray(v) for n, v in res.probes.items()},
                      "newton": res.iterations, "wall_s": time.perf_counter() - t0})
         r = rows[-1]
@@ -256,8 +299,9 @@ def main():
                          "holds a load's path, compare those instead of solving again")
     ap.add_argument("--old", nargs="?", const="p1", choices=sorted(OLD),
                     help="also solve an earlier default for the ratios: p1 (the default "
-                         "without a value: P1, 1.6 mm sites) or p2 (P2, 3.2 mm sites, the "
-                         "whole phantom's own mesh)")
+                         "without a value: P1, 1.6 mm sites), p2 (P2, 3.2 mm sites, the "
+                         "whole phantom's own mesh) or paths (the symmetric mesh with 2.26 mm "
+                         "paths)")
     args = ap.parse_args()
     if (args.case, args.study) not in STUDIES:
         ap.error(f"the {args.case} case has no {args.study} study")
@@ -302,7 +346,8 @@ def main():
                 r = next((r for r in rows if r["push"] == push), None)
                 if r is None or not r["converged"]:
                     last = rows[-1]
-                    print(f"  {name:>8} stopped at {last['reached']:.2f} mm: {last['why']}")
+                    print(f"  {name:>8} stopped at {last['reached']:.2f} mm: "
+                          f"{last['why'] or 'its load steps did not converge'}")
                     continue
                 e = errors(r, ref) if ref else {}
                 errs[name], found[name] = e, r
