@@ -9,7 +9,8 @@ curved skin); ``--case control``:
 phantom-indenter-control.toml (the 5 mm tips on a coarser body, the contact scenario's plant of
 control loops). Earlier defaults (``--old p1``: P1 on 1.6 mm site cells; ``--old p2``: P2 on
 the whole phantom's own gmsh mesh, 3.2 mm sites, 59k unknowns; ``--old paths``: the symmetric
-mesh with 2.26 mm paths, 93k unknowns) are solved in the same run, for the ratios. The converged answer is the finest level of a refinement study shipped in
+mesh with 2.26 mm paths, 93k unknowns) are solved in the same run, for the ratios. The converged
+answer is the finest level of a refinement study shipped in
 tests/data/phantom_indenter_reference.json (P2 on the phantom's symmetric parts, cells divided by
 sqrt 2 per level, from bench/bench_indenter_convergence.py): by default the study with the
 Gauss contact rule and refined paths (``four_gauss`` / ``one_gauss``, to 12.5 mm; 15 mm has no
@@ -118,14 +119,6 @@ discrete problem as this case on the same sizes (tests/test_mirror.py), at a qua
 unknowns."""
 
 
-def p2_dofs(mesh) -> int:
-    """Unknowns of a P2 displacement on ``mesh``: gdim per vertex and per edge."""
-    d = mesh.gdim
-    pairs = [mesh.cells[:, [i, j]] for i in range(d + 1) for j in range(i)]
-    edges = np.unique(np.sort(np.vstack(pairs), axis=1), axis=0)
-    return d * (mesh.n_vertices + len(edges))
-
-
 def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indenter",
           mesh: tuple | None = None, builder: str = "phantom",
           start: str | None = None) -> list[dict]:
@@ -135,6 +128,7 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
     tip case meshed as ``phantom-symmetric`` are solved on its quarter (``QUARTER``, same sizes,
     same answer); the row then gives the whole case's cells and unknowns and A1's whole force."""
     import tissue_reference.fem_reference as fr
+    from tissue_reference.fem_reference.adapt import _counts, predicted_dofs
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
     from tissue_reference.meshes.errors import ConvergenceError
@@ -147,13 +141,12 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
     else:
         size, site_size, path_size = mesh
         case = case.with_mesh(build(builder, size, site_size=site_size, path_size=path_size))
-    whole = {"cells": case.mesh.n_cells, "dofs": None, "cut": 1.0}
+    whole = {"cells": case.mesh.n_cells, "counts": None, "cut": 1.0}
     if load == "four" and builder == "phantom-symmetric" and case_name == "indenter":
         quarter = load_case(QUARTER)
         assert {a.radius for a in quarter.actuators} == {a.radius for a in case.actuators}
         size, site_size, path_size = mesh
-        if (degree or case.reference_degree) == 2:
-            whole["dofs"] = p2_dofs(case.mesh)
+        whole["counts"] = _counts(case.mesh)   # the whole mesh's, for its unknowns
         whole["cut"] = 2.0                    # A1 is cut in half by the plane y = 0
         case = quarter.with_mesh(build("phantom-quarter", size, site_size=site_size,
                                        path_size=path_size))
@@ -162,6 +155,12 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
     pushed = [a for a in LOADS[load] if a in {b.name for b in case.actuators}]
     s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=rule, tip_start=start)
     rows, prev = [], None
+
+    def dofs(d: dict) -> int:
+        if whole["counts"] is None:
+            return d["dofs"]
+        return predicted_dofs(whole["counts"], case.mesh.gdim, d["degree"], d["formulation"])
+
     for push in pushes:
         t0 = time.perf_counter()
         try:
@@ -173,7 +172,7 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
                      "degree": res.extra["discretization"]["degree"],
                      "rule": ind.get("quadrature"), "start": ind.get("started_on"),
                      "cells": whole["cells"],
-                     "dofs": whole["dofs"] or res.extra["discretization"]["dofs"],
+                     "dofs": dofs(res.extra["discretization"]),
                      "converged": converged,
                      "valid": bool(res.extra.get("valid", True)),
                      "why": res.extra.get("invalid_reason"), "min_J": res.extra.get("min_J"),
