@@ -40,7 +40,7 @@ def refined_case(level: int, passes: int, band: float):
         mesh = refine_local(mesh, (c[:, 2] < near) &
                             (np.hypot(c[:, 0], c[:, 1]) > PHANTOM.radius - near),
                             project=project)
-    case = load_case(ROOT / "meshes" / "cases" / "phantom-indenter-half.toml").with_mesh(mesh)
+    case = load_case(ROOT / "meshes" / "cases" / "phantom-indenter-half.toml", mesh=mesh)
     return dataclasses.replace(case, actuators=tuple(dataclasses.replace(a, radius=RADIUS)
                                                      for a in case.actuators))
 

@@ -53,8 +53,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 CASES = {"indenter": ROOT / "meshes" / "cases" / "phantom-indenter.toml",
          "wide": ROOT / "meshes" / "cases" / "phantom-indenter-wide.toml",
-         "control": ROOT / "meshes" / "cases" / "phantom-indenter-control.toml"}
+         "control": ROOT / "meshes" / "cases" / "phantom-indenter-control.toml",
+         "half": ROOT / "meshes" / "cases" / "phantom-indenter-half.toml"}
 STUDIES = {("indenter", "gauss"): ("{load}_gauss", "{load}"), ("indenter", "nodal"): ("{load}",),
+           ("half", "gauss"): ("{load}_gauss", "{load}"), ("half", "nodal"): ("{load}",),
            ("wide", "gauss"): ("{load}_wide",),
            ("control", "gauss"): ("{load}_gauss", "{load}"), ("control", "nodal"): ("{load}",)}
 """Per case and ``--study``: the studies in DATA searched for the push, in order (the tips started
@@ -141,7 +143,9 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
     else:
         size, site_size, path_size = mesh
         case = case.with_mesh(build(builder, size, site_size=site_size, path_size=path_size))
-    whole = {"cells": case.mesh.n_cells, "counts": None, "cut": 1.0}
+    # the half case: A1 is cut in half by its mirror plane y = 0 (the rows give the whole tip)
+    whole = {"cells": case.mesh.n_cells, "counts": None,
+             "cut": 2.0 if case_name == "half" else 1.0}
     if load == "four" and builder == "phantom-symmetric" and case_name == "indenter":
         quarter = load_case(QUARTER)
         assert {a.radius for a in quarter.actuators} == {a.radius for a in case.actuators}
@@ -229,6 +233,13 @@ def measured_row(load: str, push: float, r: dict, e: dict, ref: dict | None,
         lines.append(f"tip_start = {json.dumps(r['start'])}")
     if ref is None:
         lines += ["converged = false", 'why = "no study converges at this push"']
+    elif (r["dofs"], r["rule"]) == (ref["dofs"], ref["rule"]):
+        # the default is the study's finest level (same mesh, rule and start): its distance
+        # from the converged value is that level's GCI bands, not a difference from itself
+        force, probes = bands(ref)
+        against = f"the GCI bands of tests/data/{DATA.name} {ref['study']} level " \
+                  f"{ref['level']} ({ref['dofs']} dofs), which this discretization is"
+        lines += [f"force = {force:.4f}", f"probes = {probes:.4f}", _toml_text(against)]
     else:
         force, probes = bands(ref)
         known = "" if force is None else \
@@ -238,9 +249,14 @@ def measured_row(load: str, push: float, r: dict, e: dict, ref: dict | None,
                   f"({ref['dofs']} dofs){known}"
         lines += [f"force = {e['force']:.4f}",
                   f"probes = {max(v for k, v in e.items() if k != 'force'):.4f}",
-                  # a multi-line TOML string whose line-ending backslashes join the lines
-                  'against = """\\\n' + " \\\n".join(textwrap.wrap(against, 92)) + '"""']
+                  _toml_text(against)]
     return "\n".join(lines)
+
+
+def _toml_text(against: str) -> str:
+    """``against = ...`` as a multi-line TOML string whose line-ending backslashes join the
+    lines (wrapped at 92)."""
+    return 'against = """\\\n' + " \\\n".join(textwrap.wrap(against, 92)) + '"""'
 
 
 def bands(ref: dict) -> tuple[float | None, float | None]:
@@ -276,8 +292,9 @@ def main():
     ap.add_argument("--contact-quadrature", type=contact_rule, default=None,
                     help="contact rule of the default (default: the case's)")
     ap.add_argument("--case", choices=sorted(CASES), default="indenter",
-                    help="phantom-indenter.toml (5 mm tips), phantom-indenter-wide.toml (8 mm) or "
-                         "phantom-indenter-control.toml (5 mm tips, a coarser body)")
+                    help="phantom-indenter.toml (5 mm tips), phantom-indenter-wide.toml (8 mm), "
+                         "phantom-indenter-control.toml (5 mm tips, a coarser body) or "
+                         "phantom-indenter-half.toml (its half, A1 alone)")
     ap.add_argument("--study", choices=["gauss", "nodal"], default="gauss",
                     help="the refinement study whose finest level is the converged answer "
                          "(the wide case has a Gauss-rule study only)")
@@ -304,6 +321,8 @@ def main():
     args = ap.parse_args()
     if (args.case, args.study) not in STUDIES:
         ap.error(f"the {args.case} case has no {args.study} study")
+    if args.case == "half" and args.loads != ["one"]:
+        ap.error("the half case carries A1 alone (--loads one): all four are the quarter's")
     # the case's own contact rule and tip start, for --rows (read from the file: no mesh to build)
     reference = tomllib.loads(CASES[args.case].read_text()).get("reference", {})
     case_rule, case_pin = reference.get("contact_quadrature"), reference.get("tip_start")

@@ -62,10 +62,9 @@ def level_case(load: str, k: int, path: float | None = None, radius: float | Non
 
     name, builder = CASES[load]
     size, site, path_mm, base_rim_mm = level_lengths(k, path, base_rim)
-    case = load_case(ROOT / "meshes" / "cases" / name)
-    case = dataclasses.replace(case, mesh=build(builder, size, site_size=site, path_size=path_mm,
-                                                base_rim_size=base_rim_mm,
-                                                path_reach=path_reach))
+    case = load_case(ROOT / "meshes" / "cases" / name,
+                     mesh=build(builder, size, site_size=site, path_size=path_mm,
+                                base_rim_size=base_rim_mm, path_reach=path_reach))
     if volumetric is not None:   # the Neo-Hookean volumetric law (default: the case's)
         case = case.with_material(volumetric=volumetric)
     if radius is not None:   # a diagnostic: tips of another radius on the same meshes
