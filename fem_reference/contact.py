@@ -77,15 +77,16 @@ Newton. The tangent is UFL's exact derivative. Contact makes Newton's correction
 far from the answer (nodes entering and leaving contact, nodes sliding along a curved tip), so
 with indenters (displacement formulation) a correction must lower the total energy, else it is
 halved (``accepts``), and the load stepping's first increments move a tip by at most
-STEP_FRACTION of its radius (``ramps``); failed steps are cut back as usual. After a halved
-correction the next one is computed without the tips' curvature term in the penalty's Hessian
-(``tangent_without_curvature``, positive semi-definite; the exact tangent returns with the next
-full step, so the last iterations converge quadratically and the exported tangent is exact):
-on the half phantom at P2, A1 = 5 mm, 68 instead of 101 Newton iterations at 81k unknowns,
-61 instead of 64 at 32k, the same answer. Under several tips the tissue crushed against them
-makes the tangent indefinite (negative pivots in its factorization) and the corrections huge:
-such a correction is solved again without the curvature, then with a Levenberg-Marquardt shift
-(``NewtonSettings.descent_shift``).
+``NewtonSettings.tip_step`` of its radius (``ramps``); failed steps are cut back as usual.
+Newton's matrix leaves the tips' curvature term out of the penalty's Hessian
+(``tangent_without_curvature``, positive semi-definite) while the residual is far above its
+converged size (``NewtonSettings.contact_curvature_below``) and after a halved correction; the
+exact tangent returns near the answer, so the last iterations converge quadratically and the
+exported tangent is exact. Far from the answer the curvature of a tip that skin nodes sit deep
+in makes the corrections long, and the line search cut them to 1/16-1/128 of their length.
+Under several tips the tissue crushed against them makes the tangent indefinite (negative pivots
+in its factorization) and the corrections huge: such a correction is solved again without the
+curvature, then with a Levenberg-Marquardt shift (``NewtonSettings.descent_shift``).
 
 Each solve reports, per indenter, in ``SolveResult.extra["indenters"][name]``: ``push`` (mm),
 ``force`` (mN, the actuator force along its direction: the total force the tip exerts on the
@@ -93,8 +94,9 @@ skin, which the supports balance), ``force_vector`` (mN, that force; the same si
 ``SolveResult.reactions``), ``contact_area`` (mm^2: the reference area lumped to the surface
 nodes with g < 0; it resolves the contact edge to about a cell), ``max_penetration`` (mm: max of
 -g over those nodes), ``penalty_beta`` and ``penalty`` ([min, max] of k over the cells along
-Gamma_c, kPa/mm), ``quadrature`` (the contact rule), ``tip``, ``contact`` and ``tip_start`` (q0, mm). The exported tangent
-(``ReferenceSolver.tangent``) uses the tips where the last solve left them.
+Gamma_c, kPa/mm), ``quadrature`` (the contact rule), ``tip``, ``contact`` and ``tip_start`` (q0,
+mm). The exported tangent (``ReferenceSolver.tangent``) uses the tips where the last solve left
+them.
 
 Where it lives: ``fem_reference.contact_geometry`` (the tip's shape and gap, ``nodal_rule``),
 ``fem_reference.contact_indenter`` (one indenter's forms, start position and report, with the
@@ -147,9 +149,6 @@ GAUSS_NARROW = 0.75
 longest edge of the cells in contact."""
 
 
-STEP_FRACTION = 0.1
-"""A load step moves an indenter by at most this fraction of its radius at first (the load
-stepping grows the increments after steps that converge quickly)."""
 
 
 def contact_key(case: Case) -> tuple:
@@ -246,9 +245,9 @@ class Contact:
             elif initial is not None:
                 start_push = ind.push_now()
             ramps.append((ind.q.value, ind.q0 + start_push * ind.d, ind.q0 + full_push * ind.d))
-            # the load stepping's first increments move a tip by at most STEP_FRACTION of its
-            # radius (each increment changes the contact set a little: fewer Newton iterations)
-            limit = STEP_FRACTION * ind.shape.radius
+            # the load stepping's first increments move a tip by at most settings.tip_step of
+            # its radius (each increment changes the contact set a little)
+            limit = self.solver.settings.tip_step * ind.shape.radius
             span = max(span, abs(full_push - start_push)
                        * max(1.0, self.solver.settings.max_step_mm / limit))
         return span

@@ -25,6 +25,12 @@ from .newton_settings import NewtonSettings, _Timings, settings_json
 __all__ = ["NewtonMixin", "NewtonSettings", "settings_json"]
 
 
+CONTRACTION = 0.5
+"""With indenters, a whole Newton step without the tips' curvature that leaves more than this
+fraction of the residual makes the rest of the load step's iterations use the exact tangent
+(``NewtonSettings.contact_curvature_below``)."""
+
+
 class NewtonMixin:
     """Load stepping and Newton on the solver's unknown (needs the forms, bcs and linear solves).
 
@@ -56,12 +62,11 @@ class NewtonMixin:
         self.timings.assemble += time.perf_counter() - t0
         return b.norm()
 
-    def _assemble_tangent(self, bcs, halved: bool = False):
-        """The exact tangent, or after a halved correction with indenters the one without the
-        tips' curvature terms (``K_halved_form``, fem_reference.contact)."""
+    def _assemble_tangent(self, bcs, drop: bool = False):
+        """The exact tangent, or with indenters and ``drop`` the one without the tips' curvature
+        terms (``K_halved_form``, fem_reference.contact)."""
         t0 = time.perf_counter()
         self.A.zeroEntries()
-        drop = halved and self.settings.contact_curvature_after_halving == "drop"
         form = self.K_halved_form if drop and self.K_halved_form is not None else self.K_form
         dolfinx.fem.petsc.assemble_matrix(self.A, form, bcs=bcs,
                                           diagonal=self._bc_stiffness())
@@ -80,17 +85,17 @@ class NewtonMixin:
         self.A.setDiagonal(d, addv=PETSc.InsertMode.ADD_VALUES)
         self._refactor = True
 
-    def _correction(self, bcs, eta, halved, shift, test):
-        """Newton's correction du from the tangent (without the tips' curvature if ``halved``,
+    def _correction(self, bcs, eta, drop, shift, test):
+        """Newton's correction du from the tangent (without the tips' curvature if ``drop``,
         shifted by ``shift`` |diag K| if > 0). ``test``: the energy's slope along du is computed
         and, with ``settings.descent_shift``, a correction that does not descend or whose
         tangent's factorization has negative pivots is solved again: first without the tips'
         curvature, then with the shift growing tenfold from descent_shift, four times at most
         (the last one is taken whatever it gives: the line search still guards the energy).
-        Returns (ok, slope (uJ; None untested), halved, shift): the tangent used."""
+        Returns (ok, slope (uJ; None untested), drop, shift): the tangent used."""
         s = self.settings
         while True:
-            self._assemble_tangent(bcs, halved)
+            self._assemble_tangent(bcs, drop)
             if shift > 0:
                 self._shift_tangent(shift)
                 self.timings.shifts += 1
@@ -98,14 +103,14 @@ class NewtonMixin:
             ok = self._linear_solve(eta)
             self.timings.solve += time.perf_counter() - t0
             if not (ok and test):
-                return ok, None, halved, shift
+                return ok, None, drop, shift
             slope = self.b.dot(self.du.vector)  # b is the residual: the energy's gradient
             if (slope < 0 and not self.negative_pivots) or s.descent_shift == 0 or \
                     shift >= 999.0 * s.descent_shift:
-                return True, slope, halved, shift
-            if not halved and self.K_halved_form is not None and \
+                return True, slope, drop, shift
+            if not drop and self.K_halved_form is not None and \
                     s.contact_curvature_after_halving == "drop":
-                halved = True
+                drop = True
             else:
                 shift = max(10.0 * shift, s.descent_shift)
 
@@ -123,6 +128,7 @@ class NewtonMixin:
         atol = s.atol * self._bc_stiffness() * float(self.dm.h_min)   # mN
         r0 = rprev = None
         halved = False  # the last correction was halved
+        exact = False   # the curvature-free matrix stalled: the exact tangent from here on
         energy = self.contact.energy_search  # the line search tests the energy (indenters)
         shift = 0.0  # Levenberg-Marquardt shift of the tangent (relative to its diagonal)
         floor = 0.5 ** s.line_search  # the shortest step, taken regardless
@@ -139,9 +145,13 @@ class NewtonMixin:
             # forcing term of the inexact (Krylov) solves: no more accuracy than Newton can use
             eta = 1e-3 if rprev is None else \
                 min(1e-3, max((rnorm / rprev) ** 2, 0.1 * rtol * r0 / rnorm, 1e-12))
+            # the tips' curvature is left out of Newton's matrix after a halved correction and
+            # while the residual is far above its converged size, until that matrix stalls
+            drop = self.K_halved_form is not None and (
+                (halved and s.contact_curvature_after_halving == "drop")
+                or (not exact and rnorm > s.contact_curvature_below * r0))
             # the first correction of a load step also moves the Dirichlet values: not tested
-            ok, slope, halved, shift = self._correction(bcs, eta, halved, shift,
-                                                        energy and it > 1)
+            ok, slope, drop, shift = self._correction(bcs, eta, drop, shift, energy and it > 1)
             if not ok:
                 return False, it, rnorm
             # the largest displacement correction (mm; the pressure's, in kPa, is not compared)
@@ -175,6 +185,9 @@ class NewtonMixin:
                 lm = f"  (tangent shifted {shift:g})" if shift > 0 else ""
                 print(f"  {label} newton {it:2d}  |R| {rnorm:.3e}  |du|_max {step:.3e} mm{ls}{lm}",
                       file=sys.stderr, flush=True)
+            if drop and alpha == 1.0 and it > 1 and rnew > CONTRACTION * rnorm:
+                exact = True   # a whole step that did not halve the residual: the tips'
+                # curvature carries the tangent here (a contact pressed hard)
             rprev, rnorm = rnorm, rnew
             halved = alpha < 1.0
             if alpha == 1.0:

@@ -31,6 +31,18 @@ class NewtonSettings:
     contact_curvature_after_halving: with indenters, the correction after a halved one is
         computed with the tips' curvature terms dropped from the penalty's Hessian ("drop",
         fem_reference.contact) or with the exact tangent ("keep").
+    contact_curvature_below: with indenters, Newton's matrix leaves the tips' curvature terms
+        out (a positive semi-definite contact term) while the residual is above this fraction of
+        its value at the load step's start, and is the exact tangent below it, so the last
+        iterations converge quadratically (math.inf: exact from the first iteration). Far from
+        the answer the curvature of a tip that skin nodes sit deep in makes the corrections
+        long and the line search cuts them to 1/16-1/128. Where the tips press hard their
+        curvature carries the tangent and the matrix without it converges slowly: a whole step
+        that leaves more than half the residual (``newton.CONTRACTION``) makes the rest of the
+        load step exact (without that, all four tips stalled near 14 mm).
+    tip_step: with indenters, the load stepping's first increments move a tip by at most this
+        fraction of its radius (later ones grow after steps that converge within 5
+        iterations; failed ones are cut back).
     descent_shift: with indenters, a Newton correction that is not a descent direction of the
         total energy, or whose tangent's factorization has negative pivots (tissue crushed
         against a tip: the corrections are huge), is solved again, first without the tips'
@@ -60,23 +72,31 @@ class NewtonSettings:
     lag_max_its: int = 12
     predictor: str = "none"
     contact_curvature_after_halving: str = "drop"
+    contact_curvature_below: float = 1e-4
+    tip_step: float = 0.2
     descent_shift: float = 1e-2
     interpolate: bool = False
 
     def __post_init__(self):
         for name in ("rtol", "atol", "atol_mm", "intermediate_rtol", "intermediate_atol_mm",
-                     "max_step_mm", "min_fraction"):
+                     "max_step_mm", "min_fraction", "tip_step"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
                 raise ValueError(f"NewtonSettings.{name} must be a positive number, got {v!r}")
         if self.max_iterations < 1:
-            raise ValueError(f"NewtonSettings.max_iterations must be >= 1, got {self.max_iterations}")
+            raise ValueError(f"NewtonSettings.max_iterations must be >= 1, got "
+                             f"{self.max_iterations}")
         if self.contact_curvature_after_halving not in ("drop", "keep"):
             raise ValueError("NewtonSettings.contact_curvature_after_halving must be 'drop' or "
                              "'keep'")
         if self.predictor not in ("secant", "none"):
             raise ValueError(f"NewtonSettings.predictor must be 'secant' or 'none', got "
                              f"{self.predictor!r}")
+        if not (isinstance(self.contact_curvature_below, (int, float))
+                and self.contact_curvature_below > 0):
+            raise ValueError(f"NewtonSettings.contact_curvature_below must be a number > 0 "
+                             f"(math.inf: the exact tangent throughout), got "
+                             f"{self.contact_curvature_below!r}")
         if not (self.descent_shift >= 0 and math.isfinite(self.descent_shift)):
             raise ValueError("NewtonSettings.descent_shift must be a finite number >= 0")
         if self.line_search < 0 or self.lag_max_its < 1:

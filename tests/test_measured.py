@@ -1,6 +1,7 @@
 """A case file's measured accuracy (``[reference.measured]``): a solve reports the row of exactly
-its discretization (unknowns, degree, contact rule, tip start) and load, and no row for anything else; a bad
-row is refused naming the file and the key; the shipped rows describe their cases' defaults.
+its discretization (unknowns, degree, contact rule, tip start) and load, and no row for anything
+else; a bad row is refused naming the file and the key; the shipped rows describe their cases'
+defaults.
 Units: mm."""
 import dataclasses
 import itertools
@@ -279,4 +280,5 @@ def test_the_half_case_s_gauss_rows_are_its_study_level_s_bands():
         assert row["force"] == pytest.approx(gci["force A1"], abs=6e-5)
         assert row["probes"] == pytest.approx(probes, abs=6e-5)
         checked.add((row["tip_start"], row["pushes"]["A1"]))
-    assert checked == {(start, push) for start in ("nodes", "surface") for push in (5.0, 10.0, 12.5)}
+    assert checked == {(start, push) for start in ("nodes", "surface")
+                       for push in (5.0, 10.0, 12.5)}
