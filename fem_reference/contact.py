@@ -149,8 +149,6 @@ GAUSS_NARROW = 0.75
 longest edge of the cells in contact."""
 
 
-
-
 def contact_key(case: Case) -> tuple:
     """What the compiled contact forms depend on: the Case's indenters without their pushes."""
     return tuple(replace(a, push=0.0) for a in case.indenters())

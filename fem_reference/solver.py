@@ -242,7 +242,8 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
         self.R_form = dolfinx.fem.form(self.R_ufl)
         self.R_int_form = dolfinx.fem.form(self.R_int_ufl)
         self.K_form = dolfinx.fem.form(self.K_ufl)
-        # with indenters: Newton's matrix after a halved correction (fem_reference.contact)
+        # with indenters: Newton's matrix without the tips' curvature, far from the answer
+        # and after a halved correction (fem_reference.contact)
         self.K_halved_form = None
         soft = self.contact.tangent_without_curvature(v, w)
         if soft is not None:
