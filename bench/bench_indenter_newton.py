@@ -120,7 +120,8 @@ def main():
             prev = res
     model = args.case or f"{args.model} phantom level {args.level}"
     rule = res.extra["indenters"]["A1"]["quadrature"]
-    print(f"indenter {model}, P{res.degree}, contact rule {rule}, {case.mesh.n_cells} cells, {res.extra['n_dofs']} unknowns, {'+'.join(pushed)} pushed")
+    print(f"indenter {model}, P{res.degree}, contact rule {rule}, {case.mesh.n_cells} cells, "
+          f"{res.extra['n_dofs']} unknowns, {'+'.join(pushed)} pushed")
     print(f"{'settings':>8} {'push':>5} {'newton':>6} {'shifts':>6} {'steps':>5} {'cutbacks':>8} "
           f"{'factor':>6} {'wall_s':>7} {'A1 force_mN':>12}  T1 (mm)")
     for key, path in rows.items():

@@ -15,7 +15,6 @@ point on A1's axis 2.9 mm under its site (P2 nodes interpolated) on every level.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import itertools
 from pathlib import Path
 
@@ -34,9 +33,8 @@ def solve_level(k: int, keep, out: Path) -> None:
     from tissue_reference.meshes.io import atomic_path
 
     size, site = level_sizes(k)
-    case = load_case(ROOT / "meshes" / "cases" / "phantom-indenter-quarter.toml")
-    case = dataclasses.replace(case, mesh=build("phantom-quarter", size, site_size=site,
-                                                path_size=0.5 * site))
+    case = load_case(ROOT / "meshes" / "cases" / "phantom-indenter-quarter.toml",
+                     mesh=build("phantom-quarter", size, site_size=site, path_size=0.5 * site))
     s = fr.ReferenceSolver(case, degree=2, contact_quadrature=2)
     names = [a.name for a in case.actuators]
     prev = None

@@ -280,13 +280,12 @@ def test_the_shifted_tangent_and_the_fitted_step_lengths_reach_the_same_answer()
     the quarter indenter phantom (P2, 2.7k cells), where the tissue crushed under the tips makes
     the tangent indefinite on the way (the shift is used), give the same forces and field as
     plain halving with the exact tangent."""
-    import dataclasses
 
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
 
-    case = load_case(CASES / "phantom-indenter-quarter.toml")
-    case = dataclasses.replace(case, mesh=build("phantom-quarter", 8.0, site_size=3.2))
+    case = load_case(CASES / "phantom-indenter-quarter.toml",
+                     mesh=build("phantom-quarter", 8.0, site_size=3.2))
     pushes = {a.name: 5.0 for a in case.actuators}
     # the exact tangent from each load step's start and short tip steps, where the crushed
     # tissue makes it indefinite (Newton's matrix without the tips' curvature far from the

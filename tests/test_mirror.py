@@ -127,7 +127,7 @@ def test_the_symmetric_whole_phantom_gives_the_quarters_answer_under_four_equal_
     quarter = build("phantom-quarter", 10.0, site_size=5.0)   # the one ``symmetric`` mirrors
     out = {}
     for name, mesh in (("phantom", symmetric), ("phantom-quarter", quarter)):
-        case = load_case(CASES / f"{name}.toml").with_mesh(mesh)
+        case = load_case(CASES / f"{name}.toml", mesh=mesh)
         res = fr.solve(case, pushes={a.name: 3.0 for a in case.actuators}, degree=2)
         out[name] = res
     w, q = out["phantom"], out["phantom-quarter"]
@@ -152,7 +152,7 @@ def test_the_shipped_indenter_phantom_gives_the_quarter_cases_answer_on_its_mesh
     out = {}
     for name, builder in (("phantom-indenter", "phantom-symmetric"),
                           ("phantom-indenter-quarter", "phantom-quarter")):
-        case = load_case(CASES / f"{name}.toml").with_mesh(build(builder, 16.0, site_size=8.0))
+        case = load_case(CASES / f"{name}.toml", mesh=build(builder, 16.0, site_size=8.0))
         out[name] = fr.ReferenceSolver(case, degree=2).solve(
             {a.name: 2.0 for a in case.actuators})
     w, q = out["phantom-indenter"], out["phantom-indenter-quarter"]
