@@ -20,6 +20,11 @@ only when asymptotic, GCI band otherwise) and states the finest level's value wi
     .venv/bin/python bench/bench_indenter_convergence.py --load one --level 0 --out out/conv
     .venv/bin/python bench/bench_indenter_convergence.py --load one --summarize --out out/conv
     (no --level and no --summarize: every level in turn, then the summary)
+
+A study of the test data extends by a finer level without rerunning its coarser ones: run the
+new level into an empty directory, then ``--summarize --with-study NAME`` writes the levels of
+``NAME`` (tests/data/phantom_indenter_reference.json) beside it, after checking that they were
+solved with the new level's settings, and assesses them all.
 """
 from __future__ import annotations
 
@@ -33,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / "tests" / "data" / "phantom_indenter_reference.json"
 CASES = {"one": ("phantom-indenter-half.toml", "phantom-half"),
          "four": ("phantom-indenter-quarter.toml", "phantom-quarter")}
 SIZE, SITE = 6.0, 3.2          # level 0 (mm)
@@ -135,6 +141,70 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
     return doc
 
 
+def write_study_levels(load: str, name: str, out: Path) -> None:
+    """Write the levels of the study ``name`` of the test data as level files under ``out``,
+    beside levels run there; refuse when the study's settings differ from theirs."""
+    from tissue_reference.meshes.results import write_json
+
+    studies = json.loads(DATA.read_text())["loads"]
+    if name not in studies:
+        raise SystemExit(f"--with-study {name}: {DATA} has no such study "
+                         f"(it has {', '.join(sorted(studies))})")
+    study = studies[name]
+    runs = [json.loads(f.read_text()) for f in out.glob(f"{load}-level*.json")]
+    if not runs:
+        raise SystemExit(f"--with-study {name}: run a level into {out} first; the study's levels "
+                         "are checked against its settings")
+    run = runs[0]
+
+    def ratio(lv, key):   # a refined length as a ratio to the site size, as the options give it
+        return None if lv.get(key) is None else round(lv[key] / lv["site_mm"], 4)
+
+    wanted = {"load": load, "degree": run["degree"],
+              "contact_quadrature": run.get("contact_quadrature", "nodal"),
+              "tip_radius_mm": run.get("tip_radius_mm"), "contact": run.get("contact"),
+              "idle_tips": run.get("idle_tips", True), "path ratio": ratio(run, "path_mm"),
+              "base rim ratio": ratio(run, "base_rim_mm"),
+              "path_reach_mm": run.get("path_reach_mm")}
+    have = {"load": study["load"], "degree": study["degree"],
+            "contact_quadrature": study.get("contact_quadrature", "nodal"),
+            "tip_radius_mm": study.get("tip_radius_mm", run.get("tip_radius_mm")),
+            "contact": study.get("contact", "frictionless"),
+            "idle_tips": study.get("idle_tips", True),
+            "path ratio": ratio(study["levels"][0], "path_mm"),
+            "base rim ratio": ratio(study["levels"][0], "base_rim_mm"),
+            "path_reach_mm": study["levels"][0].get("path_reach_mm")}
+    differ = {k: (have[k], wanted[k]) for k in wanted if str(have[k]) != str(wanted[k])}
+    if differ:
+        raise SystemExit(f"--with-study {name}: its settings differ from the levels under {out} "
+                         f"(study, run): {differ}")
+    taken = {d["level"] for d in runs}
+    for lv in study["levels"]:
+        if lv["level"] in taken:
+            raise SystemExit(f"--with-study {name}: level {lv['level']} is already under {out}")
+        doc = {key: run.get(key) for key in ("load", "degree", "contact_quadrature",
+                                             "tip_radius_mm", "contact", "volumetric",
+                                             "idle_tips", "tip_start", "base_rim_ratio",
+                                             "path_reach_mm")}
+        doc.update({key: lv.get(key) for key in ("level", "size_mm", "site_mm", "path_mm",
+                                                 "base_rim_mm", "cells")})
+        doc["from_study"] = name
+        doc["pushes"] = []
+        for entry in study["pushes"]:
+            if lv["level"] not in entry["levels"]:
+                continue
+            i = entry["levels"].index(lv["level"])
+            doc["pushes"].append({
+                "push": entry["push_mm"], "converged": True, "valid": entry["valid"][i],
+                "why": entry["why_invalid"][i], "surface_mm": entry["surface_penetration_mm"][i],
+                "force_mN": entry["force_mN"][i],
+                "probes": {n: v[i] for n, v in entry["probes_mm"].items()},
+                "dofs": entry["dofs"][i], "newton": entry["newton"][i],
+                "wall_s": entry["wall_s"][i]})
+        write_json(doc, out / f"{load}-level{lv['level']}.json")
+        print(f"level {lv['level']} of {name}: {len(doc['pushes'])} pushes written to {out}")
+
+
 def summarize(load: str, out: Path) -> None:
     from tissue_reference.fem_reference.richardson import assess
     from tissue_reference.meshes.results import write_json
@@ -151,7 +221,8 @@ def summarize(load: str, out: Path) -> None:
             raise SystemExit(f"the level results under {out} differ in {key}: "
                              f"{[(d['level'], d.get(key)) for d in docs]}; summarize one "
                              f"discretization at a time")
-    print(f"indenter phantom, {'A1 alone (half model)' if load == 'one' else 'all four (quarter model)'}, "
+    what = "A1 alone (half model)" if load == "one" else "all four (quarter model)"
+    print(f"indenter phantom, {what}, "
           f"P{docs[0]['degree']}, contact rule {docs[0].get('contact_quadrature', 'nodal')}; "
           f"levels: " + ", ".join(
               f"{d['level']}: size {d['size_mm']:.2f} / site {d['site_mm']:.2f} mm, "
@@ -255,9 +326,16 @@ def main():
     ap.add_argument("--without-idle-tips", action="store_true",
                     help="--load one: A1's tip only, without the other tips the case holds at "
                          "their start as obstacles (a diagnostic: what they change)")
+    ap.add_argument("--with-study", metavar="NAME",
+                    help="--summarize: first write the levels of this study of the test data "
+                         "beside the levels under --out (its settings must be theirs)")
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "indenter-convergence")
     args = ap.parse_args()
+    if args.with_study and not args.summarize:
+        ap.error("--with-study goes with --summarize")
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.with_study:
+        write_study_levels(args.load, args.with_study, args.out)
     if not args.summarize:
         for k in ([args.level] if args.level is not None else range(args.levels)):
             run_level(args.load, k, args.pushes, args.degree, args.out, args.progress, args.path,
