@@ -36,71 +36,23 @@ displacements (mm) of each discretization, the relative difference of each to th
 
 ``--rows`` prints the default's rows for its case file's ``[[reference.measured]]``.
 ``--answers FILE`` keeps the default's answers (JSON): a later run with the same file, load and
-pushes compares them again, with a study refined since, without solving them again.
+pushes compares them again, with a study refined since, without solving them again. A default
+that is itself a level of the study (the half case: level 0; the same unknowns, cells, rule and
+tip start) is read from the study data instead of solved.
 """
 from __future__ import annotations
 
 import argparse
 import json
-import textwrap
 import time
 import tomllib
 from functools import partial
 from pathlib import Path
 
 import numpy as np
+from study_answers import CASES, LOADS, STUDIES, errors, finest, measured_row, study_level
 
 ROOT = Path(__file__).resolve().parents[1]
-CASES = {"indenter": ROOT / "meshes" / "cases" / "phantom-indenter.toml",
-         "wide": ROOT / "meshes" / "cases" / "phantom-indenter-wide.toml",
-         "control": ROOT / "meshes" / "cases" / "phantom-indenter-control.toml",
-         "half": ROOT / "meshes" / "cases" / "phantom-indenter-half.toml"}
-STUDIES = {("indenter", "gauss"): ("{load}_gauss", "{load}"), ("indenter", "nodal"): ("{load}",),
-           ("half", "gauss"): ("{load}_gauss", "{load}"), ("half", "nodal"): ("{load}",),
-           ("wide", "gauss"): ("{load}_wide",),
-           ("control", "gauss"): ("{load}_gauss", "{load}"), ("control", "nodal"): ("{load}",)}
-"""Per case and ``--study``: the studies in DATA searched for the push, in order (the tips started
-on the skin's nodes; ``SURFACE`` for the curved facets)."""
-SURFACE = "_surface"
-"""The suffix of a study whose tips start on the skin's curved facets (``tip_start =
-"surface"``): a default started there is compared with those studies only."""
-DATA = ROOT / "tests" / "data" / "phantom_indenter_reference.json"
-LOADS = {"one": ("A1",), "four": ("A1", "A2", "A3", "A4")}
-MAX_BAND = 0.1
-"""The largest GCI band on the force (relative) of a finest level used as the converged answer."""
-
-
-def finest(load: str, push: float, study: str = "gauss", case: str = "indenter",
-           start: str = "nodes") -> dict | None:
-    """The finest level's answer at ``push`` (of the Gauss-rule study where it has the push, its
-    tips started as ``start``) and the spread of all levels (relative); None when no study has
-    three assessed levels there, when its levels do not contract (the force's last change not
-    smaller than the one before) or when the force's GCI band is above MAX_BAND."""
-    loads = json.loads(DATA.read_text())["loads"]
-    suffix = SURFACE if start == "surface" else ""
-    for key in (k.format(load=load) + suffix for k in STUDIES[case, study]):
-        entry = next((e for e in loads.get(key, {}).get("pushes", [])
-                      if e["push_mm"] == push and e.get("assessed")),   # >= 3 levels
-                     None)
-        if entry is not None:
-            break
-    else:
-        return None
-    force = np.array(entry["force_mN"])
-    if abs(force[-1] - force[-2]) >= abs(force[-2] - force[-3]):
-        return None         # the levels do not contract: no converged value to compare with
-    band = entry.get("quantities", {}).get("force A1", {}).get("gci_rel")
-    if band is not None and band > MAX_BAND:
-        return None         # contracting, but known only to more than MAX_BAND
-    probes = {n: np.array(v) for n, v in entry["probes_mm"].items()}
-    spread = {"force": float(np.ptp(force) / abs(force[-1]))}
-    for n, v in probes.items():
-        spread[n] = float(max(np.linalg.norm(a - v[-1]) for a in v) / np.linalg.norm(v[-1]))
-    gci = {q: a.get("gci_rel") for q, a in entry.get("quantities", {}).items()}
-    return {"study": key, "rule": loads[key].get("contact_quadrature", "nodal"),
-            "level": entry["levels"][-1], "levels": entry["levels"], "valid": entry["valid"],
-            "dofs": entry["dofs"][-1], "force": float(force[-1]),
-            "probes": {n: v[-1] for n, v in probes.items()}, "spread": spread, "gci": gci}
 
 
 OLD = {"p1": ("old P1", 1, "phantom", (6.0, 1.6, None)),
@@ -215,71 +167,6 @@ def answers(path: Path | None, load: str, pushes, asked: dict, solve_them) -> li
     return rows
 
 
-def measured_row(load: str, push: float, r: dict, e: dict, ref: dict | None,
-                 case_rule, case_pin: str | None) -> str:
-    """The ``[[reference.measured]]`` table (TOML) of the default's answer ``r`` with its
-    differences ``e`` from the converged answer ``ref`` (or, without one, converged = false);
-    its contact rule where it is not the case's (``case_rule``) and its tip start where a row
-    would not take it by default: the case's ``[reference] tip_start`` (``case_pin``), else the
-    start of the row's rule (``fem_reference.measured`` reads rows so)."""
-    from tissue_reference.meshes.case import tip_start_for
-
-    lines = ["[[reference.measured]]",
-             "pushes = {" + ", ".join(f"{a} = {push:g}" for a in LOADS[load]) + "}",
-             f"dofs = {r['dofs']}"]
-    if r["rule"] != (case_rule or "nodal"):
-        lines.append(f"contact_quadrature = {json.dumps(r['rule'])}")
-    if r["start"] != (case_pin or tip_start_for(r["rule"])):
-        lines.append(f"tip_start = {json.dumps(r['start'])}")
-    if ref is None:
-        lines += ["converged = false", 'why = "no study converges at this push"']
-    elif (r["dofs"], r["rule"]) == (ref["dofs"], ref["rule"]):
-        # the default is the study's finest level (same mesh, rule and start): its distance
-        # from the converged value is that level's GCI bands, not a difference from itself
-        force, probes = bands(ref)
-        against = f"the GCI bands of tests/data/{DATA.name} {ref['study']} level " \
-                  f"{ref['level']} ({ref['dofs']} dofs), which this discretization is"
-        lines += [f"force = {force:.4f}", f"probes = {probes:.4f}", _toml_text(against)]
-    else:
-        force, probes = bands(ref)
-        known = "" if force is None else \
-            f", itself within {100 * force:.1f} % (force) and {100 * (probes or 0.0):.1f} % " \
-            f"(targets) of the converged value by its GCI bands"
-        against = f"tests/data/{DATA.name} {ref['study']} level {ref['level']} " \
-                  f"({ref['dofs']} dofs){known}"
-        lines += [f"force = {e['force']:.4f}",
-                  f"probes = {max(v for k, v in e.items() if k != 'force'):.4f}",
-                  _toml_text(against)]
-    return "\n".join(lines)
-
-
-def _toml_text(against: str) -> str:
-    """``against = ...`` as a multi-line TOML string whose line-ending backslashes join the
-    lines (wrapped at 92)."""
-    return 'against = """\\\n' + " \\\n".join(textwrap.wrap(against, 92)) + '"""'
-
-
-def bands(ref: dict) -> tuple[float | None, float | None]:
-    """How well the converged answer ``ref`` itself is known: its force's GCI band and the
-    targets' worst (each target's components' bands combined as its displacement's norm is,
-    relative to it); None where the study gives no band."""
-    gci = ref["gci"]
-    worst = None
-    for name, u in ref["probes"].items():
-        parts = [gci.get(f"{name} u{'xyz'[i]}") for i in range(len(u))]
-        if any(p is not None for p in parts):
-            band = np.linalg.norm([(p or 0.0) * abs(c) for p, c in zip(parts, u)])
-            worst = max(worst or 0.0, float(band / np.linalg.norm(u)))
-    return gci.get("force A1"), worst
-
-
-def errors(row: dict, ref: dict) -> dict:
-    out = {"force": abs(row["force"] - ref["force"]) / abs(ref["force"])}
-    for n, v in ref["probes"].items():
-        out[n] = float(np.linalg.norm(row["probes"][n] - v) / np.linalg.norm(v))
-    return out
-
-
 def main():
     from tissue_reference.meshes.case import TIP_STARTS
     from tissue_reference.tissue.common import contact_rule
@@ -331,10 +218,12 @@ def main():
         label = "default" if args.mesh is None else "mesh"
         asked = {"case": args.case, "contact_quadrature": args.contact_quadrature,
                 "tip_start": args.tip_start, "mesh": args.mesh, "builder": args.builder}
-        runs = [(label, answers(args.answers, load, args.pushes, asked,
-                                partial(solve, load, args.pushes, None,
-                                        args.contact_quadrature, args.case, args.mesh,
-                                        args.builder, args.tip_start)))]
+        rows = None if args.mesh is not None else study_level(
+            load, args.pushes, args.study, args.case, args.contact_quadrature, args.tip_start)
+        runs = [(label, rows or answers(args.answers, load, args.pushes, asked,
+                                        partial(solve, load, args.pushes, None,
+                                                args.contact_quadrature, args.case, args.mesh,
+                                                args.builder, args.tip_start)))]
         if args.old:
             old, degree, builder, mesh = OLD[args.old]
             runs.append((old, solve(load, args.pushes, degree, args.contact_quadrature,

@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_default_accuracy import finest  # the study's finest level (this folder)
+from study_answers import finest  # the study's finest level (this folder)
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE = ROOT / "meshes" / "cases" / "phantom-indenter-half.toml"
