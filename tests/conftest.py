@@ -1,5 +1,4 @@
 """Fixtures shared by the test modules."""
-import gc
 import math
 
 import pytest
@@ -7,18 +6,6 @@ from case_texts import COARSE
 
 from tissue_reference.meshes import builders
 from tissue_reference.meshes.errors import CaseError
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _release_cached_solvers():
-    """Drop the solvers ``fem_reference.solve`` keeps for reuse (each with its meshes, forms and
-    factorization) when a test module ends: one pytest process runs every module, and kept
-    solvers of finished modules only grow its memory."""
-    yield
-    from tissue_reference.fem_reference import solver
-
-    solver._CACHE.clear()
-    gc.collect()
 
 
 @pytest.fixture(scope="module")
