@@ -7,7 +7,9 @@ rows a case file keeps."""
 from __future__ import annotations
 
 import json
+import math
 import textwrap
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -76,13 +78,20 @@ def study_level(load: str, pushes, study: str, case_name: str, rule,
     from tissue_reference.fem_reference.solver import default_degree, resolve_formulation
     from tissue_reference.meshes.case import load_case, tip_start_for
 
+    loads = json.loads(DATA.read_text())["loads"]
+    keys = [k.format(load=load) + s for k in STUDIES[case_name, study] for s in ("", SURFACE)]
+    spec = tomllib.loads(CASES[case_name].read_text())["mesh"]
+    lengths = [spec.get(k) for k in ("size", "site_size", "path_size")]
+    if not any(all(math.isclose(a, b) if None not in (a, b) else a is b for a, b in
+                   zip(lengths, (lv["size_mm"], lv["site_mm"], lv.get("path_mm"))))
+               for k in keys for lv in loads.get(k, {}).get("levels", [])):
+        return None   # no level meshed at the case's sizes: not worth building its mesh to count
     case = load_case(CASES[case_name])
     rule = rule if rule is not None else (case.reference_contact_quadrature or "nodal")
     start = start or case.reference_tip_start or tip_start_for(rule)
     formulation = resolve_formulation("auto", case.material)
     degree = case.reference_degree or default_degree(case, formulation)
     dofs = predicted_dofs(_counts(case.mesh), case.mesh.gdim, degree, formulation)
-    loads = json.loads(DATA.read_text())["loads"]
     suffix = SURFACE if start == "surface" else ""
     for key in (k.format(load=load) + suffix for k in STUDIES[case_name, study]):
         data = loads.get(key)
