@@ -26,14 +26,14 @@ def run(full: bool, steps: int, task_mm: float):
     from tissue_reference.control.loop import LoopSettings
     from tissue_reference.control.plants import _full_warm_start
     from tissue_reference.control.scenarios import scenario_loop
-    from tissue_reference.fem_reference.solver import _CACHE
+    from tissue_reference.fem_reference.kept import forget_solvers
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
 
     case = load_case(ROOT / "meshes" / "cases" / "phantom.toml")
     case = dataclasses.replace(case, mesh=build("phantom", 10.0))
     loop = scenario_loop(case, "nu")
-    _CACHE.clear()            # each variant compiles and factorizes for itself
+    forget_solvers()          # each variant compiles and factorizes for itself
     tally = {"newton": 0, "solves": 0, "wall_s": 0.0}
 
     def vertex_plant(c, pushes, initial):   # what a loop got before: the vertex field

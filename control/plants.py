@@ -338,9 +338,9 @@ def indenter_sensitivity(degree: int | None = None):
     each tip at least PRESS_WIDTHS of its smoothing widths in (``pressing``)."""
     def sensitivity(case, pushes, u, target):
         from tissue_reference.fem_reference.contact_jacobian import indenter_jacobian
-        from tissue_reference.fem_reference.solver import _solver_for
+        from tissue_reference.fem_reference.kept import solver_for
 
-        s = _solver_for(case, degree)
+        s = solver_for(case, degree)
         at = pressing(s, pushes)
         res = s.solve(at, case=case, initial=u)
         if not res.converged:

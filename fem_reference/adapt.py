@@ -377,10 +377,11 @@ def _answer(case, degree, pushes, formulation, options, start):
     parents) of the coarser level (its enriched answer, carried to the refined mesh by
     ``transfer.prolong``), or from rest when there is none, when the warm start does not converge
     within WARM_ANSWER_ITERATIONS, or for the mixed formulation (its pressure is not carried)."""
-    from .solver import _solver_for, solve
+    from .kept import solver_for
+    from .solver import solve
 
     if start is not None and formulation == "displacement" and degree >= 2:
-        ref = _solver_for(case, degree, formulation=formulation, **options)
+        ref = solver_for(case, degree, formulation=formulation, **options)
         try:
             init = prolong(start[0], start[1], ref, start[2])
             with warm_newton(ref, WARM_ANSWER_ITERATIONS):
@@ -391,9 +392,8 @@ def _answer(case, degree, pushes, formulation, options, start):
 
 
 def _forget(mesh) -> None:
-    """Drop the cached solvers of a mesh the adaptive loop has left (their matrices and
-    factors are large)."""
-    from . import solver as _solver
+    """Close the kept solvers of a mesh the adaptive loop has left (their matrices and factors
+    are large)."""
+    from .kept import forget_solvers
 
-    for key in [k for k, s in _solver._CACHE.items() if s.case.mesh is mesh]:
-        del _solver._CACHE[key]
+    forget_solvers(mesh)

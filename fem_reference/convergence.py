@@ -14,7 +14,6 @@ The orders, the asymptotic-range check, Richardson and the GCI live in ``richard
 """
 from __future__ import annotations
 
-import gc
 import sys
 import time
 import tomllib
@@ -156,6 +155,8 @@ def refinement_study(case: Case, *, levels: int = MIN_LEVELS, degree: int = 1, p
             raise ConvergenceError(
                 f"level {k} of the study ({mesh.n_cells:,} cells, h {h[k]:.3g} mm): {exc}",
                 load_fraction=exc.load_fraction, last_converged=exc.last_converged) from exc
+        finally:
+            solver.close()   # the level's matrices and factor now, not at the process's end
         if res.extra.get("valid", True) is False:  # a folded state is no point of a study
             raise ConvergenceError(
                 f"level {k} of the study ({mesh.n_cells:,} cells, h {h[k]:.3g} mm): the answer is "
@@ -174,8 +175,6 @@ def refinement_study(case: Case, *, levels: int = MIN_LEVELS, degree: int = 1, p
             print(f"tissue converge: degree {degree}, level {k}: h {h[k]:.3g} mm, "
                   f"{mesh.n_cells:,} cells, {dofs[-1]:,} dofs, {res.iterations} Newton "
                   f"iterations, {wall:.1f} s", file=sys.stderr, flush=True)
-        del solver, res
-        gc.collect()
     reactions = {n: v for n, v in reactions.items() if len(v) == len(meshes)}
     r_scale = max((float(np.abs(v).max()) for v in reactions.values()), default=0.0)
     u_noise = max(NOISE_REL * u_scale, NOISE_ABS["mm"])

@@ -51,7 +51,8 @@ from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.results import DynamicsResult
 
-from .solver import _solver_for, default_degree, resolve_formulation
+from .kept import solver_for
+from .solver import default_degree, resolve_formulation
 
 __all__ = ["MASS_KINDS", "DynamicsResult", "simulate"]
 
@@ -211,7 +212,7 @@ def simulate(case: Case, *, dt: float, steps: int, pushes=None, initial=None,
         raise CaseError(f"mass='lumped' is the P1 vertex mass (row sums of the consistent mass); "
                         f"at degree {degree} row sums are not positive at the vertices: "
                         f"use mass='consistent'")
-    solver = _solver_for(case, degree, **solver_options)
+    solver = solver_for(case, degree, **solver_options)
     n, d = case.mesh.n_vertices, case.mesh.gdim
     if initial_velocity is not None:
         initial_velocity = np.asarray(initial_velocity, float)

@@ -166,8 +166,8 @@ def error_estimate(case: Case, result: SolveResult, *, pushes=None, progress: bo
     mesh, a degree-2 answer without its nodal state) and ConvergenceError when the enriched
     solve fails.
     """
+    from .kept import solver_for
     from .newton import NewtonSettings
-    from .solver import _solver_for
     from .transfer import warm_newton
 
     t0 = time.perf_counter()
@@ -193,7 +193,7 @@ def error_estimate(case: Case, result: SolveResult, *, pushes=None, progress: bo
         settings = options.get("settings") or NewtonSettings()
         options["settings"] = dataclasses.replace(settings, rtol=max(settings.rtol, rtol))
     ts = time.perf_counter()
-    enriched = _solver_for(case, p + 1, **options)   # cached per mesh, degree and options
+    enriched = solver_for(case, p + 1, **options)   # cached per mesh, degree and options
     setup = time.perf_counter() - ts
     if progress:
         print(f"tissue fem: error estimate ({ESTIMATE_METHOD}): degree {p + 1} on the same "

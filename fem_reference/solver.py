@@ -12,7 +12,8 @@ numbering and identical on all ranks.
 The concerns live in their own modules, mixed into ReferenceSolver: ``forms`` (energies),
 ``boundary`` (Dirichlet conditions), ``newton`` (Newton and load stepping; its settings in
 ``newton_settings``), ``linalg`` (factorizations and Krylov solves), ``outputs`` (states,
-probes, reactions, tangent export).
+probes, reactions, tangent export). ``kept`` holds the one-call ``solve`` and
+``tangent_stiffness``, which reuse solvers, and frees a solver's PETSc memory (``close``).
 """
 from __future__ import annotations
 
@@ -29,12 +30,12 @@ from petsc4py import PETSc
 
 from tissue_reference.meshes.case import Case, Material, tip_start_for
 from tissue_reference.meshes.errors import CaseError
-from tissue_reference.meshes.results import SolveResult
 
 from .boundary import BoundaryMixin
-from .contact import DEFAULT_CONTACT_PENALTY, Contact, contact_key
+from .contact import DEFAULT_CONTACT_PENALTY, Contact
 from .dolfinx_mesh import DolfinxMesh, to_dolfinx
 from .forms import mixed_energy_density, strain_energy_density
+from .kept import release_petsc_garbage, solve, tangent_stiffness
 from .linalg import FIELDSPLIT_ABOVE_DOFS, LAGGED_ABOVE_DOFS, LinearSolveMixin, _has_cholmod
 from .logs import install_log_filters
 from .newton import NewtonMixin, NewtonSettings, _Timings
@@ -300,6 +301,30 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
         self._region_dofs = {}
         self.timings = _Timings(setup=time.perf_counter() - t0)
 
+    def close(self) -> None:
+        """Free the solver's matrices, vectors and factorizations now; it cannot solve again.
+        Collective: every rank calls it. Without it they are freed only at the process's end
+        (petsc4py defers destroying them: ``kept``). Also ``with ReferenceSolver(...) as s:``."""
+        if self.__dict__.get("_closed"):
+            return
+        mesh = self.dm.mesh   # holds its communicator (freed with it) through the cleanup
+        comm = self.comm
+        self.__dict__.clear()
+        self._closed = True
+        release_petsc_garbage(mesh.comm, comm)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def __getattr__(self, name):
+        if self.__dict__.get("_closed"):
+            raise RuntimeError(f"this ReferenceSolver was closed (its {name!r} is freed): "
+                               f"build a new one")
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
     def _spaces(self, mesh, degree):
         """The unknown ``x`` on the space ``W`` and the displacement ``u`` on ``V``.
 
@@ -333,66 +358,3 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
 def _inv_kappa(material: Material) -> float:
     """1/kappa (1/kPa) of the material, exactly 0 for nu = 0.5."""
     return 3.0 * (1.0 - 2.0 * material.nu) / material.E
-
-
-_CACHE: dict = {}
-
-
-def _solver_for(case: Case, degree: int | None, **kw) -> ReferenceSolver:
-    kw["formulation"] = resolve_formulation(kw.get("formulation", "auto"), case.material)
-    if degree is None:
-        degree = default_degree(case, kw["formulation"])
-    key = (id(case.mesh), degree, case.material.model, case.material.volumetric, case.gravity,
-           case.material.density,
-           tuple((b.region, b.type, str(b.normal), str(b.value)) for b in case.boundaries
-                 if b.type in ("traction", "sliding")), tuple(sorted(kw.items())),
-           contact_key(case), case.reference_contact_quadrature, case.reference_tip_start)
-    s = _CACHE.get(key)
-    if s is None or s.case.mesh is not case.mesh:
-        if len(_CACHE) > 8:
-            _CACHE.clear()
-        s = ReferenceSolver(case, degree=degree, **kw)
-        _CACHE[key] = s
-    s.case = case
-    return s
-
-
-def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None, dirichlet_override=None,
-          progress: bool = False, estimate: bool = False, **kw) -> SolveResult:
-    """Solve a Case with the reference (compiled forms are cached per mesh and degree).
-
-    degree, formulation (in ``kw``) and the other options: see ReferenceSolver; the default
-    degree is the case's (``[reference] degree``), else mixed P2/P1 for nu >= 0.49 and P1
-    displacement below.
-    pushes: actuator name -> push (mm); initial: warm start (n_vertices, gdim) mm;
-    dirichlet_override: (node-major Case dofs, values in mm) added to the Case's prescriptions.
-    estimate: add the estimated discretization error (``fem_reference.estimate``: one more solve
-    at degree + 1) to ``extra``: probe_error_estimates (mm), reaction_error_estimates (mN), ...
-    A case file's measured accuracy for exactly this load and discretization
-    (``[reference.measured]``, ``fem_reference.measured``) is in ``extra["measured_accuracy"]``.
-    """
-    from .measured import with_measured_accuracy
-
-    if estimate and dirichlet_override is not None:
-        raise CaseError("estimate=True: the error estimate does not take dirichlet_override")
-    s = _solver_for(case, degree, **kw)
-    res = s.solve(pushes, case=case, initial=initial, dirichlet_override=dirichlet_override,
-                  progress=progress)
-    if dirichlet_override is None:   # another problem than the case's: no row describes it
-        res = with_measured_accuracy(case, res, pushes)
-    if estimate:
-        from .estimate import estimate as with_estimate
-
-        return with_estimate(case, res, pushes=pushes, progress=progress, **kw)
-    return res
-
-
-def tangent_stiffness(case: Case, u=None, *, degree: int | None = None, pushes=None,
-                      formulation: str = "auto") -> Tangent:
-    """Exact tangent K (scipy CSR, node-major, Case vertex numbering) at displacement ``u``
-    (default: rest). Degree 2: pass the SolveResult of a degree-2 reference solve (or its full
-    nodal state ``res.extra["node_u"]``); vertex values alone raise CaseError unless all zero."""
-    s = _solver_for(case, degree, formulation=formulation)
-    if u is None:
-        u = np.zeros((case.mesh.n_vertices, case.mesh.gdim))
-    return s.tangent(u, pushes=pushes)

@@ -1,5 +1,6 @@
 """Fixtures shared by the test modules."""
 import math
+import sys
 
 import pytest
 from case_texts import COARSE
@@ -26,3 +27,13 @@ def coarse_builders():
         for name, real in list(builders.BUILDERS.items()):
             mp.setitem(builders.BUILDERS, name, cached(name, real))
         yield cache
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _close_kept_solvers():
+    """The reference solvers a test module kept for reuse are closed when it ends, freeing
+    their matrices and factors: the one test process would otherwise carry every module's."""
+    yield
+    kept = sys.modules.get("tissue_reference.fem_reference.kept")
+    if kept is not None:
+        kept.forget_solvers()
