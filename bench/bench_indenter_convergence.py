@@ -24,7 +24,9 @@ only when asymptotic, GCI band otherwise) and states the finest level's value wi
 A study of the test data extends by a finer level without rerunning its coarser ones: run the
 new level into an empty directory, then ``--summarize --with-study NAME`` writes the levels of
 ``NAME`` (tests/data/phantom_indenter_reference.json) beside it, after checking that they were
-solved with the new level's settings, and assesses them all.
+solved with the new level's settings, and assesses them all. A level the study has already (at
+fewer pushes, say) is replaced by the new run of it, which must reproduce the study's forces at
+their common pushes to REPRODUCED.
 """
 from __future__ import annotations
 
@@ -45,6 +47,9 @@ SIZE, SITE = 6.0, 3.2          # level 0 (mm)
 RATIO = math.sqrt(2.0)
 LEVELS = 3
 PROBES = ("T1", "T2", "T3", "T4")
+# a level run again must give the forces of the study's run of it to this (relative): Newton stops
+# on a relative residual, so two runs agree to about 1e-8, not to the last digit
+REPRODUCED = 1e-6
 
 
 def level_sizes(k: int) -> tuple[float, float]:
@@ -178,10 +183,11 @@ def write_study_levels(load: str, name: str, out: Path) -> None:
     if differ:
         raise SystemExit(f"--with-study {name}: its settings differ from the levels under {out} "
                          f"(study, run): {differ}")
-    taken = {d["level"] for d in runs}
+    taken = {d["level"]: d for d in runs}
     for lv in study["levels"]:
         if lv["level"] in taken:
-            raise SystemExit(f"--with-study {name}: level {lv['level']} is already under {out}")
+            _supersede(name, lv["level"], study, taken[lv["level"]], out)
+            continue
         doc = {key: run.get(key) for key in ("load", "degree", "contact_quadrature",
                                              "tip_radius_mm", "contact", "volumetric",
                                              "idle_tips", "tip_start", "base_rim_ratio",
@@ -203,6 +209,29 @@ def write_study_levels(load: str, name: str, out: Path) -> None:
                 "wall_s": entry["wall_s"][i]})
         write_json(doc, out / f"{load}-level{lv['level']}.json")
         print(f"level {lv['level']} of {name}: {len(doc['pushes'])} pushes written to {out}")
+
+
+def _supersede(name: str, level: int, study: dict, run: dict, out: Path) -> None:
+    """A level run under ``out`` that the study already has (at fewer pushes, say) replaces
+    the study's, provided it reproduces the study's forces at their common pushes to
+    REPRODUCED (relative); a run that does not is refused: one of the two is wrong."""
+    if run.get("from_study"):
+        raise SystemExit(f"--with-study {name}: level {level} under {out} was written from a "
+                         f"study already; summarize into a directory holding only new runs")
+    mine = {e["push"]: e["force_mN"] for e in run["pushes"] if e.get("converged")}
+    common = []
+    for entry in study["pushes"]:
+        if level in entry["levels"] and entry["push_mm"] in mine:
+            theirs = entry["force_mN"][entry["levels"].index(level)]
+            rel = abs(mine[entry["push_mm"]] - theirs) / abs(theirs)
+            if rel > REPRODUCED:
+                raise SystemExit(
+                    f"--with-study {name}: level {level} under {out} gives "
+                    f"{mine[entry['push_mm']]:.6f} mN at {entry['push_mm']:g} mm, the study "
+                    f"{theirs:.6f} mN ({rel:.1e} apart, more than {REPRODUCED:g})")
+            common.append(f"{entry['push_mm']:g} mm ({rel:.1e})")
+    print(f"level {level} of {name}: replaced by the run under {out}, which reproduces its "
+          f"forces at {', '.join(common) or 'no common push'}")
 
 
 def summarize(load: str, out: Path) -> None:
