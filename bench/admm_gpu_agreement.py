@@ -9,7 +9,8 @@ phantom, all four actuators pushed 5 mm:
   energies' relative difference.
 
 The meshes and the reference answer need gmsh and dolfinx; a machine without them (a GPU
-machine, say) reads them from a file this module writes where they are present:
+machine, say, with numpy, scipy, CuPy and jsonschema, which reads the case file) reads them from
+a file this module writes where they are present:
 
     .venv/bin/python bench/admm_gpu_agreement.py --write DATA.npz      # here: meshes, reference
     python3 bench/admm_gpu_agreement.py --data DATA.npz                 # anywhere: the check
