@@ -115,7 +115,8 @@ def forget_solvers(mesh=None) -> int:
 
 
 def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None,
-          dirichlet_override=None, progress: bool = False, estimate: bool = False, **kw) -> SolveResult:
+          dirichlet_override=None, progress: bool = False, estimate: bool = False,
+          **kw) -> SolveResult:
     """Solve a Case with the reference (compiled forms are cached per mesh and degree).
 
     degree, formulation (in ``kw``) and the other options: see ReferenceSolver; the default
