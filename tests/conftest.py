@@ -31,8 +31,9 @@ def coarse_builders():
 
 @pytest.fixture(scope="module", autouse=True)
 def _close_kept_solvers():
-    """The reference solvers a test module kept for reuse are closed when it ends, freeing
-    their matrices and factors: the one test process would otherwise carry every module's."""
+    """The reference solvers a test module kept for reuse are forgotten when it ends, which
+    frees their matrices and factors: the one test process would otherwise carry every
+    module's."""
     yield
     kept = sys.modules.get("tissue_reference.fem_reference.kept")
     if kept is not None:
