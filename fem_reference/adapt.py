@@ -79,6 +79,7 @@ from tissue_reference.meshes.results import SolveResult
 
 from .estimate import ESTIMATE_RTOL, MAX_DEGREE, error_estimate
 from .indicators import energy_indicators
+from .kept import forget_solvers, solver_for
 from .transfer import prolong, warm_newton
 
 __all__ = [
@@ -284,7 +285,7 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
                                       time.perf_counter() - t0)) from exc
         finally:
             if start is not None:
-                _forget(start[0].case.mesh)
+                forget_solvers(start[0].case.mesh)   # a mesh the loop has left: large factors
                 start = None
         targets = _targets(answer.probes, accuracy, floor)
         step = AdaptiveStep(level, p, case.mesh.n_cells, int(answer.extra.get("n_dofs", 0)),
@@ -377,7 +378,6 @@ def _answer(case, degree, pushes, formulation, options, start):
     parents) of the coarser level (its enriched answer, carried to the refined mesh by
     ``transfer.prolong``), or from rest when there is none, when the warm start does not converge
     within WARM_ANSWER_ITERATIONS, or for the mixed formulation (its pressure is not carried)."""
-    from .kept import solver_for
     from .solver import solve
 
     if start is not None and formulation == "displacement" and degree >= 2:
@@ -389,11 +389,3 @@ def _answer(case, degree, pushes, formulation, options, start):
         except (CaseError, ConvergenceError):
             pass
     return solve(case, degree=degree, pushes=pushes, formulation=formulation, **options)
-
-
-def _forget(mesh) -> None:
-    """Close the kept solvers of a mesh the adaptive loop has left (their matrices and factors
-    are large)."""
-    from .kept import forget_solvers
-
-    forget_solvers(mesh)

@@ -30,7 +30,7 @@ def coarse_builders():
 
 
 @pytest.fixture(scope="module", autouse=True)
-def _close_kept_solvers():
+def _forget_kept_solvers():
     """The reference solvers a test module kept for reuse are forgotten when it ends, which
     frees their matrices and factors: the one test process would otherwise carry every
     module's."""
