@@ -26,13 +26,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tissue_reference.fem_reference.adapt import (
-    AccuracyNotReached,
-    _counts,
-    _refined_counts,
-    predicted_dofs,
-    solve_to_accuracy,
-)
+from tissue_reference.fem_reference.adapt import AccuracyNotReached, solve_to_accuracy
+from tissue_reference.fem_reference.dof_counts import entity_counts, predicted_dofs, refined_counts
 from tissue_reference.meshes.errors import ConvergenceError
 
 CASE = ROOT / "meshes/cases/phantom.toml"
@@ -58,7 +53,7 @@ def run(pushes: dict, refine: str, accuracy: float, max_dofs: int) -> dict:
            "why": why, "steps": steps}
     if refine == "uniform" and done is not None and not out["reached"]:
         mesh = done.case.mesh       # what the next uniform level's estimate would need
-        out["next_uniform"] = predicted_dofs(_refined_counts(_counts(mesh), mesh.gdim),
+        out["next_uniform"] = predicted_dofs(refined_counts(entity_counts(mesh), mesh.gdim),
                                              mesh.gdim, 3, "displacement")
     if steps:
         last = steps[-1]

@@ -82,7 +82,7 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
     tip case meshed as ``phantom-symmetric`` are solved on its quarter (``QUARTER``, same sizes,
     same answer); the row then gives the whole case's cells and unknowns and A1's whole force."""
     import tissue_reference.fem_reference as fr
-    from tissue_reference.fem_reference.adapt import _counts, predicted_dofs
+    from tissue_reference.fem_reference.dof_counts import entity_counts, predicted_dofs
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case
     from tissue_reference.meshes.errors import ConvergenceError
@@ -102,7 +102,7 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
         quarter = load_case(QUARTER)
         assert {a.radius for a in quarter.actuators} == {a.radius for a in case.actuators}
         size, site_size, path_size = mesh
-        whole["counts"] = _counts(case.mesh)   # the whole mesh's, for its unknowns
+        whole["counts"] = entity_counts(case.mesh)   # the whole mesh's, for its unknowns
         whole["cut"] = 2.0                    # A1 is cut in half by the plane y = 0
         case = quarter.with_mesh(build("phantom-quarter", size, site_size=site_size,
                                        path_size=path_size))

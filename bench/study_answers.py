@@ -74,7 +74,7 @@ def study_level(load: str, pushes, study: str, case_name: str, rule,
     is level 0 of the half's studies), so it is compared without solving it again; None where
     it is not, or where the study lacks a push. The unknowns and cells are counted on the
     default's mesh and must be the level's."""
-    from tissue_reference.fem_reference.adapt import _counts, predicted_dofs
+    from tissue_reference.fem_reference.dof_counts import entity_counts, predicted_dofs
     from tissue_reference.fem_reference.solver import default_degree, resolve_formulation
     from tissue_reference.meshes.case import load_case, tip_start_for
 
@@ -91,7 +91,7 @@ def study_level(load: str, pushes, study: str, case_name: str, rule,
     start = start or case.reference_tip_start or tip_start_for(rule)
     formulation = resolve_formulation("auto", case.material)
     degree = case.reference_degree or default_degree(case, formulation)
-    dofs = predicted_dofs(_counts(case.mesh), case.mesh.gdim, degree, formulation)
+    dofs = predicted_dofs(entity_counts(case.mesh), case.mesh.gdim, degree, formulation)
     suffix = SURFACE if start == "surface" else ""
     for key in (k.format(load=load) + suffix for k in STUDIES[case_name, study]):
         data = loads.get(key)

@@ -72,11 +72,11 @@ import numpy as np
 
 from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.errors import AccuracyNotReached, CaseError, ConvergenceError
-from tissue_reference.meshes.mesh import MeshData
 from tissue_reference.meshes.refine import refine_uniform
 from tissue_reference.meshes.refine_local import dorfler_mark, refine_local
 from tissue_reference.meshes.results import SolveResult
 
+from .dof_counts import entity_counts, predicted_dofs, refined_counts
 from .estimate import ESTIMATE_RTOL, MAX_DEGREE, error_estimate
 from .indicators import energy_indicators
 from .kept import forget_solvers, solver_for
@@ -151,43 +151,6 @@ def _targets(probes: dict, accuracy: float, floor: float) -> dict:
     return {k: accuracy * max(m, floor * top) for k, m in mags.items()}
 
 
-def _counts(mesh: MeshData) -> tuple:
-    """(vertices, edges, faces, cells) of a simplex mesh (faces = cells in 2D)."""
-    cells = mesh.cells
-    k = cells.shape[1]
-    pairs = [(i, j) for i in range(k) for j in range(i + 1, k)]
-    edges = np.unique(np.sort(np.concatenate([cells[:, [i, j]] for i, j in pairs])), axis=0)
-    if k == 4:
-        tri = [(0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3)]
-        faces = len(np.unique(np.sort(np.concatenate([cells[:, list(t)] for t in tri])), axis=0))
-    else:
-        faces = len(cells)
-    return mesh.n_vertices, len(edges), faces, len(cells)
-
-
-def _refined_counts(counts: tuple, gdim: int) -> tuple:
-    """Counts after one uniform refinement (Bey's 1:8 tetrahedra, 1:4 triangles)."""
-    v, e, f, c = counts
-    if gdim == 3:
-        return v + e, 2 * e + 3 * f + c, 4 * f + 8 * c, 8 * c
-    return v + e, 2 * e + 3 * c, 4 * c, 4 * c
-
-
-def predicted_dofs(counts: tuple, gdim: int, degree: int, formulation: str) -> int:
-    """Unknowns of a reference solve of ``degree`` on a mesh with ``counts`` = (vertices, edges,
-    faces, cells): vector Lagrange (plus the pressure one degree lower for "mixed")."""
-    v, e, f, c = counts
-
-    def nodes(k):
-        if k == 1:
-            return v
-        if k == 2:
-            return v + e
-        return v + 2 * e + (f if gdim == 3 else c)   # k == 3
-
-    return gdim * nodes(degree) + (nodes(degree - 1) if formulation == "mixed" else 0)
-
-
 def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: int = 500_000,
                       degree: int | None = None, project=None, floor: float = 0.1,
                       refine: str = "local", theta: float = DORFLER_THETA,
@@ -207,8 +170,9 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
     progress: print each step (cells, dofs, worst probe) to stderr.
     solver_options: ReferenceSolver options (formulation, curved, settings, ...).
     Returns AdaptiveResult; raises AccuracyNotReached at max_dofs or at a degree-2 answer that is
-    not valid (carrying the last answer before it), CaseError for a case without probes or a bad
-    accuracy, ConvergenceError when a solve fails.
+    not valid (carrying the last answer before it), CaseError for a case without probes, a bad
+    accuracy or a glued patch pushed past the range where its answers converge
+    (``Case.glued_unconverged``), ConvergenceError when a solve fails.
     """
     from .solver import default_degree, resolve_formulation
 
@@ -228,6 +192,7 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
     if not (isinstance(accuracy, (int, float)) and 0 < accuracy < 1):
         raise CaseError(f"accuracy must be a relative error in (0, 1), e.g. 0.01, got "
                         f"{accuracy!r}")
+    _refuse_unconverged(case, pushes)
     formulation = resolve_formulation(solver_options.pop("formulation", "auto"), case.material)
     p = degree if degree is not None else default_degree(case, formulation)
     if p not in (1, 2) or (formulation == "mixed" and p != 2):
@@ -235,7 +200,7 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
                         f"formulation): the estimate needs degree + 1 <= {MAX_DEGREE}, got "
                         f"degree={p}")
     gdim = case.mesh.gdim
-    counts = _counts(case.mesh)
+    counts = entity_counts(case.mesh)
     level, answer, steps, last, start = 0, None, [], None, None
     finite_strain = case.material.model != "linear-elastic"   # a folded linear answer still solves
     last_case = case  # the mesh of the last answer (set again with every step)
@@ -315,9 +280,9 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
                 f"file's path", result=AdaptiveResult(last[0], case, tuple(steps), accuracy,
                                                       False, time.perf_counter() - t0))
         if refine == "uniform":
-            n_next = predicted_dofs(_refined_counts(counts, gdim), gdim, p + 1, formulation)
+            n_next = predicted_dofs(refined_counts(counts, gdim), gdim, p + 1, formulation)
             if n_next > max_dofs:   # report before refining a mesh that would not be solved
-                counts = _refined_counts(counts, gdim)
+                counts = refined_counts(counts, gdim)
                 level += 1
                 continue
             mesh = refine_uniform(case.mesh, project=project)
@@ -332,7 +297,7 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
                 print(f"tissue adapt: refine local: {len(marked):,} of {case.mesh.n_cells:,} "
                       f"cells marked (theta {theta:g}, energy indicators) -> {mesh.n_cells:,} "
                       f"cells; {time.perf_counter() - ts:.1f} s", file=sys.stderr, flush=True)
-        counts = _counts(mesh)
+        counts = entity_counts(mesh)
         level += 1
         if predicted_dofs(counts, gdim, p + 1, formulation) > max_dofs:
             continue                # the loop's budget check reports it
@@ -356,6 +321,24 @@ def _last_answer(step: AdaptiveStep, accuracy: float) -> str:
     return (f"the last answer ({step.dofs:,} dofs, degree {step.degree}, {step.cells:,} cells) "
             f"has probe {name!r} at {ratio * accuracy:.3g} relative (estimate "
             f"{step.estimates[name]:.3g} mm)")
+
+
+def _refuse_unconverged(case, pushes) -> None:
+    """CaseError where the load is past the range in which answers are known to converge under
+    refinement (a glued patch past ``GLUED_CONVERGED_RADII`` of its radius, an indenter past
+    ``UNCONVERGED_RADII`` of its tip's): refining there would chase a limit that is not known to
+    exist, and no estimate bounds an error."""
+    from .contact import UNCONVERGED_RADII
+
+    why = list(case.with_pushes(pushes).glued_unconverged().values())
+    why += [f"indenter {a.name!r} pushed {float(pushes[a.name]):g} mm, more than "
+            f"{UNCONVERGED_RADII:g} of its tip's {a.radius:g} mm radius: no mesh-converged answer "
+            f"is known that deep" for a in case.actuators
+            if a.type == "indenter" and abs(float((pushes or {}).get(a.name, 0.0)))
+            > UNCONVERGED_RADII * a.radius * (1.0 + 1e-9)]
+    if why:
+        raise CaseError(f"{case.source or case.name}: no accuracy can be certified at this load: "
+                        f"{'; '.join(why)}")
 
 
 def _invalid_level(case, answer, level: int, degree: int, accuracy: float,

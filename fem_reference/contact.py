@@ -304,12 +304,9 @@ class Contact:
                 f"Known limits): a Gauss rule holds it ([reference] contact_quadrature = 2, or "
                 f"contact_quadrature=2)")
 
-    def warnings(self) -> list[str]:
-        """One line per indenter deeper than UNCONVERGED_RADII of its radius (no mesh-converged
-        answer is known there) and, with a Gauss rule, per indenter whose contact is narrower
-        than the cells under it (``_Indenter.contact_width``: radius below GAUSS_NARROW x their
-        longest edge), where the rule over-constrains the skin (module docstring); [] when
-        neither."""
+    def unconverged(self) -> list[str]:
+        """One line per indenter deeper than UNCONVERGED_RADII of its radius, where no
+        mesh-converged answer is known; [] when none is."""
         out = []
         for ind in self.indenters:
             depth, radius = ind.push_now(), ind.shape.radius
@@ -321,6 +318,15 @@ class Contact:
                            f"the buried tip: docs/verification.md, \"Indenters at 15 mm\"); "
                            f"this answer has no error bar. A wider tip converges "
                            f"(meshes/cases/phantom-indenter-wide.toml at 15 mm)")
+        return out
+
+    def warnings(self) -> list[str]:
+        """The ``unconverged`` lines and, with a Gauss rule, one per indenter whose contact is
+        narrower than the cells under it (``_Indenter.contact_width``: radius below GAUSS_NARROW
+        x their longest edge), where the rule over-constrains the skin (module docstring); []
+        when neither."""
+        out = self.unconverged()
+        for ind in self.indenters:
             if self.quadrature == "nodal":
                 continue
             a, h = ind.contact_width()

@@ -282,7 +282,7 @@ def _no_auto_estimate(case: Case, result: SolveResult, max_dofs: int, options: d
     """Why ``auto_estimate`` does not estimate ``result`` (None: it does)."""
     from mpi4py import MPI
 
-    from .adapt import _counts, predicted_dofs
+    from .dof_counts import entity_counts, predicted_dofs
 
     if result.solver != "fem":
         return f"a {result.solver!r} answer: estimates are for reference answers"
@@ -296,7 +296,7 @@ def _no_auto_estimate(case: Case, result: SolveResult, max_dofs: int, options: d
     if comm.size > 1:
         return "not estimated automatically under MPI (--estimate runs it)"
     disc = result.extra.get("discretization") or {}
-    n = predicted_dofs(_counts(case.mesh), case.mesh.gdim, p + 1,
+    n = predicted_dofs(entity_counts(case.mesh), case.mesh.gdim, p + 1,
                        disc.get("formulation", "displacement"))
     if n > max_dofs:
         return f"the degree-{p + 1} solve would have {n:,} unknowns, more than the " \

@@ -25,6 +25,15 @@ from .outputs_tangent import Tangent, TangentMixin
 __all__ = ["OutputsMixin", "Tangent"]
 
 
+def _no_converged_value(case: Case, contact) -> dict:
+    """{"no_converged_value": [why, ...]} where the load is past the range in which answers are
+    known to converge under refinement (a glued patch past one radius, an indenter past
+    UNCONVERGED_RADII): any estimate of such an answer is a difference between degrees, not an
+    error bar; {} otherwise."""
+    why = [*case.glued_unconverged().values(), *contact.unconverged()]
+    return {"no_converged_value": why} if why else {}
+
+
 def _through_surface(state: dict, contact: dict) -> dict:
     """The deformation state, made invalid where a tip passed between the contact surface's
     nodes (the node-to-surface penalty cannot see it; the answer is then not a contact
@@ -141,4 +150,5 @@ class OutputsMixin(StateMixin, TangentMixin):
                    **contact,
                    **_through_surface(deformation_state(case.mesh, u_v, degree=self.degree,
                                                         cell_J=self._field_J()), contact),
-                   "warnings": case.glued_patch_warnings(u_v) + self.contact.warnings()})
+                   "warnings": case.glued_patch_warnings(u_v) + self.contact.warnings(),
+                   **_no_converged_value(case, self.contact)})

@@ -4,11 +4,13 @@ Units: pushes and displacements mm; J (volume ratio) dimensionless.
 
 ``with_pushes`` applies actuator pushes (patches displaced rigidly, idle held patches held),
 ``with_free_actuators`` lets the idle patches move with the tissue, ``with_material`` and
-``with_mesh`` swap one part; ``glued_patch_warnings`` flags a pushed glued patch whose rim cells
-are compressed below ``RIM_J_WARN``.
+``with_mesh`` swap one part; ``glued_patch_warnings`` flags a pushed glued patch pushed past the
+range where its answers converge under refinement (``glued_unconverged``: GLUED_CONVERGED_RADII
+of its radius, whatever the mesh) or whose rim cells are compressed below ``RIM_J_WARN``.
 """
 from __future__ import annotations
 
+import contextlib
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -20,10 +22,33 @@ from .mesh import MeshData, cell_jacobians
 if TYPE_CHECKING:
     from .case import Case
 
-__all__ = ["RIM_J_WARN", "CaseVariantsMixin"]
+__all__ = ["GLUED_CONVERGED_RADII", "RIM_J_WARN", "CaseVariantsMixin", "patch_radius"]
 
 RIM_J_WARN = 0.2
 """Smallest volume ratio J at the rim of a pushed glued patch before the solvers warn."""
+
+GLUED_CONVERGED_RADII = 1.0
+"""Push (in patch radii) up to which a glued patch's finite-strain answer is known to converge
+under refinement of its rim. The rim, where skin moved rigidly meets free skin, is singular. On the
+phantom (10 mm discs, radius 5.3 mm by ``patch_radius``), all four pushed 5 mm (0.94 radii), T1
+converges to an independent solve refined at the rims (0.259-0.263 mm); at 10 mm (1.9 radii)
+rims of 2.4 / 1.7 / 1.2 mm move T1 by 5 % then 1 % and every level folds rim cells
+(docs/verification.md, "The glued phantom's rims"). Past this push an answer has no error bar: a
+p-enrichment difference is printed as what it is, not as one. A linear-elastic answer is exempt:
+it scales with the push."""
+
+
+def patch_radius(mesh: MeshData, region: str) -> float:
+    """Half the largest distance between two vertices of a facet region (mm): a disc's radius,
+    also when a mirror plane cuts the disc in half (the cut is a diameter)."""
+    from scipy.spatial import ConvexHull, QhullError
+    from scipy.spatial.distance import pdist
+
+    x = mesh.points[mesh.region_vertices(region)]
+    if len(x) > 200:   # the farthest pair lies on the hull
+        with contextlib.suppress(QhullError):   # a flat region: every vertex stays a candidate
+            x = x[ConvexHull(x).vertices]
+    return 0.5 * float(pdist(x).max()) if len(x) > 1 else 0.0
 
 
 class CaseVariantsMixin:
@@ -57,27 +82,51 @@ class CaseVariantsMixin:
                           for a in self.actuators)
         return replace(self, boundaries=tuple(kept + added), actuators=actuators)
 
+    def glued_unconverged(self) -> dict[str, str]:
+        """Actuator name -> why, for each glued patch pushed deeper than GLUED_CONVERGED_RADII
+        of its radius (``patch_radius``), where no mesh-converged answer is known: decided by
+        the pushes alone, so a coarse mesh that hides the rim's singularity is flagged as a fine
+        one is. Empty for a linear-elastic material, whose answer scales with the push."""
+        if self.material.model == "linear-elastic":
+            return {}
+        out = {}
+        for a in self.actuators:
+            if a.type != "patch" or a.push == 0.0:
+                continue
+            r = patch_radius(self.mesh, a.region)
+            if r > 0 and abs(a.push) > GLUED_CONVERGED_RADII * r * (1.0 + 1e-9):
+                out[a.name] = (f"glued patch {a.name!r} pushed {a.push:g} mm, {abs(a.push) / r:.2f}"
+                               f" of its {r:.2g} mm radius: past {GLUED_CONVERGED_RADII:g} "
+                               f"radius no mesh-converged answer is known for a glued patch (its "
+                               f"rim is singular; refining the rim folds its cells), so this "
+                               f"answer has no error bar; an indenter actuator (type = "
+                               f"\"indenter\", meshes/cases/phantom-indenter.toml) has no "
+                               f"singular rim")
+        return out
+
     def glued_patch_warnings(self, u) -> list[str]:
-        """One line per pushed patch actuator whose cells (those touching its region) fall
-        below J = RIM_J_WARN in the displacement ``u`` ((n, gdim) mm): the rim of a glued
-        patch is singular, and past that compression its answer no longer converges under
-        refinement (about 5 mm pushes on the phantom); an indenter actuator has no such rim."""
-        out = []
+        """One line per pushed patch actuator past the range where its answer converges
+        (``glued_unconverged``) or whose cells (those touching its region) fall below
+        J = RIM_J_WARN in the displacement ``u`` ((n, gdim) mm); an indenter actuator has no
+        singular rim."""
         pushed = [a for a in self.actuators if a.type == "patch" and a.push != 0.0]
         if not pushed:
-            return out
+            return []
+        deep = self.glued_unconverged()
         J = cell_jacobians(self.mesh.points, self.mesh.cells, np.asarray(u, float))
+        out = []
         for a in pushed:
             verts = self.mesh.region_vertices(a.region)
             mask = np.isin(self.mesh.cells, verts).any(axis=1)
-            if not mask.any():
-                continue
-            jmin = float(np.min(J[mask]))
-            if jmin < RIM_J_WARN:
-                out.append(f"glued patch {a.name!r} (push {a.push:g} mm) compresses the cells at "
-                           f"its rim to J = {jmin:.3g} (< {RIM_J_WARN}): beyond the range in "
-                           f"which a glued patch's answer converges under refinement; an "
-                           f"indenter actuator (type = \"indenter\") has no singular rim")
+            jmin = float(np.min(J[mask])) if mask.any() else np.inf
+            crushed = (f"its rim cells are compressed to J = {jmin:.3g} (< {RIM_J_WARN})"
+                       if jmin < RIM_J_WARN else "")
+            if a.name in deep:
+                out.append(deep[a.name] + (f"; {crushed}" if crushed else ""))
+            elif crushed:
+                out.append(f"glued patch {a.name!r} (push {a.push:g} mm): {crushed}: beyond the "
+                           f"range in which a glued patch's answer converges under refinement; "
+                           f"an indenter actuator (type = \"indenter\") has no singular rim")
         return out
 
     def with_free_actuators(self) -> Case:

@@ -7,13 +7,8 @@ import numpy as np
 import pytest
 
 import tissue_reference.fem_reference as fr
-from tissue_reference.fem_reference.adapt import (
-    AccuracyNotReached,
-    _counts,
-    _refined_counts,
-    predicted_dofs,
-    solve_to_accuracy,
-)
+from tissue_reference.fem_reference.adapt import AccuracyNotReached, solve_to_accuracy
+from tissue_reference.fem_reference.dof_counts import entity_counts, predicted_dofs, refined_counts
 from tissue_reference.meshes.builders import box, cook_membrane
 from tissue_reference.meshes.case import Actuator, Boundary, Case, Material, Probe
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
@@ -108,14 +103,14 @@ def test_estimates_are_solved_again_from_rest_on_the_first_level_and_with_indent
 
 def test_predicted_dofs_match_the_solver():
     case = cook(8.0)
-    counts = _counts(case.mesh)
+    counts = entity_counts(case.mesh)
     for degree in (1, 2, 3):
         res = fr.solve(case, degree=degree)
         assert predicted_dofs(counts, 2, degree, "displacement") == res.extra["n_dofs"]
     fine = refine_uniform(case.mesh)
-    assert _refined_counts(counts, 2) == _counts(fine)
+    assert refined_counts(counts, 2) == entity_counts(fine)
     cube = box(5.0)
-    assert _refined_counts(_counts(cube), 3) == _counts(refine_uniform(cube))
+    assert refined_counts(entity_counts(cube), 3) == entity_counts(refine_uniform(cube))
 
 
 def test_solve_to_accuracy_refuses_bad_input():

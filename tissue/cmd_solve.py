@@ -175,7 +175,12 @@ def run(args) -> int:
                   f"{disc['dofs']} dofs")
         print_answer(res)
         worst = max(_relative_estimates(res).values(), default=None)
-        if worst is not None and worst > ESTIMATE_WARN:
+        if worst is not None and res.extra.get("no_converged_value"):
+            print(f"tissue solve: warning: the degree-{int(res.degree) + 1} answer differs from "
+                  f"this one by up to {worst:.1%} of a probe's displacement, but at this load no "
+                  f"mesh-converged answer is known (below): neither is an error bar, and "
+                  f"refining will not settle it", file=sys.stderr)
+        elif worst is not None and worst > ESTIMATE_WARN:
             print(f"tissue solve: warning: estimated discretization error up to {worst:.1%} of "
                   f"a probe's displacement (above {ESTIMATE_WARN:.0%}): raise --degree, or "
                   f"refine until it is within a tolerance (--accuracy 0.01)", file=sys.stderr)
@@ -221,18 +226,24 @@ def print_answer(res):
     pe = res.extra.get("probe_error_estimates") or {}
     re_ = res.extra.get("reaction_error_estimates") or {}
     rels = _relative_estimates(res)
+    bar = not res.extra.get("no_converged_value")   # an estimate is an error bar only then
     for k, v in res.probes.items():
         line = f"  probe {k}: u = [{', '.join(f'{x:+.4f}' for x in v)}] mm"
         if k in rels:
             rel = rels[k]
-            line += f"  +- {pe[k]:.2g} mm ({rel:.1%})"
-            if rel > ESTIMATE_WARN:
-                line += "  WARNING: estimated error above 2 %"
+            if not bar:
+                line += f"  (degree {int(res.degree) + 1} differs by {pe[k]:.2g} mm, {rel:.1%}; " \
+                        f"no error bar)"
+            else:
+                line += f"  +- {pe[k]:.2g} mm ({rel:.1%})"
+                if rel > ESTIMATE_WARN:
+                    line += "  WARNING: estimated error above 2 %"
         print(line)
     for k, v in res.reactions.items():
         line = f"  reaction {k}: [{', '.join(f'{x:+.2f}' for x in v)}] mN"
         if k in re_:
-            line += f"  +- {re_[k]:.2g} mN"
+            line += f"  +- {re_[k]:.2g} mN" if bar else f"  (degree {int(res.degree) + 1} " \
+                                                       f"differs by {re_[k]:.2g} mN)"
         print(line)
     for k, ind in (res.extra.get("indenters") or {}).items():
         print(f"  indenter {k}: push {ind['push']:.2f} mm, force {ind['force']:+.2f} mN, contact "
@@ -252,7 +263,8 @@ def print_answer(res):
         print(f"  error estimate: {res.extra.get('estimate_method')} against "
               f"{ed.get('formulation')} P{ed.get('degree')} ({ed.get('dofs')} dofs), cost "
               f"{res.extra.get('estimate_cost_ratio', float('nan')):.1f}x the solve; geometry "
-              f"error {'included' if res.extra.get('estimate_includes_geometry') else 'excluded'}")
+              f"error {'included' if res.extra.get('estimate_includes_geometry') else 'excluded'}"
+              + ("" if bar else "; no error bar at this load: no mesh-converged answer is known"))
 
 
 def add_parser(sub):

@@ -53,7 +53,11 @@ def _line(name, e):
     if e["probe_error_mm"]:
         print("    probes: " + ", ".join(f"{k} {v:.4g}" for k, v in e["probe_error_mm"].items()))
     if "discretization_error_estimate_mm" in e:
-        print("    the reference's own discretization error (estimate): " + ", ".join(
+        what = "the reference's own discretization error (estimate)" \
+            if not e.get("no_converged_value") else \
+            "the reference's next degree differs by (no error bar: no mesh-converged answer " \
+            "is known at this load)"
+        print(f"    {what}: " + ", ".join(
             f"{k} {v:.4g}" for k, v in e["discretization_error_estimate_mm"].items()))
 
 

@@ -235,6 +235,8 @@ def _with_estimate(entry, res_ref):
     if "probe_error_estimates" in res_ref.extra:
         entry["discretization_error_estimate_mm"] = {
             k: float(v) for k, v in res_ref.extra["probe_error_estimates"].items()}
+        if res_ref.extra.get("no_converged_value"):   # then the estimate is no error bar
+            entry["no_converged_value"] = list(res_ref.extra["no_converged_value"])
     return entry
 
 

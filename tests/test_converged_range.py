@@ -1,0 +1,90 @@
+"""Loads past the range in which answers are known to converge under refinement: a glued patch
+pushed deeper than one patch radius (its rim is singular), a rigid tip deeper than 2.5 of its
+radii. There the reference states that no mesh-converged answer is known, whatever the mesh, so
+an error estimate is printed as the difference it is and not as an error bar, and the adaptive
+loop refuses to certify an accuracy. Units: mm."""
+import math
+
+import numpy as np
+import pytest
+
+import tissue_reference.fem_reference as fr
+from tissue_reference.fem_reference.adapt import solve_to_accuracy
+from tissue_reference.meshes.case import RIM_J_WARN, Actuator, Case, load_case
+from tissue_reference.meshes.case_variants import GLUED_CONVERGED_RADII, patch_radius
+from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.mesh import MeshData
+from tissue_reference.tissue.cli import main
+
+CASE = "meshes/cases/phantom.toml"
+
+
+def _disc(radius: float, arc: float, n: int = 12) -> MeshData:
+    """A fan of triangles over a disc (arc = 2 pi) or half disc (arc = pi) in z = 0, with one
+    tetrahedron per triangle up to an apex: the region "disc"."""
+    k = n if arc == 2 * math.pi else n + 1
+    t = np.arange(k) * arc / n
+    ring = np.column_stack([radius * np.cos(t), radius * np.sin(t), np.zeros(k)])
+    pts = np.vstack([[0.0, 0.0, 0.0], ring, [0.0, 0.0, radius]])
+    apex = len(pts) - 1
+    tri = [(0, 1 + i, 1 + (i + 1) % k) for i in range(n)]
+    cells = np.array([(*f, apex) for f in tri])
+    return MeshData(pts, cells, facet_regions={"disc": np.array(tri)})
+
+
+@pytest.mark.parametrize("arc", [2 * math.pi, math.pi], ids=["disc", "half disc"])
+def test_patch_radius_is_the_discs_also_when_a_mirror_plane_halves_it(arc):
+    assert patch_radius(_disc(5.0, arc), "disc") == pytest.approx(5.0, rel=1e-12)
+
+
+@pytest.fixture(scope="module")
+def coarse():
+    return load_case(CASE, size=14.0)
+
+
+def test_the_range_is_decided_by_the_push_and_the_patch_not_by_the_mesh(coarse):
+    r = patch_radius(coarse.mesh, coarse.actuator("A1").region)
+    assert 4.5 < r < 6.0                                  # the phantom's 10 mm discs
+    inside = GLUED_CONVERGED_RADII * r * 0.99
+    assert coarse.with_pushes({"A1": inside}).glued_unconverged() == {}
+    r2 = patch_radius(coarse.mesh, coarse.actuator("A2").region)   # each patch by its own
+    deep = coarse.with_pushes({"A1": 10.0, "A2": 0.99 * r2}).glued_unconverged()
+    assert list(deep) == ["A1"] and "no mesh-converged answer" in deep["A1"]
+    linear = coarse.with_material(model="linear-elastic").with_pushes({"A1": 10.0})
+    assert linear.glued_unconverged() == {}              # a linear answer scales with its push
+
+
+def test_a_coarse_mesh_that_hides_the_rim_still_says_there_is_no_error_bar(coarse):
+    """At 10 mm the coarse mesh keeps every rim cell above the J warning, so the rim check alone
+    would say nothing; the push says it."""
+    res = fr.solve(coarse, pushes={"A1": 10.0})
+    assert res.converged and res.extra["min_J"] > RIM_J_WARN
+    why = res.extra["no_converged_value"]
+    assert len(why) == 1 and "'A1'" in why[0]
+    assert any("no mesh-converged answer" in w for w in res.extra["warnings"])
+    near = fr.solve(coarse, pushes={"A1": 2.0})
+    assert "no_converged_value" not in near.extra and near.extra["warnings"] == []
+
+
+def test_the_command_line_prints_a_difference_not_an_error_bar(tmp_path, capsys):
+    out = tmp_path / "deep.json"
+    assert main(["solve", CASE, "--size", "14", "--push", "A1=10", "--estimate", "-q",
+                 "--json", str(out)]) == 0
+    text = capsys.readouterr()
+    probes = [ln for ln in text.out.splitlines() if ln.strip().startswith("probe ")]
+    assert probes and all("no error bar" in ln and "+-" not in ln for ln in probes)
+    assert "refining will not settle it" in text.err and "--accuracy 0.01" not in text.err
+    assert main(["solve", CASE, "--size", "14", "--push", "A1=2", "--estimate", "-q"]) == 0
+    probes = [ln for ln in capsys.readouterr().out.splitlines()
+              if ln.strip().startswith("probe ")]
+    assert probes and all("+-" in ln and "no error bar" not in ln for ln in probes)
+
+
+def test_the_adaptive_loop_refuses_to_certify_such_a_load(coarse):
+    with pytest.raises(CaseError, match="'A1' pushed 10 mm"):
+        solve_to_accuracy(coarse, {"A1": 10.0}, accuracy=0.01, progress=False)
+    tip = Actuator("I", coarse.actuator("A1").region, (-1.0, 0.0, 0.0), type="indenter", tip="sphere", radius=2.0)
+    case = Case(coarse.mesh, coarse.material, boundaries=coarse.boundaries, actuators=[tip],
+                probes=coarse.probes)
+    with pytest.raises(CaseError, match="'I' pushed 6 mm, more than 2.5"):
+        solve_to_accuracy(case, {"I": 6.0}, accuracy=0.01, progress=False)
