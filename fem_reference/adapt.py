@@ -325,18 +325,11 @@ def _last_answer(step: AdaptiveStep, accuracy: float) -> str:
 
 def _refuse_unconverged(case, pushes) -> None:
     """CaseError where the load is past the range in which answers are known to converge under
-    refinement (a glued patch past ``GLUED_CONVERGED_RADII`` of its radius, an indenter past
-    ``UNCONVERGED_RADII`` of its tip's): refining there would chase a limit that is not known to
-    exist, and no estimate bounds an error."""
-    from .contact import UNCONVERGED_RADII
+    refinement (``contact.unconverged_load``): refining there would chase a limit that is not
+    known to exist, and no estimate bounds an error."""
+    from .contact import unconverged_load
 
-    why = list(case.with_pushes(pushes).glued_unconverged().values())
-    why += [f"indenter {a.name!r} pushed {float(pushes[a.name]):g} mm, more than "
-            f"{UNCONVERGED_RADII:g} of its tip's {a.radius:g} mm radius: no mesh-converged answer "
-            f"is known that deep" for a in case.actuators
-            if a.type == "indenter" and abs(float((pushes or {}).get(a.name, 0.0)))
-            > UNCONVERGED_RADII * a.radius * (1.0 + 1e-9)]
-    if why:
+    if why := unconverged_load(case, pushes):
         raise CaseError(f"{case.source or case.name}: no accuracy can be certified at this load: "
                         f"{'; '.join(why)}")
 

@@ -126,7 +126,7 @@ from .contact_indenter import (  # noqa: F401  (re-exported)
 )
 
 __all__ = ["DEFAULT_CONTACT_PENALTY", "UNCONVERGED_RADII", "Contact", "TipShape", "contact_key",
-           "nodal_rule"]
+           "nodal_rule", "unconverged_load"]
 
 DEFAULT_CONTACT_PENALTY = 1e3
 """beta in k = beta E / h: the penetration is (p_c / E + 1 / 2) h / beta (mm)."""
@@ -142,6 +142,21 @@ UNCONVERGED_RADII = 2.5
 indenter phantom the 5 mm tips converge at 2.5 radii (12.5 mm; GCI bands 1.5-4 %) and part by
 2-5 % per level at 3 radii (15 mm), where the skin has slid over the buried ball onto its rod;
 8 mm tips converge at 1.9 radii (15 mm). A solve with a tip deeper than this warns."""
+
+
+def unconverged_load(case: Case, pushes) -> list[str]:
+    """Why no mesh-converged answer is known for ``case`` under ``pushes`` (actuator name ->
+    mm), one line per actuator: a glued patch pushed past ``GLUED_CONVERGED_RADII`` of its
+    radius (``Case.glued_unconverged``), an indenter deeper than UNCONVERGED_RADII of its tip's;
+    [] within the range where answers converge. Decided from the pushes, before any solve."""
+    pushes = dict(pushes or {})
+    why = list(case.with_pushes(pushes).glued_unconverged().values())
+    why += [f"indenter {a.name!r} pushed {float(pushes[a.name]):g} mm, more than "
+            f"{UNCONVERGED_RADII:g} of its tip's {a.radius:g} mm radius: no mesh-converged answer "
+            f"is known that deep" for a in case.actuators
+            if a.type == "indenter" and abs(float(pushes.get(a.name, 0.0)))
+            > UNCONVERGED_RADII * a.radius * (1.0 + 1e-9)]
+    return why
 
 
 GAUSS_NARROW = 0.75

@@ -17,7 +17,7 @@ from __future__ import annotations
 import sys
 import time
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -82,6 +82,9 @@ class ConvergenceStudy:
     wall_time_s: tuple = ()
     pushes: dict = field(default_factory=dict)
     case_name: str = "case"
+    no_converged_value: tuple = ()
+    """Why no mesh-converged answer is known at the study's load (``contact.unconverged_load``);
+    then no quantity is extrapolated or given a GCI band."""
 
     def quantities(self):
         """(kind, VectorConvergence) of every probe, then every reaction."""
@@ -183,8 +186,22 @@ def refinement_study(case: Case, *, levels: int = MIN_LEVELS, degree: int = 1, p
           for n, v in probes.items()}
     rv = {n: _vector(n, "mN", v, h, 2 * degree, order_tol, component_floor, r_noise)
           for n, v in reactions.items()}
+    from .contact import unconverged_load
+
+    why = tuple(unconverged_load(case, pushes))
+    if why:   # the levels are data; an extrapolated value or a band would claim a limit
+        pv, rv = ({n: _no_limit(v) for n, v in g.items()} for g in (pv, rv))
     return ConvergenceStudy(degree, h, tuple(cells), tuple(dofs), pv, rv, tuple(its),
-                            tuple(walls), dict(pushes or {}), case.name)
+                            tuple(walls), dict(pushes or {}), case.name, why)
+
+
+def _no_limit(vec: VectorConvergence) -> VectorConvergence:
+    """``vec`` with every component's extrapolation and GCI band removed: at a load where no
+    mesh-converged answer is known the study reports its levels and orders only."""
+    return replace(vec, components={
+        k: replace(q, asymptotic=False, extrapolated=None, gci=None, gci_rel=None,
+                   reason="no mesh-converged answer is known at this load")
+        for k, q in vec.components.items()})
 
 
 def load_study_case(path, *, size: float | None = None):
@@ -224,7 +241,9 @@ def study_to_json(study: ConvergenceStudy) -> dict:
             "n_dofs": list(study.n_dofs), "newton_iterations": list(study.newton_iterations),
             "wall_time_s": list(study.wall_time_s),
             "probes": {k: v.to_json_dict() for k, v in study.probes.items()},
-            "reactions": {k: v.to_json_dict() for k, v in study.reactions.items()}}
+            "reactions": {k: v.to_json_dict() for k, v in study.reactions.items()},
+            **({"no_converged_value": list(study.no_converged_value)}
+               if study.no_converged_value else {})}
 
 
 def _fmt(x, width=10):
@@ -243,6 +262,8 @@ def format_study(study: ConvergenceStudy) -> str:
         wt = study.wall_time_s[k] if study.wall_time_s else float("nan")
         lines.append(f"  {k:>5} {study.h[k]:>8.3g} {study.n_cells[k]:>10,} "
                      f"{study.n_dofs[k]:>10,} {it:>6} {wt:>8.1f}")
+    lines += [f"  NO CONVERGED VALUE: {w}; the levels and orders below are data, nothing is "
+              f"extrapolated or given a band" for w in study.no_converged_value]
     head = (f"  {'quantity':<16} {'values, coarse -> fine':<{11 * len(study.h)}} "
             f"{'orders':<{7 * max(len(study.h) - 2, 1)}} {'extrapolated':>12} {'GCI':>8}")
     for title, group in (("probe displacements (mm)", study.probes),

@@ -98,8 +98,8 @@ class CaseVariantsMixin:
                 out[a.name] = (f"glued patch {a.name!r} pushed {a.push:g} mm, {abs(a.push) / r:.2f}"
                                f" of its {r:.2g} mm radius: past {GLUED_CONVERGED_RADII:g} "
                                f"radius no mesh-converged answer is known for a glued patch (its "
-                               f"rim is singular; refining the rim folds its cells), so this "
-                               f"answer has no error bar; an indenter actuator (type = "
+                               f"rim is singular; refining the rim folds its cells), so no answer "
+                               f"here has an error bar; an indenter actuator (type = "
                                f"\"indenter\", meshes/cases/phantom-indenter.toml) has no "
                                f"singular rim")
         return out

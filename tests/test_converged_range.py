@@ -3,6 +3,7 @@ pushed deeper than one patch radius (its rim is singular), a rigid tip deeper th
 radii. There the reference states that no mesh-converged answer is known, whatever the mesh, so
 an error estimate is printed as the difference it is and not as an error bar, and the adaptive
 loop refuses to certify an accuracy. Units: mm."""
+import json
 import math
 
 import numpy as np
@@ -88,3 +89,47 @@ def test_the_adaptive_loop_refuses_to_certify_such_a_load(coarse):
                 probes=coarse.probes)
     with pytest.raises(CaseError, match="'I' pushed 6 mm, more than 2.5"):
         solve_to_accuracy(case, {"I": 6.0}, accuracy=0.01, progress=False)
+
+
+STRIP = """
+name = "strip"
+[mesh]
+builtin = "rectangle"
+size = 2.5
+[material]
+model = "neo-hookean"
+E = 6.0
+nu = 0.3
+[[boundary]]
+region = "xmin"
+type = "fixed"
+[[actuator]]
+name = "P"
+region = "xmax"
+direction = [-1.0, 0.0]
+[[probe]]
+name = "M"
+point = [5.0, 5.0]
+"""
+
+
+@pytest.mark.parametrize("push,limited", [(4.0, False), (5.5, True)])
+def test_a_refinement_study_extrapolates_nothing_past_the_range(tmp_path, capsys, push, limited):
+    """The square's pushed side (10 mm: radius 5 mm) at 4 mm keeps the study's verdicts; at
+    5.5 mm, past one radius, every quantity is reported without extrapolation or band."""
+    case = tmp_path / "strip.toml"
+    case.write_text(STRIP)
+    out = tmp_path / "c.json"
+    assert main(["converge", str(case), "--levels", "3", "--push", f"P={push}", "-q",
+                 "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    st = json.loads(out.read_text())["studies"][0]
+    qs = [c for g in ("probes", "reactions") for v in st[g].values()
+          for c in v["components"].values()]
+    assert ("NO CONVERGED VALUE" in text) == limited == ("no_converged_value" in st)
+    if limited:
+        assert all(q["gci_rel"] is None and q["extrapolated_" + ("mm" if "extrapolated_mm" in q
+                                                                   else "mN")] is None
+                   and not q["asymptotic"] for q in qs)
+    else:
+        assert any(q["gci_rel"] is not None for q in qs)

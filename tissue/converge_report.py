@@ -74,7 +74,12 @@ def _study(st: dict) -> list:
     quantities = [q for g in ("probes", "reactions") for v in (st.get(g) or {}).values()
                   for _, q in _components(v)]
     inside = sum(1 for q in quantities if q.get("asymptotic"))
-    if quantities and not inside:
+    if st.get("no_converged_value"):
+        parts.append(Raw("<div class='warn'><b>No converged value is known at this load</b>: "
+                         + "; ".join(html.escape(w) for w in st["no_converged_value"])
+                         + ". The levels and their orders are data: nothing is extrapolated "
+                           "or given a band.</div>"))
+    elif quantities and not inside:
         parts.append(Raw("<div class='warn'>No quantity of this study is in the asymptotic "
                          "range: there is no extrapolated value. More levels (--levels) or a "
                          "finer start (--size) may reach it; the GCI is then a wider band "
