@@ -133,3 +133,13 @@ def test_a_refinement_study_extrapolates_nothing_past_the_range(tmp_path, capsys
                    and not q["asymptotic"] for q in qs)
     else:
         assert any(q["gci_rel"] is not None for q in qs)
+
+
+def test_verifying_a_field_at_such_a_load_says_the_reference_is_no_converged_answer(coarse):
+    from tissue_reference.tissue.verify import verify
+
+    zero = np.zeros_like(coarse.mesh.points)
+    deep = verify(coarse, {"A1": 10.0}, solvers=(), field=zero)
+    assert "'A1'" in deep["reference"]["no_converged_value"][0]
+    near = verify(coarse, {"A1": 2.0}, solvers=(), field=zero)
+    assert "no_converged_value" not in near["reference"]

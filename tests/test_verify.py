@@ -27,7 +27,7 @@ def run(small_case, tmp_path_factory):
     return res, out
 
 
-def test_json_has_the_issue_3_keys_for_every_solver(run, small_case):
+def test_json_has_the_error_speed_and_iteration_keys_for_every_solver(run, small_case):
     _, out = run
     on_disk = json.loads((out / "verify.json").read_text())
     assert set(on_disk) >= {"reference", "solvers"}

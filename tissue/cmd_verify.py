@@ -88,6 +88,9 @@ def run(args) -> int:
         _line(name, e)
     if "report" in res:
         print(f"  report: {res['report']}")
+    for why in res["reference"].get("no_converged_value", ()):
+        print(f"tissue verify: warning: {why}; the scores measure agreement with the reference "
+              f"of this mesh, not with a converged answer", file=sys.stderr)
     bad = invalid_runs(res)
     for name, why in bad.items():
         print(f"tissue verify: error: {name}: the answer is not valid: {why} (outputs written, "

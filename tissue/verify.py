@@ -210,6 +210,10 @@ def verify(case, pushes=None, solvers=DEFAULT_SOLVERS, out_dir=None, *, json_fil
                          "material": material_json(case.material),
                          "runs": refs.json},
            "solvers": {}, "skipped": {}}
+    from tissue_reference.fem_reference.contact import unconverged_load
+
+    if why := unconverged_load(case, pushes):   # the scores then compare with no ground truth
+        out["reference"]["no_converged_value"] = why
     traces = {}
     for name in builtins:
         entry, trace = _score_builtin(name, case, pushes, options.get(name, {}), refs, out)
