@@ -30,7 +30,7 @@ displacements (mm) of each discretization, the relative difference of each to th
 (targets: |u - u_ref| / |u_ref|), Newton iterations, wall time, and the ratios new / old.
 
     .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--pushes 5 10 12.5]
-        [--contact-quadrature nodal|2] [--study gauss|nodal] [--old [p1|p2|paths]]
+        [--contact-quadrature nodal|2] [--study gauss|nodal] [--old [p1|p2|paths|nodal]]
         [--case indenter|wide|control] [--tip-start nodes|surface]
         [--mesh SIZE SITE PATH [--builder phantom-symmetric]] [--rows] [--answers FILE]
 
@@ -58,12 +58,15 @@ ROOT = Path(__file__).resolve().parents[1]
 OLD = {"p1": ("old P1", 1, "phantom", (6.0, 1.6, None)),
        "p2": ("old P2", None, "phantom", (6.0, 3.2, None)),
        "paths": ("old path", None, "phantom-symmetric",
-                 (6.0 * 2 ** 0.5, 3.2 * 2 ** 0.5, 1.6 * 2 ** 0.5))}
+                 (6.0 * 2 ** 0.5, 3.2 * 2 ** 0.5, 1.6 * 2 ** 0.5)),
+       "nodal": ("nodal", None, None, None, "nodal")}
 """The earlier defaults of the indenter phantom (``--old``): label, degree (None: the case's),
-builder and mesh (size, site_size, path_size; mm). p1: P1 on 1.6 mm sites; p2 (until the
-symmetric mesh): P2 on the whole phantom's own gmsh mesh with 3.2 mm sites, 59k unknowns;
-paths (until the paths were refined as the quarter study's level 0): the symmetric mesh with
-2.26 mm paths, the quarter study's level -1, 93k unknowns."""
+builder and mesh (size, site_size, path_size; mm; None: the case's), and a contact rule where
+it differs. p1: P1 on 1.6 mm sites; p2 (until the symmetric mesh): P2 on the whole phantom's
+own gmsh mesh with 3.2 mm sites, 59k unknowns; paths (until the paths were refined as the
+quarter study's level 0): the symmetric mesh with 2.26 mm paths, the quarter study's level -1,
+93k unknowns; nodal (until the 5 mm tip cases named the Gauss rule): the case's mesh with the
+contact sampled at the skin's nodes, its tips started on them."""
 
 
 QUARTER = ROOT / "meshes" / "cases" / "phantom-indenter-quarter.toml"
@@ -203,8 +206,8 @@ def main():
     ap.add_argument("--old", nargs="?", const="p1", choices=sorted(OLD),
                     help="also solve an earlier default for the ratios: p1 (the default "
                          "without a value: P1, 1.6 mm sites), p2 (P2, 3.2 mm sites, the "
-                         "whole phantom's own mesh) or paths (the symmetric mesh with 2.26 mm "
-                         "paths)")
+                         "whole phantom's own mesh), paths (the symmetric mesh with 2.26 mm "
+                         "paths) or nodal (the case's mesh, the nodal contact rule)")
     args = ap.parse_args()
     if (args.case, args.study) not in STUDIES:
         ap.error(f"the {args.case} case has no {args.study} study")
@@ -225,9 +228,10 @@ def main():
                                                 args.contact_quadrature, args.case, args.mesh,
                                                 args.builder, args.tip_start)))]
         if args.old:
-            old, degree, builder, mesh = OLD[args.old]
-            runs.append((old, solve(load, args.pushes, degree, args.contact_quadrature,
-                                    args.case, mesh, builder, args.tip_start)))
+            old, degree, builder, mesh, *rule = OLD[args.old]
+            runs.append((old, solve(load, args.pushes, degree,
+                                    rule[0] if rule else args.contact_quadrature, args.case,
+                                    mesh, builder or "phantom", args.tip_start)))
         started = runs[0][1][0]["start"]    # where the solver started the tips, every push
         for push in args.pushes:
             ref = finest(load, push, args.study, args.case, started)
@@ -256,7 +260,14 @@ def main():
                     print(f"  {name:>8} stopped at {last['reached']:.2f} mm: "
                           f"{last['why'] or 'its load steps did not converge'}")
                     continue
-                e = errors(r, ref) if ref else {}
+                # each run against the study started where its tips start (the header's is
+                # the default's)
+                own = ref if r["start"] == started else finest(load, push, args.study,
+                                                               args.case, r["start"])
+                if own is not ref and own is not None:
+                    print(f"  {name:>8} against level {own['level']} of {own['study']!r} "
+                          f"(its tips started on the {r['start']})")
+                e = errors(r, own) if own else {}
                 errs[name], found[name] = e, r
                 print(f"  {name:>8} {r['degree']:>3} {r['rule']!s:>5} {r['cells']:>7} "
                       f"{r['dofs']:>7} {r['valid']!s:>5} {r['min_J'] or float('nan'):6.3f} "

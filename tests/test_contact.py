@@ -277,7 +277,8 @@ def test_newton_without_the_tips_curvature_reaches_the_same_answer(block):
 def test_the_shifted_tangent_and_the_fitted_step_lengths_reach_the_same_answer():
     """The Levenberg-Marquardt shift of an indefinite tangent and the step lengths from the
     energy's quadratic fit change Newton's path, not the answer: all four tips pushed 5 mm into
-    the quarter indenter phantom (P2, 2.7k cells), where the tissue crushed under the tips makes
+    the quarter indenter phantom (P2, nodal contact rule, 2.7k cells), where the tissue crushed
+    under the tips makes
     the tangent indefinite on the way (the shift is used), give the same forces and field as
     plain halving with the exact tangent."""
 
@@ -291,12 +292,12 @@ def test_the_shifted_tangent_and_the_fitted_step_lengths_reach_the_same_answer()
     # tissue makes it indefinite (Newton's matrix without the tips' curvature far from the
     # answer, the default, avoids that here)
     exact = {"contact_curvature_below": math.inf, "tip_step": 0.1}
-    a = fr.solve(case, pushes=pushes, degree=2,
+    a = fr.solve(case, pushes=pushes, degree=2, contact_quadrature="nodal",
                  settings=fr.NewtonSettings(descent_shift=0.0, **exact))
     assert a.converged and a.extra["valid"]
     assert a.extra["tangent_shifts"] == 0
     for st in (fr.NewtonSettings(**exact), fr.NewtonSettings(interpolate=True, **exact)):
-        b = fr.solve(case, pushes=pushes, degree=2, settings=st)
+        b = fr.solve(case, pushes=pushes, degree=2, contact_quadrature="nodal", settings=st)
         assert b.converged and b.extra["valid"]
         assert b.extra["tangent_shifts"] > 0
         assert b.iterations != a.iterations  # another path

@@ -115,22 +115,28 @@ CASES = Path(__file__).resolve().parents[1] / "meshes" / "cases"
 
 
 def _quarter_file(tmp_path, line):
+    """The shipped quarter case with its [reference] contact rule line replaced by ``line``
+    ("" drops it)."""
     text = (CASES / "phantom-indenter-quarter.toml").read_text()
-    assert "[reference]\ndegree = 2" in text
+    old = "\ncontact_quadrature = 2 "
+    assert text.count(old) == 1
     path = tmp_path / "quarter.toml"
-    path.write_text(text.replace("[reference]\ndegree = 2", f"[reference]\n{line}\ndegree = 2"))
+    path.write_text(text.replace(old, f"\n{line} #" if line else "\n#"))
     return path
 
 
 def test_a_case_file_chooses_its_contact_rule_and_a_solver_argument_overrides_it(tmp_path):
-    case = load_case(_quarter_file(tmp_path, "contact_quadrature = 2"), size=14.0)
-    assert case.reference_contact_quadrature == 2
-    assert fr.ReferenceSolver(case, degree=1).contact.quadrature == 2
-    assert fr.ReferenceSolver(case, degree=1,
-                              contact_quadrature="nodal").contact.quadrature == "nodal"
     shipped = load_case(CASES / "phantom-indenter-quarter.toml", size=14.0)
-    assert shipped.reference_contact_quadrature is None
-    assert fr.ReferenceSolver(shipped, degree=1).contact.quadrature == "nodal"
+    assert shipped.reference_contact_quadrature == 2
+    assert fr.ReferenceSolver(shipped, degree=1).contact.quadrature == 2
+    assert fr.ReferenceSolver(shipped, degree=1,
+                              contact_quadrature="nodal").contact.quadrature == "nodal"
+    case = load_case(_quarter_file(tmp_path, 'contact_quadrature = "nodal"'), size=14.0)
+    assert case.reference_contact_quadrature == "nodal"
+    assert fr.ReferenceSolver(case, degree=1).contact.quadrature == "nodal"
+    bare = load_case(_quarter_file(tmp_path, ""), size=14.0)     # a case that names no rule
+    assert bare.reference_contact_quadrature is None
+    assert fr.ReferenceSolver(bare, degree=1).contact.quadrature == "nodal"
 
 
 def test_a_bad_contact_rule_in_a_case_file_is_refused_naming_file_and_key(tmp_path):
