@@ -57,9 +57,10 @@ of 1-1.5 contact radii +3.5-4.3 % (nodal +3.1-3.2 %); a solve with a Gauss rule 
 contact is narrower than GAUSS_NARROW times its cells. So the nodal rule is the default of a
 case that names no rule, for shallow pushes on coarse cells, and a push past about two tip
 radii asks for the Gauss rule (``failure_hint``); the indenter phantom's cases, whose path
-cells are finer than their tips' contact from about 0.3 mm of push, name the Gauss rule. Deeper than UNCONVERGED_RADII (2.5) of its radius a rounded tip has
-no mesh-converged answer known (the indenter phantom's 5 mm tips at 15 mm part from level to
-level): a solve there warns that its answer has no error bar.
+cells are finer than their tips' contact from about 0.3 mm of push, name the Gauss rule.
+Deeper than UNCONVERGED_RADII (2.5) of its radius a rounded tip has no mesh-converged answer
+known (the indenter phantom's 5 mm tips at 15 mm part from level to level): a solve there warns
+that its answer has no error bar.
 k = beta E / h (kPa/mm): beta is the dimensionless ``contact_penalty`` of ReferenceSolver, E
 Young's modulus, h the longest edge of the cell at the point (mm). phi is the penalty's kink
 smoothed over eps = h / beta: phi(x) = 0 (x <= 0), x^3 / (6 eps) (x < eps),

@@ -278,9 +278,8 @@ def test_the_shifted_tangent_and_the_fitted_step_lengths_reach_the_same_answer()
     """The Levenberg-Marquardt shift of an indefinite tangent and the step lengths from the
     energy's quadratic fit change Newton's path, not the answer: all four tips pushed 5 mm into
     the quarter indenter phantom (P2, nodal contact rule, 2.7k cells), where the tissue crushed
-    under the tips makes
-    the tangent indefinite on the way (the shift is used), give the same forces and field as
-    plain halving with the exact tangent."""
+    under the tips makes the tangent indefinite on the way (the shift is used), give the same
+    forces and field as plain halving with the exact tangent."""
 
     from tissue_reference.meshes.builders import build
     from tissue_reference.meshes.case import load_case

@@ -84,7 +84,8 @@ def test_the_command_line_prints_a_difference_not_an_error_bar(tmp_path, capsys)
 def test_the_adaptive_loop_refuses_to_certify_such_a_load(coarse):
     with pytest.raises(CaseError, match="'A1' pushed 10 mm"):
         solve_to_accuracy(coarse, {"A1": 10.0}, accuracy=0.01, progress=False)
-    tip = Actuator("I", coarse.actuator("A1").region, (-1.0, 0.0, 0.0), type="indenter", tip="sphere", radius=2.0)
+    tip = Actuator("I", coarse.actuator("A1").region, (-1.0, 0.0, 0.0), type="indenter",
+                   tip="sphere", radius=2.0)
     case = Case(coarse.mesh, coarse.material, boundaries=coarse.boundaries, actuators=[tip],
                 probes=coarse.probes)
     with pytest.raises(CaseError, match="'I' pushed 6 mm, more than 2.5"):

@@ -73,8 +73,7 @@ def test_the_half_phantom_answers_for_the_whole_under_a_symmetric_push():
     """A1 alone is symmetric about y = 0: the half phantom with its plane sliding gives the
     whole phantom's force (twice its half tip's) and targets, to the two meshes' discretization
     difference (P2, nodal contact rule, 4 mm sites, 1.5 mm push: 0.1-0.2 % measured; P1 differs
-by 5 %), and no
-    motion across the plane."""
+    by 5 %), and no motion across the plane."""
     import tissue_reference.fem_reference as fr
 
     out = {}
