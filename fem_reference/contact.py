@@ -146,6 +146,12 @@ indenter phantom the 5 mm tips converge at 2.5 radii (12.5 mm; GCI bands 1.5-4 %
 8 mm tips converge at 1.9 radii (15 mm). A solve with a tip deeper than this warns."""
 
 
+def past_converged_depth(depth: float, radius: float) -> bool:
+    """Whether a tip ``depth`` mm in (its push; negative: retracted) is deeper than
+    UNCONVERGED_RADII of its ``radius`` (mm), where no mesh-converged answer is known."""
+    return depth > UNCONVERGED_RADII * radius * (1.0 + 1e-9)
+
+
 def unconverged_load(case: Case, pushes) -> list[str]:
     """Why no mesh-converged answer is known for ``case`` under ``pushes`` (actuator name ->
     mm), one line per actuator: a glued patch pushed past ``GLUED_CONVERGED_RADII`` of its
@@ -156,8 +162,8 @@ def unconverged_load(case: Case, pushes) -> list[str]:
     why += [f"indenter {a.name!r} pushed {float(pushes[a.name]):g} mm, more than "
             f"{UNCONVERGED_RADII:g} of its tip's {a.radius:g} mm radius: no mesh-converged answer "
             f"is known that deep" for a in case.actuators
-            if a.type == "indenter" and abs(float(pushes.get(a.name, 0.0)))
-            > UNCONVERGED_RADII * a.radius * (1.0 + 1e-9)]
+            if a.type == "indenter" and past_converged_depth(float(pushes.get(a.name, 0.0)),
+                                                             a.radius)]
     return why
 
 
@@ -327,7 +333,7 @@ class Contact:
         out = []
         for ind in self.indenters:
             depth, radius = ind.push_now(), ind.shape.radius
-            if depth > UNCONVERGED_RADII * radius * (1.0 + 1e-9):
+            if past_converged_depth(depth, radius):
                 out.append(f"indenter {ind.name}: {depth / radius:.2f} radii deep ({depth:.3g} "
                            f"mm, tip radius {radius:.3g} mm): past {UNCONVERGED_RADII:g} radii "
                            f"no mesh-converged answer is known (on the indenter phantom the "

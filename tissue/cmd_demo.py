@@ -60,11 +60,13 @@ def reference_series(case, out: Path, pushes_mm=(5.0, 10.0, 15.0)) -> dict:
                      "strain_energy_uJ": res.strain_energy,
                      "probe_error_estimates_mm": res.extra.get("probe_error_estimates")})
         est = (res.extra.get("probe_error_estimates") or {}).get("T1")
-        bar = "" if est is None else \
-            f" +- {est:.3f} mm (estimated discretization error of this P1 answer)" \
-            if not res.extra.get("no_converged_value") else \
-            f" (P2 differs by {est:.3f} mm; no error bar: past one patch radius a glued " \
-            f"patch has no mesh-converged answer)"
+        if est is None:
+            bar = ""
+        elif res.extra.get("no_converged_value"):
+            bar = (f" (P2 differs by {est:.3f} mm; no error bar: past one patch radius a glued "
+                   f"patch has no mesh-converged answer)")
+        else:
+            bar = f" +- {est:.3f} mm (estimated discretization error of this P1 answer)"
         _say(f"reference A1={push:g} mm: {res.iterations} Newton iterations, "
              f"{res.wall_time_s:.2f} s, T1 u_x = {res.probes['T1'][0]:+.3f} mm{bar}")
     _plot_series(rows, out / "fem" / "probes_vs_push.png")
