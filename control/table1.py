@@ -6,7 +6,9 @@ steady-state error and retraction, written as JSON, Markdown and HTML (each file
 ``control.plants.build_loop``), writing the tables after every scenario so an interrupted run
 keeps what it finished. With ``jobs`` > 1 the scenarios run in that many worker processes, each
 building its own loop with ``loop_factory`` (the plant's solver state cannot cross processes);
-the rows are the serial run's, in the same order.
+the rows are the serial run's, in the same order, within round-off: every loop runs with
+``LOOP_BLAS_THREADS`` BLAS threads, and a reference solve does not depend on what its process
+solved before.
 """
 from __future__ import annotations
 
@@ -17,17 +19,24 @@ from html import escape as html_escape
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from tissue_reference.meshes.errors import ConvergenceError
 from tissue_reference.meshes.html_page import Raw, image, kv_table, page, table, write_page
 from tissue_reference.meshes.io import atomic_path, save_figure
 from tissue_reference.meshes.results import write_json
 
-__all__ = ["SSE_GOAL_MM", "plot_scenarios", "run_table1", "table1_row", "table1_summary",
-           "write_scenarios_page", "write_table1"]
+__all__ = ["LOOP_BLAS_THREADS", "SSE_GOAL_MM", "plot_scenarios", "run_table1", "table1_row",
+           "table1_summary", "write_scenarios_page", "write_table1"]
 
 
 SSE_GOAL_MM = 0.05   # the closed-loop steady-state error every scenario must meet (mm)
+LOOP_BLAS_THREADS = 1
+"""BLAS and OpenMP threads of every loop, in this process or a worker: the thread count
+changes the factorizations' round-off, and at a marginal load round-off can decide whether a
+plant solve converges (the glued phantom at size 10, A1 = 80 mm: converged with one thread,
+given up at load fraction 0.997 with two). One count everywhere makes ``jobs`` change only
+the time a table takes, never a row beyond round-off."""
 
 
 def _fmt(v, spec):
@@ -138,7 +147,8 @@ def run_one(loop, t, task, settings, out, plots: bool = True) -> tuple[dict, str
     from tissue_reference.control.loop import LoopStopped, plot_response
 
     try:
-        res = loop.run(t, task, settings)
+        with threadpool_limits(limits=LOOP_BLAS_THREADS):
+            res = loop.run(t, task, settings)
     except UnreachableGoalError as exc:
         return ({"target": t, "task": task, "status": "unreachable", "error": str(exc),
                  "closest_reachable_mm": np.asarray(exc.closest).tolist()},
@@ -200,7 +210,7 @@ def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):   # one core per worker
-        os.environ.setdefault(var, "1")
+        os.environ.setdefault(var, str(LOOP_BLAS_THREADS))
     Path(out).mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(max_workers=min(jobs, n),
                              mp_context=multiprocessing.get_context("spawn"),

@@ -124,6 +124,22 @@ class LinearSolveMixin(SaddleSolveMixin):
         set_mumps_workspace(k, percent)
         return k
 
+    def _fresh_linear_state(self):
+        """Forget what earlier solves left in the linear solvers, so that a solve's Newton path,
+        and so its answer and verdict, depend on its inputs alone, not on what this (kept)
+        solver solved before: the first tangent of the solve is factorized afresh (a lagged
+        factorization or fieldsplit preconditioner comes only from this solve's own iterations),
+        and a CHOLMOD solver that an earlier indefinite tangent switched to MUMPS is CHOLMOD
+        again (the inertia that MUMPS reports steers Newton's descent test; CHOLMOD reports
+        none). What stays is what cannot change an answer: compiled forms, allocated matrices,
+        the symbolic analysis of the fixed pattern and a grown MUMPS workspace."""
+        if self.linear_solver in ("direct", "lagged") and \
+                self.factor_package != self._first_factor_package:
+            self._use_factor(self._first_factor_package)
+        self._refactor = True
+        if self.linear_solver == "fieldsplit":
+            self._fresh_its = None
+
     def _use_factor(self, pkg: str):
         """(Re)build the factorizing KSP with ``pkg``; P is made at the next refresh."""
         self.factor_package = pkg

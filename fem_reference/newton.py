@@ -222,6 +222,7 @@ class NewtonMixin:
         """
         t_start = time.perf_counter()
         self.timings = _Timings(setup=self.timings.setup)  # per-solve counters
+        self._fresh_linear_state()   # nothing of an earlier solve steers this one
         case = (case or self.case).with_pushes(pushes or {})
         if case.mesh is not self.case.mesh:
             raise CaseError("ReferenceSolver.solve: the case mesh differs from the solver's mesh")

@@ -298,6 +298,7 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
             pkg = "cholmod" if linear_solver == "lagged" and comm.size == 1 and _has_cholmod() \
                 and self.formulation == "displacement" else "mumps"
             self._use_factor(pkg)
+            self._first_factor_package = pkg
         self._region_dofs = {}
         self.timings = _Timings(setup=time.perf_counter() - t0)
 

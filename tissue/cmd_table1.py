@@ -138,6 +138,7 @@ def add_parser(sub):
                         "contact_quadrature, else nodal")
     p.add_argument("--jobs", type=integer(1, 256), default=1, metavar="N",
                    help="run the loops in N worker processes (one core each; every worker "
-                        "builds its own plant and model first); the tables are the same")
+                        "builds its own plant and model first); the tables are the same: every "
+                        "loop, serial or not, runs with one BLAS thread")
     p.add_argument("--out", required=True, help="folder for the tables, trajectories and plots")
     p.set_defaults(func=run_table1)
