@@ -13,7 +13,6 @@ solved before.
 from __future__ import annotations
 
 import json
-import os
 import textwrap
 from html import escape as html_escape
 from pathlib import Path
@@ -178,7 +177,8 @@ def _worker_init(factory, key):
 
 def _worker_run(t, task, settings, out, plots):
     if _WORKER["loop"] is None:
-        _WORKER["loop"] = _WORKER["factory"](_WORKER["key"])
+        with threadpool_limits(limits=LOOP_BLAS_THREADS):   # one core per worker
+            _WORKER["loop"] = _WORKER["factory"](_WORKER["key"])
     return run_one(_WORKER["loop"], t, task, settings, out, plots)
 
 
@@ -209,8 +209,6 @@ def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):   # one core per worker
-        os.environ.setdefault(var, str(LOOP_BLAS_THREADS))
     Path(out).mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(max_workers=min(jobs, n),
                              mp_context=multiprocessing.get_context("spawn"),
