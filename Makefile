@@ -39,7 +39,7 @@ $(STAMP): pyproject.toml constraints.txt
 test: $(STAMP)
 	@command -v chromium >/dev/null || [ "$${TISSUE_NO_BROWSER:-0}" != 0 ] \
 	  || $(MAKE) --no-print-directory system-deps
-	$(PY) -m pytest -q -ra tests
+	$(PY) -m pytest -q -ra --durations=15 tests
 
 demo: $(STAMP)
 	$(VENV)/bin/tissue demo --out out
