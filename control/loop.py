@@ -36,6 +36,7 @@ from .plant_step import (
     check_prescribed,
     itae,
     measure,
+    outside_range,
     solve_checked,
     step_line,
     target_errors,
@@ -128,7 +129,11 @@ class LoopResult:
     """time_s (steps + 1,), s; target (steps + 1, gdim) plant positions, mm; error_mm (steps + 1,);
     pushes (steps + 1, n_act) cumulative pushes, mm; itae (mm s^2); steady_state_error_mm;
     max_retraction_mm (largest decrease of any push, >= 0); mpc_ms per step; open_loop: dict of the
-    baseline (same keys, or None); goal (gdim,) absolute target position, mm; mask."""
+    baseline (same keys, or None); goal (gdim,) absolute target position, mm; mask.
+    ``extra["outside_range"]``: why the closed loop's pushes left the range where the plant's or
+    the model's answers converge (``plant_step.outside_range``; the open loop's own under
+    ``open_loop["outside_range"]``), [] when they did not: a loop outside it computed numbers
+    that no converged answer stands behind."""
 
     time_s: np.ndarray
     target: np.ndarray
@@ -163,6 +168,7 @@ class LoopResult:
                 "target_position_mm": self.target.tolist(),
                 "actuator_positions_mm": self.pushes.tolist(),
                 "mpc_step_ms": self.mpc_ms.tolist(),
+                "outside_range": list(self.extra.get("outside_range", [])),
                 "plant_retries": list(self.extra.get("plant_retries", [])),
                 "model_retries": list(self.extra.get("model_retries", [])),
                 "wall_time_s": float(self.wall_time_s)}
@@ -295,12 +301,14 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
                            progress)
         ol["u_open_unclamped"] = u_open_raw
         ol["clamped"] = bool(np.any(np.abs(u_open_raw - u_open) > 1e-12))
+        ol["outside_range"] = outside_range(plant_case, model.case, acts, ol["pushes"])
     wall = time.perf_counter() - t_start
     return LoopResult(t, X, err, S, itae(t, err, settings.dt_s), float(err[-1]), retract,
                       np.array(mpc.solve_ms), x_goal, mask, acts, target, task, ol, wall,
                       {"model_time_s": model.solve_time_s, "J0": J0, "closed_loop_s": closed_s,
                        "open_loop_s": wall - closed_s, "plant_retries": plant_retries,
-                       "model_retries": list(model.retries)})
+                       "model_retries": list(model.retries),
+                       "outside_range": outside_range(plant_case, model.case, acts, S)})
 
 
 def plot_response(result: LoopResult, path, *, title=None):

@@ -61,16 +61,19 @@ def run_open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, s
 
 def open_loop_json(ol):
     """The open-loop baseline: ``status`` "completed", "infeasible" (its pushes were clamped to
-    the push limit: it cannot reach the goal) or "failed" (the plant could not be solved at its
-    pushes; ``failed_at_step``, ``failure``), or "not run"."""
+    the push limit: it cannot reach the goal), "failed" (the plant could not be solved at its
+    pushes; ``failed_at_step``, ``failure``), "outside range" (it ran, but its pushes left the
+    range where the plant's or the model's answers converge: ``outside_range`` says why), or
+    "not run"."""
     if not ol:
         return {"status": "not run", "itae": None, "steady_state_error_mm": None}
+    outside = list(ol.get("outside_range", []))
     status = "failed" if not ol["converged"] else (
-        "infeasible" if ol.get("clamped") else "completed")
+        "infeasible" if ol.get("clamped") else "outside range" if outside else "completed")
     out = {"status": status, "itae": float(ol["itae"]),
            "steady_state_error_mm": ol["steady_state_error_mm"],
            "converged": bool(ol["converged"]), "u_open_mm": np.asarray(ol["u_open"]).tolist(),
-           "clamped": bool(ol.get("clamped", False)),
+           "clamped": bool(ol.get("clamped", False)), "outside_range": outside,
            "u_open_unclamped_mm": np.asarray(ol.get("u_open_unclamped", ol["u_open"])).tolist(),
            "time_s": np.asarray(ol["time_s"], float).tolist(),
            "target_error_mm": np.asarray(ol["error_mm"], float).tolist(),

@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from tissue_reference.meshes.converged_range import unconverged_load
 from tissue_reference.meshes.errors import ConvergenceError
 
-__all__ = ["check_prescribed", "itae", "measure", "solve_checked", "step_line",
+__all__ = ["check_prescribed", "itae", "measure", "outside_range", "solve_checked", "step_line",
            "target_errors"]
 
 
@@ -82,3 +83,16 @@ def step_line(what, k, n, pushes, error, mask, seconds) -> str:
     return (f"{what} step {k}/{n}: pushes {np.round(np.asarray(pushes, float), 3).tolist()} mm, "
             f"target error {np.linalg.norm(np.asarray(error)[mask]):.4g} mm, plant "
             f"{seconds:.1f} s")
+
+
+def outside_range(plant_case, model_case, acts, pushes) -> list[str]:
+    """Why the loop's pushes ``pushes`` ((steps, n_act) mm, actuators ``acts``) left the range
+    where the plant's or the model's answers converge (``meshes.converged_range``), one line per
+    actuator and side, each at the actuator's deepest push; [] when they stayed inside."""
+    P = np.asarray(pushes, float).reshape(-1, len(acts))
+    if not len(P):
+        return []
+    deepest = {a: float(P[np.argmax(np.abs(P[:, j])), j]) for j, a in enumerate(acts)}
+    sides = [("plant", plant_case)] if model_case is plant_case else \
+        [("plant", plant_case), ("model", model_case)]
+    return [f"{side}: {why}" for side, case in sides for why in unconverged_load(case, deepest)]

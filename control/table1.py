@@ -47,6 +47,8 @@ def table1_row(t, task, res) -> dict:
     d = res.to_json_dict()
     ol = d["open_loop"]
     return {"target": t, "task": task, "status": "ok", "open_loop_status": ol["status"],
+            "outside_range": d["outside_range"],
+            "open_loop_outside_range": ol.get("outside_range", []),
             "closed_loop_itae": d["itae"], "open_loop_itae": ol["itae"],
             "closed_loop_sse_mm": d["steady_state_error_mm"],
             "open_loop_sse_mm": ol["steady_state_error_mm"],
@@ -70,7 +72,8 @@ def table1_summary(rows, n_expected) -> dict:
     """The closed-loop criteria over the rows: sse <= 0.05 mm, closed ITAE < open ITAE wherever
     the open loop is feasible (it completed: an open loop clamped to the push limit or cut short
     by a plant failure is reported, not compared), zero retraction -- each counted over the
-    scenarios that ran."""
+    scenarios that ran; and none whose closed or open loop pushed past the range where the
+    plant's or the model's answers converge (``outside_range``)."""
     ok = [r for r in rows if r["status"] == "ok"]
     sse = [r for r in ok if r["closed_loop_sse_mm"] <= SSE_GOAL_MM]
     # wherever the open loop is feasible: it completed (not clamped to the push limit, not cut
@@ -79,6 +82,8 @@ def table1_summary(rows, n_expected) -> dict:
                 and r["open_loop_converged"]]
     itae = [r for r in feasible if r["closed_loop_itae"] < r["open_loop_itae"]]
     retr = [r for r in ok if r["max_retraction_mm"] == 0.0]
+    # loops that pushed past the range where the plant's or the model's answers converge
+    outside = [r for r in ok if r.get("outside_range") or r.get("open_loop_outside_range")]
     return {"scenarios": n_expected, "ran": len(ok),
             "unreachable": sum(r["status"] == "unreachable" for r in rows),
             "failed": sum(r["status"] == "failed" for r in rows),
@@ -86,9 +91,10 @@ def table1_summary(rows, n_expected) -> dict:
             "open_loop_feasible": len(feasible),
             "zero_retraction": len(retr),
             "open_loop_plant_failures": sum(not r["open_loop_converged"] for r in ok),
+            "outside_range": len(outside),
             "worst_closed_loop_sse_mm": max((r["closed_loop_sse_mm"] for r in ok), default=None),
             "all_met": (len(ok) == n_expected and len(sse) == len(retr) == n_expected
-                        and len(itae) == len(feasible))}
+                        and len(itae) == len(feasible) and not outside)}
 
 
 def write_table1(out, meta, rows, n_expected):
@@ -111,6 +117,11 @@ def write_table1(out, meta, rows, n_expected):
             note = (f"open loop: plant failed at step {r['open_loop_failed_at_step']} (pushes "
                     f"{[round(v, 2) for v in r['open_loop_failed_pushes_mm']]} mm; error "
                     f"{r['open_loop_last_error_mm']:.3f} mm at the last step solved)")
+        for side, key in (("closed loop", "outside_range"),
+                          ("open loop", "open_loop_outside_range")):
+            if r.get(key):
+                note = "; ".join(filter(None, [note, f"{side} outside the range where answers "
+                                                     f"converge: " + "; ".join(r[key])]))
         body.append([r["target"], str(r["task"]), oitae, f"{r['closed_loop_itae']:.2f}",
                      _fmt(r["open_loop_sse_mm"], ".4f") or "not reached",
                      f"{r['closed_loop_sse_mm']:.2e}", f"{r['max_retraction_mm']:.3g}",
@@ -119,6 +130,7 @@ def write_table1(out, meta, rows, n_expected):
                f"{SSE_GOAL_MM} mm in {summ['sse_le_0.05mm']}, closed ITAE < open ITAE in "
                f"{summ['closed_itae_lt_open']} of {summ['open_loop_feasible']} with a feasible "
                f"open loop, zero retraction in {summ['zero_retraction']}; "
+               f"outside the range where answers converge: {summ['outside_range']}; "
                f"worst closed-loop SSE {_fmt(summ['worst_closed_loop_sse_mm'], '.2e')} mm")
     title = f"Table I analog: {json.dumps(meta)}"
     md = [title, "", verdict, "", "| " + " | ".join(hdr) + " |", "|" + "---|" * len(hdr)]

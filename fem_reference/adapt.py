@@ -71,6 +71,7 @@ from pathlib import Path
 import numpy as np
 
 from tissue_reference.meshes.case import Case
+from tissue_reference.meshes.converged_range import unconverged_load
 from tissue_reference.meshes.errors import AccuracyNotReached, CaseError, ConvergenceError
 from tissue_reference.meshes.refine import refine_uniform
 from tissue_reference.meshes.refine_local import dorfler_mark, refine_local
@@ -325,9 +326,8 @@ def _last_answer(step: AdaptiveStep, accuracy: float) -> str:
 
 def _refuse_unconverged(case, pushes) -> None:
     """CaseError where the load is past the range in which answers are known to converge under
-    refinement (``contact.unconverged_load``): refining there would chase a limit that is not
-    known to exist, and no estimate bounds an error."""
-    from .contact import unconverged_load
+    refinement (``meshes.converged_range.unconverged_load``): refining there would chase a
+    limit that is not known to exist, and no estimate bounds an error."""
 
     if why := unconverged_load(case, pushes):
         raise CaseError(f"{case.source or case.name}: no accuracy can be certified at this load: "

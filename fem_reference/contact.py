@@ -116,6 +116,7 @@ import ufl
 from mpi4py import MPI
 
 from tissue_reference.meshes.case import CONTACT_RULES, TIP_STARTS, Case, is_contact_rule
+from tissue_reference.meshes.converged_range import UNCONVERGED_RADII, past_converged_depth
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import SolveResult
 
@@ -127,8 +128,7 @@ from .contact_indenter import (  # noqa: F401  (re-exported)
     _Indenter,
 )
 
-__all__ = ["DEFAULT_CONTACT_PENALTY", "UNCONVERGED_RADII", "Contact", "TipShape", "contact_key",
-           "nodal_rule", "unconverged_load"]
+__all__ = ["DEFAULT_CONTACT_PENALTY", "Contact", "TipShape", "contact_key", "nodal_rule"]
 
 DEFAULT_CONTACT_PENALTY = 1e3
 """beta in k = beta E / h: the penetration is (p_c / E + 1 / 2) h / beta (mm)."""
@@ -137,34 +137,6 @@ DEFAULT_CONTACT_PENALTY = 1e3
 DEEP_RADII = 1.8
 """Depth (in tip radii) past which a failed solve with the nodal rule names the contact rule as
 a likely cause: a ball-ended rod stops at 2.0-2.9 radii on cells of 0.6-0.2 radii."""
-
-
-UNCONVERGED_RADII = 2.5
-"""Depth (in tip radii) past which no mesh-converged answer is known for a rounded tip: on the
-indenter phantom the 5 mm tips converge at 2.5 radii (12.5 mm; GCI bands 1.5-4 %) and part by
-2-5 % per level at 3 radii (15 mm), where the skin has slid over the buried ball onto its rod;
-8 mm tips converge at 1.9 radii (15 mm). A solve with a tip deeper than this warns."""
-
-
-def past_converged_depth(depth: float, radius: float) -> bool:
-    """Whether a tip ``depth`` mm in (its push; negative: retracted) is deeper than
-    UNCONVERGED_RADII of its ``radius`` (mm), where no mesh-converged answer is known."""
-    return depth > UNCONVERGED_RADII * radius * (1.0 + 1e-9)
-
-
-def unconverged_load(case: Case, pushes) -> list[str]:
-    """Why no mesh-converged answer is known for ``case`` under ``pushes`` (actuator name ->
-    mm), one line per actuator: a glued patch pushed past ``GLUED_CONVERGED_RADII`` of its
-    radius (``Case.glued_unconverged``), an indenter deeper than UNCONVERGED_RADII of its tip's;
-    [] within the range where answers converge. Decided from the pushes, before any solve."""
-    pushes = dict(pushes or {})
-    why = list(case.with_pushes(pushes).glued_unconverged().values())
-    why += [f"indenter {a.name!r} pushed {float(pushes[a.name]):g} mm, more than "
-            f"{UNCONVERGED_RADII:g} of its tip's {a.radius:g} mm radius: no mesh-converged answer "
-            f"is known that deep" for a in case.actuators
-            if a.type == "indenter" and past_converged_depth(float(pushes.get(a.name, 0.0)),
-                                                             a.radius)]
-    return why
 
 
 GAUSS_NARROW = 0.75

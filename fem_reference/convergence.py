@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from tissue_reference.meshes.case import Case, load_case
+from tissue_reference.meshes.converged_range import unconverged_load
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.mesh import MeshData
 from tissue_reference.meshes.refine import mesh_hierarchy, projector_for
@@ -83,8 +84,9 @@ class ConvergenceStudy:
     pushes: dict = field(default_factory=dict)
     case_name: str = "case"
     no_converged_value: tuple = ()
-    """Why no mesh-converged answer is known at the study's load (``contact.unconverged_load``);
-    then no quantity is extrapolated or given a GCI band."""
+    """Why no mesh-converged answer is known at the study's load
+    (``meshes.converged_range.unconverged_load``); then no quantity is extrapolated or given a
+    GCI band."""
 
     def quantities(self):
         """(kind, VectorConvergence) of every probe, then every reaction."""
@@ -186,7 +188,6 @@ def refinement_study(case: Case, *, levels: int = MIN_LEVELS, degree: int = 1, p
           for n, v in probes.items()}
     rv = {n: _vector(n, "mN", v, h, 2 * degree, order_tol, component_floor, r_noise)
           for n, v in reactions.items()}
-    from .contact import unconverged_load
 
     why = tuple(unconverged_load(case, pushes))
     if why:   # the levels are data; an extrapolated value or a band would claim a limit

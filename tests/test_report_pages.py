@@ -193,8 +193,9 @@ def test_vertex_J_is_the_smallest_of_the_cells_around_a_vertex(work):
 # --------------------------------------------------------------------------- mpc, table1
 def test_an_mpc_page_compares_the_closed_and_the_open_loop(work):
     out = work / "mpc"
+    # the seed's 5 mm task pushes the box's glued patch past its radius: exit status 1
     _run(["mpc", work / "box.toml", "--target", "T1", "--task", "1", "--steps", "3", "-q",
-          "--out", out, "--json", work / "m.json"])
+          "--out", out, "--json", work / "m.json"], status=1)
     d = json.loads((work / "m.json").read_text())
     found = check_page(out / "mpc_T1_task1.html")
     assert found["images"] == ["mpc_T1_task1.png", "mpc_T1_task1_error.png"]
@@ -205,6 +206,10 @@ def test_an_mpc_page_compares_the_closed_and_the_open_loop(work):
     assert f"<td>{d['open_loop']['status']}</td><td>{d['open_loop']['itae']:.4g}</td>" in opened
     assert _cells(page, "horizon") == "5" and _cells(page, "dt (s)") == "1"
     assert _cells(page, "plant material: E (kPa)") == "6"
+    assert d["status"] == "outside range" and d["open_loop"]["status"] == "outside range"
+    assert "<b>Outside the range where answers converge</b>: plant: glued patch 'A1'" in \
+        html.unescape(page)
+    assert "its ITAE is no baseline" in page
 
 
 def test_an_unreachable_goal_gets_a_page_that_says_so(work):
@@ -218,8 +223,8 @@ def test_an_unreachable_goal_gets_a_page_that_says_so(work):
 
 def test_table1_pages_show_settings_as_a_table_and_every_plot(work):
     out = work / "t"
-    _run(["table1", work / "box.toml", "--steps", "3", "-q", "--scenarios", "gravity", "--out",
-          out])
+    _run(["table1", work / "box.toml", "--steps", "3", "-q", "--task-mm", "2", "--scenarios",
+          "gravity", "--out", out])
     found = check_page(out / "table1_scenarios.html")
     assert found["images"] == ["table1_scenarios.png"]
     assert found["links"] == ["gravity/table1.html"]

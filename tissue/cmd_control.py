@@ -15,6 +15,7 @@ import numpy as np
 
 from tissue_reference.control.mpc import WEIGHTS
 from tissue_reference.control.plants import tangent_for
+from tissue_reference.meshes.converged_range import converged_push_limit
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.io import check_output_dir, check_output_file, save_figure
 from tissue_reference.meshes.results import write_json
@@ -33,6 +34,14 @@ from .mpc_report import mpc_stem, write_mpc_report
 
 MAX_MAP_POINTS = 20_000
 """Grid points of one manipulability map at most (each is a small linear program)."""
+
+
+_POSITIVE_MM = real("positive", "mm, or auto")
+
+
+def _travel(text):
+    """--max-travel: a positive push limit (mm), or "auto" (``_setup`` resolves it)."""
+    return "auto" if text == "auto" else _POSITIVE_MM(text)
 
 
 def _loop_args(p):
@@ -61,8 +70,10 @@ def _loop_args(p):
                         "phantom); gain: R = r g^2 I, g the largest singular value of the "
                         "model's weighted J_s, so the loop closes as fast on a body whose targets "
                         "move little per mm of push")
-    p.add_argument("--max-travel", type=real("positive", "mm"), default=None,
-                   help="push limit per actuator (mm)")
+    p.add_argument("--max-travel", type=_travel, default=None, metavar="MM|auto",
+                   help="push limit per actuator (mm); auto: the deepest push at which the "
+                        "plant's and the model's answers still converge (a glued patch's "
+                        "radius, 2.5 radii of a rounded tip), so the loop stays in range")
     p.add_argument("--qp-solver", default="qpoases", help="casadi conic plugin")
     p.add_argument("--task-mm", type=real("positive", "mm"), default=5.0,
                    help="how far a task moves the target along each controlled axis (mm; the "
@@ -86,16 +97,19 @@ def _setup(args, case):
                           model_E_factor=args.model_E_factor, model_case=mcase)
     except CaseError as exc:
         raise CaseError(f"--model-E-factor / --model: {exc}") from None
+    travel = args.max_travel
+    if travel == "auto":
+        travel = converged_push_limit(loop.case, loop.model_case)
     settings = LoopSettings(steps=args.steps, dt_s=args.dt, noise_mm=args.noise, seed=args.seed,
                             task_mm=args.task_mm,
                             mpc=MPCSettings(horizon=args.horizon, q=args.q, r=args.r,
                                             weights=args.weights,
-                                            max_travel=args.max_travel, solver=args.qp_solver))
+                                            max_travel=travel, solver=args.qp_solver))
     loop.meta.update({"size": args.size, "model_size": args.model_size,
                       "settings": {"steps": args.steps, "dt_s": args.dt,
                                    "horizon": args.horizon, "q": args.q, "r": args.r,
                                    "weights": args.weights,
-                                   "max_travel_mm": args.max_travel, "noise_mm": args.noise,
+                                   "max_travel_mm": travel, "noise_mm": args.noise,
                                    "seed": args.seed, "qp_solver": args.qp_solver,
                                    "task_mm": args.task_mm}})
     return loop, settings
@@ -137,7 +151,8 @@ def run_mpc(args) -> int:
         _write_mpc(args, {**meta, "status": "failed", "error": str(exc),
                           **(exc.to_json_dict() if isinstance(exc, LoopStopped) else {})})
         raise
-    d = res.to_json_dict({**meta, "status": "completed"})
+    outside = res.extra.get("outside_range", [])
+    d = res.to_json_dict({**meta, "status": "outside range" if outside else "completed"})
     png = None
     if args.out:
         png = Path(args.out) / f"{mpc_stem(args.target, args.task)}.png"
@@ -150,6 +165,9 @@ def run_mpc(args) -> int:
         open_txt = (f"infeasible (eq. 22 pushes {[round(v, 2) for v in ol['u_open_unclamped_mm']]}"
                     f" mm clamped to --max-travel) itae={ol['itae']:.2f} sse="
                     f"{_fmt(ol['steady_state_error_mm'], '.4f') or 'not reached'} mm")
+    elif ol["status"] == "outside range":
+        open_txt = (f"outside the range where answers converge itae={ol['itae']:.2f} "
+                    f"sse={ol['steady_state_error_mm']:.4f} mm")
     elif ol["status"] == "failed":
         open_txt = (f"failed at step {ol['failed_at_step']} (plant at pushes "
                     f"{[round(v, 2) for v in ol['failed_pushes_mm']]} mm: {ol['failure']}); "
@@ -160,7 +178,11 @@ def run_mpc(args) -> int:
           f"sse={d['steady_state_error_mm']:.4f} mm retraction={d['max_retraction_mm']} mm "
           f"mpc median={d['mpc_step_median_ms']:.3f} ms | open loop {open_txt} "
           f"| wall {res.wall_time_s:.1f} s")
-    return 0
+    for side, why in (("closed loop", outside), ("open loop", ol.get("outside_range", []))):
+        for line in why:
+            print(f"tissue mpc: warning: the {side} left the range where answers converge: "
+                  f"{line}", file=sys.stderr)
+    return 1 if outside or ol.get("outside_range") else 0
 
 
 def _median_text(task, index) -> str:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import functools
 import json
+import sys
 from pathlib import Path
 
 from tissue_reference.control.scenarios import SCENARIOS
@@ -34,7 +35,21 @@ def run_table1(args) -> int:
     summ = run_all(case, targets, loop, settings, args.out, meta=loop.meta,
                    progress=_progress(args), **_jobs(args))
     print(f"table1: {json.dumps(summ)}")
-    return 0
+    return _range_status({None: summ})
+
+
+def _range_status(summaries: dict) -> int:
+    """1 (with a line per table on stderr) when a loop of any table pushed past the range where
+    its plant's or model's answers converge, else 0."""
+    status = 0
+    for name, s in summaries.items():
+        if s.get("outside_range"):
+            status = 1
+            print(f"tissue table1: warning: {s['outside_range']} of {s['ran']} loops"
+                  f"{'' if name is None else ' of scenario ' + name} pushed past the range "
+                  f"where the plant's or the model's answers converge (their rows say why): "
+                  f"their figures have no converged answer behind them", file=sys.stderr)
+    return status
 
 
 def _progress(args):
@@ -108,7 +123,7 @@ def _run_scenarios(args, case, targets, settings, base_meta) -> int:
                          plot="table1_scenarios.png")
     for name, s in summaries.items():
         print(f"table1 {name}: {json.dumps(s)}")
-    return 0
+    return _range_status(summaries)
 
 
 def add_parser(sub):

@@ -52,12 +52,16 @@ def plot_errors(d: dict, path) -> Path:
 
 def _status(d: dict) -> Raw:
     st = d.get("status")
-    if st == "completed":
-        ok = d["steady_state_error_mm"] <= 0.05
+    if st in ("completed", "outside range"):
+        ok = d["steady_state_error_mm"] <= 0.05 and st == "completed"
         cls, text = ("valid" if ok else "invalid"), (
             f"<b>Completed</b>: steady-state error {d['steady_state_error_mm']:.3g} mm "
-            f"({'within' if ok else 'above'} 0.05 mm), ITAE {d['itae']:.4g} mm·s², largest "
-            f"retraction {d['max_retraction_mm']:.3g} mm")
+            f"({'within' if d['steady_state_error_mm'] <= 0.05 else 'above'} 0.05 mm), ITAE "
+            f"{d['itae']:.4g} mm·s², largest retraction {d['max_retraction_mm']:.3g} mm")
+        if st == "outside range":
+            text += ("<br><b>Outside the range where answers converge</b>: " +
+                     "; ".join(html.escape(w) for w in d.get("outside_range", [])) +
+                     ". These figures have no converged answer behind them.")
     elif st == "unreachable":
         cls, text = "invalid", (f"<b>Unreachable goal</b>: {html.escape(str(d.get('error')))}"
                                 f" (closest reachable: {html.escape(fmt(d.get('closest_reachable_mm')))}"
@@ -75,6 +79,9 @@ def _open_loop_text(ol: dict) -> str:
         return (f"The open loop is infeasible: its eq. 22 pushes {fmt(ol.get('u_open_unclamped_mm'))}"
                 f" mm were clamped to the push limit (--max-travel), to "
                 f"{fmt(ol.get('u_open_mm'))} mm.")
+    if st == "outside range":
+        return ("The open loop completed, but its pushes left the range where answers converge ("
+                + "; ".join(ol.get("outside_range", [])) + "): its ITAE is no baseline.")
     if st == "failed":
         return (f"The open loop failed at step {ol.get('failed_at_step')}: the plant could not be "
                 f"solved at pushes {fmt(ol.get('failed_pushes_mm'))} mm ({ol.get('failure')}); "
@@ -97,12 +104,12 @@ def write_mpc_report(d: dict, out_dir, *, response_png: str | None = None) -> Pa
                  f"{html.escape(str(d['target']))}, task {d['task']}</h1>"),
              (f"Plant {d.get('plant')}, controller model {d.get('model')}. Units: mm, s; "
               "ITAE = integral of t |e(t)| dt (mm·s²)."), _status(d)]
-    if d.get("status") == "completed":
+    if d.get("status") in ("completed", "outside range"):
         ol = d.get("open_loop") or {}
         parts += [Raw("<h2>Closed against open loop</h2>"), table(
             ["loop", "status", "ITAE (mm·s²)", "steady-state error (mm)",
              "max retraction (mm)", "final pushes (mm)"],
-            [("closed loop (MPC)", "completed", d["itae"], d["steady_state_error_mm"],
+            [("closed loop (MPC)", d["status"], d["itae"], d["steady_state_error_mm"],
               d["max_retraction_mm"], fmt(d["actuator_positions_mm"][-1])),
              ("open loop (eq. 22)", ol.get("status"),
               ("≥ " if ol.get("itae_is_lower_bound") else "") + fmt(ol.get("itae")),

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_reference.meshes.converged_range import unconverged_load
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import material_json, write_json
 from tissue_reference.solvers import SOLVERS, get_solver
@@ -210,7 +211,6 @@ def verify(case, pushes=None, solvers=DEFAULT_SOLVERS, out_dir=None, *, json_fil
                          "material": material_json(case.material),
                          "runs": refs.json},
            "solvers": {}, "skipped": {}}
-    from tissue_reference.fem_reference.contact import unconverged_load
 
     if why := unconverged_load(case, pushes):   # the scores then compare with no ground truth
         out["reference"]["no_converged_value"] = why
