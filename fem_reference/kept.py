@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from petsc4py import PETSc
 
+from tissue_reference.meshes.answer_warnings import warn_about
 from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import SolveResult
@@ -128,6 +129,8 @@ def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None,
     at degree + 1) to ``extra``: probe_error_estimates (mm), reaction_error_estimates (mN), ...
     A case file's measured accuracy for exactly this load and discretization
     (``[reference.measured]``, ``fem_reference.measured``) is in ``extra["measured_accuracy"]``.
+    An answer that is not valid, past the loads where answers converge, or with an estimated
+    error above 2 % also warns (``meshes.errors.TissueWarning``; ``meshes.answer_warnings``).
     """
     from .measured import with_measured_accuracy
 
@@ -141,8 +144,8 @@ def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None,
     if estimate:
         from .estimate import estimate as with_estimate
 
-        return with_estimate(case, res, pushes=pushes, progress=progress, **kw)
-    return res
+        res = with_estimate(case, res, pushes=pushes, progress=progress, **kw)
+    return warn_about(res)
 
 
 def tangent_stiffness(case: Case, u=None, *, degree: int | None = None, pushes=None,

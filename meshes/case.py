@@ -242,7 +242,9 @@ class Case(CaseConstraintsMixin, CaseVariantsMixin):
 
 def load_case(path, *, mesh: MeshData | None = None, size: float | None = None,
               max_cells: float | None = None) -> Case:
-    """Read a Case TOML file (mesh paths relative to the file; format: docs/case-file.md).
+    """Read a Case TOML file (mesh paths relative to the file; format: docs/case-file.md), or
+    a shipped case by its name from any working directory (``load_case("phantom-indenter")``;
+    ``meshes.case_file.case_path``).
 
     ``mesh`` replaces the file's mesh (e.g. a refined one); ``size`` (mm) overrides a builtin's
     size. ``max_cells``: a builtin mesh whose estimated cell count exceeds it is refused before

@@ -18,7 +18,8 @@ from .case_schema import case_schema, schema_errors, show, where
 from .errors import CaseError, CaseReadError, ReadError
 from .mesh import MeshData, boundary_facets
 
-__all__ = ["PROBE_TOLERANCE", "load_case", "surface_distance"]
+__all__ = ["PROBE_TOLERANCE", "SHIPPED_CASES", "case_path", "load_case", "shipped_cases",
+           "surface_distance"]
 
 PROBE_TOLERANCE = 1e-6
 """A probe outside the body by at most this fraction of the mesh's bounding-box diagonal, or by at
@@ -37,15 +38,39 @@ def _raise(lines):
 
 
 # --------------------------------------------------------------------------- reading
-def _read(path) -> dict:
+SHIPPED_CASES = Path(__file__).resolve().parent / "cases"
+"""The folder of the case files shipped with the toolkit (installed with it)."""
+
+
+def shipped_cases() -> list[str]:
+    """The names of the shipped cases (``phantom``, ``phantom-indenter``, ...)."""
+    return sorted(p.stem for p in SHIPPED_CASES.glob("*.toml"))
+
+
+def case_path(path) -> Path:
+    """The case file that ``path`` names: the path itself when it exists; else, for a bare name
+    (no folder), the shipped case of that name, with or without ``.toml`` (``phantom``,
+    ``phantom-indenter.toml``), so that the shipped cases load from any working directory.
+    CaseReadError when neither exists, listing the shipped names."""
     try:
-        path = Path(path)
+        p = Path(path)
     except TypeError:
         raise CaseError(f"case path must be a str or os.PathLike, found {path!r}") from None
+    if p.exists() or p.parent != Path("."):
+        return p
+    for name in (p.name, p.name + ".toml"):
+        if (SHIPPED_CASES / name).is_file():
+            return SHIPPED_CASES / name
+    return p
+
+
+def _read(path) -> dict:
+    path = Path(path)
     if path.is_dir():
         raise CaseReadError(f"{path}: is a directory, expected a .toml case file")
     if not path.is_file():
-        raise CaseReadError(f"{path}: does not exist, expected a .toml case file")
+        raise CaseReadError(f"{path}: does not exist, expected a .toml case file or the name "
+                            f"of a shipped case ({', '.join(shipped_cases())})")
     try:
         text = path.read_bytes().decode("utf-8")
     except OSError as exc:
@@ -244,6 +269,7 @@ def _probe_errors(case: Case, src: str) -> list[str]:
 def load_case(path, *, mesh: MeshData | None = None, size: float | None = None,
               max_cells: float | None = None) -> Case:
     """Read a Case TOML file; ``meshes.case.load_case`` documents it and calls this."""
+    path = case_path(path)
     data = _read(path)
     src = str(Path(path))
     if size is not None and (isinstance(size, bool) or not isinstance(size, (int, float))

@@ -9,6 +9,7 @@ __all__ = [
     "ReadError",
     "SolverDivergedError",
     "TissueError",
+    "TissueWarning",
     "WriteError",
 ]
 
@@ -58,3 +59,10 @@ class AccuracyNotReached(TissueError):
     def __init__(self, message, *, result=None):
         super().__init__(message)
         self.result = result
+
+
+class TissueWarning(UserWarning):
+    """An answer that came back but should not be taken at face value: not valid (inverted
+    cells, runaway growth), past the loads where answers converge (no error bar), or with an
+    estimated error above 2 %. The Python API warns with it; the command line prints the same
+    lines itself. ``warnings.simplefilter("error", TissueWarning)`` makes each an exception."""

@@ -210,12 +210,22 @@ def save_figure(fig, path, *, dpi: int = 100) -> Path:
 
 
 def _parent_folder(path: Path, what: str) -> Path:
-    """The folder ``path`` goes into; WriteError when it does not exist or is not a folder."""
+    """The folder ``path`` goes into, made (with its missing parents) when it does not exist
+    yet; WriteError when it, or the nearest of its parents that exists, is not a writable
+    folder."""
     p = path.parent
-    if not p.exists():
-        raise WriteError(f"{what} {str(path)!r}: folder {str(p)!r} does not exist")
-    if not p.is_dir():
-        raise WriteError(f"{what} {str(path)!r}: {str(p)!r} is not a folder")
+    top = p
+    while not top.exists() and top != top.parent:
+        top = top.parent
+    if not top.is_dir():
+        raise WriteError(f"{what} {str(path)!r}: {str(top)!r} is not a folder")
+    if top != p:
+        _check_writable(top, path, what)
+        try:
+            p.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise WriteError(f"{what} {str(path)!r}: cannot make folder {str(p)!r}: "
+                             f"{exc.strerror or exc}") from None
     return p
 
 
@@ -233,9 +243,9 @@ def _check_writable(folder: Path, path: Path, what: str):
 
 def check_output_file(path, what: str = "output file", *, suffixes=None) -> Path:
     """Refuse, before any work, a file path that cannot be written: an existing directory, a
-    name ending in a path separator, a folder that does not exist, is a file or is not writable,
-    or a suffix not in ``suffixes``. Raises WriteError naming ``what`` (e.g. the option) and the
-    path."""
+    name ending in a path separator, a folder that is a file or is not writable, or a suffix not
+    in ``suffixes``; missing folders on the way are made. Raises WriteError naming ``what``
+    (e.g. the option) and the path."""
     text = os.fspath(path)
     path = Path(text)
     if not text or text.endswith(os.sep) or path.is_dir():
@@ -251,8 +261,9 @@ def check_output_file(path, what: str = "output file", *, suffixes=None) -> Path
 
 def check_output_dir(path, what: str = "output folder") -> Path:
     """Refuse, before any work, a folder path that cannot be written: an existing file or a
-    folder that is not writable; a missing folder is created when writing, and its parent must
-    exist and be writable. Raises WriteError naming ``what`` and the path."""
+    folder that is not writable; a missing folder is created when writing (its missing parents
+    now, under the nearest writable folder that exists). Raises WriteError naming ``what`` and
+    the path."""
     text = os.fspath(path)
     path = Path(text)
     if not text:

@@ -69,8 +69,10 @@ def test_a_coarse_mesh_that_hides_the_rim_still_says_there_is_no_error_bar(coars
 
 def test_the_command_line_prints_a_difference_not_an_error_bar(tmp_path, capsys):
     out = tmp_path / "deep.json"
+    # an answer past the range where answers converge: written, and exit status 1
     assert main(["solve", CASE, "--size", "14", "--push", "A1=10", "--estimate", "-q",
-                 "--json", str(out)]) == 0
+                 "--json", str(out)]) == 1
+    assert out.is_file()
     text = capsys.readouterr()
     probes = [ln for ln in text.out.splitlines() if ln.strip().startswith("probe ")]
     assert probes and all("no error bar" in ln and "+-" not in ln for ln in probes)
@@ -144,3 +146,14 @@ def test_verifying_a_field_at_such_a_load_says_the_reference_is_no_converged_ans
     assert "'A1'" in deep["reference"]["no_converged_value"][0]
     near = verify(coarse, {"A1": 2.0}, solvers=(), field=zero)
     assert "no_converged_value" not in near["reference"]
+
+
+def test_verify_at_such_a_load_exits_1_and_within_it_0(tmp_path, capsys):
+    """Scores against a reference with no converged answer behind it: exit status 1."""
+    plugin = tmp_path / "zero.py"
+    plugin.write_text("import numpy as np\n\n\ndef solve(case, pushes, **options):\n"
+                      "    return np.zeros((case.mesh.n_vertices, case.mesh.gdim))\n")
+    args = ["verify", CASE, "--size", "14", "--solvers", f"{plugin}:solve", "-q"]
+    assert main(args + ["--push", "A1=10"]) == 1
+    assert "not with a converged answer" in capsys.readouterr().err
+    assert main(args + ["--push", "A1=2"]) == 0

@@ -5,7 +5,8 @@ compiler's lines while forms are first compiled), -q/--quiet (no progress lines;
 errors are still printed); --version prints the version.
 
 Exit status: 0 done; 1 an answer was computed but is not valid or not good enough (inverted
-cells, runaway growth, a tolerance or accuracy not met: the outputs are written and say so); 2 an
+cells, runaway growth, a tolerance or accuracy not met, a load or a control loop past the range
+where answers converge: the outputs are written and say so); 2 an
 error named in one line: bad input (an option, a case or mesh file, an output path) or a failure
 during the work (a solve that does not converge, its last converged state written; a fast solver
 that diverges; an unreachable goal); 130 interrupted. Details: docs/outputs.md.
@@ -18,10 +19,11 @@ import difflib
 import importlib
 import logging
 import sys
+import warnings
 from importlib import metadata
 from pathlib import Path
 
-from tissue_reference.meshes.errors import TissueError
+from tissue_reference.meshes.errors import TissueError, TissueWarning
 
 # Each module defines add_parser(subparsers) that registers its command(s) with set_defaults(func=...).
 COMMAND_MODULES = ["cmd_mesh", "cmd_solve", "cmd_verify", "cmd_converge", "cmd_jacobian",
@@ -189,7 +191,9 @@ def main(argv=None) -> int:
     args.quiet = quiet
     prog = f"tissue {args.command}"
     try:
-        with logging_for(verbose=verbose):
+        # the commands print what the Python API says as TissueWarning themselves
+        with logging_for(verbose=verbose), warnings.catch_warnings():
+            warnings.simplefilter("ignore", TissueWarning)
             return int(args.func(args) or 0)
     except TissueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)

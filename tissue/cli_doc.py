@@ -7,9 +7,10 @@ import argparse
 __all__ = ["cli_markdown", "options_without_help"]
 
 EXIT_CODES = """Exit status (every command): 0 done; 1 an answer was computed but is not valid
-(inverted cells, runaway growth, a tip through the skin) or a tolerance was not met (`verify
---tol`, `suite --strict`, `solve --accuracy` at `--max-dofs`): the outputs are written and
-marked; 2 an error named in one line: bad input (an option, a case or mesh file, an output
+(inverted cells, runaway growth, a tip through the skin), a tolerance was not met (`verify
+--tol`, `suite --strict`, `solve --accuracy` at `--max-dofs`), or a load or loop went past the
+range where answers converge (a glued patch past its radius, a tip past 2.5 radii: `solve`,
+`verify`, `mpc`, `table1`): the outputs are written and marked; 2 an error named in one line: bad input (an option, a case or mesh file, an output
 path) or a failure during the work (a solve that does not converge, its last converged state
 written first; a fast solver that diverges; an `mpc` goal out of reach); 130 interrupted.
 Details: docs/outputs.md."""

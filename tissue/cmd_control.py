@@ -15,6 +15,7 @@ import numpy as np
 
 from tissue_reference.control.mpc import WEIGHTS
 from tissue_reference.control.plants import tangent_for
+from tissue_reference.meshes.case_file import case_path
 from tissue_reference.meshes.converged_range import converged_push_limit
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.io import check_output_dir, check_output_file, save_figure
@@ -295,7 +296,7 @@ def add_parser(sub):
 
     p = sub.add_parser("manipulability", help="manipulability maps over the z = 15 mm section")
     add_case_args(p)
-    p.add_argument("--compare", nargs="*", default=["meshes/cases/phantom-3.toml"],
+    p.add_argument("--compare", nargs="*", type=case_path, default=["phantom-3"],
                    help="other cases to map side by side (default: the 3-actuator phantom)")
     p.add_argument("--solver", choices=("fem", "admm"), default="fem",
                    help="whose tangent stiffness the maps use")

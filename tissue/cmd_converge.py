@@ -9,6 +9,7 @@ from pathlib import Path
 
 from tissue_reference.meshes.builders import BODY_DIMENSIONS, estimate_cells
 from tissue_reference.meshes.case import Material
+from tissue_reference.meshes.case_file import case_path
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.io import check_output_file
 from tissue_reference.meshes.results import material_json, write_json
@@ -102,7 +103,8 @@ def run(args) -> int:
 def add_parser(sub):
     p = sub.add_parser("converge", help="mesh-convergence study of the reference (nested "
                                         "uniform refinement, observed orders, GCI)")
-    p.add_argument("case", help="case TOML file (e.g. meshes/cases/phantom.toml)")
+    p.add_argument("case", type=case_path,
+                   help="case TOML file, or a shipped case's name (e.g. phantom)")
     p.add_argument("--size", type=real("positive", "mm"), default=None,
                    help="characteristic length (mm) of the coarsest mesh (builtin meshes; "
                         "default: the case's own mesh)")

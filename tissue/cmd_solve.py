@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_reference.meshes.answer_warnings import ESTIMATE_WARN, relative_estimates
+from tissue_reference.meshes.converged_range import unconverged_load
 from tissue_reference.meshes.errors import AccuracyNotReached, CaseError, ConvergenceError
 from tissue_reference.meshes.io import check_output_file, write_point_data
 from tissue_reference.meshes.mesh import cell_jacobians
@@ -28,7 +30,7 @@ from .common import (
     report_validity,
     run_solver,
 )
-from .solve_report import ESTIMATE_WARN, REPORT
+from .solve_report import REPORT
 
 STEMS = ("displacement", "last_converged")
 # what --out gets besides report.html: per stem, the fields and the report's pictures
@@ -174,7 +176,7 @@ def run(args) -> int:
             print(f"  discretization: {disc['formulation']} P{disc['degree']}{p}, "
                   f"{disc['dofs']} dofs")
         print_answer(res)
-        worst = max(_relative_estimates(res).values(), default=None)
+        worst = max(relative_estimates(res).values(), default=None)
         if worst is not None and res.extra.get("no_converged_value"):
             print(f"tissue solve: warning: the degree-{int(res.degree) + 1} answer differs from "
                   f"this one by up to {worst:.1%} of a probe's displacement, but at this load no "
@@ -187,8 +189,12 @@ def run(args) -> int:
         for line in res.extra.get("warnings") or \
                 case.with_pushes(pushes).glued_patch_warnings(res.u):
             print(f"tissue solve: warning: {line}", file=sys.stderr)
-        return report_validity("solve", res)
-    return 0 if res.extra.get("valid", True) else 1
+        status = report_validity("solve", res)
+    else:
+        status = 0 if res.extra.get("valid", True) else 1
+    # an answer past the range where answers converge is no answer to trust: exit status 1
+    # (its outputs are written and say so), whichever solver gave it
+    return max(status, 1 if unconverged_load(case, pushes) else 0)
 
 
 def solve_adaptive(case, pushes, args):
@@ -208,24 +214,12 @@ def solve_adaptive(case, pushes, args):
     return out.case, out.result
 
 
-def _relative_estimates(res) -> dict:
-    """Probe -> its estimated error relative to its displacement (inf at a probe that did not
-    move); only the probes with an estimate."""
-    pe = res.extra.get("probe_error_estimates") or {}
-    out = {}
-    for k, v in res.probes.items():
-        if k in pe:
-            size = float(np.linalg.norm(v))
-            out[k] = pe[k] / size if size > 0 else float("inf")
-    return out
-
-
 def print_answer(res):
     """Probes, reactions and indenters, each with its estimated discretization error when there is
     one, and the smallest J of the state."""
     pe = res.extra.get("probe_error_estimates") or {}
     re_ = res.extra.get("reaction_error_estimates") or {}
-    rels = _relative_estimates(res)
+    rels = relative_estimates(res)
     bar = not res.extra.get("no_converged_value")   # an estimate is an error bar only then
     for k, v in res.probes.items():
         line = f"  probe {k}: u = [{', '.join(f'{x:+.4f}' for x in v)}] mm"

@@ -56,7 +56,8 @@ def add_parser(sub):
                                      "scorecard per solver")
     p.add_argument("--solvers", nargs="+", metavar="NAME",
                    help=f"solvers to run: fem (the reference), built-in fast solvers, "
-                        f"'module:function' or a 'tissue.solvers' entry point (default: "
+                        f"'module:function', 'path/to/file.py:function' or a "
+                        f"'tissue.solvers' entry point (default: "
                         f"{' '.join(DEFAULT)})")
     p.add_argument("--solver", action="append", metavar="NAME",
                    help="one more solver (repeatable), added to the defaults or --solvers")

@@ -100,7 +100,8 @@ def run(args) -> int:
     for name, err in over.items():
         print(f"tissue verify: error: {name}: max vertex error {err:.4g} mm exceeds --tol "
               f"{args.tol:g} mm", file=sys.stderr)
-    return 1 if bad or over else 0
+    # scores against a reference with no converged answer behind it: exit status 1
+    return 1 if bad or over or res["reference"].get("no_converged_value") else 0
 
 
 def add_parser(sub):
@@ -110,8 +111,8 @@ def add_parser(sub):
     p.add_argument("--push", action="append", metavar="NAME=MM",
                    help="push an actuator's region rigidly along its direction (repeatable)")
     p.add_argument("--solvers", nargs="+", metavar="NAME", default=None,
-                   help=f"solvers to score: built-in {sorted(FAST_SOLVERS)}, 'module:function' "
-                        f"or an installed 'tissue.solvers' entry point (default: "
+                   help=f"solvers to score: built-in {sorted(FAST_SOLVERS)}, 'module:function', "
+                        f"'path/to/file.py:function' or an installed 'tissue.solvers' entry point (default: "
                         f"{' '.join(DEFAULT_SOLVERS)}; none when --field is given)")
     p.add_argument("--solver", action="append", metavar="NAME",
                    help="one more solver to score (repeatable), as for --solvers")

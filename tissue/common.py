@@ -25,6 +25,7 @@ from tissue_reference.meshes.case import (
     is_contact_rule,
     load_case,
 )
+from tissue_reference.meshes.case_file import case_path
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.io import check_output_dir, check_output_file
 from tissue_reference.meshes.mesh import RUNAWAY_FACTOR
@@ -184,7 +185,9 @@ def check_outputs(args, files=(), dirs=(), suffixes=None):
 
 # --------------------------------------------------------------------------- cases
 def add_case_args(p: argparse.ArgumentParser):
-    p.add_argument("case", help="case TOML file (e.g. meshes/cases/phantom.toml)")
+    p.add_argument("case", type=case_path,
+                   help="case TOML file, or a shipped case's name (e.g. phantom-indenter, "
+                        "phantom: meshes/cases/)")
     p.add_argument("--size", type=real("positive", "mm"), default=None,
                    help="override the builtin mesh's characteristic length (mm)")
     p.add_argument("--free-actuators", action="store_true",
@@ -263,10 +266,11 @@ def case_from_args(args, *, size: float | None = None) -> Case:
     estimated above ``args.max_cells`` before it is built."""
     size = size if size is not None else getattr(args, "size", None)
     max_cells = getattr(args, "max_cells", None)
-    b = builtin_of(args.case, size)
+    path = case_path(args.case)   # a file, or a shipped case's name (from Python callers too)
+    b = builtin_of(path, size)
     if b is not None:
         announce_build(getattr(args, "command", "") or "", *b, max_cells)
-    case = load_case(Path(args.case), size=size, max_cells=max_cells)
+    case = load_case(path, size=size, max_cells=max_cells)
     if getattr(args, "contact_quadrature", None) is not None:
         case = dataclasses.replace(case, reference_contact_quadrature=args.contact_quadrature)
     if getattr(args, "tip_start", None) is not None:

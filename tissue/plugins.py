@@ -1,4 +1,5 @@
-"""Solvers that are not ours: a callable, an import path ``module:function``, or an entry point.
+"""Solvers that are not ours: a callable, an import path ``module:function``, a Python file
+``path/to/my_solver.py:function``, or an entry point.
 
 The protocol every solver follows (the built-in ones too, through ``builtin_solver``)::
 
@@ -69,7 +70,8 @@ def entry_point_solvers() -> dict:
 
 
 def resolve_solver(spec) -> SolverPlugin:
-    """A SolverPlugin from a callable, ``"module:function"`` or an entry-point name."""
+    """A SolverPlugin from a callable, ``"module:function"``, ``"file.py:function"`` or an
+    entry-point name."""
     if callable(spec):
         name = getattr(spec, "__qualname__", None) or getattr(spec, "__name__", None) \
             or type(spec).__name__
@@ -78,14 +80,9 @@ def resolve_solver(spec) -> SolverPlugin:
     if not isinstance(spec, str) or not spec:
         raise PluginError(f"solver {spec!r}: expected a name, 'module:function' or a callable")
     if ":" in spec:
-        modname, _, attr = spec.partition(":")
-        if os.getcwd() not in sys.path:  # "module:function" names a module of the working
-            sys.path.append(os.getcwd())  # directory too, as with python -m
-        try:
-            mod = importlib.import_module(modname)
-        except Exception as exc:
-            raise PluginError(f"solver {spec!r}: cannot import module {modname!r}: "
-                              f"{type(exc).__name__}: {exc}") from exc
+        modname, _, attr = spec.rpartition(":")
+        mod = _module_of_file(spec, modname) if modname.endswith(".py") else \
+            _module_named(spec, modname)
         fn = mod
         for part in attr.split("."):
             fn = getattr(fn, part, None)
@@ -104,6 +101,39 @@ def resolve_solver(spec) -> SolverPlugin:
     raise PluginError(f"unknown solver {spec!r}: not a built-in fast solver, not "
                       f"'module:function', and no installed entry point of group "
                       f"{ENTRY_POINT_GROUP!r} has that name (installed: {sorted(eps) or 'none'})")
+
+
+def _module_named(spec: str, modname: str):
+    """The module ``modname`` (a module of the working directory too, as with python -m)."""
+    if os.getcwd() not in sys.path:
+        sys.path.append(os.getcwd())
+    try:
+        return importlib.import_module(modname)
+    except Exception as exc:
+        raise PluginError(f"solver {spec!r}: cannot import module {modname!r}: "
+                          f"{type(exc).__name__}: {exc}") from exc
+
+
+def _module_of_file(spec: str, path: str):
+    """The module of the Python file ``path`` (``my_solver.py:solve``), loaded under a name of
+    its own so that two files of the same name do not replace each other."""
+    import importlib.util
+    from pathlib import Path
+
+    file = Path(path).expanduser()
+    if not file.is_file():
+        raise PluginError(f"solver {spec!r}: file {path!r} does not exist")
+    name = f"tissue_plugin_{abs(hash(str(file.resolve())))}_{file.stem}"
+    try:
+        loader = importlib.util.spec_from_file_location(name, file)
+        mod = importlib.util.module_from_spec(loader)
+        sys.modules[name] = mod
+        loader.loader.exec_module(mod)
+    except Exception as exc:
+        sys.modules.pop(name, None)
+        raise PluginError(f"solver {spec!r}: cannot load file {path!r}: "
+                          f"{type(exc).__name__}: {exc}") from exc
+    return mod
 
 
 def _get(obj, key):

@@ -13,14 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_reference.meshes.answer_warnings import ESTIMATE_WARN
 from tissue_reference.meshes.html_page import Raw, fmt, image, kv_table, page, table, write_page
 from tissue_reference.meshes.io import save_figure
 from tissue_reference.meshes.mesh import cell_jacobians
 
-__all__ = ["ESTIMATE_WARN", "REPORT", "validity_block", "vertex_min_J", "write_solve_report"]
+__all__ = ["REPORT", "validity_block", "vertex_min_J", "write_solve_report"]
 
 REPORT = "report.html"
-ESTIMATE_WARN = 0.02  # warn when a probe's estimated error exceeds this fraction of its value
 
 
 def vertex_min_J(mesh, u) -> np.ndarray:

@@ -1,0 +1,55 @@
+"""What a caller of the Python API must not miss about an answer, said as Python warnings
+(``meshes.errors.TissueWarning``): an answer that is not valid, one past the loads where answers
+converge (its estimate is then no error bar), a warning the solve recorded, an estimated error
+above ESTIMATE_WARN of a probe's displacement. The command line prints the same facts itself.
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from .errors import TissueWarning
+
+__all__ = ["ESTIMATE_WARN", "answer_concerns", "relative_estimates", "warn_about"]
+
+ESTIMATE_WARN = 0.02
+"""An estimated error above this fraction of a probe's displacement is worth a warning."""
+
+
+def relative_estimates(res) -> dict:
+    """Probe -> its estimated error relative to its displacement (inf at a probe that did not
+    move); only the probes with an estimate (``extra["probe_error_estimates"]``)."""
+    pe = res.extra.get("probe_error_estimates") or {}
+    out = {}
+    for k, v in res.probes.items():
+        if k in pe:
+            size = float(np.linalg.norm(v))
+            out[k] = pe[k] / size if size > 0 else float("inf")
+    return out
+
+
+def answer_concerns(res) -> list[str]:
+    """One line per fact about the SolveResult ``res`` that a caller must not miss."""
+    extra = getattr(res, "extra", None) or {}
+    out = []
+    if extra.get("valid", True) is False:
+        out.append(f"the answer is not valid: {extra.get('invalid_reason')}")
+    out += [str(w) for w in extra.get("warnings") or ()]
+    why = extra.get("no_converged_value")
+    if why:
+        out += [f"no mesh-converged answer is known at this load: {w}" for w in
+                ([why] if isinstance(why, str) else why) if str(w) not in out]
+    rel = relative_estimates(res) if hasattr(res, "probes") else {}
+    worst = max(rel.values(), default=None)
+    if worst is not None and worst > ESTIMATE_WARN and not why:
+        out.append(f"estimated discretization error up to {worst:.1%} of a probe's displacement "
+                   f"(above {ESTIMATE_WARN:.0%}): raise the degree, or refine")
+    return out
+
+
+def warn_about(res, stacklevel: int = 3):
+    """Warn (TissueWarning) once per line of ``answer_concerns(res)``; returns ``res``."""
+    for line in answer_concerns(res):
+        warnings.warn(line, TissueWarning, stacklevel=stacklevel)
+    return res
