@@ -271,9 +271,12 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
     X = [x0.copy()]
     y = x0 + (rng.normal(0.0, settings.noise_mm, d) if settings.noise_mm > 0 else 0.0)
     J = J0
+    model_ms = []   # per step: the model's update to the pushes and its Jacobian (ms)
     for k in range(settings.steps):
         if k > 0:
+            tm = time.perf_counter()
             J = model.jacobian(pushes, u=u_prev if same else None)
+            model_ms.append((time.perf_counter() - tm) * 1e3)
         st = mpc.step(J, y, x_goal, s)
         s = s + st.du
         pushes = dict(zip(acts, s.tolist()))
@@ -307,7 +310,7 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
                       np.array(mpc.solve_ms), x_goal, mask, acts, target, task, ol, wall,
                       {"model_time_s": model.solve_time_s, "J0": J0, "closed_loop_s": closed_s,
                        "open_loop_s": wall - closed_s, "plant_retries": plant_retries,
-                       "model_retries": list(model.retries),
+                       "model_retries": list(model.retries), "model_step_ms": model_ms,
                        "outside_range": outside_range(plant_case, model.case, acts, S)})
 
 

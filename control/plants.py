@@ -16,9 +16,9 @@ import numpy as np
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import material_json
 
-__all__ = ["ADMM_CONTROL_OPTIONS", "FD_FLOOR", "PRESS_WIDTHS", "LoopSetup", "actuator_kind",
-           "build_loop", "indenter_sensitivity", "jacobian_at", "material_json", "plant_for",
-           "pressing", "reference_state", "solver_description", "tangent_for"]
+__all__ = ["ADMM_CONTROL_OPTIONS", "FD_FLOOR", "MODEL_UPDATES", "PRESS_WIDTHS", "LoopSetup",
+           "actuator_kind", "build_loop", "indenter_sensitivity", "jacobian_at", "material_json",
+           "plant_for", "pressing", "reference_state", "solver_description", "tangent_for"]
 
 # ADMM as a control plant/model: the ADMM stage hands over to the Newton polish (part of
 # solvers.admm.solve, iteration budget left to the solver: 20 per load step) which finishes to
@@ -230,26 +230,38 @@ class LoopSetup:
     model_tangent: object
     meta: dict = field(default_factory=dict)
     model_sensitivity: object = None   # the model's Jacobian when not from its tangent
+    fast_model: bool = False           # the model updated by control.fast_model
 
     def run(self, target: str, task: int, settings, progress=None):
         """One closed loop (and its open-loop baseline) -> control.loop.LoopResult;
         ``progress(line)`` gets a line per step."""
+        from .fast_model import FastModel
         from .loop import LinearizedModel, run_closed_loop
 
-        model = LinearizedModel(self.model_case, self.model_solve, self.model_tangent, target,
-                                self.model_sensitivity)
+        if self.fast_model:
+            model = FastModel(self.model_case, target)
+        else:
+            model = LinearizedModel(self.model_case, self.model_solve, self.model_tangent,
+                                    target, self.model_sensitivity)
         return run_closed_loop(self.plant, self.case, model, target, task, settings=settings,
                                progress=progress)
 
 
+MODEL_UPDATES = ("fast", "solve")
+"""How an ADMM model follows the pushes: "fast" (``control.fast_model``: chord Newton on the same
+P1 energy, Jacobian by refinement; the same state and Jacobian within 1e-6 mm and 1e-5) or
+"solve" (a full ADMM solve with polish and an assembled tangent every step)."""
+
+
 def build_loop(case, *, plant: str = "fem", model: str | None = None,
                model_E_factor: float = 1.0, model_case=None, plant_case=None,
-               scenario: str | None = None) -> LoopSetup:
+               scenario: str | None = None, model_update: str = "fast") -> LoopSetup:
     """The plant ``plant`` (fem | admm) on ``plant_case`` (default ``case``: the "true" tissue,
     e.g. with gravity or another nu) and the model ``model`` (default: the plant's solver) on
     ``model_case`` (default: ``case``; e.g. a coarser mesh of the same body) with E scaled by
     ``model_E_factor``. When model and plant coincide the model reuses the plant's solutions.
-    ``scenario`` names the mismatch in the metadata."""
+    ``scenario`` names the mismatch in the metadata. ``model_update``: MODEL_UPDATES (an ADMM
+    model on glued patches that is not the plant itself; other models always solve)."""
     from tissue_reference.meshes.case import E_RANGE_KPA
 
     if not (np.isfinite(model_E_factor) and model_E_factor > 0):
@@ -303,7 +315,12 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
         if mname != "fem":
             mcase.require_no_contact(f"the {mname} model")
         sensitivity = indenter_sensitivity()
-    return LoopSetup(pcase, psolve, mcase, msolve, tangent_for(mname), meta, sensitivity)
+    if model_update not in MODEL_UPDATES:
+        raise CaseError(f"model update {model_update!r}: choose one of {list(MODEL_UPDATES)}")
+    fast = model_update == "fast" and mname == "admm" and not mcase.indenters() and \
+        msolve is not psolve
+    meta["model_update"] = "fast" if fast else "solve"
+    return LoopSetup(pcase, psolve, mcase, msolve, tangent_for(mname), meta, sensitivity, fast)
 
 
 def actuator_kind(case) -> str:

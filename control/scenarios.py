@@ -138,7 +138,7 @@ def check_contact_plant(model_case, plant_case):
 
 
 def scenario_loop(case, name: str, *, model: str = "admm", coarse_case=None,
-                  plant_case=None, contact_rule=None) -> LoopSetup:
+                  plant_case=None, contact_rule=None, model_update: str = "fast") -> LoopSetup:
     """A mismatch scenario of ``SCENARIOS``: the plant is the reference on ``case`` changed as
     the scenario says, the model the fast solver ``model`` on ``case`` (``coarse_case``, a coarser
     mesh of the same body, for "mesh"). "contact": the plant is ``plant_case`` (a case of the
@@ -173,7 +173,7 @@ def scenario_loop(case, name: str, *, model: str = "admm", coarse_case=None,
     else:
         plant_case = case
     loop = build_loop(case, plant="fem", model=model, model_case=model_case,
-                      plant_case=plant_case, scenario=name)
+                      plant_case=plant_case, scenario=name, model_update=model_update)
     loop.meta["scenario_description"] = SCENARIOS[name]
     if name == "contact":   # which plant: a case file, or derived from the model's (source null)
         loop.meta.update({"plant_case": plant_case.name, "plant_source": plant_case.source})

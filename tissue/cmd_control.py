@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from tissue_reference.control.mpc import WEIGHTS
-from tissue_reference.control.plants import tangent_for
+from tissue_reference.control.plants import MODEL_UPDATES, tangent_for
 from tissue_reference.meshes.case_file import case_path
 from tissue_reference.meshes.converged_range import converged_push_limit
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
@@ -50,6 +50,11 @@ def _loop_args(p):
                    help="the solver playing the tissue (the \"true\" plant)")
     p.add_argument("--model", choices=("fem", "admm"), default=None,
                    help="controller's model solver (default: the plant's)")
+    p.add_argument("--model-update", choices=MODEL_UPDATES, default="fast",
+                   help="how an ADMM model follows the pushes: fast (chord Newton on its P1 "
+                        "energy and the Jacobian by refinement, milliseconds a step; the same "
+                        "state and Jacobian within 1e-6 mm and 1e-5) or solve (a full ADMM solve "
+                        "and an assembled tangent every step)")
     p.add_argument("--model-E-factor", type=real("positive"), default=1.0,
                    help="the model's E = factor * the Case's E")
     p.add_argument("--model-size", type=real("positive", "mm"), default=None,
@@ -95,7 +100,8 @@ def _setup(args, case):
     mcase = case_from_args(args, size=args.model_size) if args.model_size is not None else None
     try:
         loop = build_loop(case, plant=args.plant, model=args.model,
-                          model_E_factor=args.model_E_factor, model_case=mcase)
+                          model_E_factor=args.model_E_factor, model_case=mcase,
+                          model_update=args.model_update)
     except CaseError as exc:
         raise CaseError(f"--model-E-factor / --model: {exc}") from None
     travel = args.max_travel

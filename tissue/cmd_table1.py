@@ -95,6 +95,7 @@ def _scenario_loops(args, case, names) -> dict:
             raise type(exc)(f"--contact-plant: {exc}") from None
     contact = {"plant_case": plant, "contact_rule": args.plant_contact_quadrature}
     return {name: scenario_loop(case, name, model=args.model or "admm", coarse_case=coarse,
+                                model_update=args.model_update,
                                 **(contact if name == "contact" else {}))
             for name in dict.fromkeys(names)}
 

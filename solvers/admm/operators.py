@@ -255,6 +255,43 @@ class AdmmOperators:
         fe = np.einsum("mab,mb->ma", Ke, v[self.kin.dofs])
         return np.bincount(self.kin.dofs.ravel(), weights=fe.ravel(), minlength=self.N)
 
+    def residual(self, u, fext) -> np.ndarray:
+        """Internal minus external nodal forces (mN, full node-major) at displacement u (mm):
+        the gradient of the P1 energy, zero on the free dofs at equilibrium."""
+        P, _ = self.law.stress(self.grad(u))
+        return self.scatter(self.kin.V[:, None, None] * P) - fext
+
+    def residuals(self, U, fext) -> np.ndarray:
+        """``residual`` of each column of U ((N, k) mm) at once, (N, k) mN: one sparse product
+        for the gradients, one stress evaluation and one for the forces (a batch of directional
+        differences costs about what two single residuals do)."""
+        U = np.asarray(U, float).reshape(self.N, -1)
+        k, m, d = U.shape[1], self.m, self.d
+        Dm, DmT = self._mesh_gradient()
+        H = (Dm @ U).reshape(m, d, d, k).transpose(3, 0, 1, 2).reshape(k * m, d, d)
+        P, _ = self.law.stress(H)
+        Pv = (np.tile(self.kin.V, k)[:, None, None] * P).reshape(k, m * d * d).T
+        return DmT @ Pv - np.asarray(fext, float).reshape(-1, 1)
+
+    def tangent_products(self, u):
+        """V -> K V ((N, k) mm -> (N, k) mN): products with the exact tangent K at u from the
+        elements' material tangents, without assembling K (one tangent evaluation here, then
+        two sparse products and a batch of small ones per call)."""
+        m, dd = self.m, self.d * self.d
+        A = self.law.tangent(self.grad(u)) * self.kin.V[:, None, None]
+        Dm, DmT = self._mesh_gradient()
+
+        def apply(V):
+            V = np.asarray(V, float).reshape(self.N, -1)
+            G = (Dm @ V).reshape(m, dd, V.shape[1])
+            return DmT @ np.matmul(A, G).reshape(m * dd, V.shape[1])
+        return apply
+
+    def prescribed(self, case) -> np.ndarray:
+        """The prescribed part u_p (mm, full node-major) of the displacement for ``case``'s
+        boundary values (a Case of this structure: other pushes, the same regions)."""
+        return _particular(case, self)
+
     def step_norm(self, dq):
         """Largest vertex displacement (mm) of the reduced increment dq."""
         whole = getattr(self.lu, "whole", None)

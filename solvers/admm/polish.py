@@ -49,8 +49,7 @@ def _energy(ops, u, fext, inertia):
 
 
 def _residual(ops, u, fext, inertia):
-    P, _ = ops.law.stress(ops.grad(u))
-    r = ops.scatter(ops.kin.V[:, None, None] * P) - fext
+    r = ops.residual(u, fext)
     if inertia is not None:
         mdt, ut = inertia
         r = r + mdt * (u - ut)

@@ -1,0 +1,225 @@
+"""The controller's P1 model updated in milliseconds: the same Neo-Hookean P1 energy that the
+ADMM model minimizes (``solvers.admm``: its operators, residual and tangent), moved from one MPC
+step's pushes to the next by a chord Newton with a lagged factorization, and its control Jacobian
+by the same factorization with iterative refinement. A full ADMM solve starts it and takes over
+whenever the chord iterations stall.
+
+Glued patches: the pushes s (mm) prescribe u_p(s) = u_p0 + E s on the actuators' dofs (E: one
+column per actuator, its direction on its region's dofs; every other prescribed dof is fixed).
+With the free coordinates q (u = u_p(s) + Z q) the model's state solves r_f(q, s) = Z^T r(u) = 0.
+
+State update from s to s' = s + ds, each step, with the factorization F of K_r = Z^T K Z at some
+earlier state (K: the tangent of the P1 energy):
+
+    predictor   q' = q + X ds                       (X = dq/ds, the last step's sensitivities)
+    chord       q' <- q' - F^-1 r_f(q', s')          until the largest vertex step < tol_mm
+
+Sensitivities X at the new state (they give the Jacobian): d r_f / d s = 0 along the solution,
+K_r X_a + Z^T K E_a = 0 for each actuator a. Refinement from the last X, each sweep
+
+    X_a <- X_a - F^-1 g_a,   g_a = Z^T K (Z X_a + E_a)  (the free residual's derivative along
+                                                         the direction (Z X_a + E_a))
+
+where K v comes from the elements' material tangents at the state without assembling K
+(``AdmmOperators.tangent_products``: one tangent evaluation per step). Sweeps stop when the correction
+is below REFINE_TOL of X; the Jacobian of a target is then J = P (Z X + E) (P: the probe's P1
+interpolation), mm of target per mm of push, the derivative of the model's state exactly as
+``control.jacobian.dirichlet_jacobian`` computes it from the assembled tangent.
+
+The factorization is rebuilt at the current state when a chord iteration contracts by less than
+REFACTOR_RATE, or a refinement sweep by less than that; the model falls back to a full ADMM
+solve (polish to 1e-7 mm) when the iterations still do not converge or a cell inverts.
+Units: mm, mN.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse.linalg as spla
+
+from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.solvers.admm import prepare
+from tissue_reference.solvers.admm import solve as admm_solve
+
+from .jacobian import probe_matrix
+from .plant_step import check_prescribed
+
+__all__ = ["REFACTOR_RATE", "REFINE_TOL", "FastModel"]
+
+REFACTOR_RATE = 0.25
+"""A chord iteration or a refinement sweep that shrinks its correction by less than this factor
+rebuilds the factorization at the current state."""
+REFINE_TOL = 1e-5
+"""Refinement of the sensitivities stops when its correction is below this fraction of them (the
+Jacobian is then within about that of the exact one at the state: a hundredth of the 1e-3 a
+controller needs)."""
+STATE_TOL_MM = 1e-6
+"""The model's state is solved until the largest vertex step is below this (mm); a state that far
+off moves the Jacobian by about 1e-6 relative."""
+MAX_ITERATIONS = 12
+
+
+class FastModel:
+    """The controller's model (``control.loop.LinearizedModel``'s interface: ``case``,
+    ``target``, ``jacobian(pushes, u=None)``, ``solve_time_s``, ``retries``) on glued patches,
+    updated by the chord Newton of the module docstring. ``timings`` (ms per call of
+    ``jacobian``): "state" (the state update), "jacobian" (sensitivities and J), "factor"."""
+
+    def __init__(self, case, target: str):
+        case.probe(target)
+        if case.indenters():
+            case.require_no_contact("the fast model")
+        self.case, self.target = case, target
+        self.sensitivity = None
+        self.solve = None   # no solve of its own a plant could share
+        self.retries: list[str] = []
+        self.solve_time_s = 0.0
+        self.timings: list[dict] = []
+        self.refactorizations = 0
+        self.fallbacks = 0
+        self.acts = [a.name for a in case.actuators]
+        self._ops = None
+        self._q = None
+        self._s = None
+        self._X = None
+        self._F = None
+        self._P = probe_matrix(case, [target])
+        self._factor_ms = 0.0
+
+    # -------------------------------------------------------------- pieces
+    def _setup(self, pushes):
+        """(pushed Case, operators, prescribed u_p, external forces, E columns (N, n_act))."""
+        pushed = self.case.with_pushes(pushes)
+        ops = prepare(pushed)
+        up = ops.prescribed(pushed)
+        if self._ops is not ops:
+            self._ops = ops
+            self._F = None
+            zero = ops.prescribed(self.case.with_pushes(dict.fromkeys(self.acts, 0.0)))
+            self._E = np.column_stack([
+                ops.prescribed(self.case.with_pushes(
+                    {a: (1.0 if a == b else 0.0) for a in self.acts})) - zero
+                for b in self.acts])
+            self._fext = pushed.external_forces(1.0)
+        return pushed, ops, up
+
+    def _factor(self, ops, u):
+        t0 = time.perf_counter()
+        Kr, _ = ops.reduced_tangent(u)
+        try:
+            self._F = spla.splu(Kr.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.01,
+                                options={"SymmetricMode": True})
+        except RuntimeError as exc:
+            raise ConvergenceError(f"the fast model's tangent is singular: {exc}") from None
+        self.refactorizations += 1
+        self._factor_ms += (time.perf_counter() - t0) * 1e3
+
+    def _valid(self, ops, u) -> bool:
+        if ops.law.model == "linear-elastic":
+            return True
+        F = ops.grad(u) + np.eye(ops.d)
+        return bool(np.all(np.linalg.det(F) > 0))
+
+    def _full_solve(self, pushes):
+        """A full ADMM solve (polish to 1e-7 mm) at ``pushes``: the start, and the fallback."""
+        from .plants import ADMM_CONTROL_OPTIONS
+
+        _, ops, up = self._setup(pushes)
+        r = admm_solve(self.case, pushes=pushes, initial=None if self._q is None else
+                       (up + ops.red.Z @ self._q).reshape(-1, ops.d), **ADMM_CONTROL_OPTIONS)
+        check_prescribed(self.case, pushes, r, "controller model")
+        u = np.asarray(r.u, float).reshape(-1)
+        self._q = ops.red.ZT @ (u - up)
+        self._X = None
+        return ops, up, u
+
+    # -------------------------------------------------------------- the update
+    def _chord(self, ops, up, q):
+        """q solving the free residual from ``q`` (chord iterations); None when they stall or
+        the state is not valid (an inverted cell)."""
+        Z, ZT = ops.red.Z, ops.red.ZT
+        prev = None
+        refactored = False
+        for _ in range(MAX_ITERATIONS):
+            dq = -self._F.solve(ZT @ ops.residual(up + Z @ q, self._fext))
+            step = ops.step_norm(dq)
+            if not np.isfinite(step):
+                return None
+            q = q + dq
+            if step < STATE_TOL_MM:
+                return q if self._valid(ops, up + Z @ q) else None
+            if prev is not None and step > REFACTOR_RATE * prev and not refactored:
+                self._factor(ops, up + Z @ q)
+                refactored = True
+            prev = step
+        return None
+
+    def _refine(self, ops, u):
+        """The sensitivities X (nq, n_act) at state u, from the last ones; None when stalled."""
+        Z, ZT = ops.red.Z, ops.red.ZT
+        KV = ops.tangent_products(u)
+        if self._X is None:   # first: one solve with the factorization gives a start
+            X = -self._F.solve(ZT @ KV(self._E))
+        else:
+            X = self._X.copy()
+        prev = None
+        refactored = False
+        for _ in range(MAX_ITERATIONS):
+            dX = -self._F.solve(ZT @ KV(Z @ X + self._E))
+            X = X + dX
+            change = float(np.abs(dX).max()) / max(float(np.abs(X).max()), 1e-300)
+            if change < REFINE_TOL:
+                return X
+            if prev is not None and change > REFACTOR_RATE * prev and not refactored:
+                self._factor(ops, u)
+                refactored = True
+            prev = change
+        return None
+
+    def jacobian(self, pushes: dict, u=None) -> np.ndarray:
+        """(gdim, n_act) mm/mm: the target's sensitivity to the pushes at the model's state at
+        ``pushes`` (``u`` is ignored: this model keeps its own state)."""
+        t0 = time.perf_counter()
+        s = np.array([float(pushes.get(a, 0.0)) for a in self.acts])
+        self._factor_ms = 0.0
+        _, ops, up = self._setup(pushes)
+        q = None
+        if self._q is not None and self._F is not None:
+            q0 = self._q if self._X is None or self._s is None else \
+                self._q + self._X @ (s - self._s)
+            q = self._chord(ops, up, q0)
+        if q is None:
+            if self._q is not None:
+                self.fallbacks += 1
+                self.retries.append(f"fast model at pushes {pushes}: chord iterations stalled; "
+                                    f"full ADMM solve")
+            ops, up, u_full = self._full_solve(pushes)
+            self._factor(ops, u_full)
+            q = self._q
+        t1 = time.perf_counter()
+        u_new = up + ops.red.Z @ q
+        X = self._refine(ops, u_new)
+        if X is None:
+            self._factor(ops, u_new)
+            self._X = None
+            X = self._refine(ops, u_new)
+            if X is None:
+                raise ConvergenceError(f"the fast model's sensitivities did not converge at "
+                                       f"pushes {pushes}")
+        self._q, self._s, self._X = q, s, X
+        J = np.asarray(self._P @ (ops.red.Z @ X + self._E))
+        t2 = time.perf_counter()
+        self.timings.append({"state": (t1 - t0) * 1e3, "jacobian": (t2 - t1) * 1e3,
+                             "factor": self._factor_ms})
+        self.solve_time_s += t2 - t0
+        return J
+
+    @property
+    def u(self) -> np.ndarray:
+        """The model's current state (mm, (n_vertices, gdim))."""
+        if self._q is None:
+            raise CaseError("the fast model has no state yet: call jacobian(pushes) first")
+        pushed = self.case.with_pushes(dict(zip(self.acts, self._s.tolist())))
+        ops = self._ops
+        return (ops.prescribed(pushed) + ops.red.Z @ self._q).reshape(-1, ops.d)
