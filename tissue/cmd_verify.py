@@ -100,6 +100,13 @@ def run(args) -> int:
     for name, err in over.items():
         print(f"tissue verify: error: {name}: max vertex error {err:.4g} mm exceeds --tol "
               f"{args.tol:g} mm", file=sys.stderr)
+    # a solver that says it did not converge fails a tolerance, whatever its error
+    unconverged = [n for n, e in res["solvers"].items()
+                   if args.tol is not None and e.get("converged") is False]
+    for name in unconverged:
+        print(f"tissue verify: error: {name}: reported converged = false; an answer its own "
+              f"solver does not stand behind fails --tol", file=sys.stderr)
+    over = {**over, **dict.fromkeys(unconverged)}
     # scores against a reference with no converged answer behind it: exit status 1
     return 1 if bad or over or res["reference"].get("no_converged_value") else 0
 

@@ -10,9 +10,13 @@ The protocol every solver follows (the built-in ones too, through ``builtin_solv
 ``case`` is a ``meshes.case.Case`` (mesh points, cells, regions, material, actuators) and
 ``pushes`` maps actuator names to pushes (mm); ``case.with_pushes(pushes)`` gives the boundary
 values. Instead of an array a solver may return an object (or a mapping) with ``u`` and any of
-``iterations``, ``converged``, ``wall_time_s``, ``history`` (a mapping of per-iteration lists,
-e.g. ``max_step_mm`` for the convergence plot) and ``extra`` (a mapping) — a
-``meshes.results.SolveResult`` is one.
+``iterations`` (a whole number), ``converged`` (True or False), ``wall_time_s`` (seconds),
+``history`` (a mapping of per-iteration lists of numbers, e.g. ``max_step_mm`` for the
+convergence plot) and ``extra`` (a mapping) — a ``meshes.results.SolveResult`` is one. Each is
+checked as a built-in solver's figures are: a value of another kind is a PluginError naming the
+field, and so is a complex displacement. A solver that does not handle a problem raises
+``meshes.errors.CaseError`` with a message saying why; ``verify`` reports that (exit status 2)
+instead of a score.
 
 A package makes its solver available by name through the entry-point group ``tissue.solvers``::
 
@@ -156,10 +160,17 @@ def run_plugin(plugin: SolverPlugin, case, pushes: dict, options: dict | None = 
     except Exception as exc:
         raise PluginError(f"solver {plugin.name!r} raised {type(exc).__name__}: {exc}") from exc
     wall = time.perf_counter() - t0
+    if isinstance(out, tuple) and len(out) == 2 and isinstance(out[1], dict):
+        raise PluginError(f"solver {plugin.name!r} returned a tuple (u, {{...}}): return the "
+                          f"displacement alone, or an object or mapping with 'u' and any of "
+                          f"{list(_FIGURES)}")
     raw = out if isinstance(out, (np.ndarray, list, tuple)) else _get(out, "u")
     if raw is None:
         raise PluginError(f"solver {plugin.name!r} returned {type(out).__name__}: expected an "
                           f"({n}, {gdim}) displacement array or an object with 'u'")
+    if _has_complex(raw):
+        raise PluginError(f"solver {plugin.name!r} returned a complex displacement: expected "
+                          f"real values (mm); its imaginary part would be dropped")
     try:
         u = np.asarray(raw, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -173,13 +184,55 @@ def run_plugin(plugin: SolverPlugin, case, pushes: dict, options: dict | None = 
         bad = int(np.flatnonzero(~np.all(np.isfinite(u), axis=1))[0])
         raise PluginError(f"solver {plugin.name!r} returned a displacement that is not finite "
                           f"(first at vertex {bad})")
-    its = _get(out, "iterations") if not isinstance(out, np.ndarray) else None
-    conv = _get(out, "converged") if not isinstance(out, np.ndarray) else None
-    hist = _get(out, "history") if not isinstance(out, np.ndarray) else None
-    extra = _get(out, "extra") if not isinstance(out, np.ndarray) else None
-    reported = _get(out, "wall_time_s") if not isinstance(out, np.ndarray) else None
-    return PluginRun(u=u, wall_time_s=float(reported) if reported else wall,
-                     iterations=None if its is None else int(its),
-                     converged=None if conv is None else bool(conv),
-                     history=dict(hist) if isinstance(hist, dict) else {},
-                     extra=dict(extra) if isinstance(extra, dict) else {})
+    meta = {} if isinstance(out, (np.ndarray, list, tuple)) else \
+        {k: _get(out, k) for k in _FIGURES}
+    figures = {k: _figure(plugin, k, v) for k, v in meta.items() if v is not None}
+    return PluginRun(u=u, wall_time_s=figures.get("wall_time_s", wall),
+                     iterations=figures.get("iterations"), converged=figures.get("converged"),
+                     history=figures.get("history", {}), extra=figures.get("extra", {}))
+
+
+_FIGURES = ("iterations", "converged", "wall_time_s", "history", "extra")
+"""What a solver may report beside its displacement (the module docstring)."""
+
+
+def _has_complex(raw) -> bool:
+    """Whether an array, or a nested list of numbers, holds complex values."""
+    if isinstance(raw, (list, tuple)):
+        return any(_has_complex(x) for x in raw)
+    return isinstance(raw, (complex, np.complexfloating)) or \
+        (isinstance(raw, np.ndarray) and np.iscomplexobj(raw))
+
+
+def _figure(plugin, key, v):
+    """A reported figure checked as the built-in solvers' are; PluginError naming the field."""
+    def bad(want):
+        return PluginError(f"solver {plugin.name!r} reported {key} = {v!r}: expected {want}")
+
+    if key == "iterations":
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer, float)) or \
+                not float(v).is_integer() or v < 0:
+            raise bad("a whole number >= 0")
+        return int(v)
+    if key == "converged":
+        if not isinstance(v, (bool, np.bool_)):
+            raise bad("True or False")
+        return bool(v)
+    if key == "wall_time_s":
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.floating)) or \
+                not np.isfinite(v) or v < 0:
+            raise bad("a finite number of seconds >= 0")
+        return float(v)
+    if not isinstance(v, dict):
+        raise bad("a mapping")
+    if key == "history":
+        out = {}
+        for name, values in v.items():
+            try:
+                arr = np.asarray(values, dtype=float).reshape(-1)
+            except (TypeError, ValueError):
+                raise PluginError(f"solver {plugin.name!r} reported history[{name!r}] = "
+                                  f"{values!r}: expected a list of numbers") from None
+            out[str(name)] = arr.tolist()
+        return out
+    return dict(v)

@@ -36,6 +36,7 @@ import numpy as np
 
 from tissue_reference.meshes.converged_range import unconverged_load
 from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.mesh import deformation_state
 from tissue_reference.meshes.results import material_json, write_json
 from tissue_reference.solvers import SOLVERS, get_solver
 
@@ -193,6 +194,11 @@ def verify(case, pushes=None, solvers=DEFAULT_SOLVERS, out_dir=None, *, json_fil
                 raise
             except Exception as exc:  # noqa: BLE001 - PluginError: name the choices too
                 raise CaseError(f"{exc}; built-in solvers: {sorted(FAST_SOLVERS)}") from None
+    names = [*builtins, *(p.name for p in plugins)]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise CaseError(f"solver(s) {twice} given twice (or two solvers share that name): each "
+                        f"candidate is scored and reported under its name, so names must differ")
     _check_options(options, builtins, plugins)
     if (degree is not None or formulation != "auto") and not (plugins or field is not None):
         raise CaseError("degree and formulation choose the reference for plugin solvers and "
@@ -328,6 +334,8 @@ def _score_plugin(plugin, case, pushes, opts, refs, degree, formulation):
         "reference_newton_iterations": int(res_ref.iterations),
         "plugin": True,
         "options": {k: v for k, v in opts.items() if isinstance(v, (int, float, str, bool))},
+        # the same validity check as a built-in solver's final state (inverted cells, runaway)
+        **{k: v for k, v in deformation_state(case.mesh, run.u).items() if k in VALIDITY_KEYS},
     })
     trace = None
     steps = run.history.get("max_step_mm")

@@ -1,0 +1,94 @@
+"""A solver that is not ours is held to the built-ins' rules: a reported non-convergence fails
+--tol, every malformed figure or displacement is a named error (exit status 2, one line), its
+answer is checked for validity, and two candidates cannot share a name."""
+import json
+
+import pytest
+
+from tissue_reference.tissue.cli import main
+
+PLUGINS = '''
+import numpy as np
+
+
+def zero(case, pushes, **options):
+    return np.zeros((case.mesh.n_vertices, case.mesh.gdim))
+
+
+def unconverged(case, pushes, **options):
+    return {"u": zero(case, pushes), "converged": False}
+
+
+def says_no(case, pushes, **options):
+    return {"u": zero(case, pushes), "converged": "no"}
+
+
+def many(case, pushes, **options):
+    return {"u": zero(case, pushes), "iterations": "many"}
+
+
+def fast(case, pushes, **options):
+    return {"u": zero(case, pushes), "wall_time_s": "fast"}
+
+
+def words(case, pushes, **options):
+    return {"u": zero(case, pushes), "history": {"max_step_mm": ["big", "small"]}}
+
+
+def complex_u(case, pushes, **options):
+    return zero(case, pushes) + 1e-3j
+
+
+def pair(case, pushes, **options):
+    return zero(case, pushes), {"iterations": 3}
+
+
+def folded(case, pushes, **options):
+    return -2.0 * case.mesh.points     # x = -X: every cell mirrored, so inverted
+'''
+CASE = "meshes/cases/phantom.toml"
+
+
+@pytest.fixture(scope="module")
+def plugin_file(tmp_path_factory):
+    f = tmp_path_factory.mktemp("plugins") / "candidates.py"
+    f.write_text(PLUGINS)
+    return f
+
+
+def _verify(plugin_file, *names, extra=()):
+    return main(["verify", CASE, "--size", "14", "--push", "A1=1", "-q", "--solvers",
+                 *[f"{plugin_file}:{n}" for n in names], *extra])
+
+
+def test_a_reported_non_convergence_fails_a_tolerance(plugin_file, capsys):
+    assert _verify(plugin_file, "unconverged") == 0
+    capsys.readouterr()
+    assert _verify(plugin_file, "unconverged", extra=["--tol", "100"]) == 1
+    assert "reported converged = false" in capsys.readouterr().err
+    assert _verify(plugin_file, "zero", extra=["--tol", "100"]) == 0
+
+
+@pytest.mark.parametrize("name,words", [("says_no", "converged = 'no'"),
+                                        ("many", "iterations = 'many'"),
+                                        ("fast", "wall_time_s = 'fast'"),
+                                        ("words", "history['max_step_mm']"),
+                                        ("complex_u", "complex displacement"),
+                                        ("pair", "returned a tuple (u, {...})")])
+def test_a_malformed_answer_is_a_named_error(plugin_file, capsys, name, words):
+    assert _verify(plugin_file, name) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0] and name in err[0] and "Traceback" not in err[0]
+
+
+def test_an_answer_that_folds_every_cell_is_not_valid(plugin_file, tmp_path, capsys):
+    js = tmp_path / "v.json"
+    assert _verify(plugin_file, "folded", extra=["--json", str(js)]) == 1
+    e = json.loads(js.read_text())["solvers"][f"{plugin_file}:folded"]
+    assert e["valid"] is False and e["inverted_cells"] > 0
+    assert "the answer is not valid" in capsys.readouterr().err
+
+
+def test_two_candidates_cannot_share_a_name(plugin_file, capsys):
+    assert _verify(plugin_file, "zero", "zero") == 2
+    assert "given twice" in capsys.readouterr().err
