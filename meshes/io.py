@@ -24,6 +24,12 @@ _CELL = {3: "tetra", 2: "triangle"}
 _FACET = {3: "triangle", 2: "line"}
 
 
+_NO_VOLUME = ("add a Physical Volume (a Physical Surface for a 2D body) holding the body's "
+              "cells: gmsh saves only the elements of physical groups when any is defined "
+              "(.geo: Physical Volume(\"tissue\") = {1}; Python: gmsh.model.addPhysicalGroup(3, "
+              "[1]) and setPhysicalName; or save everything with Mesh.SaveAll = 1)")
+
+
 def read_msh(path, *, overlap_check: bool = True) -> MeshData:
     """Read a gmsh ``.msh`` (2.2 or 4.1) with named physical groups.
 
@@ -56,7 +62,8 @@ def read_msh(path, *, overlap_check: bool = True) -> MeshData:
     elif "triangle" in types:
         dim = 2
     else:
-        raise ReadError(f"{str(path)!r} holds no tetrahedra or triangles (found {sorted(types)})")
+        raise ReadError(f"{str(path)!r} holds no tetrahedra or triangles (found {sorted(types)})"
+                        f": {_NO_VOLUME}")
     phys = m.cell_data.get("gmsh:physical")
     names = {}  # (dim, tag) -> name
     for name, (tag, d) in (m.field_data or {}).items():
@@ -76,7 +83,8 @@ def read_msh(path, *, overlap_check: bool = True) -> MeshData:
     pts = np.asarray(m.points, dtype=np.float64)
     if dim == 2:
         if pts.shape[1] == 3 and np.ptp(pts[:, 2]) > 1e-12 * max(np.ptp(pts), 1.0):
-            raise ReadError(f"{str(path)!r}: triangles only but the mesh is not planar (z varies)")
+            raise ReadError(f"{str(path)!r}: {_NO_VOLUME} (it holds surface triangles in 3D but "
+                            f"no tetrahedra)")
         pts = pts[:, :2]
     curved = {}
     ho = [d for t, d in high_order if t == _CELL[dim]]
