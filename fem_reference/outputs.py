@@ -133,6 +133,7 @@ class OutputsMixin(StateMixin, TangentMixin):
         if self.Q is not None:
             state["pressure"] = self._pressure_vertex_field()
         contact = self.contact.extra()
+        cell_J = self._field_J()
         return SolveResult(
             u=u_v, converged=converged, iterations=iters, residual=float(residual),
             wall_time_s=wall, solver="fem", probes=self._probes(case, u_v),
@@ -149,6 +150,6 @@ class OutputsMixin(StateMixin, TangentMixin):
                    "tangent_shifts": self.timings.shifts, **state,
                    **contact,
                    **_through_surface(deformation_state(case.mesh, u_v, degree=self.degree,
-                                                        cell_J=self._field_J()), contact),
-                   "warnings": case.glued_patch_warnings(u_v) + self.contact.warnings(),
+                                                        cell_J=cell_J), contact),
+                   "warnings": case.glued_patch_warnings(u_v, cell_J) + self.contact.warnings(),
                    **_no_converged_value(case, self.contact)})

@@ -104,16 +104,19 @@ class CaseVariantsMixin:
                                f"singular rim")
         return out
 
-    def glued_patch_warnings(self, u) -> list[str]:
+    def glued_patch_warnings(self, u, cell_J=None) -> list[str]:
         """One line per pushed patch actuator past the range where its answer converges
         (``glued_unconverged``) or whose cells (those touching its region) fall below
         J = RIM_J_WARN in the displacement ``u`` ((n, gdim) mm); an indenter actuator has no
-        singular rim."""
+        singular rim. ``cell_J``: each cell's smallest J of the field itself where it is not the
+        P1 interpolant of the vertex values (degree >= 2: a rim cell can fold between its
+        vertices; ``fem_reference.field_jacobian``), else J of the straight cells."""
         pushed = [a for a in self.actuators if a.type == "patch" and a.push != 0.0]
         if not pushed:
             return []
         deep = self.glued_unconverged()
-        J = cell_jacobians(self.mesh.points, self.mesh.cells, np.asarray(u, float))
+        J = cell_jacobians(self.mesh.points, self.mesh.cells, np.asarray(u, float)) \
+            if cell_J is None else np.asarray(cell_J, float)
         out = []
         for a in pushed:
             verts = self.mesh.region_vertices(a.region)
