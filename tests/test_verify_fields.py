@@ -126,10 +126,12 @@ def test_points_outside_the_body_are_named_or_left_out(case, other_mesh):
     Y = other_mesh.points.copy()
     Y[7] = [25.0, 5.0, 5.0]
     f = Field(u=exact(Y), points=Y, source="moved.vtu")
-    with pytest.raises(CaseError, match=r"moved.vtu: 1 point\(s\) lie outside.*point 7 at \[25"):
+    with pytest.raises(CaseError, match=r"moved.vtu: 1 point\(s\) lie outside.*point 7 at \[25"
+                       r".*--skip-outside"):
         score(case, f)
     e = score(case, f, outside="skip")
     assert e["outside_points"] == [7] and e["max_vertex_error_mm"] < 1e-9
+    assert "l2_error_mm" not in e and "volume norms" in e["note"]
 
 
 @pytest.mark.parametrize("content,match", [

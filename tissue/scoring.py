@@ -324,9 +324,18 @@ def score_field(case, ref, field: Field, *, outside: str = "error") -> dict:
                                for i in bad[:5])
             if outside != "skip":
                 raise CaseError(f"{field.source}: {len(bad)} point(s) lie outside the body of "
-                                f"case {case.name!r} (beyond the snap distance): {listed}"
-                                f"{' ...' if len(bad) > 5 else ''}")
+                                f"case {case.name!r} (beyond the snap distance, "
+                                f"{SNAP_RTOL:g} of the local cell size): {listed}"
+                                f"{' ...' if len(bad) > 5 else ''}. A field on a finer mesh of "
+                                f"a curved body has boundary points outside a coarser mesh's "
+                                f"flat facets: score it against a reference on a finer mesh "
+                                f"(--size) or at degree 2 (curved cells), or leave those points "
+                                f"out (--skip-outside; the volume norms then need every point "
+                                f"and are not computed)")
             out["outside_points"] = bad.tolist()
+            out["note"] = (f"{len(bad)} point(s) outside the body were left out of the scores; "
+                           f"the volume norms (l2, h1, energy) need every point of the field's "
+                           f"mesh and are not computed")
         out["matched"] = "interpolated reference"
         out["reference_interpolation"] = how
         e = np.where(inside[:, None], u - vals, 0.0)
