@@ -65,6 +65,7 @@ from .builders_curved import (  # noqa: F401  (re-exported)
 from .builders_gmsh import _GMSH_STATE, _finish, _gmsh_session  # noqa: F401  (re-exported)
 from .errors import CaseError
 from .mesh import MeshData
+from .mesh_cache import cached
 
 __all__ = [
     "BUILDERS",
@@ -110,6 +111,7 @@ BUILDERS = {"phantom": phantom, "phantom-half": phantom_half, "phantom-quarter":
             "phantom-symmetric": phantom_symmetric, "phantom-3": phantom3, "box": box,
             "rectangle": rectangle,
             "shell-octant": shell_octant, "indent-block": indent_block}
+_SHIPPED = dict(BUILDERS)   # the builders whose meshes the disk cache may keep (not stand-ins)
 
 
 # Volume (mm^3; area in mm^2 for the 2D rectangle) of each builder's body at its default
@@ -247,7 +249,7 @@ def build(name: str, size: float, *, out=None, max_cells: int | None = MAX_CELLS
     check_local_sizes(local)
     if not local:
         check_cell_budget(name, size, max_cells)
-        return BUILDERS[name](size, out=out)
+        return _built(name, size, local, out)
     if name not in SITE_BUILDERS:
         raise CaseError(f"{next(iter(local))} applies to the builders {list(SITE_BUILDERS)}, "
                         f"not {name!r}")
@@ -256,4 +258,13 @@ def build(name: str, size: float, *, out=None, max_cells: int | None = MAX_CELLS
         sizes = ", ".join(f"{k} {v:g} mm" for k, v in local.items())
         raise CaseError(f"builtin mesh {name!r} at size {size:g} mm, {sizes}: about {est:,} "
                         f"cells (estimate), more than the limit {max_cells:,}")
-    return BUILDERS[name](size, out=out, **local)
+    return _built(name, size, local, out)
+
+
+def _built(name, size, local, out):
+    """The mesh from its builder; from the disk cache (``meshes.mesh_cache``) when no file is
+    asked for and the builder is the shipped one (a stand-in, e.g. a test's, is not cached)."""
+    builder = BUILDERS[name]
+    if out is not None or builder is not _SHIPPED.get(name):
+        return builder(size, out=out, **local)
+    return cached(name, size, local, lambda: builder(size, **local))

@@ -9,6 +9,15 @@ from tissue_reference.meshes import builders
 from tissue_reference.meshes.errors import CaseError
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _mesh_cache(tmp_path_factory):
+    """The builtin meshes are cached for this session only (meshes.mesh_cache), so no test
+    depends on what an earlier run left in the user's cache; subprocesses inherit it."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("TISSUE_MESH_CACHE", str(tmp_path_factory.mktemp("mesh_cache")))
+        yield
+
+
 @pytest.fixture(scope="module")
 def coarse_builders():
     """Builtin meshes built once at a coarse size, whatever size the case asks for."""
