@@ -126,8 +126,12 @@ class FastModel:
         from .plants import ADMM_CONTROL_OPTIONS
 
         _, ops, up = self._setup(pushes)
-        r = admm_solve(self.case, pushes=pushes, initial=None if self._q is None else
-                       (up + ops.red.Z @ self._q).reshape(-1, ops.d), **ADMM_CONTROL_OPTIONS)
+        warm = None if self._q is None else up + ops.red.Z @ self._q
+        if warm is not None and not self._valid(ops, warm):
+            warm = None   # the last state carried to these pushes folds cells: start cold
+        r = admm_solve(self.case, pushes=pushes,
+                       initial=None if warm is None else warm.reshape(-1, ops.d),
+                       **ADMM_CONTROL_OPTIONS)
         check_prescribed(self.case, pushes, r, "controller model")
         u = np.asarray(r.u, float).reshape(-1)
         self._q = ops.red.ZT @ (u - up)
