@@ -27,8 +27,9 @@ interpolation), mm of target per mm of push, the derivative of the model's state
 ``control.jacobian.dirichlet_jacobian`` computes it from the assembled tangent.
 
 The factorization is rebuilt at the current state when a chord iteration contracts by less than
-REFACTOR_RATE, or a refinement sweep by less than that; the model falls back to a full ADMM
-solve (polish to 1e-7 mm) when the iterations still do not converge or a cell inverts.
+REFACTOR_RATE, or a refinement sweep by less than that. When the chord iterations still do not
+converge, or a cell inverts, the state comes from a full ADMM solve (polish to 1e-7 mm; warm,
+then cold); sensitivities that do not converge after a refactorization raise ConvergenceError.
 Units: mm, mN.
 """
 from __future__ import annotations
@@ -43,7 +44,7 @@ from tissue_reference.solvers.admm import prepare
 from tissue_reference.solvers.admm import solve as admm_solve
 
 from .jacobian import probe_matrix
-from .plant_step import check_prescribed
+from .plant_step import solve_checked
 
 __all__ = ["REFACTOR_RATE", "REFINE_TOL", "FastModel"]
 
@@ -129,12 +130,17 @@ class FastModel:
         warm = None if self._q is None else up + ops.red.Z @ self._q
         if warm is not None and not self._valid(ops, warm):
             warm = None   # the last state carried to these pushes folds cells: start cold
-        r = admm_solve(self.case, pushes=pushes,
-                       initial=None if warm is None else warm.reshape(-1, ops.d),
-                       **ADMM_CONTROL_OPTIONS)
-        check_prescribed(self.case, pushes, r, "controller model")
+
+        def solve(case, p, initial):
+            return admm_solve(case, pushes=p, initial=initial, **ADMM_CONTROL_OPTIONS)
+
+        # a warm start that fails is retried cold, as the solve-based model does
+        r = solve_checked(solve, self.case, pushes,
+                          None if warm is None else warm.reshape(-1, ops.d),
+                          "controller model", self.retries)
         u = np.asarray(r.u, float).reshape(-1)
         self._q = ops.red.ZT @ (u - up)
+        self._s = np.array([float(pushes.get(a, 0.0)) for a in self.acts])
         self._X = None
         return ops, up, u
 
@@ -154,7 +160,10 @@ class FastModel:
             if step < STATE_TOL_MM:
                 return q if self._valid(ops, up + Z @ q) else None
             if prev is not None and step > REFACTOR_RATE * prev and not refactored:
-                self._factor(ops, up + Z @ q)
+                try:
+                    self._factor(ops, up + Z @ q)
+                except ConvergenceError:   # a singular tangent on the way: the full solve
+                    return None
                 refactored = True
             prev = step
         return None

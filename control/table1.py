@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import json
 import textwrap
+import warnings
 from html import escape as html_escape
 from pathlib import Path
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from tissue_reference.meshes.errors import ConvergenceError
+from tissue_reference.meshes.errors import ConvergenceError, TissueWarning
 from tissue_reference.meshes.html_page import Raw, image, kv_table, page, table, write_page
 from tissue_reference.meshes.io import atomic_path, save_figure
 from tissue_reference.meshes.results import write_json
@@ -183,8 +184,10 @@ def run_one(loop, t, task, settings, out, plots: bool = True) -> tuple[dict, str
 _WORKER = {}   # in a worker process: its loop factory, its key and the loop it built
 
 
-def _worker_init(factory, key):
+def _worker_init(factory, key, quiet):
     _WORKER.update(factory=factory, key=key, loop=None)
+    if quiet:   # the parent (the command line) prints its own lines instead
+        warnings.simplefilter("ignore", TissueWarning)
 
 
 def _worker_run(t, task, settings, out, plots):
@@ -192,6 +195,12 @@ def _worker_run(t, task, settings, out, plots):
         with threadpool_limits(limits=LOOP_BLAS_THREADS):   # one core per worker
             _WORKER["loop"] = _WORKER["factory"](_WORKER["key"])
     return run_one(_WORKER["loop"], t, task, settings, out, plots)
+
+
+def _ignoring_warnings() -> bool:
+    """Whether this process ignores TissueWarning (the command line does)."""
+    return any(f[0] == "ignore" and isinstance(f[2], type) and issubclass(TissueWarning, f[2])
+               for f in warnings.filters)
 
 
 def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
@@ -222,10 +231,10 @@ def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     Path(out).mkdir(parents=True, exist_ok=True)
+    init = (loop_factory, factory_key, _ignoring_warnings())
     with ProcessPoolExecutor(max_workers=min(jobs, n),
                              mp_context=multiprocessing.get_context("spawn"),
-                             initializer=_worker_init,
-                             initargs=(loop_factory, factory_key)) as pool:
+                             initializer=_worker_init, initargs=init) as pool:
         futures = {pool.submit(_worker_run, *pair, settings, out, plots): i
                    for i, pair in enumerate(pairs)}
         for fut in as_completed(futures):

@@ -18,14 +18,15 @@ ESTIMATE_WARN = 0.02
 
 
 def relative_estimates(res) -> dict:
-    """Probe -> its estimated error relative to its displacement (inf at a probe that did not
-    move); only the probes with an estimate (``extra["probe_error_estimates"]``)."""
+    """Probe -> its estimated error relative to its displacement; only the probes with an
+    estimate (``extra["probe_error_estimates"]``). A probe that did not move has 0 when its
+    estimate is 0 too (nothing moved: nothing is wrong), else inf."""
     pe = res.extra.get("probe_error_estimates") or {}
     out = {}
     for k, v in res.probes.items():
         if k in pe:
             size = float(np.linalg.norm(v))
-            out[k] = pe[k] / size if size > 0 else float("inf")
+            out[k] = pe[k] / size if size > 0 else (0.0 if pe[k] == 0 else float("inf"))
     return out
 
 

@@ -48,7 +48,7 @@ def shipped_cases() -> list[str]:
 
 
 def case_path(path) -> Path:
-    """The case file that ``path`` names: the path itself when it exists; else, for a bare name
+    """The case file that ``path`` names: the path itself when it is a file; else, for a bare name
     (no folder), the shipped case of that name, with or without ``.toml`` (``phantom``,
     ``phantom-indenter.toml``), so that the shipped cases load from any working directory.
     CaseReadError when neither exists, listing the shipped names."""
@@ -56,7 +56,7 @@ def case_path(path) -> Path:
         p = Path(path)
     except TypeError:
         raise CaseError(f"case path must be a str or os.PathLike, found {path!r}") from None
-    if p.exists() or p.parent != Path("."):
+    if p.is_file() or p.parent != Path("."):
         return p
     for name in (p.name, p.name + ".toml"):
         if (SHIPPED_CASES / name).is_file():

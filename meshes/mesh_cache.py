@@ -2,8 +2,9 @@
 kept as a ``.npz`` file and read back the next time the same mesh is asked for, in any process,
 instead of running gmsh again (the default phantom: about 2 s of meshing, 0.05 s to read).
 
-The key is the builder's name, its sizes and a fingerprint of the code that builds meshes (the
-builder modules' source and gmsh's version), so a changed builder or another gmsh builds afresh.
+The key is the builder's name, its sizes and a fingerprint of the code that builds meshes (every
+module of this layer, gmsh's and meshio's versions), so changed code or another gmsh builds
+afresh.
 A file that cannot be read is built again and replaced; writes are atomic (a temporary file
 renamed), so processes sharing the cache never read half a file.
 
@@ -25,8 +26,6 @@ from .mesh import MeshData
 
 __all__ = ["cache_dir", "cached", "fingerprint", "mesh_key"]
 
-_SOURCES = ("builders.py", "builders_blocks.py", "builders_curved.py", "builders_gmsh.py",
-            "curved.py", "mirror.py", "mesh.py")
 _KINDS = ("facet_regions", "point_regions", "cell_regions")
 
 
@@ -43,13 +42,15 @@ def cache_dir() -> Path | None:
 
 @functools.cache
 def fingerprint() -> str:
-    """A digest of the mesh-building code and the gmsh version."""
+    """A digest of the meshes layer's code (every module: the builders, the reader they go
+    through, the projections and refinements they use) and of gmsh's and meshio's versions."""
     import gmsh
+    import meshio
 
-    h = hashlib.sha256(str(getattr(gmsh, "__version__", "")).encode())
-    here = Path(__file__).resolve().parent
-    for name in _SOURCES:
-        h.update((here / name).read_bytes())
+    h = hashlib.sha256(f"{getattr(gmsh, '__version__', '')} {meshio.__version__}".encode())
+    for path in sorted(Path(__file__).resolve().parent.glob("*.py")):
+        h.update(path.name.encode())
+        h.update(path.read_bytes())
     return h.hexdigest()[:16]
 
 

@@ -64,3 +64,8 @@ def test_the_command_line_prints_its_own_lines_not_pythons(capsys):
     assert not [w for w in caught if issubclass(w.category, TissueWarning)]
     err = capsys.readouterr().err
     assert "tissue solve: warning: glued patch 'A1' pushed 10 mm" in err
+
+
+def test_a_probe_that_did_not_move_with_no_error_is_no_concern():
+    still = _result({"probe_error_estimates": {"T1": 0.0}}, {"T1": np.zeros(3)})
+    assert answer_concerns(still) == []

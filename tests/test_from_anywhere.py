@@ -63,3 +63,20 @@ def test_a_solver_given_as_a_file_is_scored(elsewhere, capsys):
     assert main(["verify", "phantom", "--size", "14", "--push", "A1=1", "--solvers",
                  "missing.py:solve"]) == 2
     assert "file 'missing.py' does not exist" in capsys.readouterr().err
+
+
+def test_a_folder_of_a_cases_name_does_not_hide_it(elsewhere):
+    (elsewhere / "phantom").mkdir()   # e.g. left by an earlier --out phantom
+    assert load_case("phantom", size=14.0).source == str(SHIPPED_CASES / "phantom.toml")
+
+
+def test_a_solver_file_loads_once_and_imports_its_neighbours(elsewhere):
+    from tissue_reference.tissue.plugins import resolve_solver
+
+    (elsewhere / "helper.py").write_text("SCALE = 2.0\n")
+    (elsewhere / "uses_helper.py").write_text(
+        "import helper\nCALLS = []\n\n\ndef solve(case, pushes, **options):\n"
+        "    CALLS.append(1)\n    return helper.SCALE\n")
+    a = resolve_solver("uses_helper.py:solve")
+    b = resolve_solver("uses_helper.py:solve")
+    assert a.function is b.function and a.function(None, {}) == 2.0

@@ -84,3 +84,16 @@ def test_a_table_with_a_loop_past_its_range_exits_1_and_is_not_met(tmp_path, cap
     assert t["summary"]["outside_range"] == 3 and t["summary"]["all_met"] is False
     assert all(r["open_loop_outside_range"] for r in t["rows"])
     assert "outside the range where answers converge" in (out / "table1.md").read_text()
+
+
+def test_max_travel_auto_takes_each_scenarios_own_range(tmp_path):
+    """The mesh scenario's model is a coarser mesh, whose patches' polygons differ: auto takes
+    the smallest range of that scenario's plant and model, and no loop leaves it."""
+    out = tmp_path / "t"
+    assert main(["table1", CASE, "--size", "14", "--targets", "T1", "--steps", "2", "-q",
+                 "--scenarios", "mesh", "--max-travel", "auto", "--out", str(out)]) == 0
+    t = json.loads((out / "mesh" / "table1.json").read_text())
+    limit = t["meta"]["settings"]["max_travel_mm"]
+    assert 0.8 * DISC_RADIUS < limit < 1.1 * DISC_RADIUS
+    assert t["summary"]["outside_range"] == 0
+    assert all(max(r["final_pushes_mm"]) <= limit * (1 + 1e-9) for r in t["rows"])

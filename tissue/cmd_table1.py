@@ -3,12 +3,14 @@ or per model-plant mismatch scenario, optionally in worker processes (``--jobs``
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import json
 import sys
 from pathlib import Path
 
 from tissue_reference.control.scenarios import SCENARIOS
+from tissue_reference.meshes.converged_range import converged_push_limit
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import write_json
 
@@ -111,9 +113,15 @@ def _run_scenarios(args, case, targets, settings, base_meta) -> int:
     summaries, rows, metas = {}, {}, {}
     for name, loop in loops.items():
         loop.meta["settings"] = base_meta.get("settings")
+        own = settings
+        if args.max_travel == "auto":   # each scenario's own plant and model set its range
+            limit = converged_push_limit(loop.case, loop.model_case)
+            own = dataclasses.replace(settings, mpc=dataclasses.replace(settings.mpc,
+                                                                       max_travel=limit))
+            loop.meta["settings"] = {**(base_meta.get("settings") or {}), "max_travel_mm": limit}
         metas[name] = loop.meta
         _progress(args)(f"== scenario {name}: {loop.meta['scenario_description']}")
-        summaries[name] = run_all(loop.case, targets, loop, settings, out / name,
+        summaries[name] = run_all(loop.case, targets, loop, own, out / name,
                                   meta=loop.meta, progress=_progress(args), **_jobs(args, name))
         rows[name] = json.loads((out / name / "table1.json").read_text())["rows"]
         write_json({"case": case.name, "source": case.source, "targets": list(targets),

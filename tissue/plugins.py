@@ -128,6 +128,10 @@ def _module_of_file(spec: str, path: str):
     if not file.is_file():
         raise PluginError(f"solver {spec!r}: file {path!r} does not exist")
     name = f"tissue_plugin_{abs(hash(str(file.resolve())))}_{file.stem}"
+    if name in sys.modules:   # loaded once per process, as an imported module is
+        return sys.modules[name]
+    folder = str(file.resolve().parent)
+    sys.path.insert(0, folder)   # its neighbours import as they would with python my_solver.py
     try:
         loader = importlib.util.spec_from_file_location(name, file)
         mod = importlib.util.module_from_spec(loader)
@@ -137,6 +141,8 @@ def _module_of_file(spec: str, path: str):
         sys.modules.pop(name, None)
         raise PluginError(f"solver {spec!r}: cannot load file {path!r}: "
                           f"{type(exc).__name__}: {exc}") from exc
+    finally:
+        sys.path.remove(folder)
     return mod
 
 
