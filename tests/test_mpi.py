@@ -17,7 +17,7 @@ MPIRUN = shutil.which("mpirun")
 def run_solve(tmp_path, name, nproc, degree, formulation="displacement"):
     out = tmp_path / f"{name}.json"
     cmd = [TISSUE, "solve", str(ROOT / "meshes/cases/phantom.toml"), "--size", "14", "--degree",
-           str(degree), "--formulation", formulation, "--push", "A1=8", "--push", "A3=4", "-q",
+           str(degree), "--formulation", formulation, "--push", "A1=4", "--push", "A3=2", "-q",
            "--json", str(out)]
     if nproc > 1:
         cmd = [MPIRUN, "--allow-run-as-root", "--oversubscribe", "-n", str(nproc)] + cmd
