@@ -90,7 +90,8 @@ class FastModel:
 
     # -------------------------------------------------------------- pieces
     def _setup(self, pushes):
-        """(pushed Case, operators, prescribed u_p, external forces, E columns (N, n_act))."""
+        """(operators, prescribed u_p) at ``pushes``; for new operators also the push columns
+        E (N, n_act) and the external forces, kept, and the factorization dropped."""
         pushed = self.case.with_pushes(pushes)
         ops = prepare(pushed)
         up = ops.prescribed(pushed)
@@ -103,7 +104,7 @@ class FastModel:
                     {a: (1.0 if a == b else 0.0) for a in self.acts})) - zero
                 for b in self.acts])
             self._fext = pushed.external_forces(1.0)
-        return pushed, ops, up
+        return ops, up
 
     def _factor(self, ops, u):
         t0 = time.perf_counter()
@@ -126,7 +127,7 @@ class FastModel:
         """A full ADMM solve (polish to 1e-7 mm) at ``pushes``: the start, and the fallback."""
         from .plants import ADMM_CONTROL_OPTIONS
 
-        _, ops, up = self._setup(pushes)
+        ops, up = self._setup(pushes)
         warm = None if self._q is None else up + ops.red.Z @ self._q
         if warm is not None and not self._valid(ops, warm):
             warm = None   # the last state carried to these pushes folds cells: start cold
@@ -196,7 +197,7 @@ class FastModel:
         t0 = time.perf_counter()
         s = np.array([float(pushes.get(a, 0.0)) for a in self.acts])
         self._factor_ms = 0.0
-        _, ops, up = self._setup(pushes)
+        ops, up = self._setup(pushes)
         q = None
         if self._q is not None and self._F is not None:
             q0 = self._q if self._X is None or self._s is None else \

@@ -17,8 +17,20 @@ import numpy as np
 from .errors import ReadError, WriteError
 from .mesh import MeshData, check_tangles
 
-__all__ = ["REGION", "WRITERS", "atomic_path", "check_output_dir", "check_output_file", "read_mesh",
-           "read_msh", "region_tags", "save_figure", "write_mesh", "write_point_data"]
+__all__ = [
+    "REGION",
+    "WRITERS",
+    "atomic_path",
+    "check_output_dir",
+    "check_output_file",
+    "read_mesh",
+    "read_msh",
+    "region_tags",
+    "save_figure",
+    "user_cache_root",
+    "write_mesh",
+    "write_point_data",
+]
 
 _CELL = {3: "tetra", 2: "triangle"}
 _FACET = {3: "triangle", 2: "line"}
@@ -148,6 +160,13 @@ def read_mesh(path) -> MeshData:
 
 def _why(exc: OSError) -> str:
     return exc.strerror or str(exc)
+
+
+def user_cache_root() -> Path:
+    """The toolkit's folder in the user's cache (``$XDG_CACHE_HOME/tissue-reference``, else
+    ``~/.cache/tissue-reference``): compiled kernels and built meshes are kept below it."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "tissue-reference"
 
 
 class atomic_path:

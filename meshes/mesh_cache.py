@@ -17,11 +17,12 @@ import functools
 import hashlib
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from .errors import WriteError
+from .io import atomic_path, user_cache_root
 from .mesh import MeshData
 
 __all__ = ["cache_dir", "cached", "fingerprint", "mesh_key"]
@@ -34,10 +35,7 @@ def cache_dir() -> Path | None:
     root = os.environ.get("TISSUE_MESH_CACHE")
     if root == "off":
         return None
-    if root:
-        return Path(root)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "tissue-reference" / "meshes"
+    return Path(root) if root else user_cache_root() / "meshes"
 
 
 @functools.cache
@@ -69,14 +67,8 @@ def _save(path: Path, mesh: MeshData):
     for kind in _KINDS:
         for region, ids in getattr(mesh, kind).items():
             arrays[f"{kind}:{region}"] = np.asarray(ids)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-        os.replace(tmp, path)
-    except OSError:
-        Path(tmp).unlink(missing_ok=True)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez(f, **arrays)
 
 
 def _load(path: Path) -> MeshData | None:
@@ -109,6 +101,6 @@ def cached(name: str, size: float, local: dict, build) -> MeshData:
     mesh = build()
     try:
         _save(path, mesh)
-    except OSError:   # a cache that cannot be written is no cache: the mesh is still built
-        pass
+    except (OSError, WriteError):   # a cache that cannot be written is no cache: the mesh is
+        pass                        # still built
     return mesh

@@ -21,6 +21,8 @@ import tempfile
 import warnings
 from pathlib import Path
 
+from tissue_reference.meshes.io import user_cache_root
+
 SOURCE = Path(__file__).with_name("admm_kernel.c")
 CDEF = """
 void admm_iteration(int model, int d, long m, double mu, double kappa, double rho,
@@ -53,10 +55,7 @@ _loaded: dict = {}
 
 def _cache_dir() -> Path:
     root = os.environ.get("TISSUE_KERNEL_CACHE")
-    if root:
-        return Path(root)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "tissue-reference"
+    return Path(root) if root else user_cache_root()
 
 
 def _cpu() -> str:
