@@ -119,6 +119,7 @@ from tissue_reference.meshes.case import CONTACT_RULES, TIP_STARTS, Case, is_con
 from tissue_reference.meshes.converged_range import UNCONVERGED_RADII, past_converged_depth
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import SolveResult
+from tissue_reference.meshes.tips import DEFAULT_CONTACT_PENALTY
 
 from .contact_geometry import TipShape, _gap_ufl, nodal_rule  # noqa: F401  (re-exported)
 from .contact_indenter import (  # noqa: F401  (re-exported)
@@ -129,10 +130,6 @@ from .contact_indenter import (  # noqa: F401  (re-exported)
 )
 
 __all__ = ["DEFAULT_CONTACT_PENALTY", "Contact", "TipShape", "contact_key", "nodal_rule"]
-
-DEFAULT_CONTACT_PENALTY = 1e3
-"""beta in k = beta E / h: the penetration is (p_c / E + 1 / 2) h / beta (mm)."""
-
 
 DEEP_RADII = 1.8
 """Depth (in tip radii) past which a failed solve with the nodal rule names the contact rule as
@@ -266,12 +263,16 @@ class Contact:
         second order, which the stiff penalty turns into a large residual, so the residual norm
         would refuse steps that the energy takes. Without indenters every correction is taken.
         ``accepted_energy`` is then the taken state's energy and ``trial_energy`` the one just
-        tried."""
+        tried. The total includes the solver's ``extra_terms`` energy where they have one (the
+        inertia of an implicit-Euler step)."""
         if not self.indenters:
             return True
         if self._total is None:
             return forced or r_new < r_old
         energy = self.comm.allreduce(dolfinx.fem.assemble_scalar(self._total), op=MPI.SUM)
+        extra = self.solver.extra_terms   # e.g. the inertia of a dynamics time step
+        if extra is not None and hasattr(extra, "energy"):
+            energy += extra.energy()
         self.trial_energy = energy
         if forced or energy <= self._energy + 1e-12 * abs(self._energy):
             self._energy = energy

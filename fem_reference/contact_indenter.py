@@ -24,35 +24,27 @@ from petsc4py import PETSc
 
 from tissue_reference.meshes.case import Actuator, Case
 from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.tips import (
+    SLIP_FRACTION,
+    START_SAMPLES,
+    SURFACE_SAMPLES,
+    TipShape,
+    facet_samples,
+    first_touch,
+    indenter_site,
+    no_node_under,
+    passed_through,
+)
 
-from .contact_geometry import TipShape, _gap_ufl
+from .contact_geometry import _gap_ufl
 
 __all__ = ["SLIP_FRACTION", "START_SAMPLES", "SURFACE_SAMPLES"]
-
-
-SLIP_FRACTION = 0.05
-"""A contact facet deeper inside a tip than this fraction of its radius (and than 10x the
-nodal penetration) means the tip passed between the surface's nodes: the state is invalid."""
-SURFACE_SAMPLES = 4
-"""Sampling of each contact facet for that check: points per facet edge."""
-
-
-START_SAMPLES = 24
-"""Sampling of each facet near a tip's axis for the "surface" start (``meshes.case.TIP_STARTS``):
-points per facet edge. The first point of contact generally lies between nodes, which would
-start the tip deeper than on the meshed body."""
 
 
 def _facet_samples(nv: int, n: int | None = None) -> np.ndarray:
     """Barycentric sample points (s, nv) of a facet with nv vertices (2: edge, 3: triangle),
     ``n`` (default SURFACE_SAMPLES) per edge."""
-    n = SURFACE_SAMPLES if n is None else n
-    if nv == 2:
-        t = np.linspace(0.0, 1.0, n + 1)
-        return np.stack([1 - t, t], axis=1)
-    pts = [(i / n, j / n) for i in range(n + 1) for j in range(n + 1 - i)]
-    a = np.array(pts)
-    return np.stack([1 - a.sum(axis=1), a[:, 0], a[:, 1]], axis=1)
+    return facet_samples(nv, SURFACE_SAMPLES if n is None else n)
 
 
 def _facet_sample_points(mesh, facets, f2c):
@@ -141,7 +133,7 @@ class _Indenter:
         self.dofs = dolfinx.fem.locate_dofs_topological(V, mesh.topology.dim - 1, facets)
         self.dofs = self.dofs[self.dofs < V.dofmap.index_map.size_local]
         self.x_nodes = V.tabulate_dof_coordinates()[self.dofs, :gdim]
-        self.site = self._site(a, case)
+        self.site = indenter_site(a, case)
         self.tip_start = tip_start
         self.q0 = self._start(a, (mesh, facets, f2c) if tip_start == "surface" else None)
         # the tip must not pass between the contact surface's nodes: sample points on its
@@ -197,43 +189,27 @@ class _Indenter:
         kk, n_y, dsc = self._normal_stiffness
         return kk * ufl.dot(n_y, w) * ufl.dot(n_y, v) * dsc
 
-    def _site(self, a: Actuator, case: Case) -> np.ndarray:
-        if a.point is not None:
-            return np.asarray(a.point, float)
-        facets, area = case.mesh.facet_measures(a.region)
-        return (area[:, None] * case.mesh.points[facets].mean(axis=1)).sum(0) / area.sum()
-
     def _start(self, a: Actuator, surface=None) -> np.ndarray:
         """The tip's front point at push 0: where it first touches the contact surface's nodes
-        within its radius of the axis (those more than a radius behind the site ignored); with
-        ``surface`` (mesh, facets, facet-to-cell connectivity), where it first touches those
-        facets as the geometry curves them (TIP_STARTS)."""
+        (``meshes.tips.first_touch``); with ``surface`` (mesh, facets, facet-to-cell
+        connectivity), where it first touches those facets as the geometry curves them
+        (TIP_STARTS)."""
         R = self.shape.radius
-
-        def along(pts):
-            w = pts - self.site
-            s = w @ self.d
-            rho = np.linalg.norm(w - s[:, None] * self.d, axis=1)
-            return s, rho, (rho <= R) & (s >= -R)
-
-        s, rho, under = along(self.x_nodes)
-        t = float(np.min(s[under] + self.shape.lift(rho[under]), initial=np.inf))
+        t = first_touch(self.shape, self.site, self.d, self.x_nodes)
         if surface is not None:
             reach = R + float(self.h_range[1])
 
             def near(verts):   # facets with a vertex within a radius (and a cell) of the axis
-                cs, crho, _ = along(verts.reshape(-1, verts.shape[-1]))
+                w = verts.reshape(-1, verts.shape[-1]) - self.site
+                cs = w @ self.d
+                crho = np.linalg.norm(w - cs[:, None] * self.d, axis=1)
                 return ((crho <= reach) & (cs >= -reach)).reshape(len(verts), -1).any(axis=1)
 
             pts = _curved_facet_points(*surface, START_SAMPLES, keep=near)
-            s, rho, under = along(pts)
-            t = min(t, float(np.min(s[under] + self.shape.lift(rho[under]), initial=np.inf)))
+            t = min(t, first_touch(self.shape, self.site, self.d, pts))
         t = self.comm.allreduce(t, op=MPI.MIN)
         if not np.isfinite(t):
-            raise CaseError(
-                f"indenter {a.name!r}: no node of its contact surface "
-                f"{list(a.contact_regions)} lies under the tip (within {R:g} mm of its axis "
-                f"through {np.round(self.site, 6).tolist()} along {list(a.direction)})")
+            raise no_node_under(a, self.site)
         return self.site + t * self.d
 
     def push_now(self) -> float:
@@ -298,5 +274,5 @@ class _Indenter:
 
     def _slip_check(self, nodal_pen) -> dict:
         deep = self.surface_penetration()
-        through = deep > max(SLIP_FRACTION * self.shape.radius, 10.0 * nodal_pen)
-        return {"surface_penetration": deep, "tip_through_surface": bool(through)}
+        return {"surface_penetration": deep,
+                "tip_through_surface": passed_through(self.shape, deep, nodal_pen)}

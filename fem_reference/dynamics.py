@@ -96,6 +96,19 @@ class _Inertia:
         """u_tilde (mm) as a full local dof array of the solver's unknown."""
         self.target[:] = x_tilde[:self.n_own]
 
+    def energy(self) -> float:
+        """(u - u_tilde)^T M (u - u_tilde) / (2 dt^2) (uJ) at the solver's current state, over
+        all ranks: the inertia's share of the total energy that a contact line search weighs
+        (``fem_reference.contact.Contact.accepts``)."""
+        d = self.solver.x.vector.array_r[:self.n_own] - self.target
+        if self.m is not None:
+            local = float(self.m.array_r @ (d * d))
+        else:
+            self.work.array_w[:] = d
+            self.M.mult(self.work, self.work2)
+            local = float(self.work2.array_r @ d)
+        return 0.5 * self.c * self.solver.comm.allreduce(local, op=MPI.SUM)
+
     def add_residual(self, b, bcs):
         d = self.solver.x.vector.array_r[:self.n_own] - self.target
         if self.m is not None:

@@ -18,6 +18,7 @@ from petsc4py import PETSc
 from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.mesh import deformation_state
 from tissue_reference.meshes.results import SolveResult
+from tissue_reference.meshes.tips import through_surface_state
 
 from .outputs_state import StateMixin
 from .outputs_tangent import Tangent, TangentMixin
@@ -32,22 +33,6 @@ def _no_converged_value(case: Case, contact) -> dict:
     error bar; {} otherwise."""
     why = [*case.glued_unconverged().values(), *contact.unconverged()]
     return {"no_converged_value": why} if why else {}
-
-
-def _through_surface(state: dict, contact: dict) -> dict:
-    """The deformation state, made invalid where a tip passed between the contact surface's
-    nodes (the node-to-surface penalty cannot see it; the answer is then not a contact
-    solution at all)."""
-    bad = [n for n, r in (contact.get("indenters") or {}).items() if r.get("tip_through_surface")]
-    if not bad:
-        return state
-    why = "; ".join(
-        f"indenter {n!r} passed between the nodes of its contact surface (a facet "
-        f"{contact['indenters'][n]['surface_penetration']:.3g} mm inside the tip): the surface's "
-        f"cells are too coarse for the tip; refine the mesh under it (cells <= radius / 3)"
-        for n in bad)
-    reason = "; ".join(r for r in (state.get("invalid_reason"), why) if r)
-    return {**state, "valid": False, "invalid_reason": reason}
 
 
 class OutputsMixin(StateMixin, TangentMixin):
@@ -149,7 +134,7 @@ class OutputsMixin(StateMixin, TangentMixin):
                    "preconditioner_builds": self.timings.preconditioner_builds,
                    "tangent_shifts": self.timings.shifts, **state,
                    **contact,
-                   **_through_surface(deformation_state(case.mesh, u_v, degree=self.degree,
+                   **through_surface_state(deformation_state(case.mesh, u_v, degree=self.degree,
                                                         cell_J=cell_J), contact),
                    "warnings": case.glued_patch_warnings(u_v, cell_J) + self.contact.warnings(),
                    **_no_converged_value(case, self.contact)})

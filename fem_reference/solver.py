@@ -28,8 +28,9 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from tissue_reference.meshes.case import Case, Material, tip_start_for
+from tissue_reference.meshes.case import Case, Material
 from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.tips import default_contact_rule, default_tip_start
 
 from .boundary import BoundaryMixin
 from .contact import DEFAULT_CONTACT_PENALTY, Contact
@@ -83,21 +84,6 @@ def default_degree(case: Case, formulation: str) -> int:
     if case.reference_degree is not None:
         return int(case.reference_degree)
     return 2 if formulation == "mixed" else 1
-
-
-def default_contact_rule(case: Case):
-    """Where a solve that names none samples the contact penalty: the case's own
-    (``[reference] contact_quadrature``, a Gauss degree), else "nodal"."""
-    return case.reference_contact_quadrature or "nodal"
-
-
-def default_tip_start(case: Case, rule=None) -> str:
-    """Where a solve that names none starts its indenters: the case's own (``[reference]
-    tip_start``), else the one that goes with its contact rule ``rule`` (None: the case's;
-    ``meshes.case.tip_start_for``: "nodes" with the nodal rule, "surface" with a Gauss rule)."""
-    if case.reference_tip_start:
-        return case.reference_tip_start
-    return tip_start_for(default_contact_rule(case) if rule is None else rule)
 
 
 class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin):

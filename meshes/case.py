@@ -36,7 +36,7 @@ from .case_parts import (
     _vec,
 )
 from .case_variants import RIM_J_WARN, CaseVariantsMixin  # noqa: F401  (re-exported)
-from .errors import CaseError
+from .errors import CaseError, NotModeledError
 from .mesh import MeshData, cell_volumes, check_cells
 
 __all__ = [
@@ -234,9 +234,9 @@ class Case(CaseConstraintsMixin, CaseVariantsMixin):
 
     def require_no_contact(self, who: str):
         """Raise CaseError naming the first indenter: ``who`` (a solver without contact) cannot
-        model a rigid tip pressing on the skin."""
+        model a rigid tip pressing on the skin (NotModeledError, a CaseError)."""
         for a in self.indenters():
-            raise CaseError(f"{who} does not model contact: actuator {a.name!r} is an indenter "
+            raise NotModeledError(f"{who} does not model contact: actuator {a.name!r} is an indenter "
                             f"(the reference solves it: fem_reference.solve)")
 
 

@@ -35,6 +35,11 @@ class CaseReadError(CaseError, ReadError):
     not a mesh): both a CaseError and a ReadError."""
 
 
+class NotModeledError(CaseError):
+    """A solver does not model part of the problem (e.g. a fast solver and a rigid tip's
+    contact): the problem is fine, this solver cannot answer it."""
+
+
 class MeshQualityError(CaseError):
     """The mesh has inverted or zero-volume cells."""
 

@@ -1,7 +1,8 @@
 """The fast solvers, by name: ``get_solver("admm")`` -> ``solvers.admm.solve``.
 
 Every registered ``solve(case, *, pushes=None, initial=None, callback=None, progress=False, ...)``
-returns a ``meshes.results.SolveResult``. Modules are imported on first use (importing this
+returns a ``meshes.results.SolveResult``; every module also has ``require_modeled(case)``, which
+raises ``meshes.errors.NotModeledError`` for a problem its solver does not model. Modules are imported on first use (importing this
 package stays cheap); a module that cannot be imported raises ImportError from ``get_solver``.
 """
 from __future__ import annotations

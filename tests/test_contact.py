@@ -31,7 +31,6 @@ import tissue_reference.fem_reference as fr
 from tissue_reference.meshes.builders import indent_block
 from tissue_reference.meshes.case import Actuator, Boundary, Case, Material
 from tissue_reference.meshes.errors import CaseError
-from tissue_reference.solvers import admm, mass_tensor
 
 CASES = Path(__file__).resolve().parents[1] / "meshes" / "cases"
 
@@ -203,16 +202,6 @@ def test_a_patch_takes_no_tip_and_an_indenter_touches_facet_regions_only(block):
     with pytest.raises(CaseError, match="'tissue' is not one"):
         quarter_case(block, sphere(10.0).__class__("I", "tissue", DOWN, type="indenter",
                                                    tip="sphere", radius=1.0))
-
-
-def test_fast_solvers_refuse_an_indenter_naming_it(block):
-    case = quarter_case(block, sphere(10.0))
-    for solve, who in ((admm.solve, "the ADMM solver"),
-                       (mass_tensor.solve, "the Mass Tensor solver")):
-        with pytest.raises(CaseError) as err:
-            solve(case, pushes={"I": 0.1})
-        assert str(err.value).startswith(f"{who} does not model contact: actuator 'I' is an "
-                                         f"indenter")
 
 
 def test_a_failed_push_keeps_the_last_converged_state_with_its_tip(block):

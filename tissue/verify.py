@@ -35,10 +35,10 @@ from pathlib import Path
 import numpy as np
 
 from tissue_reference.meshes.converged_range import unconverged_load
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.errors import CaseError, NotModeledError
 from tissue_reference.meshes.mesh import deformation_state
 from tissue_reference.meshes.results import material_json, write_json
-from tissue_reference.solvers import SOLVERS, get_solver
+from tissue_reference.solvers import SOLVERS, get_solver, solver_module
 
 from .plugins import resolve_solver, run_plugin
 from .scoring import Field, field_from_array, load_field, score_field
@@ -262,6 +262,13 @@ def _score_builtin(name, case, pushes, opts, refs, out):
         solve = get_solver(key)
     except ImportError as exc:
         msg = f"{name}: {SOLVERS[key]} not importable ({exc}); skipped"
+        print(f"tissue verify: {msg}")
+        out["skipped"][name] = msg
+        return None, None
+    try:
+        solver_module(key).require_modeled(case)
+    except NotModeledError as exc:   # e.g. a linear model and a rigid tip: no score, said so
+        msg = f"{name}: {exc}; skipped"
         print(f"tissue verify: {msg}")
         out["skipped"][name] = msg
         return None, None

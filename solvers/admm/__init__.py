@@ -55,12 +55,21 @@ outside Newton's basin (inverted elements along the Newton path), the polish res
 step's lifted start state; such restarts are listed in ``extra["polish_restarts"]`` (then that
 step's equilibrium is Newton's, not ADMM's, work).
 
+Rigid tips (``contact``): frictionless indenters (sphere, rounded punch) press with the
+reference's discrete contact energy (the same penalty, contact rule and tip start, taken from the
+Case as the reference takes them), as consensus blocks beside the elements: the x-step matrix
+keeps its scalar structure, the z-step of a block is closed-form, the polish adds the contact's
+exact Hessian (without the tips' curvature until a full Newton step is taken). A load step moves
+no tip by more than ``tip_step`` of its radius, and one whose polish does not converge is cut
+back. Each solve reports its tips in ``extra["indenters"]`` as the reference does.
+
 Boundary conditions (``constraints``): prescribed dofs (fixed, displacement, affine,
 axis-aligned sliding) are eliminated; oblique sliding u.n = g by a per-vertex change of basis
 (exact). Tractions and gravity enter as external forces (``case.external_forces``) in the x-step.
 
 Modules: ``mechanics`` (kinematics, material laws, energy, forces, tangent), ``constraints``,
-``operators`` (D, weights, mass, x-step matrix and its CPU solver), ``factor`` and ``amg``
+``operators`` (D, weights, mass, x-step matrix and its CPU solver), ``contact`` (rigid
+tips), ``factor`` and ``amg``
 (x-step and tangent solvers), ``kernel_c`` and ``kernel_array`` (the element pass per
 backend), ``backends`` (devices), ``loop`` (iterations, stopping, history), ``polish``
 (Newton, lifts), ``dynamics`` (implicit Euler), ``driver`` (``solve``).
@@ -85,6 +94,7 @@ from . import (
     amg,
     backends,
     constraints,
+    contact,
     driver,
     dynamics,
     factor,
@@ -105,12 +115,13 @@ from .backends import (
     require_device,
 )
 from .constraints import _Reduction, _reduction, _vertex_rank
-from .driver import _reactions, solve
+from .contact import CONTACT_WEIGHT, ContactSet, require_modeled
+from .driver import MIN_LOAD_STEP, _reactions, solve
 from .dynamics import ImplicitEuler
 from .factor import _CoupledSolver, _Direct, _spd_splu, _sym_splu
 from .kernel_array import CHUNK, ROUNDS, _aos, _NumpyElements, _soa, _ZStep
 from .kernel_c import USE_CKERNEL, _KernelElements, use_kernel
-from .loop import _admm, _check_J, _diverged
+from .loop import RHO_MAX, _admm, _check_J, _diverged
 from .mechanics import (
     ElementKinematics,
     _as_u,
@@ -149,13 +160,14 @@ __all__ = [
     "element_kinematics",
     "internal_forces",
     "prepare",
+    "require_modeled",
     "solve",
     "strain_energy",
     "tangent_stiffness",
 ]
 
-_PARTS = (mechanics, constraints, factor, kernel_c, amg, operators, kernel_array, backends, loop,
-          polish, dynamics, driver)
+_PARTS = (mechanics, constraints, contact, factor, kernel_c, amg, operators, kernel_array,
+          backends, loop, polish, dynamics, driver)
 _UNSET = object()
 
 

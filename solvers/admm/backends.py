@@ -93,6 +93,7 @@ class _HostBackend:
     xp = np
     device = "cpu"
     cg_iterations = None
+    dev = None   # the operators stay the host's (scipy)
 
     def __init__(self, ops):
         self.ops = ops
@@ -143,6 +144,7 @@ class _DeviceOperators:
 
             self.put, self.get = xp.asarray, xp.asnumpy
         red = ops.red
+        self.sparse = sparse.csr_matrix   # host scipy matrix -> this module's CSR
         self.DZ = sparse.csr_matrix(ops.DZ)
         self.DZtW = sparse.csr_matrix(ops.DZtW)
         self.Z = sparse.csr_matrix(red.Z.tocsr())

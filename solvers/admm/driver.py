@@ -11,6 +11,7 @@ import numpy as np
 from tissue_reference.meshes.errors import CaseError, SolverDivergedError
 from tissue_reference.meshes.mesh import deformation_state
 from tissue_reference.meshes.results import SolveResult
+from tissue_reference.meshes.tips import through_surface_state
 
 from .backends import backend, require_device
 from .dynamics import ImplicitEuler, _implicit_euler
@@ -25,12 +26,18 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
           polish_max_iter: int = 25, dynamics: ImplicitEuler | None = None, callback=None,
           load_steps: int | None = None, step_mm: float = 3.0,
           intermediate_tol_mm: float = 1e-2, lift="auto", handoff_mm: float = 1e-2,
-          progress: bool = False, factorize=None, device: str = "cpu") -> SolveResult:
+          tip_step: float = 0.5,
+          progress: bool = False, factorize=None, device: str = "cpu",
+          contact_quadrature=None, contact_penalty: float | None = None,
+          tip_start: str | None = None, initial_pushes: dict | None = None) -> SolveResult:
     """ADMM solve of a Case (quasi-static equilibrium, or implicit-Euler dynamics).
 
     pushes: actuator name -> push (mm), applied with ``case.with_pushes``.
-    initial: warm-start displacement (mm, (n_vertices, gdim)); its prescribed part is replaced by
-        the Case's boundary values (exact), its stress initializes the ADMM dual.
+    initial: warm-start displacement (mm, (n_vertices, gdim)), or a SolveResult (its ``u``, and
+        with indenters its tips' pushes, where the tips then start); its prescribed part is
+        replaced by the Case's boundary values (exact), its stress initializes the ADMM dual.
+        With indenters and a bare array the tips start from ``initial_pushes`` (name -> mm,
+        the pushes the warm state was solved at), else from push 0.
     tol_mm: stopping tolerance (mm) on the primal and dual residuals (see ``loop``).
     rho: ADMM penalty stiffness (kPa), w_e^2 = rho V_e; default see the package docstring.
     max_iter: ADMM iterations per load step (per time step); default 20000 without polish, 20
@@ -41,7 +48,8 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         iterations, whichever comes first.
     dynamics: ImplicitEuler(dt, steps) for dynamics; None for quasi-static equilibrium.
     load_steps: quasi-static increments (default: the prescribed change from the start state
-        divided in steps of at most ``step_mm``, mm); intermediate steps stop at
+        divided in steps of at most ``step_mm``, mm, that move no tip by more than ``tip_step``
+        of its radius); intermediate steps stop at
         ``intermediate_tol_mm`` (mm) (and, with ``polish``, are Newton-polished).
     lift: True: carry the interior along with each boundary increment by one linear solve with
         the tangent at the current state (K_ff du_f = -K_fc du_c); False: the x-step matrix's
@@ -56,12 +64,17 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         the optional extra ``gpu``; GpuUnavailableError when there is no CuPy or no GPU); see
         ``backends`` (also for "array-cpu", the GPU code on numpy). Recorded in
         ``extra["device"]``; the array backends also report ``extra["xstep_cg_iterations"]``.
+    contact_quadrature, contact_penalty, tip_start: the rigid tips' contact (frictionless
+        indenters, ``contact``): the rule ("nodal" or a Gauss degree), beta and where the tips
+        start, each by default the case's own as the reference takes it
+        (``meshes.tips.default_contact_rule`` and ``default_tip_start``; beta
+        ``meshes.tips.DEFAULT_CONTACT_PENALTY``): the same discrete energy as the P1 reference.
+        Each tip is reported in ``extra["indenters"]`` as the reference reports it.
     Raises SolverDivergedError (iteration and element named) on NaN, inverted elements or
     residual growth.
     """
     t0 = time.perf_counter()
     require_device(device)
-    case.require_no_contact("the ADMM solver")
     case0 = case  # same mesh: its cached probe locations serve the pushed Case too
     case = case.with_pushes(pushes)   # idle patches held unless the Case frees them
     if not (np.isfinite(tol_mm) and tol_mm > 0):
@@ -74,7 +87,14 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         polish_tol_mm = tol_mm / 100.0
     dt = dynamics.dt if dynamics is not None else None
 
-    ops = prepare(case, rho=rho, dt=dt, factor=device == "cpu")
+    contact = {k: v for k, v in (("rule", contact_quadrature), ("penalty", contact_penalty),
+                                 ("tip_start", tip_start)) if v is not None}
+    ops = prepare(case, rho=rho, dt=dt, factor=device == "cpu", contact=contact)
+    cset = ops.contact
+    push1 = cset.pushes_of(case) if cset is not None else None
+    push0 = None if cset is None else _start_pushes(cset, initial, initial_pushes)
+    if isinstance(initial, SolveResult):
+        initial = initial.u
     be = backend(ops, device)
     up = _particular(case, ops)
     fext = case.external_forces(1.0)
@@ -87,14 +107,18 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     hist = {"primal": [], "dual": [], "max_step_mm": [], "newton_step_mm": [],
             "admm_clock_s": []}
 
-    def admm_step(up_j, rhs_extra, u_j, it0, tol=tol_mm):
+    def tips_at(s):
+        """The tips' ends at the contact points at load fraction s (None without tips)."""
+        return None if cset is None else cset.origins(push0 + s * (push1 - push0))
+
+    def admm_step(up_j, rhs_extra, u_j, it0, tol=tol_mm, s=1.0):
         return _admm(ops, up_j, rhs_extra, u_j, tol_mm=max(tol, handoff_mm) if polish else tol,
                      max_iter=int(max_iter), callback=callback, it0=it0, progress=progress,
-                     hist=hist, be=be)
+                     hist=hist, be=be, tips=tips_at(s))
 
-    def newton_step(u_j, f, inertia, it0, tol=polish_tol_mm):
+    def newton_step(u_j, f, inertia, it0, tol=polish_tol_mm, s=1.0):
         return _newton(ops, u_j, f, inertia, tol_mm=tol, max_iter=polish_max_iter, it0=it0,
-                       hist=hist, callback=callback, factorize=factorize)
+                       hist=hist, callback=callback, factorize=factorize, tips=tips_at(s))
 
     restarts = []
     extra = {}
@@ -103,7 +127,11 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
             case, ops, u, up, fext, admm_step=admm_step, newton_step=newton_step,
             polish=polish, polish_tol_mm=polish_tol_mm, load_steps=load_steps, step_mm=step_mm,
             intermediate_tol_mm=intermediate_tol_mm, tol_mm=tol_mm, lift=lift,
-            factorize=factorize, hist=hist, restarts=restarts)
+            factorize=factorize, hist=hist, restarts=restarts,
+            tip_travel=0.0 if cset is None else float(np.max(
+                np.abs(push1 - push0) / np.array([t.shape.radius for t in cset.tips])
+                * step_mm / tip_step, initial=0.0)),
+            tips_at=tips_at)
     else:
         lifts = 0
         u, v, traj, admm_it, newton_it, converged = _implicit_euler(
@@ -113,15 +141,19 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
                  "velocity": v.reshape(n, d)}
     H = ops.grad(u)
     _check_J(ops, H, admm_it + newton_it, "the final state")
-    r = _residual(ops, u, fext, None)
+    r = _residual(ops, u, fext, None, tips_at(1.0))
     free_res = float(np.abs(ops.red.ZT @ r).max(initial=0.0))
     reactions = _reactions(case, r)
     psi, _ = ops.law.psi_J(H)
+    state = deformation_state(case.mesh, u.reshape(n, d))
+    if cset is not None:
+        extra["indenters"] = cset.report(u, push1)
+        state = through_surface_state(state, extra)
     extra = {"admm_iterations": int(admm_it), "newton_iterations": int(newton_it),
              "load_steps": int(load_steps) if dynamics is None else 0,
              "rho_kPa": ops.rho, "setup_s": ops.setup_s, "tol_mm": tol_mm,
              "polish_restarts": restarts, "lift_solves": lifts,
-             **deformation_state(case.mesh, u.reshape(n, d)), **extra, "device": device}
+             **state, **extra, "device": device}
     if be.cg_iterations is not None:
         extra["xstep_cg_iterations"] = int(be.cg_iterations)
     hist["admm_clock_s"] = [c - t0 for c in hist["admm_clock_s"]]
@@ -134,50 +166,87 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
                        n_cells=ops.m, history=hist, extra=extra)
 
 
+MIN_LOAD_STEP = 1.0 / 64  # the shortest increment a cut-back makes, as a fraction of a step
+
+
+def _start_pushes(cset, initial, pushes=None) -> np.ndarray:
+    """Where the tips start (mm, in tip order): the pushes a SolveResult ``initial`` reports,
+    else ``pushes`` (name -> mm), else 0."""
+    out = np.zeros(len(cset.tips))
+    if isinstance(initial, SolveResult):
+        pushes = {n: r.get("push", 0.0) for n, r in
+                  (initial.extra.get("indenters") or {}).items()}
+    if initial is not None and pushes:
+        for i, t in enumerate(cset.tips):
+            out[i] = float(pushes.get(t.name, 0.0))
+    return out
+
+
 def _load_steps(case, ops, u, up, fext, *, admm_step, newton_step, polish, polish_tol_mm,
                 load_steps, step_mm, intermediate_tol_mm, tol_mm, lift, factorize, hist,
-                restarts):
-    """Quasi-static equilibrium: the prescribed change from the start state split in increments
-    of at most step_mm (mm); each step is an ADMM solve warm-started from the previous one, then
-    (``polish``) Newton. Returns (u, load steps, ADMM iterations, Newton iterations, converged,
-    tangent lifts); polish restarts are appended to ``restarts``."""
+                restarts, tip_travel=0.0, tips_at=lambda s: None):
+    """Quasi-static equilibrium: the prescribed change from the start state (and the tips'
+    travel, ``tip_travel``: scaled so that step_mm is the most a step may move a tip) split in
+    increments of at most step_mm (mm); each step is an
+    ADMM solve warm-started from the previous one, then (``polish``) Newton, with the tips at
+    ``tips_at(s)`` at load fraction s. A step whose polish does not converge is tried again
+    from the last converged state, half as long (down to MIN_LOAD_STEP of a step). Returns (u,
+    load steps taken, ADMM iterations, Newton iterations, converged, tangent lifts); polish
+    restarts and cut-backs are appended to ``restarts``."""
     d = ops.d
     admm_it = newton_it = lifts = 0
     converged = True
     uc = u - ops.red.Z @ (ops.red.ZT @ u)
-    jump = _vertex_norm_max(up - uc, d)
+    jump = max(_vertex_norm_max(up - uc, d), tip_travel)
     if not np.isfinite(jump):
         raise CaseError(f"{case.source or case.name}: the prescribed displacements are too "
                         f"large to be represented (|u| overflows)")
     if load_steps is None:
         load_steps = max(1, int(np.ceil(jump / step_mm)))
-    for j in range(1, int(load_steps) + 1):
-        s = j / load_steps
-        last = j == load_steps
+    inc = 1.0 / int(load_steps)
+    done, taken, j = 0.0, 0, 0
+    u_done = u
+    while done < 1.0:
+        j += 1
+        s = 1.0 if done + inc > 1.0 - 1e-12 else done + inc
+        last = s == 1.0
         tol_j = tol_mm if last else max(tol_mm, intermediate_tol_mm)
         up_j = uc + s * (up - uc)
-        if lift is True or (lift == "auto" and jump / load_steps > 1.0):
-            u = _tangent_lift(ops, u, up_j, admm_it + newton_it, factorize)
+        if lift is True or (lift == "auto" and jump * inc > 1.0):
+            u = _tangent_lift(ops, u, up_j, admm_it + newton_it, factorize, tips_at(s))
             lifts += 1
         u_start = u
-        u, k, converged = admm_step(up_j, s * fext, u, admm_it + newton_it, tol_j)
+        u, k, converged = admm_step(up_j, s * fext, u, admm_it + newton_it, tol_j, s)
         admm_it += k
         if polish:
             ptol = polish_tol_mm if last else max(polish_tol_mm, tol_j)
             try:
-                u, kn = newton_step(u, s * fext, None, admm_it + newton_it, ptol)
+                try:
+                    u, kn = newton_step(u, s * fext, None, admm_it + newton_it, ptol, s)
+                except SolverDivergedError as exc:
+                    # the unconverged ADMM state left Newton's basin: restart the polish from
+                    # the step's start state (reported in extra["polish_restarts"]), carried to
+                    # this step's boundary values first (without a lift it still has the
+                    # previous step's, which Newton would keep: it moves free dofs only)
+                    restarts.append(f"load step {j}: {exc}")
+                    u_start = _tangent_lift(ops, u_start, up_j, admm_it + newton_it,
+                                            factorize, tips_at(s))
+                    u, kn = newton_step(u_start, s * fext, None, admm_it + newton_it, ptol, s)
+                newton_it += kn
+                converged = hist["newton_step_mm"][-1] < ptol
             except SolverDivergedError as exc:
-                # the unconverged ADMM state left Newton's basin: restart the polish from the
-                # step's start state (reported in extra["polish_restarts"]), carried to this
-                # step's boundary values first (without a lift it still has the previous
-                # step's, which Newton would keep: it moves free dofs only)
                 restarts.append(f"load step {j}: {exc}")
-                u_start = _tangent_lift(ops, u_start, up_j, admm_it + newton_it, factorize)
-                u, kn = newton_step(u_start, s * fext, None, admm_it + newton_it, ptol)
-            newton_it += kn
-            if last:
-                converged = hist["newton_step_mm"][-1] < polish_tol_mm
-    return u, load_steps, admm_it, newton_it, converged, lifts
+                converged = False
+            if not converged and inc > MIN_LOAD_STEP / int(load_steps):
+                # cut back: the step again from the last converged state, half as long (a
+                # tip pressed too far at once leaves Newton's basin)
+                restarts.append(f"load step {j} (load fraction {s:.4g}) did not converge: "
+                                f"cut back to an increment of {inc / 2:.4g}")
+                u, inc = u_done, inc / 2.0
+                continue
+        done, u_done = s, u
+        taken += 1
+    return u, taken, admm_it, newton_it, converged, lifts
 
 
 def _reactions(case, r):

@@ -16,12 +16,17 @@ import numpy as np
 
 from tissue_reference.meshes.errors import SolverDivergedError
 
+from .contact import ContactBlocks
 from .kernel_array import _aos, _soa
 from .mechanics import _det_cof
 
+RHO_MAX = 64.0  # rho doubles on stagnation up to this multiple of its start value
+
 
 def _diverged(msg, it, elem):
-    return SolverDivergedError(f"ADMM diverged at iteration {it}: {msg} (element {elem})")
+    """SolverDivergedError naming the iteration and the element (a number) or other place."""
+    where = f"element {elem}" if isinstance(elem, (int, np.integer)) else elem
+    return SolverDivergedError(f"ADMM diverged at iteration {it}: {msg} ({where})")
 
 
 def _check_J(ops, H, it, what):
@@ -55,10 +60,40 @@ def _start(ops, be, up, u0):
     return q, F, _soa(P) / ops.rho
 
 
-def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, hist, be):
+class _WithContact:
+    """The element pass and the rigid tips' contact blocks (``contact.ContactBlocks``) as one:
+    their x-step data add up, their residuals are listed together (elements first)."""
+
+    def __init__(self, elements, blocks):
+        self.elements, self.blocks = elements, blocks
+
+    def xdata(self):
+        return self.elements.xdata() + self.blocks.xdata()
+
+    def halve_dual(self):
+        self.elements.halve_dual()
+        self.blocks.halve_dual()
+
+    def update(self, q):
+        r, dsq = self.elements.update(q)
+        rc, dc = self.blocks.update(q)
+        xp = self.blocks.xp
+        return xp.concatenate([r, rc]), xp.concatenate([dsq, dc])
+
+
+def _where(ops, i):
+    """'element k' (the mesh's number) for residual entry i, or 'contact point p' past the
+    elements."""
+    i = int(i)
+    return f"element {int(ops.elem_order[i])}" if i < ops.m else f"contact point {i - ops.m}"
+
+
+def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, hist, be,
+          tips=None):
     """ADMM iterations from u0 on the backend ``be`` (``backends.backend``). rhs_extra: f_ext
-    (+ M u_tilde / dt^2), mN. Returns (u, iters, converged), u on the host. The loop works with
-    F = I + z and Fhat = I + D u + lam, (d, d, m) blocks."""
+    (+ M u_tilde / dt^2), mN. tips: the ends of the rigid tips at every contact point
+    (``contact.ContactSet.origins``), with indenters. Returns (u, iters, converged), u on the
+    host. The loop works with F = I + z and Fhat = I + D u + lam, (d, d, m) blocks."""
     Z, d = ops.red.Z, ops.d
     xp = be.xp
     q, F, lam = _start(ops, be, up, u0)
@@ -68,10 +103,14 @@ def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, 
     rhs_up = be.put(-(ops.red.ZT @ (ops.Mx @ up)) - ops.DZtW_I)
     rho0 = rho = ops.rho
     adapt = ops.dt is None  # without a mass term the x-step matrix is rho * (fixed matrix)
+    rho_max = RHO_MAX * rho0
     window_primal = np.inf
     big = 1e3 * float(np.ptp(ops.mesh.points, axis=0).max())
     rhs_c = rhs_f + rhs_up
     elements = be.elements(zstep, up, F, lam)
+    if ops.contact is not None and ops.contact.P:
+        elements = _WithContact(elements, ContactBlocks(ops, ops.contact, up, up + Z @ q, tips,
+                                                        zstep, be.dev))
     q = be.put(q)
     converged = False
     k = 0
@@ -92,10 +131,10 @@ def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, 
         if not (math.isfinite(primal) and math.isfinite(dual) and math.isfinite(step)):
             bad = be.get(~(xp.isfinite(r) & xp.isfinite(dsq)))
             raise _diverged("non-finite residual", it0 + k,
-                            int(ops.elem_order[np.flatnonzero(bad)[0]]) if bad.any() else -1)
+                            _where(ops, np.flatnonzero(bad)[0]) if bad.any() else "unknown")
         if primal > big or step > big:
             raise _diverged(f"residual growth, primal {primal:.3g} mm", it0 + k,
-                            int(ops.elem_order[int(xp.argmax(r))]))
+                            _where(ops, xp.argmax(r)))
         if callback is not None:
             callback(it0 + k, (up + Z @ be.get(q)).reshape(-1, d))
         if progress and k % 100 == 0:
@@ -107,7 +146,7 @@ def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, 
         if adapt and k % 25 == 0:
             # stagnation (e.g. a nonconvex element cycling between two local z minima): double
             # rho (more consensus, convex local problems); lam = P / rho is rescaled
-            if primal > 0.9 * window_primal and rho < 64 * rho0:
+            if primal > 0.9 * window_primal and rho < rho_max:
                 elements.halve_dual()
                 rho *= 2.0
                 zstep.set_rho(rho)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import time
 from collections import OrderedDict
+from dataclasses import replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -29,6 +30,7 @@ from tissue_reference.meshes.errors import CaseError
 
 from .amg import _AmgPcg
 from .constraints import _reduction, _vertex_rank
+from .contact import ContactSet
 from .factor import _CoupledSolver, _Direct
 from .mechanics import _assemble, _case_parts, _element_K
 
@@ -114,7 +116,7 @@ class AdmmOperators:
     operators (e.g. on a GPU), kept by ``backends``."""
 
     def __init__(self, case, *, rho: float | None = None, dt: float | None = None,
-                 factor: bool = True):
+                 factor: bool = True, contact: dict | None = None):
         t0 = time.perf_counter()
         self.mesh = case.mesh
         kin, law = _case_parts(case)
@@ -156,6 +158,12 @@ class AdmmOperators:
         self.L = L
         self.dt = dt
         self.mass = None
+        # rigid tips: their contact blocks' share S^T diag(c) S (x) I_d of the x-step matrix
+        self.contact = ContactSet(case, self.rho, **(contact or {})) if case.indenters() \
+            else None
+        self._contact_mats = None
+        if self.contact is not None:
+            L = L + self.contact.vector_matrix()
         Mx = L
         if dt is not None:
             mv = np.zeros(n)
@@ -180,6 +188,8 @@ class AdmmOperators:
             # no oblique sliding: the x-step matrix is (rho scalar P1 Laplacian [+ M/dt^2]) x I_d;
             # factorize the scalar matrix once per distinct set of free vertices
             Ls = _scalar_laplacian(self.kin, self.rho, self.n)
+            if self.contact is not None:
+                Ls = Ls + self.contact.scalar_matrix()
             if self.dt is not None:
                 Ls = Ls + sp.diags(self.mass[::self.d] / self.dt ** 2)
             lu = _ComponentSolver(Ls.tocsr(), self.red.plain_dofs, self.d)
@@ -195,16 +205,20 @@ class AdmmOperators:
             self._lu = self._factor_xstep()
         return self._lu
 
-    def reduced_tangent(self, u, diag=None):
-        """(Z^T (K(u) + diag(diag)) Z as CSC, element matrices Ke): the tangent of the P1 energy
-        on the reduced unknowns. Without oblique sliding it is assembled straight into a CSR
-        pattern computed once (the matrix is symmetric, so its CSR arrays are its CSC)."""
+    def reduced_tangent(self, u, diag=None, extra=None):
+        """(Z^T (K(u) + diag(diag) + extra) Z as CSC, element matrices Ke): the tangent of the
+        P1 energy on the reduced unknowns; ``extra`` (N, N) sparse, e.g. the contact's Hessian,
+        whose entries couple dofs of one cell. Without oblique sliding it is assembled straight
+        into a CSR pattern computed once (the matrix is symmetric, so its CSR arrays are its
+        CSC)."""
         Ke = _element_K(self.kin, self.law.tangent(self.grad(u)))
         Z = self.red.Z
         if not self.red.separable:
             K = _assemble(self.kin, Ke, self.N)
             if diag is not None:
                 K = K + sp.diags(diag)
+            if extra is not None:
+                K = K + extra
             return (self.red.ZT @ K @ Z).tocsc(), Ke
         if self._kpat is None:
             nq = self.nq
@@ -219,11 +233,17 @@ class AdmmOperators:
             indptr = np.concatenate([[0], np.cumsum(np.bincount(ukey // nq, minlength=nq))])
             dpos = np.searchsorted(ukey, np.arange(nq) * (nq + 1))
             self._kpat = (pos.astype(np.int32 if len(ukey) < 2 ** 31 else np.int64), valid,
-                          indptr, (ukey % nq).astype(np.int32), len(ukey), dpos)
-        pos, valid, indptr, indices, nnz, dpos = self._kpat
+                          indptr, (ukey % nq).astype(np.int32), len(ukey), dpos, ukey, ridx)
+        pos, valid, indptr, indices, nnz, dpos, ukey, ridx = self._kpat
         data = np.bincount(pos, weights=Ke.reshape(-1)[valid], minlength=nnz)
         if diag is not None:
             data[dpos] += diag[self.red.plain_dofs]
+        if extra is not None and extra.nnz:
+            E = extra.tocoo()
+            r, c = ridx[E.row], ridx[E.col]
+            keep = (r >= 0) & (c >= 0)
+            at = np.searchsorted(ukey, r[keep] * self.nq + c[keep])
+            np.add.at(data, at, E.data[keep])
         return sp.csc_matrix((data, indices, indptr), shape=(self.nq, self.nq)), Ke
 
     def _mesh_gradient(self):
@@ -255,11 +275,16 @@ class AdmmOperators:
         fe = np.einsum("mab,mb->ma", Ke, v[self.kin.dofs])
         return np.bincount(self.kin.dofs.ravel(), weights=fe.ravel(), minlength=self.N)
 
-    def residual(self, u, fext) -> np.ndarray:
-        """Internal minus external nodal forces (mN, full node-major) at displacement u (mm):
-        the gradient of the P1 energy, zero on the free dofs at equilibrium."""
+    def residual(self, u, fext, tips=None) -> np.ndarray:
+        """Internal minus external nodal forces (mN, full node-major) at displacement u (mm),
+        plus the rigid tips' contact forces where ``tips`` gives their ends
+        (``contact.ContactSet.origins``): the gradient of the P1 energy, zero on the free dofs
+        at equilibrium."""
         P, _ = self.law.stress(self.grad(u))
-        return self.scatter(self.kin.V[:, None, None] * P) - fext
+        r = self.scatter(self.kin.V[:, None, None] * P) - fext
+        if tips is not None and self.contact is not None:
+            r = r + self.contact.gradient(u, tips)
+        return r
 
     def residuals(self, U, fext) -> np.ndarray:
         """``residual`` of each column of U ((N, k) mm) at once, (N, k) mN: one sparse product
@@ -273,24 +298,46 @@ class AdmmOperators:
         Pv = (np.tile(self.kin.V, k)[:, None, None] * P).reshape(k, m * d * d).T
         return DmT @ Pv - np.asarray(fext, float).reshape(-1, 1)
 
-    def tangent_products(self, u):
+    def tangent_products(self, u, tips=None):
         """V -> K V ((N, k) mm -> (N, k) mN): products with the exact tangent K at u from the
         elements' material tangents, without assembling K (one tangent evaluation here, then
-        two sparse products and a batch of small ones per call)."""
+        two sparse products and a batch of small ones per call); with ``tips``, K includes the
+        contact's exact Hessian (assembled: it lives on the contact surface only)."""
         m, dd = self.m, self.d * self.d
         A = self.law.tangent(self.grad(u)) * self.kin.V[:, None, None]
         Dm, DmT = self._mesh_gradient()
+        Hc = self.contact.hessian(u, tips) if tips is not None and self.contact is not None \
+            else None
 
         def apply(V):
             V = np.asarray(V, float).reshape(self.N, -1)
             G = (Dm @ V).reshape(m, dd, V.shape[1])
-            return DmT @ np.matmul(A, G).reshape(m * dd, V.shape[1])
+            KV = DmT @ np.matmul(A, G).reshape(m * dd, V.shape[1])
+            return KV if Hc is None else KV + Hc @ V
         return apply
 
     def prescribed(self, case) -> np.ndarray:
         """The prescribed part u_p (mm, full node-major) of the displacement for ``case``'s
         boundary values (a Case of this structure: other pushes, the same regions)."""
         return _particular(case, self)
+
+    @property
+    def contact_gather(self) -> sp.csr_matrix:
+        """S (x) I_d (P gdim, N): the contact points' displacements (point-major) from u."""
+        return self._contact_matrices()[0]
+
+    def contact_matrices(self):
+        """(S_d Z, Z^T S_d^T diag(c0)): the contact blocks' gather from the reduced unknowns
+        and scatter of their x-step data (S_d = S (x) I_d); built on first use."""
+        return self._contact_matrices()[1:]
+
+    def _contact_matrices(self):
+        if self._contact_mats is None:
+            c = self.contact
+            Sd = sp.kron(c.S, sp.identity(self.d), format="csr")
+            Bt = (self.red.ZT @ Sd.T @ sp.diags(np.repeat(c.c0, self.d))).tocsr()
+            self._contact_mats = (Sd, (Sd @ self.red.Z).tocsr(), Bt)
+        return self._contact_mats
 
     def step_norm(self, dq):
         """Largest vertex displacement (mm) of the reduced increment dq."""
@@ -304,25 +351,28 @@ class AdmmOperators:
 _CACHE: OrderedDict[tuple, AdmmOperators] = OrderedDict()
 
 
-def _structure_key(case, rho, dt):
+def _structure_key(case, rho, dt, contact):
     c = case.constraints
     sl = tuple((np.asarray(v).tobytes(), tuple(np.asarray(nr, float).round(14))) for v, nr, _ in
                c.sliding)
-    return (id(case.mesh), c.dofs.tobytes(), sl, case.material, rho, dt)
+    tips = tuple(replace(a, push=0.0) for a in case.indenters())
+    return (id(case.mesh), c.dofs.tobytes(), sl, case.material, rho, dt, tips,
+            case.reference_contact_quadrature, case.reference_tip_start,
+            tuple(sorted((contact or {}).items())))
 
 
 def prepare(case, *, rho: float | None = None, dt: float | None = None,
-            factor: bool = True) -> AdmmOperators:
+            factor: bool = True, contact: dict | None = None) -> AdmmOperators:
     """The per-Case operators (x-step factorization included unless ``factor`` is False: then
     it is built on first use), cached for the last 4 Case structures: a Case differing only in
-    prescribed values (e.g. other pushes) reuses them."""
-    case.require_no_contact("the ADMM solver")
-    key = _structure_key(case, rho, dt)
+    prescribed values or pushes reuses them. ``contact``: the options of the tips' contact
+    (``contact.ContactSet``: rule, penalty, tip_start; None for the case's defaults)."""
+    key = _structure_key(case, rho, dt, contact)
     ops = _CACHE.get(key)
     if ops is not None and ops.mesh is case.mesh:
         _CACHE.move_to_end(key)
         return ops
-    ops = AdmmOperators(case, rho=rho, dt=dt, factor=factor)
+    ops = AdmmOperators(case, rho=rho, dt=dt, factor=factor, contact=contact)
     _CACHE[key] = ops
     while len(_CACHE) > 4:
         _CACHE.popitem(last=False)

@@ -12,17 +12,29 @@ from .mechanics import _det_cof
 from .operators import _vertex_norm_max
 
 
-def _tangent_lift(ops, u, up, it, factorize=None):
+def _contact_hessian(ops, u, tips, curvature=True):
+    """The rigid tips' contact Hessian at u (N, N) with the tips' ends at ``tips`` (without
+    the tips' curvature term unless ``curvature``), or None."""
+    if tips is None or ops.contact is None:
+        return None
+    return ops.contact.hessian(u, tips, curvature)
+
+
+def _tangent_lift(ops, u, up, it, factorize=None, tips=None):
     """u with its prescribed part moved to up's values and the interior moved by the linearized
-    (tangent at u) response to that boundary change."""
+    (tangent at u, with the tips at ``tips``) response to that boundary change."""
     Z = ops.red.Z
     zu = ops.red.ZT @ u
     delta = up - (u - Z @ zu)
     if not np.any(delta):
         return u
-    Kr, Ke = ops.reduced_tangent(u)
+    Hc = _contact_hessian(ops, u, tips)
+    Kr, Ke = ops.reduced_tangent(u, extra=Hc)
     try:
-        rhs = -(ops.red.ZT @ ops.apply_elements(Ke, delta))
+        Kd = ops.apply_elements(Ke, delta)
+        if Hc is not None:
+            Kd = Kd + Hc @ delta
+        rhs = -(ops.red.ZT @ Kd)
         s = _sym_splu(Kr, ops.factor_cache, factorize).solve(rhs)
     except RuntimeError as exc:
         raise _diverged(f"singular tangent in the boundary lift ({exc})", it, -1) from None
@@ -39,47 +51,58 @@ def _tangent_lift(ops, u, up, it, factorize=None):
     return cand
 
 
-def _energy(ops, u, fext, inertia):
+def _energy(ops, u, fext, inertia, tips=None):
     psi, J = ops.law.psi_J(ops.grad(u))
     e = float(ops.kin.V @ psi) - float(fext @ u)
+    if tips is not None and ops.contact is not None:
+        e += ops.contact.energy(u, tips)
     if inertia is not None:
         mdt, ut = inertia
         e += 0.5 * float((u - ut) @ (mdt * (u - ut)))
     return e, J
 
 
-def _residual(ops, u, fext, inertia):
-    r = ops.residual(u, fext)
+def _residual(ops, u, fext, inertia, tips=None):
+    """Gradient (mN) of the total energy at u: internal forces minus f_ext, plus the tips'
+    contact forces (``tips``: their ends at the contact points) and inertia."""
+    r = ops.residual(u, fext, tips)
     if inertia is not None:
         mdt, ut = inertia
         r = r + mdt * (u - ut)
     return r
 
 
-def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback, factorize=None):
-    """Newton on the same P1 energy (exact tangent, backtracking on the energy, J > 0)."""
+def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback, factorize=None,
+            tips=None):
+    """Newton on the same P1 energy (exact tangent, backtracking on the energy, J > 0), with
+    the rigid tips' contact where ``tips`` gives their ends. With contact, the iteration matrix
+    leaves the tips' curvature out (positive semi-definite: a descent direction however far
+    from the answer) until a full step is taken, and again after a step that had to be
+    halved; the exact tangent near the answer converges quadratically."""
     Z, d = ops.red.Z, ops.d
     k = 0
+    exact = tips is None or ops.contact is None
     for k in range(1, max_iter + 1):
-        r = _residual(ops, u, fext, inertia)
+        r = _residual(ops, u, fext, inertia, tips)
         rr = ops.red.ZT @ r
-        Kr, _ = ops.reduced_tangent(u, None if inertia is None else inertia[0])
+        Kr, _ = ops.reduced_tangent(u, None if inertia is None else inertia[0],
+                                    _contact_hessian(ops, u, tips, exact))
         try:
             dq = -_sym_splu(Kr, ops.factor_cache, factorize).solve(rr)
         except RuntimeError as exc:
             raise _diverged(f"singular tangent in the Newton polish ({exc})", it0 + k, -1) from None
         du = Z @ dq
-        e0, _ = _energy(ops, u, fext, inertia)
+        e0, _ = _energy(ops, u, fext, inertia, tips)
         r0 = float(np.linalg.norm(rr))
         alpha = 1.0
         for _ in range(40):
-            e1, J1 = _energy(ops, u + alpha * du, fext, inertia)
+            e1, J1 = _energy(ops, u + alpha * du, fext, inertia, tips)
             if J1 is None or np.all(J1 > 0):
                 # merit: energy decrease, or (tangent indefinite) free residual decrease
                 if e1 <= e0 + 1e-4 * alpha * float(rr @ dq) + 1e-12 * abs(e0):
                     break
                 r1 = float(np.linalg.norm(
-                    ops.red.ZT @ _residual(ops, u + alpha * du, fext, inertia)))
+                    ops.red.ZT @ _residual(ops, u + alpha * du, fext, inertia, tips)))
                 if r1 < (1.0 - 1e-4 * alpha) * r0:
                     break
             alpha *= 0.5
@@ -89,6 +112,7 @@ def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback, fac
             raise _diverged("Newton polish line search found no energy decrease", it0 + k,
                             int(np.argmax(np.abs(rr))) // d)
         u = u + alpha * du
+        exact = alpha == 1.0
         step = _vertex_norm_max(alpha * du, d)
         hist["max_step_mm"].append(step)
         hist["newton_step_mm"].append(step)

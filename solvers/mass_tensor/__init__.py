@@ -87,7 +87,15 @@ from tissue_reference.meshes.errors import CaseError, SolverDivergedError
 from tissue_reference.meshes.mesh import deformation_state
 from tissue_reference.meshes.results import SolveResult
 
-from .driver import _MODELS, _axis_of, _model_for, _reactions, case_point_types, solve
+from .driver import (
+    _MODELS,
+    _axis_of,
+    _model_for,
+    _reactions,
+    case_point_types,
+    require_modeled,
+    solve,
+)
 from .iterations import _State, log
 from .model import MassTensorModel, MTSolution
 from .point_types import PointTypes
@@ -101,6 +109,7 @@ __all__ = [
     "PointTypes",
     "TriSurface",
     "case_point_types",
+    "require_modeled",
     "solve",
     "stiffness_tensors",
 ]

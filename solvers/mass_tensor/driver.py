@@ -57,6 +57,12 @@ def _model_for(case) -> MassTensorModel:
     return m
 
 
+def require_modeled(case) -> None:
+    """NotModeledError when ``case`` has what this linear model cannot hold: a rigid tip's
+    contact."""
+    case.require_no_contact("the Mass Tensor solver")
+
+
 def solve(case, *, pushes=None, initial=None, method: str = "pcg", stop_mm: float = 0.01,
           max_iter: int = 200000, callback=None, progress: bool = False,
           step_scale: float | None = None) -> SolveResult:
@@ -71,7 +77,7 @@ def solve(case, *, pushes=None, initial=None, method: str = "pcg", stop_mm: floa
     """
     t0 = time.perf_counter()
     case.material.require_compressible("the Mass Tensor solver")
-    case.require_no_contact("the Mass Tensor solver")
+    require_modeled(case)
     case = case.with_pushes(pushes)   # idle patches held unless the Case frees them
     model = _model_for(case)
     types = case_point_types(case)

@@ -1,0 +1,416 @@
+"""Frictionless rigid tips in the ADMM solver: the reference's discrete contact energy, split
+into consensus blocks that ADMM handles like its elements.
+
+Energy (``fem_reference.contact``, at P1): each contact facet f of an indenter's contact
+surface carries the points p of a contact rule (``meshes.facet_quadrature``: "nodal", one point
+per facet vertex, or a Gauss degree), with weight W_p (mm^2: the rule's weight times the facet's
+area over the reference facet's), penalty stiffness k_p = beta E / h_f and smoothing width
+eps_p = h_f / beta (h_f the longest edge of the facet's cell, mm), at the position
+y_p = X_p + S_p u (S_p: the facet's P1 shape functions at the point):
+
+    Pi_c(u) = sum_p W_p k_p phi(-g(y_p)),
+    phi(x) = 0 (x <= 0), x^3 / (6 eps) (x < eps), x^2 / 2 - eps x / 2 + eps^2 / 6 (x >= eps),
+
+g the tip's gap (``meshes.tips``) with the tip where its push puts it. Its gradient, exact
+Hessian (with the tip's curvature) and per-tip report are here on the host; the Newton polish
+adds them to the elements' (``polish``).
+
+ADMM. Each point is a consensus block z_p ~ S_p u (a displacement, mm) with weight c_p = rho
+W_p / h_f (mN/mm: about what the elements around a vertex give the x-step matrix), so the
+x-step matrix gains S^T diag(c) S (x) I_d, a scalar matrix like the elements' part: the
+x-step's structure (one scalar factorization for all components) is kept. The z-step of a block,
+z = argmin W k phi(-g(X + z)) + c/2 |z - zhat|^2 (zhat = S u + mu, mu the scaled dual), moves
+zhat outward along the tip's normal n at X + zhat by t = pen* - s, where pen* = -g(X + zhat)
+and s, the penetration left, solves pen* - s = a phi'(s) with a = W k / c, in closed form:
+
+    s = (pen* + a eps / 2) / (1 + a)                 where pen* >= eps (1 + a / 2),
+    s = 2 pen* / (1 + sqrt(1 + 2 a pen* / eps))      where 0 < pen* < eps (1 + a / 2),
+    t = 0                                            out of contact.
+
+Along the normal line of a point the gap changes at unit rate and the normal stays, so this is
+the block's exact stationary point; at an ADMM fixed point the total energy's gradient vanishes
+on the free dofs, as for the elements. The blocks run on the backend's array module (numpy or
+CuPy) beside whichever element pass the backend has.
+
+Units: mm, kPa, mN.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from tissue_reference.meshes.case import CONTACT_RULES, TIP_STARTS, is_contact_rule
+from tissue_reference.meshes.errors import CaseError, NotModeledError
+from tissue_reference.meshes.facet_quadrature import facet_rule
+from tissue_reference.meshes.tips import (
+    DEFAULT_CONTACT_PENALTY,
+    START_SAMPLES,
+    SURFACE_SAMPLES,
+    TipShape,
+    default_contact_rule,
+    default_tip_start,
+    facet_samples,
+    first_touch,
+    gap_and_normal,
+    gap_hessian,
+    indenter_site,
+    no_node_under,
+    passed_through,
+)
+
+__all__ = ["CONTACT_WEIGHT", "ContactBlocks", "ContactSet", "require_modeled"]
+
+CONTACT_WEIGHT = 1.0
+"""c_p = CONTACT_WEIGHT rho W_p / h_f: the contact blocks' ADMM weight (mN/mm)."""
+
+def require_modeled(case) -> None:
+    """NotModeledError when ``case`` has a tip the ADMM solver does not model (a tied one: it
+    models frictionless tips)."""
+    for a in case.indenters():
+        if a.contact not in (None, "frictionless"):
+            raise NotModeledError(f"the ADMM solver models frictionless tips; indenter "
+                                  f"{a.name!r} is {a.contact!r} (the reference solves it: "
+                                  f"fem_reference.solve)")
+
+
+def _phi(pen, eps, xp=np):
+    """(phi, phi', phi'') of the smoothed penalty at penetrations pen (module docstring)."""
+    p = xp.maximum(pen, 0.0)
+    small = p < eps
+    phi = xp.where(small, p ** 3 / (6 * eps), p * p / 2 - eps * p / 2 + eps * eps / 6)
+    d1 = xp.where(small, p * p / (2 * eps), p - eps / 2)
+    d2 = xp.where(small, p / eps, 1.0)
+    return phi, d1, d2
+
+
+def _owner_cells(cells, facets):
+    """The cell each boundary facet (rows of vertex ids) belongs to; CaseError for a facet that
+    is no cell's face."""
+    k = cells.shape[1]
+    faces = np.sort(np.concatenate([np.delete(cells, j, axis=1) for j in range(k)]), axis=1)
+    owner = np.tile(np.arange(len(cells)), k)
+    key_f, inv = np.unique(faces, axis=0, return_inverse=True)
+    first = np.full(len(key_f), -1)
+    first[inv.reshape(-1)[::-1]] = owner[::-1]
+    want = np.sort(facets, axis=1)
+    pos = np.searchsorted(key_f.view([("", key_f.dtype)] * (k - 1)).ravel(),
+                          want.view([("", want.dtype)] * (k - 1)).ravel())
+    pos = np.minimum(pos, len(key_f) - 1)
+    ok = np.all(key_f[pos] == want, axis=1)
+    if not ok.all():
+        raise CaseError(f"contact facet {want[~ok][0].tolist()} is not a face of any cell")
+    return first[pos]
+
+
+def _longest_edges(points, cells):
+    """The longest edge (mm) of each cell."""
+    x = points[cells]
+    k = cells.shape[1]
+    return np.max([np.linalg.norm(x[:, i] - x[:, j], axis=1)
+                   for i in range(k) for j in range(i)], axis=0)
+
+
+@dataclass(frozen=True)
+class _Tip:
+    """One indenter: its name, shape, direction, start q0 (mm), points ``sl`` (a slice of the
+    contact set's), the vertices of its contact surface, its facets and the penalty range."""
+
+    name: str
+    actuator: object
+    shape: TipShape
+    d: np.ndarray
+    q0: np.ndarray
+    sl: slice
+    nodes: np.ndarray
+    facets: np.ndarray
+    penalty: tuple
+    started_on: str
+
+
+class ContactSet:
+    """The contact points of a Case's indenters (module docstring), built once per Case
+    structure (pushes are not part of it): S (P, n) CSR, X (P, gdim) mm, W (P,) mm^2, Wk = W k
+    (P,) mN/mm, eps (P,) mm, c0 (P,) mN/mm at the operators' rho, the per-point tip direction,
+    flat and edge radii, and the tips (``tips``, with their starts q0)."""
+
+    def __init__(self, case, rho: float, *, rule=None, penalty: float | None = None,
+                 tip_start: str | None = None):
+        rule = default_contact_rule(case) if rule is None else rule
+        if not is_contact_rule(rule):
+            raise CaseError(f"contact_quadrature must be {CONTACT_RULES}, got {rule!r}")
+        penalty = DEFAULT_CONTACT_PENALTY if penalty is None else penalty
+        if not (isinstance(penalty, (int, float)) and np.isfinite(penalty) and penalty > 0):
+            raise CaseError(f"contact_penalty must be a finite number > 0, got {penalty!r}")
+        tip_start = default_tip_start(case, rule) if tip_start is None else tip_start
+        if tip_start not in TIP_STARTS:
+            raise CaseError(f"tip_start must be one of {list(TIP_STARTS)}, got {tip_start!r}")
+        require_modeled(case)
+        mesh = case.mesh
+        self.rule, self.beta, self.tip_start = rule, float(penalty), tip_start
+        n, gdim = mesh.n_vertices, mesh.gdim
+        self.n, self.d = n, gdim
+        self._points = mesh.points
+        E = float(case.material.E)
+        ref_pts, ref_w = facet_rule(gdim - 1, rule)
+        N = (np.column_stack([1.0 - ref_pts.sum(axis=1), ref_pts]))          # (q, nv)
+        ref_measure = 0.5 if gdim == 3 else 1.0
+        h_cell = _longest_edges(mesh.points, mesh.cells)
+        pv, X, W, k, eps, dirs, flat, edge = [], [], [], [], [], [], [], []
+        self.tips: list[_Tip] = []
+        start = 0
+        for a in case.indenters():
+            missing = [r for r in a.contact_regions if r not in mesh.facet_regions]
+            if missing:
+                raise CaseError(f"indenter {a.name!r}: contact regions must be boundary (facet) "
+                                f"regions; {missing} are not; facet regions: "
+                                f"{sorted(mesh.facet_regions)}")
+            facets = np.unique(np.sort(np.concatenate(
+                [mesh.facet_regions[r] for r in a.contact_regions]), axis=1), axis=0)
+            xf = mesh.points[facets]                                          # (F, nv, gdim)
+            if gdim == 3:
+                area = 0.5 * np.linalg.norm(np.cross(xf[:, 1] - xf[:, 0], xf[:, 2] - xf[:, 0]),
+                                            axis=1)
+            else:
+                area = np.linalg.norm(xf[:, 1] - xf[:, 0], axis=1)
+            hf = h_cell[_owner_cells(mesh.cells, facets)]
+            nf, q = len(facets), len(ref_w)
+            X.append(np.einsum("qk,fkd->fqd", N, xf).reshape(-1, gdim))
+            W.append((ref_w[None, :] * (area / ref_measure)[:, None]).reshape(-1))
+            k.append(np.repeat(penalty * E / hf, q))
+            eps.append(np.repeat(hf / penalty, q))
+            pv.append(np.repeat(facets, q, axis=0))
+            shape = TipShape.of(a)
+            d = np.asarray(a.direction, float)
+            dirs.append(np.tile(d, (nf * q, 1)))
+            flat.append(np.full(nf * q, shape.flat))
+            edge.append(np.full(nf * q, shape.edge))
+            nodes = np.unique(facets)
+            site = indenter_site(a, case)
+            t = first_touch(shape, site, d, mesh.points[nodes])
+            if tip_start == "surface":
+                bary = facet_samples(gdim, START_SAMPLES)
+                t = min(t, first_touch(shape, site, d,
+                                       np.einsum("sk,fkd->fsd", bary, xf).reshape(-1, gdim)))
+            if not np.isfinite(t):
+                raise no_node_under(a, site)
+            self.tips.append(_Tip(a.name, a, shape, d, site + t * d, slice(start, start + nf * q),
+                                  nodes, facets, (penalty * E / hf.max(), penalty * E / hf.min()),
+                                  tip_start))
+            start += nf * q
+        self.P = start
+        cat = (lambda v: np.concatenate(v)) if start else (lambda v: np.zeros(0))
+        nv = gdim
+        # each point's facet vertices and their shape functions there: (P, nv) each
+        self.pv = np.concatenate(pv).astype(np.int64) if start else np.zeros((0, nv), np.int64)
+        self.pN = np.tile(N, (len(self.pv) // len(ref_w), 1)) if start else np.zeros((0, nv))
+        self.S = sp.csr_matrix((self.pN.reshape(-1), (np.repeat(np.arange(start), nv),
+                                                      self.pv.reshape(-1))), shape=(start, n))
+        self.S.eliminate_zeros()
+        self.X = np.concatenate(X) if start else np.zeros((0, gdim))
+        self.W, self.Wk, self.eps = cat(W), cat(W) * cat(k), cat(eps)
+        self.dirs = np.concatenate(dirs) if start else np.zeros((0, gdim))
+        self.flat, self.edge = cat(flat), cat(edge)
+        self.c0 = CONTACT_WEIGHT * rho * self.W * cat(k) / (penalty * E)   # rho W / h
+        self.key = (rule, self.beta, tip_start)
+
+    # ------------------------------------------------------------------ the tips' positions
+    def pushes_of(self, case) -> np.ndarray:
+        """The pushes (mm) of the tips in ``case`` (a Case of this structure), in tip order."""
+        return np.array([case.actuator(t.name).push for t in self.tips], float)
+
+    def origins(self, pushes) -> np.ndarray:
+        """(P, gdim): the centre of each point's tip's rounded end with the tips pushed by
+        ``pushes`` (mm, in tip order)."""
+        o = np.empty((self.P, self.d))
+        for t, p in zip(self.tips, np.asarray(pushes, float)):
+            o[t.sl] = t.q0 + (p - t.shape.edge) * t.d
+        return o
+
+    def scalar_matrix(self) -> sp.csr_matrix:
+        """S^T diag(c0) S (n, n): the contact blocks' share of the scalar x-step matrix."""
+        return (self.S.T @ sp.diags(self.c0) @ self.S).tocsr()
+
+    def vector_matrix(self) -> sp.csr_matrix:
+        """The same, (N, N) node-major (the scalar matrix times I_d)."""
+        return sp.kron(self.scalar_matrix(), sp.identity(self.d), format="csr")
+
+    # ------------------------------------------------------------------ energy on the host
+    def _state(self, u, o):
+        y = self.X + self.S @ np.asarray(u, float).reshape(self.n, self.d)
+        g, nrm = gap_and_normal(y, o, self.dirs, self.flat, self.edge)
+        return y, g, nrm
+
+    def energy(self, u, o) -> float:
+        """Pi_c (uJ) at displacement u (mm, node-major) with the tips' ends at o."""
+        if not self.P:
+            return 0.0
+        _, g, _ = self._state(u, o)
+        return float(self.Wk @ _phi(-g, self.eps)[0])
+
+    def _point_forces(self, u, o):
+        """dPi_c / dy_p (P, gdim), mN."""
+        _, g, nrm = self._state(u, o)
+        return -(self.Wk * _phi(-g, self.eps)[1])[:, None] * nrm
+
+    def gradient(self, u, o) -> np.ndarray:
+        """dPi_c / du (mN, node-major (N,))."""
+        if not self.P:
+            return np.zeros(self.n * self.d)
+        return (self.S.T @ self._point_forces(u, o)).reshape(-1)
+
+    def hessian(self, u, o, curvature: bool = True) -> sp.csr_matrix:
+        """d^2 Pi_c / du^2 (mN/mm, (N, N) node-major): W k (phi'' n n^T - phi' Hess g) at each
+        point in contact, spread over its facet's vertices. ``curvature`` False leaves the tips'
+        curvature term -phi' Hess g out: the rest is positive semi-definite (a skin node
+        pressed on a convex tip makes the exact Hessian indefinite away from the answer)."""
+        N = self.n * self.d
+        if not self.P:
+            return sp.csr_matrix((N, N))
+        y, g, nrm = self._state(u, o)
+        _, d1, d2 = _phi(-g, self.eps)
+        on = np.flatnonzero(d1 > 0)
+        if not len(on):
+            return sp.csr_matrix((N, N))
+        Hp = self.Wk[on, None, None] * (d2[on, None, None]
+                                        * np.einsum("ki,kj->kij", nrm[on], nrm[on]))
+        if curvature:
+            Hg = gap_hessian(y[on], o[on], self.dirs[on], self.flat[on], self.edge[on])
+            Hp -= (self.Wk[on] * d1[on])[:, None, None] * Hg
+        d = self.d
+        pv, pN = self.pv[on], self.pN[on]
+        # entries (a i, b j) = N_a N_b H_ij for each pair of vertices a, b of a point's facet
+        vals = np.einsum("ka,kb,kij->kaibj", pN, pN, Hp)
+        rows = np.broadcast_to((d * pv)[:, :, None, None, None]
+                               + np.arange(d)[None, None, :, None, None], vals.shape)
+        cols = np.broadcast_to((d * pv)[:, None, None, :, None]
+                               + np.arange(d)[None, None, None, None, :], vals.shape)
+        return sp.csr_matrix((vals.reshape(-1), (rows.reshape(-1), cols.reshape(-1))),
+                             shape=(N, N))
+
+    def push_derivative(self, u, o) -> np.ndarray:
+        """d (dPi_c / du) / d push_t (mN/mm, (N, n_tips)): how the contact forces change as each
+        tip moves along its direction at fixed u. The gap depends on y - o, so the derivative
+        is -S^T (H_p d_t) over tip t's points (H_p: the point's Hessian in y)."""
+        N = self.n * self.d
+        out = np.zeros((N, len(self.tips)))
+        if not self.P:
+            return out
+        y, g, nrm = self._state(u, o)
+        _, d1, d2 = _phi(-g, self.eps)
+        Hg = gap_hessian(y, o, self.dirs, self.flat, self.edge)
+        Hp = self.Wk[:, None, None] * (d2[:, None, None] * np.einsum("ki,kj->kij", nrm, nrm)
+                                       - d1[:, None, None] * Hg)
+        Hd = np.einsum("kij,kj->ki", Hp, self.dirs)            # H_p d (P, gdim)
+        for i, t in enumerate(self.tips):
+            part = np.zeros_like(Hd)
+            part[t.sl] = Hd[t.sl]
+            out[:, i] = -(self.S.T @ part).reshape(-1)
+        return out
+
+    def smoothing_width(self, name: str) -> float:
+        """The largest smoothing width eps (mm) of tip ``name``'s penalty: a tip that touches
+        the skin presses with the full penalty stiffness once this far in."""
+        t = next(t for t in self.tips if t.name == name)
+        return float(self.eps[t.sl].max(initial=0.0))
+
+    # ------------------------------------------------------------------ report
+    def report(self, u, pushes) -> dict:
+        """Per tip, what the reference reports (``fem_reference.contact`` module docstring):
+        push, force (mN along its direction: the force it exerts on the skin), force_vector,
+        contact_area (mm^2, the rule's weight of the points with g < 0), max_penetration (mm,
+        over the surface's nodes), the penalty, the rule, the start, and the facet check
+        (surface_penetration, tip_through_surface)."""
+        o = self.origins(pushes)
+        uu = np.asarray(u, float).reshape(self.n, self.d)
+        f = -self._point_forces(uu, o) if self.P else np.zeros((0, self.d))
+        _, g, _ = self._state(uu, o) if self.P else (None, np.zeros(0), None)
+        out = {}
+        bary = facet_samples(self.d, SURFACE_SAMPLES)
+        for t, p in zip(self.tips, np.asarray(pushes, float)):
+            sl = t.sl
+            fv = f[sl].sum(axis=0)
+            oc = t.q0 + (p - t.shape.edge) * t.d
+            pen = float(np.max(-t.shape.gap(self._points[t.nodes] + uu[t.nodes], oc, t.d),
+                               initial=0.0))
+            xs = np.einsum("sk,fkd->fsd", bary, (self._points[t.facets]
+                                                 + uu[t.facets])).reshape(-1, self.d)
+            deep = max(float(np.max(-t.shape.gap(xs, oc, t.d), initial=0.0)), 0.0)
+            out[t.name] = {
+                "push": float(p), "force": float(fv @ t.d), "force_vector": [float(v) for v in fv],
+                "contact_area": float(self.W[sl][g[sl] < 0].sum()),
+                "max_penetration": max(pen, 0.0), "penalty_beta": self.beta,
+                "penalty": [float(v) for v in t.penalty], "quadrature": self.rule,
+                "tip": t.actuator.tip, "contact": t.actuator.contact or "frictionless",
+                "tip_start": [float(v) for v in t.q0], "started_on": t.started_on,
+                "surface_penetration": deep,
+                "tip_through_surface": passed_through(t.shape, deep, max(pen, 0.0))}
+        return out
+
+
+class ContactBlocks:
+    """The contact blocks of one ADMM solve (one load or time step, the tips' ends at ``o``) on
+    the array module of the backend: ``xdata`` (their share of the x-step's data), ``update``
+    (gather, z-step, dual update, residuals after an x-step), ``halve_dual`` (rho doubled).
+    ``u0`` (host, node-major): the start state; the blocks start at S u0 with the dual of the
+    penalty's force there. ``dev``: an object with ``put`` (host -> array) and ``sparse`` (the
+    array module's sparse matrix constructor), or None for numpy/scipy."""
+
+    def __init__(self, ops, cset: ContactSet, up, u0, o, zstep, dev=None):
+        xp = zstep.xp
+        self.xp, self.zstep, self.rho0 = xp, zstep, ops.rho
+        put = np.asarray if dev is None else dev.put
+        mats = ops.contact_matrices()
+        if dev is not None:
+            mats = tuple(dev.sparse(M) for M in mats)
+        self.SZ, self.Bt = mats
+        d = ops.d
+        Sd = ops.contact_gather
+        self.base = put(cset.X.reshape(-1) + Sd @ up)          # X + S u_p, (P d,)
+        self.X = put(cset.X)
+        self.o, self.dirs = put(o), put(cset.dirs)
+        self.flat, self.edge = put(cset.flat), put(cset.edge)
+        self.Wk, self.eps, self.c0 = put(cset.Wk), put(cset.eps), put(cset.c0)
+        self.P, self.d = cset.P, d
+        # start: one z-step from S u0 with a zero dual (the dual of the penalty's force at a
+        # state the tips were just pushed into would be that force over c: hundreds of mm)
+        self.z = put((Sd @ u0).reshape(-1, d))
+        self.mu = xp.zeros_like(self.z)
+        self.w = self.z
+        self.update_from(self.z + self.X)
+
+    def xdata(self):
+        """Z^T (S^T diag(c0) (z - mu)) (x) I_d (mN): the blocks' share of the x-step's data."""
+        return self.Bt @ self.w.reshape(-1)
+
+    def halve_dual(self):
+        self.mu *= 0.5
+        self.w = self.z - self.mu
+
+    def update(self, q):
+        """Gather S u + mu, z-step, dual update after the x-step q; returns (r, dsq) per block:
+        |S u - z'|^2 and |z' - z|^2 (mm^2)."""
+        return self.update_from((self.SZ @ q + self.base).reshape(-1, self.d))
+
+    def update_from(self, uhat):
+        """The z-step and dual update from the points' positions uhat = X + S u (P, gdim)."""
+        xp = self.xp
+        yhat = uhat + self.mu
+        g, nrm = gap_and_normal(yhat, self.o, self.dirs, self.flat, self.edge, xp=xp)
+        pen = -g
+        a = self.Wk / ((self.zstep.rho / self.rho0) * self.c0)
+        eps = self.eps
+        deep = pen >= eps * (1.0 + 0.5 * a)
+        s_deep = (pen + 0.5 * a * eps) / (1.0 + a)
+        s_near = 2.0 * pen / (1.0 + xp.sqrt(1.0 + 2.0 * a * xp.maximum(pen, 0.0) / eps))
+        t = xp.where(pen > 0, pen - xp.where(deep, s_deep, s_near), 0.0)
+        z_new = yhat - self.X + t[:, None] * nrm
+        mu_new = -t[:, None] * nrm
+        dm = mu_new - self.mu
+        dz = z_new - self.z
+        r = (dm * dm).sum(axis=1)
+        dsq = (dz * dz).sum(axis=1)
+        self.z, self.mu = z_new, mu_new
+        self.w = z_new - mu_new
+        return r, dsq
