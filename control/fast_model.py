@@ -6,6 +6,12 @@ whenever the chord iterations stall.
 
 Glued patches: the pushes s (mm) prescribe u_p(s) = u_p0 + E s on the actuators' dofs (E: one
 column per actuator, its direction on its region's dofs; every other prescribed dof is fixed).
+Rigid tips (frictionless contact, ``solvers.admm.contact``): a push moves a tip, no dof (E's
+column is zero), and the residual carries the contact forces of the tips where s puts them;
+their derivative C_a = d r / d s_a (``ContactSet.push_derivative``) joins K E_a below, and K
+includes the contact's exact Hessian. A tip pushed less than ``press_widths`` of its penalty's
+smoothing widths (one that touches the skin without pressing: a zero Jacobian column) is
+linearized at that depth, as the reference's model is (``control.plants.PRESS_WIDTHS``).
 With the free coordinates q (u = u_p(s) + Z q) the model's state solves r_f(q, s) = Z^T r(u) = 0.
 
 State update from s to s' = s + ds, each step, with the factorization F of K_r = Z^T K Z at some
@@ -59,6 +65,10 @@ STATE_TOL_MM = 1e-6
 """The model's state is solved until the largest vertex step is below this (mm); a state that far
 off moves the Jacobian by about 1e-6 relative."""
 MAX_ITERATIONS = 12
+MAX_REFACTORS = 3
+"""With rigid tips, the chord iterations of one update refactorize at most this often (a tip's
+contact set changes as it moves)."""
+LINE_SEARCH = 20
 
 
 class FastModel:
@@ -67,11 +77,10 @@ class FastModel:
     updated by the chord Newton of the module docstring. ``timings`` (ms per call of
     ``jacobian``): "state" (the state update), "jacobian" (sensitivities and J), "factor"."""
 
-    def __init__(self, case, target: str):
+    def __init__(self, case, target: str, press_widths: float = 0.0):
         case.probe(target)
-        if case.indenters():
-            case.require_no_contact("the fast model")
         self.case, self.target = case, target
+        self.press_widths = float(press_widths)
         self.sensitivity = None
         self.solve = None   # no solve of its own a plant could share
         self.retries: list[str] = []
@@ -87,6 +96,7 @@ class FastModel:
         self._F = None
         self._P = probe_matrix(case, [target])
         self._factor_ms = 0.0
+        self._tip_cols = []   # the actuator index of each tip of the operators' contact set
 
     # -------------------------------------------------------------- pieces
     def _setup(self, pushes):
@@ -104,11 +114,31 @@ class FastModel:
                     {a: (1.0 if a == b else 0.0) for a in self.acts})) - zero
                 for b in self.acts])
             self._fext = pushed.external_forces(1.0)
+            cset = ops.contact
+            self._tip_cols = [] if cset is None else [self.acts.index(t.name) for t in cset.tips]
         return ops, up
 
-    def _factor(self, ops, u):
+    def _tips(self, ops, s):
+        """The tips' ends at every contact point with the pushes s (actuator order), or None
+        without tips."""
+        return None if ops.contact is None else ops.contact.origins(np.asarray(s)[self._tip_cols])
+
+    def _pressing(self, pushes: dict) -> dict:
+        """``pushes`` with each tip at 0 <= push < press_widths smoothing widths pushed to that
+        depth (module docstring)."""
+        if not self.case.indenters() or self.press_widths <= 0:
+            return pushes
+        ops, _ = self._setup(pushes)
+        out = dict(pushes)
+        for t in ops.contact.tips:
+            floor = self.press_widths * ops.contact.smoothing_width(t.name)
+            if 0.0 <= float(out.get(t.name, 0.0)) < floor:
+                out[t.name] = floor
+        return out
+
+    def _factor(self, ops, u, tips=None):
         t0 = time.perf_counter()
-        Kr, _ = ops.reduced_tangent(u)
+        Kr, _ = ops.reduced_tangent(u, extra=None if tips is None else ops.contact.hessian(u, tips))
         try:
             self._F = spla.splu(Kr.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.01,
                                 options={"SymmetricMode": True})
@@ -132,8 +162,12 @@ class FastModel:
         if warm is not None and not self._valid(ops, warm):
             warm = None   # the last state carried to these pushes folds cells: start cold
 
+        start = None if self._s is None else dict(zip(self.acts, self._s.tolist()))
+
         def solve(case, p, initial):
-            return admm_solve(case, pushes=p, initial=initial, **ADMM_CONTROL_OPTIONS)
+            return admm_solve(case, pushes=p, initial=initial,
+                              initial_pushes=start if initial is not None else None,
+                              **ADMM_CONTROL_OPTIONS)
 
         # a warm start that fails is retried cold, as the solve-based model does
         r = solve_checked(solve, self.case, pushes,
@@ -146,47 +180,85 @@ class FastModel:
         return ops, up, u
 
     # -------------------------------------------------------------- the update
-    def _chord(self, ops, up, q):
-        """q solving the free residual from ``q`` (chord iterations); None when they stall or
-        the state is not valid (an inverted cell)."""
+    def _chord(self, ops, up, q, tips=None):
+        """q solving the free residual from ``q`` (chord iterations; the tips' ends at ``tips``);
+        None when they stall or the state is not valid (an inverted cell). With tips each
+        correction must lower the energy (halved until it does; a correction that is no
+        descent direction, from a factorization the contact set has left behind, is solved
+        again with the tangent at the current state)."""
         Z, ZT = ops.red.Z, ops.red.ZT
         prev = None
-        refactored = False
+        refactors = 0
+        limit = 1 if tips is None else MAX_REFACTORS
         for _ in range(MAX_ITERATIONS):
-            dq = -self._F.solve(ZT @ ops.residual(up + Z @ q, self._fext))
+            u = up + Z @ q
+            rr = ZT @ ops.residual(u, self._fext, tips)
+            dq = -self._F.solve(rr)
+            if tips is not None:
+                dq = self._descend(ops, up, q, rr, dq, tips)
+                if dq is None and refactors < limit:
+                    try:
+                        self._factor(ops, u, tips)
+                    except ConvergenceError:
+                        return None
+                    refactors += 1
+                    dq = self._descend(ops, up, q, rr, -self._F.solve(rr), tips)
+                if dq is None:
+                    return None
             step = ops.step_norm(dq)
             if not np.isfinite(step):
                 return None
             q = q + dq
             if step < STATE_TOL_MM:
                 return q if self._valid(ops, up + Z @ q) else None
-            if prev is not None and step > REFACTOR_RATE * prev and not refactored:
+            if prev is not None and step > REFACTOR_RATE * prev and refactors < limit:
                 try:
-                    self._factor(ops, up + Z @ q)
+                    self._factor(ops, up + Z @ q, tips)
                 except ConvergenceError:   # a singular tangent on the way: the full solve
                     return None
-                refactored = True
+                refactors += 1
             prev = step
         return None
 
-    def _refine(self, ops, u):
-        """The sensitivities X (nq, n_act) at state u, from the last ones; None when stalled."""
+    def _descend(self, ops, up, q, rr, dq, tips):
+        """dq shortened until it lowers the energy with no inverted cell (Armijo), or None
+        when it is no descent direction or no length does."""
+        slope = float(rr @ dq)
+        if not (slope < 0):
+            return None
+        Z = ops.red.Z
+        e0, _ = ops.energy(up + Z @ q, self._fext, tips)
+        alpha = 1.0
+        for _ in range(LINE_SEARCH):
+            e1, J = ops.energy(up + Z @ (q + alpha * dq), self._fext, tips)
+            if (J is None or np.all(J > 0)) and e1 <= e0 + 1e-4 * alpha * slope + 1e-13 * abs(e0):
+                return alpha * dq
+            alpha *= 0.5
+        return None
+
+    def _refine(self, ops, u, tips=None):
+        """The sensitivities X (nq, n_act) at state u (the tips' ends at ``tips``), from the
+        last ones; None when stalled."""
         Z, ZT = ops.red.Z, ops.red.ZT
-        KV = ops.tangent_products(u)
+        KV = ops.tangent_products(u, tips)
+        C = 0.0
+        if tips is not None:
+            C = np.zeros_like(self._E)
+            C[:, self._tip_cols] = ops.contact.push_derivative(u, tips)
         if self._X is None:   # first: one solve with the factorization gives a start
-            X = -self._F.solve(ZT @ KV(self._E))
+            X = -self._F.solve(ZT @ (KV(self._E) + C))
         else:
             X = self._X.copy()
         prev = None
         refactored = False
         for _ in range(MAX_ITERATIONS):
-            dX = -self._F.solve(ZT @ KV(Z @ X + self._E))
+            dX = -self._F.solve(ZT @ (KV(Z @ X + self._E) + C))
             X = X + dX
             change = float(np.abs(dX).max()) / max(float(np.abs(X).max()), 1e-300)
             if change < REFINE_TOL:
                 return X
             if prev is not None and change > REFACTOR_RATE * prev and not refactored:
-                self._factor(ops, u)
+                self._factor(ops, u, tips)
                 refactored = True
             prev = change
         return None
@@ -195,29 +267,31 @@ class FastModel:
         """(gdim, n_act) mm/mm: the target's sensitivity to the pushes at the model's state at
         ``pushes`` (``u`` is ignored: this model keeps its own state)."""
         t0 = time.perf_counter()
-        s = np.array([float(pushes.get(a, 0.0)) for a in self.acts])
         self._factor_ms = 0.0
+        pushes = self._pressing(pushes)
+        s = np.array([float(pushes.get(a, 0.0)) for a in self.acts])
         ops, up = self._setup(pushes)
+        tips = self._tips(ops, s)
         q = None
         if self._q is not None and self._F is not None:
             q0 = self._q if self._X is None or self._s is None else \
                 self._q + self._X @ (s - self._s)
-            q = self._chord(ops, up, q0)
+            q = self._chord(ops, up, q0, tips)
         if q is None:
             if self._q is not None:
                 self.fallbacks += 1
                 self.retries.append(f"fast model at pushes {pushes}: chord iterations stalled; "
                                     f"full ADMM solve")
             ops, up, u_full = self._full_solve(pushes)
-            self._factor(ops, u_full)
+            self._factor(ops, u_full, tips)
             q = self._q
         t1 = time.perf_counter()
         u_new = up + ops.red.Z @ q
-        X = self._refine(ops, u_new)
+        X = self._refine(ops, u_new, tips)
         if X is None:
-            self._factor(ops, u_new)
+            self._factor(ops, u_new, tips)
             self._X = None
-            X = self._refine(ops, u_new)
+            X = self._refine(ops, u_new, tips)
             if X is None:
                 raise ConvergenceError(f"the fast model's sensitivities did not converge at "
                                        f"pushes {pushes}")

@@ -18,6 +18,17 @@ Two sensitivities of the internal targets' displacement (mm) to the actuators:
   J_s = J_m^T K^-1 J_c (J_c^T K^-1 J_c)^-1 with K restricted to the free dofs of the Case (actuator
   regions free), J_c the unit force along d_i at actuator i's control point(s), J_m^T = P.
 
+* ``admm_indenter_jacobian`` -- the actuator is a rigid tip of the ADMM model (frictionless
+  contact, ``solvers.admm.contact``): at the model's converged state u the free residual
+  r_f(u, s) = Z^T (f_int(u) + dPi_c/du(u, o(s)) - f_ext) vanishes, the tip's end o moving by
+  d_t per mm of push s_t. Then
+
+      K_r X_t = -Z^T dr/ds_t,   dr/ds_t = -S^T (H_p d_t) over tip t's contact points,
+      dx_target = P Z X_t,
+
+  with K_r the reduced exact tangent (elements and the contact's Hessian, curvature included:
+  the state's active contact set), H_p a contact point's penalty Hessian in its position.
+
 K is node-major (dof = 3 * node + c), full size (constrained dofs included), in the Case's vertex
 numbering; degree-2 tangents carry extra (edge) nodes after the vertices: pass ``P`` (target
 interpolation on the whole dof vector) and ``region_nodes`` (node ids of a region, extra nodes
@@ -35,9 +46,11 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.solvers.admm import prepare
 
 __all__ = [
     "ControlJacobian",
+    "admm_indenter_jacobian",
     "dirichlet_jacobian",
     "fd_jacobian",
     "force_jacobian",
@@ -239,6 +252,36 @@ def dirichlet_jacobian(case, K, *, actuators=None, targets=None, P=None,
     J = np.asarray(Pm @ du)
     return ControlJacobian(J, acts, tg, "dirichlet", d, time.perf_counter() - t0,
                            {"n_free": len(free)})
+
+
+def admm_indenter_jacobian(case, u, *, actuators=None, targets=None,
+                           contact: dict | None = None) -> ControlJacobian:
+    """Exact sensitivity (mm/mm) of target displacements to the pushes of the ADMM model's
+    rigid tips (module docstring) at its converged state u (mm, (n, gdim)) of ``case`` (the
+    case with the pushes of that state; its other actuators held). actuators: indenter names
+    (default: every indenter), one column each; contact: the ADMM solve's contact options
+    (``solvers.admm.prepare``; default the case's)."""
+    t0 = time.perf_counter()
+    tips = [a.name for a in case.indenters()]
+    acts, tg = _names(case, tips if actuators is None else actuators, targets)
+    missing = [a for a in acts if a not in tips]
+    if missing:
+        raise CaseError(f"{missing} are not indenters of {case.source or case.name}; "
+                        f"indenters: {tips}")
+    ops = prepare(case, contact=contact)
+    cset = ops.contact
+    o = cset.origins(cset.pushes_of(case))
+    uu = np.asarray(u, float).reshape(-1)
+    Kr, _ = ops.reduced_tangent(uu, extra=cset.hessian(uu, o))
+    order = [t.name for t in cset.tips]
+    C = cset.push_derivative(uu, o)[:, [order.index(a) for a in acts]]
+    try:
+        X = -spla.splu(Kr.tocsc()).solve(np.ascontiguousarray(ops.red.ZT @ C))
+    except RuntimeError as exc:
+        raise ConvergenceError(f"the ADMM model's tangent is singular: {exc}") from None
+    J = np.asarray(probe_matrix(case, tg, n_dofs=ops.N) @ (ops.red.Z @ X))
+    return ControlJacobian(J, acts, tg, "indenter", case.mesh.gdim, time.perf_counter() - t0,
+                           {"n_free": ops.nq})
 
 
 def force_jacobian(case, K, *, actuators=None, targets=None, P=None, control="point",

@@ -15,9 +15,13 @@ import numpy as np
 
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import material_json
+from tissue_reference.solvers.admm import prepare
+from tissue_reference.solvers.admm import solve as admm_solve
+
+from .jacobian import admm_indenter_jacobian
 
 __all__ = ["ADMM_CONTROL_OPTIONS", "FD_FLOOR", "MODEL_UPDATES", "PRESS_WIDTHS", "LoopSetup",
-           "actuator_kind", "build_loop", "indenter_sensitivity", "jacobian_at", "material_json",
+           "actuator_kind", "admm_indenter_sensitivity", "build_loop", "indenter_sensitivity", "jacobian_at", "material_json",
            "plant_for", "pressing", "reference_state", "solver_description", "tangent_for"]
 
 # ADMM as a control plant/model: the ADMM stage hands over to the Newton polish (part of
@@ -74,7 +78,10 @@ def plant_for(name: str, *, degree: int | None = None, tight: bool = True):
         from tissue_reference.solvers.admm import solve
 
         kw = dict(ADMM_CONTROL_OPTIONS) if tight else {}
-        return lambda case, pushes, initial: solve(case, pushes=pushes, initial=initial, **kw)
+        # the previous answer itself warm-starts: with rigid tips it carries their pushes, so
+        # the tips start where that state was solved
+        return _full_warm_start(lambda case, pushes, initial: solve(
+            case, pushes=pushes, initial=initial, **kw))
     raise CaseError(f"unknown plant/model solver {name!r}; choose fem or admm")
 
 
@@ -173,6 +180,12 @@ def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="a
         J = indenter_jacobian(s, pushed, actuators=names)
         jac = ControlJacobian(J, tuple(names), tuple(p.name for p in case.probes),
                               kind="indenter", gdim=case.mesh.gdim)
+    elif tips & set(names):   # the ADMM model's rigid tips
+        plant = plant_for(solver, degree=degree)
+        res = plant(case, st, None)
+        if not res.converged:
+            raise CaseError(f"the state solve at pushes {st} did not converge")
+        jac = admm_indenter_jacobian(pushed, res.u, actuators=names)
     elif solver == "fem":
         res, T, plant = reference_state(case, st, degree=degree, formulation=formulation)
         degree = T.degree
@@ -239,7 +252,7 @@ class LoopSetup:
         from .loop import LinearizedModel, run_closed_loop
 
         if self.fast_model:
-            model = FastModel(self.model_case, target)
+            model = FastModel(self.model_case, target, press_widths=PRESS_WIDTHS)
         else:
             model = LinearizedModel(self.model_case, self.model_solve, self.model_tangent,
                                     target, self.model_sensitivity)
@@ -312,13 +325,10 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
         meta["plant_contact_rule"] = "nodal" if rule in (None, "nodal") else int(rule)
     sensitivity = None
     if mcase.indenters():
-        if mname != "fem":
-            mcase.require_no_contact(f"the {mname} model")
-        sensitivity = indenter_sensitivity()
+        sensitivity = indenter_sensitivity() if mname == "fem" else admm_indenter_sensitivity()
     if model_update not in MODEL_UPDATES:
         raise CaseError(f"model update {model_update!r}: choose one of {list(MODEL_UPDATES)}")
-    fast = model_update == "fast" and mname == "admm" and not mcase.indenters() and \
-        msolve is not psolve
+    fast = model_update == "fast" and mname == "admm" and msolve is not psolve
     meta["model_update"] = "fast" if fast else "solve"
     return LoopSetup(pcase, psolve, mcase, msolve, tangent_for(mname), meta, sensitivity, fast)
 
@@ -363,4 +373,26 @@ def indenter_sensitivity(degree: int | None = None):
         if not res.converged:
             raise CaseError(f"the model's state at pushes {at} did not converge")
         return indenter_jacobian(s, case.with_pushes(at), targets=[target])
+    return sensitivity
+
+
+def admm_indenter_sensitivity():
+    """sensitivity(case, pushes, u, target) -> (gdim, n_act) mm/mm: the ADMM model's indenter
+    Jacobian (``control.jacobian.admm_indenter_jacobian``) of ``target`` at its state ``u`` of
+    ``case`` with ``pushes``; a tip touching without pressing (0 <= push < PRESS_WIDTHS of its
+    smoothing widths) is first pushed to that depth by an ADMM solve from ``u``."""
+    def sensitivity(case, pushes, u, target):
+        cset = prepare(case.with_pushes(pushes)).contact
+        at = dict(pushes)
+        for t in cset.tips:
+            floor = PRESS_WIDTHS * cset.smoothing_width(t.name)
+            if 0.0 <= float(at.get(t.name, 0.0)) < floor:
+                at[t.name] = floor
+        if at != dict(pushes):
+            res = admm_solve(case, pushes=at, initial=u, initial_pushes=pushes,
+                             **ADMM_CONTROL_OPTIONS)
+            if not res.converged:
+                raise CaseError(f"the model's state at pushes {at} did not converge")
+            u = res.u
+        return admm_indenter_jacobian(case.with_pushes(at), u, targets=[target]).J
     return sensitivity

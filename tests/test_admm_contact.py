@@ -3,13 +3,19 @@ reference's contact solve (fem_reference/contact.py: the same discrete energy wr
 forms, minimized by PETSc Newton), the state at rest once a tip has left the skin, and the
 reference's implicit-Euler dynamics. Quarter block ``indent-block`` (cells of 0.5 mm under the
 tip), Neo-Hookean E = 6 kPa, nu = 0.45; units mm, kPa, mN."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 import tissue_reference.fem_reference as fr
+from tissue_reference.control.fast_model import FastModel
+from tissue_reference.control.jacobian import admm_indenter_jacobian, fd_jacobian, max_rel_error
+from tissue_reference.control.loop import LoopSettings, run_closed_loop
+from tissue_reference.control.plants import PRESS_WIDTHS, build_loop
 from tissue_reference.fem_reference.dynamics import simulate
 from tissue_reference.meshes.builders import indent_block
-from tissue_reference.meshes.case import Actuator, Boundary, Case, Material
+from tissue_reference.meshes.case import Actuator, Boundary, Case, Material, Probe
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.facet_quadrature import gauss_rule, nodal_rule
 from tissue_reference.solvers import admm, mass_tensor
@@ -172,3 +178,56 @@ def test_verify_scores_admm_on_tips_and_skips_the_mass_tensor_saying_why(block, 
     assert out["solvers"]["admm"]["max_vertex_error_mm"] < SAME
     assert "mass-tensor" not in out["solvers"]
     assert "does not model contact" in out["skipped"]["mass-tensor"]
+
+
+# --------------------------------------------------------------------------- the contact Jacobian
+def probed(case, rule):
+    """The tip case with two targets under and beside the tip, and its contact rule named."""
+    return replace(case, probes=(Probe("T", (0.5, 0.5, -2.0)), Probe("U", (2.0, 1.0, -1.0))),
+                   reference_contact_quadrature=None if rule == "nodal" else rule)
+
+
+@pytest.mark.parametrize("rule", ["nodal", 2])
+def test_the_admm_contact_jacobian_equals_central_differences_of_admm_solves(block, rule):
+    """Targets per mm of tip travel at a pressed state (the active contact set's), against
+    central differences (+-1e-3 mm) of ADMM solves polished to 1e-10 mm."""
+    case = probed(tip_case(block), rule)
+    state = {"I": 1.0}
+    res = admm.solve(case, pushes=state, polish_tol_mm=1e-10)
+    jac = admm_indenter_jacobian(case.with_pushes(state), res.u)
+
+    def plant(c, pushes, initial):
+        return admm.solve(c, pushes=pushes, initial=res, polish_tol_mm=1e-10)
+
+    fd = fd_jacobian(plant, case, state, h=1e-3)
+    assert np.abs(jac.J).max() > 0.3          # the targets follow the tip
+    assert max_rel_error(jac.J, fd.J) < 1e-4
+
+
+def test_the_fast_model_follows_a_tip_with_the_exact_jacobian(block):
+    """The controller's fast ADMM model moved along a tip's path (chord iterations with a line
+    search, refactorized as the contact set grows): its state and Jacobian at each push are the
+    polished ADMM solve's and the exact contact Jacobian there."""
+    case = probed(tip_case(block), "nodal")
+    model = FastModel(case, "T")
+    for push in (0.2, 0.5, 0.8, 1.0):
+        J = model.jacobian({"I": push})
+        ref = admm.solve(case, pushes={"I": push}, polish_tol_mm=1e-10)
+        exact = admm_indenter_jacobian(case.with_pushes({"I": push}), ref.u, targets=["T"]).J
+        assert np.abs(model.u - ref.u).max() < 1e-6
+        assert max_rel_error(J, exact) < 1e-5
+
+
+def test_a_push_only_loop_steers_a_target_with_a_tip_model_and_a_tip_plant(block):
+    """The reference P1 as the plant, the ADMM fast model (E 20 % off: no body force, so the
+    same answers) as the controller's model, one tip: the target under it is driven 0.3 mm down
+    and held, without retracting the tip, closed loop at least as close as open loop."""
+    case = probed(tip_case(block), "nodal")
+    loop = build_loop(case, plant="fem", model="admm", model_E_factor=0.8)
+    assert loop.fast_model and loop.meta["model_actuator_kind"] == "indenter"
+    model = FastModel(loop.model_case, "T", press_widths=PRESS_WIDTHS)
+    res = run_closed_loop(loop.plant, loop.case, model, "T", 1,
+                          settings=LoopSettings(steps=8), goal=(np.nan, np.nan, -0.3))
+    assert res.steady_state_error_mm <= 0.05 * 0.3
+    assert res.max_retraction_mm == 0.0 and res.pushes.min() >= 0.0
+    assert res.steady_state_error_mm <= res.open_loop["steady_state_error_mm"] + 1e-9

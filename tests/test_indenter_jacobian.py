@@ -104,8 +104,8 @@ def test_mixing_indenters_and_patches_is_refused(case):
         jacobian_at(mixed, {"I": 1.0}, fd_h=0)
     with pytest.raises(CaseError, match="mixes indenters and glued patches"):
         build_loop(mixed, plant="fem")
-    with pytest.raises(CaseError, match="does not model contact"):
-        build_loop(case, plant="fem", model="admm")
+    # an ADMM model presses the same frictionless tips (its fast update included)
+    assert build_loop(case, plant="fem", model="admm", model_E_factor=0.9).fast_model
 
 
 def test_the_model_linearizes_a_touching_tip_where_it_presses(case):

@@ -275,6 +275,16 @@ class AdmmOperators:
         fe = np.einsum("mab,mb->ma", Ke, v[self.kin.dofs])
         return np.bincount(self.kin.dofs.ravel(), weights=fe.ravel(), minlength=self.N)
 
+    def energy(self, u, fext, tips=None) -> tuple:
+        """(E, J): the P1 energy sum_e V_e psi_e - f_ext . u (uJ) at displacement u (mm), plus
+        the rigid tips' contact energy where ``tips`` gives their ends; inf where a cell is
+        inverted. J: the cells' det F (None for linear elasticity)."""
+        psi, J = self.law.psi_J(self.grad(u))
+        e = float(self.kin.V @ psi) - float(fext @ u)
+        if tips is not None and self.contact is not None:
+            e += self.contact.energy(u, tips)
+        return e, J
+
     def residual(self, u, fext, tips=None) -> np.ndarray:
         """Internal minus external nodal forces (mN, full node-major) at displacement u (mm),
         plus the rigid tips' contact forces where ``tips`` gives their ends

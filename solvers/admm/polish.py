@@ -52,10 +52,7 @@ def _tangent_lift(ops, u, up, it, factorize=None, tips=None):
 
 
 def _energy(ops, u, fext, inertia, tips=None):
-    psi, J = ops.law.psi_J(ops.grad(u))
-    e = float(ops.kin.V @ psi) - float(fext @ u)
-    if tips is not None and ops.contact is not None:
-        e += ops.contact.energy(u, tips)
+    e, J = ops.energy(u, fext, tips)
     if inertia is not None:
         mdt, ut = inertia
         e += 0.5 * float((u - ut) @ (mdt * (u - ut)))
