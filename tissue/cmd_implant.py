@@ -245,5 +245,7 @@ def run(args) -> int:
     write_json(out, args.json)
     print(f"implant {settings.volume_cc:g} cc {settings.shape} {settings.side}: "
           f"{plan.iterations} Mass Tensor iterations, {plan.wall_time_s:.2f} s; "
-          f"d_max {out['d_max_mm']} mm, mean {out['mean_distance_mm']} mm")
+          + (f"d_max {out['d_max_mm']:.3g} mm, mean {out['mean_distance_mm']:.3g} mm "
+             f"(Mass Tensor against the linear FEM reference)" if out["d_max_mm"] is not None
+             else "no FEM reference comparison (--no-reference)"))
     return 0

@@ -39,7 +39,7 @@ def _line(name, e):
     if e.get("polish_restarts"):
         print(f"    polish restarts: {len(e['polish_restarts'])}: {e['polish_restarts'][0]}")
     if "l2_error_mm" in e:
-        en = e.get("energy_norm_error_uJ")
+        en = e.get("energy_norm_error_sqrt_uJ")
         print(f"    volume L2 {e['l2_error_mm']:.4g} mm (rel {e['l2_relative_error'] or 0:.3g}), "
               f"H1 seminorm {e['h1_seminorm_error']:.4g} (rel {e['h1_relative_error'] or 0:.3g})"
               + (f", energy norm {en:.4g} sqrt(uJ) (rel {e['energy_relative_error']:.3g})"

@@ -14,6 +14,9 @@ from tissue_reference.meshes.html_page import Raw, fmt, image, kv_table, page, t
 
 __all__ = ["distance_rows", "write_implant_report"]
 
+NO_ICP = "not needed (same mesh)"
+"""The ICP columns of a comparison on one mesh: its vertices correspond, no registration."""
+
 
 def distance_rows(d: dict) -> list[tuple]:
     """The surface-distance comparisons of ``d``: (what, d_max mm, mean mm, ICP RMS mm, ICP
@@ -21,11 +24,11 @@ def distance_rows(d: dict) -> list[tuple]:
     rows = []
     if d.get("d_max_mm") is not None:
         rows.append(("Mass Tensor vs the linear FEM reference", d["d_max_mm"],
-                     d["mean_distance_mm"], "", ""))
+                     d["mean_distance_mm"], NO_ICP, NO_ICP))
     nh = d.get("neo_hookean")
     if nh:
         rows.append(("Mass Tensor vs the Neo-Hookean FEM reference", nh["d_max_mm"],
-                     nh["mean_distance_mm"], "", ""))
+                     nh["mean_distance_mm"], NO_ICP, NO_ICP))
     po = d.get("postop")
     if po:
         rows.append(("post-operative skin (after ICP) vs the prediction", po["d_max_mm"],

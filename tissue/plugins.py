@@ -12,7 +12,8 @@ The protocol every solver follows (the built-in ones too, through ``builtin_solv
 values. Instead of an array a solver may return an object (or a mapping) with ``u`` and any of
 ``iterations`` (a whole number), ``converged`` (True or False), ``wall_time_s`` (seconds),
 ``history`` (a mapping of per-iteration lists of numbers, e.g. ``max_step_mm`` for the
-convergence plot) and ``extra`` (a mapping) — a ``meshes.results.SolveResult`` is one. Each is
+convergence plot) and ``extra`` (a mapping; its ``"model"``, e.g. "linear-elastic", names the
+material model the solver solves in the scores) — a ``meshes.results.SolveResult`` is one. Each is
 checked as a built-in solver's figures are: a value of another kind is a PluginError naming the
 field, and so is a complex displacement. A solver that does not handle a problem raises
 ``meshes.errors.CaseError`` with a message saying why; ``verify`` reports that (exit status 2)

@@ -18,7 +18,7 @@ Scores (mm unless stated): ``max_vertex_error_mm`` and ``rms_vertex_error_mm`` o
 points; on a mesh (the Case's, or the field's own cells) the volume L2 error of the linear
 interpolant of the difference ``l2_error_mm`` (= sqrt(int |e|^2 dV / V), an RMS over the volume),
 ``h1_seminorm_error`` (sqrt(int |grad e|^2 dV / V), dimensionless), and the small-strain energy
-norm of the difference with the Case's E and nu, ``energy_norm_error_uJ`` (sqrt(int sigma(e) :
+norm of the difference with the Case's E and nu, ``energy_norm_error_sqrt_uJ`` (sqrt(int sigma(e) :
 eps(e) dV), sqrt(uJ); none at nu = 0.5); ``probe_error_mm`` per probe (the field interpolated
 at the probe, minus the reference's probe value); relative figures divide by the reference's own
 norm. Units: mm, kPa, uJ.
@@ -280,7 +280,7 @@ def _mesh_norms(X, cells, e, u_ref, material):
     res = {"l2_error_mm": ne["l2"], "h1_seminorm_error": ne["h1"],
            "l2_relative_error": ne["l2"] / nr["l2"] if nr["l2"] > 0 else None,
            "h1_relative_error": ne["h1"] / nr["h1"] if nr["h1"] > 0 else None,
-           "energy_norm_error_uJ": ne.get("energy"),
+           "energy_norm_error_sqrt_uJ": ne.get("energy"),
            "energy_relative_error": (ne["energy"] / nr["energy"]
                                      if ne.get("energy") is not None and nr["energy"] > 0
                                      else None)}

@@ -22,7 +22,9 @@ def _cell(r) -> str:
         return f"<td class='fail' title='{html.escape(r['error'])}'>error</td>"
     cls = "pass" if r["passed"] else "fail"
     return (f"<td class='{cls}'>{r['value_mm']:.6g} mm<br>{r['error_rel']:.2e} rel<br>"
-            f"{r['wall_time_s']:.2f} s, {r['iterations']} its</td>")
+            f"{r['wall_time_s']:.2f} s, "
+            + (f"{r['iterations']} its" if r.get("iterations") is not None
+               else "iterations not reported") + "</td>")
 
 
 def write_scorecard(out: dict, out_dir) -> Path:

@@ -335,7 +335,9 @@ def _score_plugin(plugin, case, pushes, opts, refs, degree, formulation):
         "wall_time_s": run.wall_time_s,
         "speedup_vs_reference": float(res_ref.wall_time_s / run.wall_time_s)
         if run.wall_time_s > 0 else float("inf"),
-        "model": case.material.model, "reference_model": case.material.model,
+        # the model a plugin solves is what its answer says (extra["model"]), not the case's
+        "model": str(run.extra.get("model") or "not stated (its extra['model'])"),
+        "reference_model": case.material.model,
         "reference_discretization": _disc(res_ref),
         "reference_wall_time_s": float(res_ref.wall_time_s),
         "reference_newton_iterations": int(res_ref.iterations),

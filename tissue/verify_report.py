@@ -69,7 +69,8 @@ def write_report(out_dir: Path, case, out: dict, traces: dict) -> Path:
 
     sol_rows = [(n, e.get("model", ""), disc(e), _fmt(e["max_vertex_error_mm"]),
                  _fmt(e["rms_vertex_error_mm"]), _fmt(e.get("l2_error_mm", "")),
-                 _fmt(e.get("energy_norm_error_uJ", "") or ""), _fmt(e.get("iterations", "")),
+                 _fmt(e.get("energy_norm_error_sqrt_uJ", "") or ""),
+                 _fmt(e.get("iterations", "")),
                  e.get("admm_iterations", ""), e.get("newton_iterations", ""),
                  _fmt(e.get("wall_time_s", "")), _fmt(e.get("speedup_vs_reference", ""), 3),
                  e.get("converged", ""))
@@ -79,6 +80,17 @@ def write_report(out_dir: Path, case, out: dict, traces: dict) -> Path:
     probes = sorted({p for e in out["solvers"].values() for p in e["probe_error_mm"]})
     probe_rows = [(n, *[_fmt(e["probe_error_mm"].get(p, float("nan"))) for p in probes])
                   for n, e in out["solvers"].items()]
+    # the reference's own discretization error at the probes (--estimate), one row per
+    # reference the solvers were scored against: how far the ground truth itself may be off
+    own = {}
+    for e in out["solvers"].values():
+        est = e.get("discretization_error_estimate_mm")
+        if est:
+            label = ("reference's own error (estimate, no error bar: no converged value)"
+                     if e.get("no_converged_value") else "reference's own error (estimate)")
+            own[f"{label}: {e.get('reference_model', '')} {disc(e)}"] = est
+    probe_rows += [(label, *[_fmt(est.get(p, float("nan"))) for p in probes])
+                   for label, est in own.items()]
     parts = [
         "<!DOCTYPE html><html><head><meta charset='utf-8'>",
         f"<title>tissue verify: {html.escape(case.name)}</title>",

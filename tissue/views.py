@@ -35,7 +35,10 @@ grid = pv.UnstructuredGrid(np.hstack([np.full((len(cells), 1), 4), cells]).ravel
 grid.point_data[sys.argv[4]] = d["scalar"]
 p = pv.Plotter(off_screen=True, window_size=(900, 700))
 p.add_mesh(grid, scalars=sys.argv[4], cmap="viridis", show_edges=False,
-           scalar_bar_args={"title": sys.argv[4]})
+           scalar_bar_args={"title": sys.argv[4] + "\n", "vertical": True,
+                            "position_x": 0.86, "position_y": 0.15, "height": 0.7,
+                            "width": 0.06, "title_font_size": 14, "label_font_size": 12,
+                            "fmt": "%.3g", "n_labels": 5})
 ref = pv.UnstructuredGrid(np.hstack([np.full((len(cells), 1), 4), cells]).ravel(),
                           np.full(len(cells), pv.CellType.TETRA), d["points"])
 p.add_mesh(ref.extract_feature_edges(), color="grey", opacity=0.3)
