@@ -267,3 +267,20 @@ def test_cli_scores_a_plugin(capsys):
                "--solvers", "examples.linear_plugin:solve", "--degree", "1"])
     out = capsys.readouterr().out
     assert rc == 0 and "examples.linear_plugin:solve" in out and "reference neo-hookean" in out
+
+
+def test_a_field_on_a_finer_mesh_of_the_curved_phantom_is_scored_and_one_outside_is_not():
+    """The phantom's finer mesh puts boundary points outside the coarser mesh's flat facets but
+    inside the curved body (within the facets' sag, from the mesh's second-order edge nodes):
+    they are scored, the volume norms too. A point 1 mm above the body is still refused."""
+    coarse = load_case("phantom", size=10.0)
+    fine = load_case("phantom", size=6.0).mesh
+    field = Field(u=np.zeros_like(fine.points), points=fine.points, cells=fine.cells,
+                  source="fine.vtu")
+    out = verify(coarse, {"A1": 1.0}, solvers=[], field=field)
+    scored = out["solvers"]["field"]
+    assert "outside_points" not in scored and scored["l2_error_mm"] > 0
+    top = fine.points[np.argmax(fine.points[:, 2])] + np.array([0.0, 0.0, 1.0])
+    above = Field(u=np.zeros((1, 3)), points=top[None], source="above.vtu")
+    with pytest.raises(CaseError, match="1 point\\(s\\) lie outside the body"):
+        verify(coarse, {"A1": 1.0}, solvers=[], field=above)

@@ -41,6 +41,7 @@ __all__ = ["FIELD_NAMES", "Field", "field_from_array", "load_field", "score_fiel
 FIELD_NAMES = ("displacement", "u", "Displacement", "U", "disp", "DISPLACEMENT")
 MATCH_RTOL = 1e-6   # coordinates within this fraction of the body's size are the same point
 SNAP_RTOL = 0.05    # a point this close to the body (fraction of the local cell size) is inside
+SAG_FACTOR = 1.5    # a curved facet's interior bulges up to about 4/3 of its edges' sag (sphere)
 
 
 @dataclass(frozen=True)
@@ -138,11 +139,12 @@ def load_field(path, gdim: int, *, name: str | None = None) -> Field:
 
 
 # --------------------------------------------------------------------------- geometry
-def _locate(X, cells, pts, snap_rtol=SNAP_RTOL):
+def _locate(X, cells, pts, snap_rtol=SNAP_RTOL, sag=None):
     """Containing cell and barycentric weights of each point, searched among the cells with the
     nearest centroids (16, then 64, then 256 for the points not found yet); a point outside all
-    of them within ``snap_rtol`` of the local cell size is snapped to the closest of them.
-    Returns (cell (m,), weights (m, d+1), inside (m,))."""
+    of them within ``snap_rtol`` of the local cell size, or within ``sag`` (mm per cell: how
+    far the true curved surface bulges beyond the cell's flat facets), is snapped to the
+    closest of them. Returns (cell (m,), weights (m, d+1), inside (m,))."""
     from scipy.spatial import cKDTree
 
     d = X.shape[1]
@@ -179,8 +181,37 @@ def _locate(X, cells, pts, snap_rtol=SNAP_RTOL):
     dist = np.linalg.norm(proj - pts, axis=1)
     size = np.abs(np.linalg.det(T[cell])) ** (1.0 / d)
     found = score >= -1e-10
-    inside = found | (dist <= snap_rtol * size)
+    reach = snap_rtol * size + (0.0 if sag is None else sag[cell])
+    inside = found | (dist <= reach)
     return cell, np.where(found[:, None], w, wc), inside
+
+
+def boundary_sag(mesh) -> np.ndarray | None:
+    """Per cell (mm): SAG_FACTOR times the largest distance between the true curved boundary
+    and the cell's straight edges (the mesh's second-order edge nodes against the chords'
+    midpoints), 0 for cells away from a curved boundary; None for a mesh without curved
+    geometry. A point of a finer mesh of the same body may lie that far outside the flat
+    facets and still be inside the body."""
+    if mesh.geometry_order < 2:
+        return None
+    X, cells = mesh.points, mesh.cells
+    e = np.sort(np.asarray(mesh.curved_edges, np.int64), axis=1)
+    sag_e = np.linalg.norm(np.asarray(mesh.curved_points, float)
+                           - 0.5 * (X[e[:, 0]] + X[e[:, 1]]), axis=1)
+    n = len(X)
+    keys = e[:, 0] * n + e[:, 1]
+    order = np.argsort(keys)
+    keys, sag_e = keys[order], sag_e[order]
+    k = cells.shape[1]
+    out = np.zeros(len(cells))
+    for i in range(k):
+        for j in range(i + 1, k):
+            a, b = np.minimum(cells[:, i], cells[:, j]), np.maximum(cells[:, i], cells[:, j])
+            q = a * n + b
+            pos = np.minimum(np.searchsorted(keys, q), len(keys) - 1)
+            hit = keys[pos] == q
+            out = np.maximum(out, np.where(hit, sag_e[pos], 0.0))
+    return SAG_FACTOR * out
 
 
 def _inverse_transposed(T):
@@ -208,7 +239,7 @@ def _p2_weights(w):
 def _reference_at(case, ref, pts):
     """The reference displacement at ``pts``; returns (values, inside, method)."""
     X, cells = case.mesh.points, case.mesh.cells
-    cell, w, inside = _locate(X, cells, pts)
+    cell, w, inside = _locate(X, cells, pts, sag=boundary_sag(case.mesh))
     uv = np.asarray(ref.u, float)
     node_u, node_pts = ref.extra.get("node_u"), ref.extra.get("node_points")
     straight = case.mesh.curved_edges is None or len(case.mesh.curved_edges) == 0
@@ -325,7 +356,8 @@ def score_field(case, ref, field: Field, *, outside: str = "error") -> dict:
             if outside != "skip":
                 raise CaseError(f"{field.source}: {len(bad)} point(s) lie outside the body of "
                                 f"case {case.name!r} (beyond the snap distance, "
-                                f"{SNAP_RTOL:g} of the local cell size): {listed}"
+                                f"{SNAP_RTOL:g} of the local cell size plus the curved "
+                                f"surface's sag beyond the flat facets): {listed}"
                                 f"{' ...' if len(bad) > 5 else ''}. A field on a finer mesh of "
                                 f"a curved body has boundary points outside a coarser mesh's "
                                 f"flat facets: score it against a reference on a finer mesh "
