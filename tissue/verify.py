@@ -8,7 +8,7 @@ Three kinds of candidate, each scored against the reference it should match:
   error, not the discretization's; ``estimate=True`` adds that discretization's own error
   beside it). ADMM is scored twice: ``admm`` (ADMM brought into Newton's basin, then the Newton
   polish) and ``admm-plain`` (ADMM alone, to its own stopping rule: what the ADMM iteration
-  itself achieves). The Mass Tensor Method is a linear model: on a Neo-Hookean case it is scored
+  itself achieves); ``admm-anderson`` (ADMM alone with Anderson acceleration) on request. The Mass Tensor Method is a linear model: on a Neo-Hookean case it is scored
   against the linear-elastic reference of the same E and nu and labelled ``model:
   linear-elastic`` (its distance to the Neo-Hookean truth is not what it claims to solve);
 - solvers that are not ours (``tissue.plugins``: a callable, ``"module:function"`` or an entry
@@ -56,6 +56,7 @@ log = logging.getLogger("tissue.verify")
 FAST_SOLVERS = {
     "admm": ("admm", {}, None),
     "admm-plain": ("admm", {"polish": False}, None),
+    "admm-anderson": ("admm", {"polish": False, "anderson": 5}, None),
     "mass-tensor": ("mass-tensor", {"method": "pcg", "stop_mm": 0.01}, "linear-elastic"),
     "mass-tensor-descent": ("mass-tensor", {"method": "descent", "stop_mm": 0.01},
                             "linear-elastic"),

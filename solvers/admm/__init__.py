@@ -48,6 +48,12 @@ Both iteration counts are reported (``extra["admm_iterations"]``, ``extra["newto
 ``history["admm_clock_s"]`` holds the wall-clock time (s, from the start of the solve) at the end
 of every ADMM iteration.
 
+Anderson acceleration (``solve(..., anderson=m)``, ``loop.Anderson``): the ADMM iteration as
+a fixed-point map of its element and contact variables, extrapolated from its last m iterates
+with a residual and no-inversion safeguard (Zhang et al. 2019); plain ADMM (``anderson=0``, the
+seed's) stays the default. Measured (``bench/bench_admm_accel.py``, phantom, all four pushed 4
+mm, tol 1e-5 mm): 2-5x fewer iterations, 1.2-1.7x less time cold.
+
 Large prescribed motions (e.g. 15 mm pushes) are applied in load steps of at most ``step_mm``;
 each step moves the boundary and carries the interior along (tangent or harmonic lift), runs
 ADMM (``max_iter`` per step) and, with ``polish``, Newton. When the ADMM state of a step is

@@ -388,6 +388,16 @@ class ContactBlocks:
         self.mu *= 0.5
         self.w = self.z - self.mu
 
+    def state(self):
+        """(z, mu) as one vector (``loop.Anderson``)."""
+        return self.xp.concatenate((self.z.reshape(-1), self.mu.reshape(-1)))
+
+    def set_state(self, x):
+        n = self.z.size
+        self.z = x[:n].reshape(self.z.shape).copy()
+        self.mu = x[n:].reshape(self.mu.shape).copy()
+        self.w = self.z - self.mu
+
     def update(self, q):
         """Gather S u + mu, z-step, dual update after the x-step q; returns (r, dsq) per block:
         |S u - z'|^2 and |z' - z|^2 (mm^2)."""

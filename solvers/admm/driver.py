@@ -29,7 +29,8 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
           tip_step: float = 0.5,
           progress: bool = False, factorize=None, device: str = "cpu",
           contact_quadrature=None, contact_penalty: float | None = None,
-          tip_start: str | None = None, initial_pushes: dict | None = None) -> SolveResult:
+          tip_start: str | None = None, initial_pushes: dict | None = None,
+          anderson: int = 0) -> SolveResult:
     """ADMM solve of a Case (quasi-static equilibrium, or implicit-Euler dynamics).
 
     pushes: actuator name -> push (mm), applied with ``case.with_pushes``.
@@ -64,6 +65,8 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         the optional extra ``gpu``; GpuUnavailableError when there is no CuPy or no GPU); see
         ``backends`` (also for "array-cpu", the GPU code on numpy). Recorded in
         ``extra["device"]``; the array backends also report ``extra["xstep_cg_iterations"]``.
+    anderson: Anderson acceleration of the ADMM iterations with this many past iterates
+        (``loop.Anderson``); 0 (default): the seed's plain ADMM.
     contact_quadrature, contact_penalty, tip_start: the rigid tips' contact (frictionless
         indenters, ``contact``): the rule ("nodal" or a Gauss degree), beta and where the tips
         start, each by default the case's own as the reference takes it
@@ -114,7 +117,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     def admm_step(up_j, rhs_extra, u_j, it0, tol=tol_mm, s=1.0):
         return _admm(ops, up_j, rhs_extra, u_j, tol_mm=max(tol, handoff_mm) if polish else tol,
                      max_iter=int(max_iter), callback=callback, it0=it0, progress=progress,
-                     hist=hist, be=be, tips=tips_at(s))
+                     hist=hist, be=be, tips=tips_at(s), anderson=anderson)
 
     def newton_step(u_j, f, inertia, it0, tol=polish_tol_mm, s=1.0):
         return _newton(ops, u_j, f, inertia, tol_mm=tol, max_iter=polish_max_iter, it0=it0,

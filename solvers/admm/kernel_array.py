@@ -280,6 +280,32 @@ class _ArrayElements:
         self.lam *= 0.5
         self.xp.subtract(self.F, self.lam, out=self.w)
 
+    def state(self):
+        """(F, lam) as one vector: the ADMM iteration's fixed-point variables
+        (``loop.Anderson``)."""
+        return self.xp.concatenate((self.F.reshape(-1), self.lam.reshape(-1)))
+
+    def admissible(self, x) -> bool:
+        """Whether every element's F in the state vector x has det F > 0 (linear elasticity:
+        always)."""
+        if self.ops.law.model == "linear-elastic":
+            return True
+        d = self.d
+        F = x[:self.lam.size].reshape(d * d, -1)
+        if d == 2:
+            J = F[0] * F[3] - F[1] * F[2]
+        else:
+            J = (F[0] * (F[4] * F[8] - F[5] * F[7]) - F[1] * (F[3] * F[8] - F[5] * F[6])
+                 + F[2] * (F[3] * F[7] - F[4] * F[6]))
+        return bool((J > 0).all())
+
+    def set_state(self, x):
+        """Set (F, lam) from a vector of ``state``'s layout (and the x-step data F - lam)."""
+        n = self.lam.size
+        self.F[...] = x[:n].reshape(self.F.shape)
+        self.lam[...] = x[n:].reshape(self.lam.shape)
+        self.xp.subtract(self.F, self.lam, out=self.w)
+
     def update(self, q):
         """Element work after the x-step q (at the z-step's current rho); returns (r, dsq):
         h^2 |D u - z'|^2 and h^2 |z' - z|^2 per element (mm^2)."""

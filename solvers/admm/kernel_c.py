@@ -10,6 +10,15 @@ from tissue_reference.solvers import _ckernel
 
 from .constraints import _vertex_rank
 
+
+def _det_rows(F, d):
+    """det of the matrices whose entries (i, j) are the rows d i + j of F (d*d, k)."""
+    if d == 2:
+        return F[0] * F[3] - F[1] * F[2]
+    return (F[0] * (F[4] * F[8] - F[5] * F[7]) - F[1] * (F[3] * F[8] - F[5] * F[6])
+            + F[2] * (F[3] * F[7] - F[4] * F[6]))
+
+
 USE_CKERNEL = True  # compiled element loop when a C compiler is usable (see use_kernel)
 
 
@@ -87,6 +96,27 @@ class _KernelElements:
 
     def halve_dual(self):
         self.lamb *= 0.5
+        self._data = None
+
+    def state(self):
+        """(F, lam) as one vector (the blocked layout's, padding included): the ADMM iteration's
+        fixed-point variables (``loop.Anderson``)."""
+        return np.concatenate((self.Fb.reshape(-1), self.lamb.reshape(-1)))
+
+    def admissible(self, x) -> bool:
+        """Whether every element's F in the state vector x has det F > 0 (linear elasticity:
+        always)."""
+        if self.model == 0:
+            return True
+        d, m = self.d, self.m
+        F = x[:self.Fb.size].reshape(-1, d * d, self.blk).transpose(1, 0, 2).reshape(d * d, -1)
+        return bool(np.all(_det_rows(F[:, :m], d) > 0))
+
+    def set_state(self, x):
+        """Set (F, lam) from a vector of ``state``'s layout."""
+        n = self.Fb.size
+        self.Fb.reshape(-1)[...] = x[:n]
+        self.lamb.reshape(-1)[...] = x[n:]
         self._data = None
 
     def update(self, q):

@@ -60,6 +60,90 @@ def _start(ops, be, up, u0):
     return q, F, _soa(P) / ops.rho
 
 
+class Anderson:
+    """Anderson acceleration (type II, Walker and Ni 2011) of the ADMM iteration seen as a
+    fixed-point map G of its element and contact variables x = (z, lam) (Zhang, Peng, Ouyang and
+    Deng 2019, "Accelerating ADMM for Efficient Simulation and Optimization"): with f_k =
+    G(x_k) - x_k and the last ``m`` differences dF, dG of f and G,
+
+        gamma = argmin |f_k - dF gamma|,    x_(k+1) = G(x_k) - dG gamma
+
+    (the normal equations, their Gram matrix updated by one row per iteration).
+
+    Safeguard (theirs for ADMM, which does not decrease the energy monotonically): an
+    accelerated iterate whose fixed-point residual |G(x) - x| exceeds the last accepted one's,
+    or that inverts an element (det F <= 0), is dropped for the plain iterate G(x_k) it
+    replaced, and the history restarts. ``xp``: the array module."""
+
+    def __init__(self, m: int, xp=np):
+        self.m, self.xp = int(m), xp
+        self.DF = self.DG = None
+        self.rejected = 0
+        self.accepted = 0
+        self.reset()
+
+    def reset(self):
+        self.k = 0                # differences held (the last min(k, m) rows, a ring)
+        self.gram = np.zeros((self.m, self.m))
+        self.f_prev = self.g_prev = None
+        self.x = None             # the map's input at this iteration
+        self.fnorm = None         # |f| of the last accepted iterate
+        self.accelerated = False  # whether self.x came from the acceleration
+
+    def refuse(self):
+        """Drop the accelerated iterate just proposed for the plain one, G(x_k), and restart
+        the history (an element the extrapolation inverts)."""
+        g = self.g_prev
+        self.rejected += 1
+        self.reset()
+        self.x = g
+
+    def step(self, g):
+        """The next iterate from g = G(self.x) (the object g is kept: pass a fresh array);
+        None when the accelerated input self.x is rejected (``x`` is then the plain iterate
+        to continue from)."""
+        xp = self.xp
+        if self.x is None:
+            self.x = g
+            return g
+        f = g - self.x
+        fn = float(xp.sqrt(f @ f))
+        if self.accelerated and self.fnorm is not None and fn > self.fnorm:
+            fallback = self.g_prev
+            self.rejected += 1
+            self.reset()
+            self.x = fallback
+            return None
+        if self.accelerated:
+            self.accepted += 1
+        self.fnorm = fn
+        if self.f_prev is not None and self.m > 0:
+            if self.DF is None or self.DF.shape[1] != len(f):
+                self.DF = xp.empty((self.m, len(f)))
+                self.DG = xp.empty((self.m, len(f)))
+            i = self.k % self.m
+            xp.subtract(f, self.f_prev, out=self.DF[i])
+            xp.subtract(g, self.g_prev, out=self.DG[i])
+            self.k += 1
+            n = min(self.k, self.m)
+            row = self.DF[:n] @ self.DF[i]
+            row = np.asarray(row.get() if hasattr(row, "get") else row, float)
+            self.gram[i, :n] = row
+            self.gram[:n, i] = row
+        self.f_prev, self.g_prev = f, g
+        n = min(self.k, self.m)
+        if n == 0:
+            self.x, self.accelerated = g, False
+            return g
+        rhs = self.DF[:n] @ f
+        rhs = np.asarray(rhs.get() if hasattr(rhs, "get") else rhs, float)
+        G = self.gram[:n, :n]
+        gamma = np.linalg.solve(G + (1e-10 * np.trace(G) + 1e-300) * np.eye(n), rhs)
+        x = g - xp.asarray(gamma) @ self.DG[:n]
+        self.x, self.accelerated = x, True
+        return x
+
+
 class _WithContact:
     """The element pass and the rigid tips' contact blocks (``contact.ContactBlocks``) as one:
     their x-step data add up, their residuals are listed together (elements first)."""
@@ -73,6 +157,17 @@ class _WithContact:
     def halve_dual(self):
         self.elements.halve_dual()
         self.blocks.halve_dual()
+
+    def state(self):
+        return self.blocks.xp.concatenate((self.elements.state(), self.blocks.state()))
+
+    def set_state(self, x):
+        n = len(x) - 2 * self.blocks.z.size
+        self.elements.set_state(x[:n])
+        self.blocks.set_state(x[n:])
+
+    def admissible(self, x) -> bool:
+        return self.elements.admissible(x[:len(x) - 2 * self.blocks.z.size])
 
     def update(self, q):
         r, dsq = self.elements.update(q)
@@ -89,10 +184,11 @@ def _where(ops, i):
 
 
 def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, hist, be,
-          tips=None):
+          tips=None, anderson: int = 0):
     """ADMM iterations from u0 on the backend ``be`` (``backends.backend``). rhs_extra: f_ext
     (+ M u_tilde / dt^2), mN. tips: the ends of the rigid tips at every contact point
-    (``contact.ContactSet.origins``), with indenters. Returns (u, iters, converged), u on the
+    (``contact.ContactSet.origins``), with indenters. anderson: the history of Anderson
+    acceleration (``Anderson``; 0: the plain iteration). Returns (u, iters, converged), u on the
     host. The loop works with F = I + z and Fhat = I + D u + lam, (d, d, m) blocks."""
     Z, d = ops.red.Z, ops.d
     xp = be.xp
@@ -112,6 +208,9 @@ def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, 
         elements = _WithContact(elements, ContactBlocks(ops, ops.contact, up, up + Z @ q, tips,
                                                         zstep, be.dev))
     q = be.put(q)
+    aa = Anderson(anderson, xp) if anderson else None
+    if aa is not None:
+        aa.step(elements.state())
     converged = False
     k = 0
     for k in range(1, max_iter + 1):
@@ -143,11 +242,20 @@ def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, 
         if primal < tol_mm and dual < tol_mm and be.inexactness < tol_mm:
             converged = True
             break
+        if aa is not None:
+            nxt = aa.step(elements.state())
+            if aa.accelerated and not elements.admissible(aa.x):
+                aa.refuse()           # an extrapolation that inverts an element: the plain one
+            if nxt is None or aa.accelerated:   # (a plain step leaves the state as it is)
+                elements.set_state(aa.x)
         if adapt and k % 25 == 0:
             # stagnation (e.g. a nonconvex element cycling between two local z minima): double
             # rho (more consensus, convex local problems); lam = P / rho is rescaled
             if primal > 0.9 * window_primal and rho < rho_max:
                 elements.halve_dual()
+                if aa is not None:
+                    aa.reset()
+                    aa.step(elements.state())
                 rho *= 2.0
                 zstep.set_rho(rho)
                 rhs_c = (rho0 / rho) * rhs_f + rhs_up

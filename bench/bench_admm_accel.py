@@ -1,0 +1,77 @@
+"""Plain ADMM (the seed's), ADMM with Anderson acceleration and ADMM + Newton polish against the
+P1 reference's Newton, per mesh size, in one run: iterations, time, the largest vertex
+difference from the reference (mm) and the time ratio reference / solver (> 1: faster).
+
+    python bench/bench_admm_accel.py                      # phantom sizes 10 and 5 (1.8k, 9.5k tets)
+    python bench/bench_admm_accel.py --sizes 10 5 3 --push 5 --anderson 5
+
+Cold: every solve from rest (the reference's forms compiled beforehand, its solver kept);
+warm: a re-solve after +0.5 mm on every actuator, from the previous answer (the reference from
+its own). Plain and accelerated ADMM stop at ``--tol`` (mm) on the primal and dual residuals.
+One thread (OPENBLAS_NUM_THREADS=1 unless set), as bench/bench_admm.py.
+"""
+import argparse
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+import time
+
+import numpy as np
+
+import tissue_reference.fem_reference as fr
+from tissue_reference.meshes.case import load_case
+from tissue_reference.solvers import admm
+
+ACTS = ("A1", "A2", "A3", "A4")
+
+
+def timed(fun):
+    t = time.perf_counter()
+    res = fun()
+    return res, time.perf_counter() - t
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--case", default="phantom", help="a shipped case (default phantom)")
+    ap.add_argument("--sizes", type=float, nargs="+", default=[10.0, 5.0], help="mesh sizes (mm)")
+    ap.add_argument("--push", type=float, default=4.0,
+                    help="every actuator's push (mm; default 4, +0.5 stays within the glued "
+                         "patches' radius)")
+    ap.add_argument("--tol", type=float, default=1e-5, help="ADMM stopping tolerance (mm)")
+    ap.add_argument("--anderson", type=int, default=5, help="Anderson history (default 5)")
+    args = ap.parse_args()
+    print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
+    for size in args.sizes:
+        case = load_case(args.case, size=size)
+        acts = [a.name for a in case.actuators if a.name in ACTS]
+        p0 = dict.fromkeys(acts, args.push)
+        p1 = dict.fromkeys(acts, args.push + 0.5)
+        fr.solve(case, degree=1, pushes=dict.fromkeys(acts, 0.1))   # compile the forms
+        print(f"\n{args.case} size {size:g}: {case.mesh.n_cells} tets; pushes {args.push:g} mm "
+              f"({', '.join(acts)}), then +0.5 mm")
+        ref0, t_ref0 = timed(lambda c=case, p=p0: fr.solve(c, degree=1, pushes=p))
+        ref1, t_ref1 = timed(lambda c=case, p=p1, r=ref0: fr.solve(c, degree=1, pushes=p,
+                                                                   initial=r))
+        print(f"  reference P1 Newton: cold {t_ref0:.3f} s ({ref0.iterations} its), "
+              f"warm {t_ref1:.3f} s ({ref1.iterations} its)")
+        runs = (("plain ADMM", {"polish": False, "tol_mm": args.tol, "max_iter": 50000}),
+                (f"Anderson({args.anderson})", {"polish": False, "tol_mm": args.tol,
+                                                "max_iter": 50000,
+                                                "anderson": args.anderson}),
+                ("ADMM + polish", {}))
+        for label, kw in runs:
+            admm.solve(case, pushes=dict.fromkeys(acts, 0.1), **kw)   # operators, kernel built
+            r0, t0 = timed(lambda kw=kw, c=case, p=p0: admm.solve(c, pushes=p, **kw))
+            r1, t1 = timed(lambda kw=kw, c=case, p=p1, r=r0: admm.solve(c, pushes=p,
+                                                                        initial=r.u, **kw))
+            for tag, r, t, ref, tr in (("cold", r0, t0, ref0, t_ref0),
+                                       ("warm", r1, t1, ref1, t_ref1)):
+                print(f"  {label:14s} {tag}: {r.extra['admm_iterations']:6d} ADMM + "
+                      f"{r.extra['newton_iterations']:2d} Newton its, {t:7.3f} s, converged "
+                      f"{r.converged}, max |u - u_ref| {np.abs(r.u - ref.u).max():.1e} mm, "
+                      f"reference / solver x{tr / t:.2f}")
+
+
+if __name__ == "__main__":
+    main()
