@@ -1,6 +1,7 @@
 """ADMM with rigid tips against the P1 reference on the indenter phantom (its default mesh,
 32k tets, the case's Gauss contact rule and surface start): agreement, iterations and time of
-ADMM + Newton polish and of plain ADMM, beside the reference's cold P1 solve, in one run.
+ADMM + Newton polish (its tangents by CHOLMOD, as ``tissue verify`` runs it), of plain ADMM and
+of ADMM with Anderson acceleration, beside the reference's cold P1 solve, in one run.
 
     python bench/bench_admm_contact.py            # A1 = 5 mm, and all four at 5 mm
     python bench/bench_admm_contact.py --push 10  # another push (mm)
@@ -34,9 +35,12 @@ def main():
         t_ref = time.perf_counter() - t
         print(f"{name}: reference P1 {t_ref:7.2f} s, {ref.iterations} Newton iterations, "
               f"force A1 {ref.extra['indenters']['A1']['force']:.4f} mN")
-        runs = (("ADMM + polish", {}),
+        # the polish's tangents by CHOLMOD, as tissue solve and tissue verify run it
+        runs = (("ADMM + polish", {"factorize": fr.cholmod_factor}),
                 ("plain ADMM", {"polish": False, "tol_mm": 1e-5,
-                                "max_iter": args.plain_iterations}))
+                                "max_iter": args.plain_iterations}),
+                ("Anderson(5)", {"polish": False, "tol_mm": 1e-5, "anderson": 5,
+                                 "max_iter": args.plain_iterations}))
         for label, kw in runs:
             t = time.perf_counter()
             res = admm.solve(case, pushes=pushes, **kw)

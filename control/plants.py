@@ -17,27 +17,20 @@ from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import material_json
 from tissue_reference.solvers.admm import prepare
 from tissue_reference.solvers.admm import solve as admm_solve
+from tissue_reference.solvers.admm import tangent_stiffness as admm_tangent
 
+from .fast_model import ADMM_CONTROL_OPTIONS, FastModel
 from .jacobian import admm_indenter_jacobian
+from .loop import LinearizedModel, run_closed_loop
 
 __all__ = ["ADMM_CONTROL_OPTIONS", "FD_FLOOR", "MODEL_UPDATES", "PRESS_WIDTHS", "LoopSetup",
-           "actuator_kind", "admm_indenter_sensitivity", "build_loop", "indenter_sensitivity", "jacobian_at", "material_json",
-           "plant_for", "pressing", "reference_state", "solver_description", "tangent_for"]
+           "actuator_kind", "admm_indenter_sensitivity", "build_loop", "indenter_sensitivity",
+           "jacobian_at", "material_json", "plant_for", "pressing", "reference_state", "solver_description", "tangent_for"]
 
-# ADMM as a control plant/model: the ADMM stage hands over to the Newton polish (part of
-# solvers.admm.solve, iteration budget left to the solver: 20 per load step) which finishes to
-# 1e-7 mm, the accuracy finite differences and J_s need; lift=True starts every load step from the
-# tangent lift of the new boundary values. Measured on the phantom (size 12, model of the mismatch
-# runs): a tight ADMM stage (tol 1e-6, or 1000 iterations per load step) cost up to 24 s per step
-# above ~21 mm pushes, and at A1 = 25, A3 = 12.5 mm its polish settled on a stationary point with
-# 17% more strain energy than the reference's solution on the same mesh; the default hand-over
-# finds the reference's solution (tests/test_control_admm_model.py). With lift="auto" a sub-mm step
-# whose polish restarted returned the previous step's boundary values flagged converged (caught by
-# control.loop.check_prescribed).
 FD_FLOOR = 1e-7
 """Smallest central-difference step, relative to the body's diameter: the solves agree to about
 1e-10 mm, so a smaller step differences round-off."""
-ADMM_CONTROL_OPTIONS = {"tol_mm": 1e-2, "polish": True, "polish_tol_mm": 1e-7, "lift": True}
+
 
 
 def solver_description(name: str, case, *, degree: int | None = None,
@@ -75,12 +68,10 @@ def plant_for(name: str, *, degree: int | None = None, tight: bool = True):
         return _full_warm_start(lambda case, pushes, initial: solve(
             case, degree=degree, pushes=pushes, initial=initial))
     if name == "admm":
-        from tissue_reference.solvers.admm import solve
-
         kw = dict(ADMM_CONTROL_OPTIONS) if tight else {}
         # the previous answer itself warm-starts: with rigid tips it carries their pushes, so
         # the tips start where that state was solved
-        return _full_warm_start(lambda case, pushes, initial: solve(
+        return _full_warm_start(lambda case, pushes, initial: admm_solve(
             case, pushes=pushes, initial=initial, **kw))
     raise CaseError(f"unknown plant/model solver {name!r}; choose fem or admm")
 
@@ -92,9 +83,7 @@ def tangent_for(name: str):
 
         return lambda case, u: tangent_stiffness(case, u).K
     if name == "admm":
-        from tissue_reference.solvers.admm import tangent_stiffness
-
-        return lambda case, u: tangent_stiffness(case, u)
+        return admm_tangent
     raise CaseError(f"unknown plant/model solver {name!r}; choose fem or admm")
 
 
@@ -248,9 +237,6 @@ class LoopSetup:
     def run(self, target: str, task: int, settings, progress=None):
         """One closed loop (and its open-loop baseline) -> control.loop.LoopResult;
         ``progress(line)`` gets a line per step."""
-        from .fast_model import FastModel
-        from .loop import LinearizedModel, run_closed_loop
-
         if self.fast_model:
             model = FastModel(self.model_case, target, press_widths=PRESS_WIDTHS)
         else:
