@@ -11,10 +11,17 @@ import numpy as np
 
 from .errors import TissueWarning
 
-__all__ = ["ESTIMATE_WARN", "answer_concerns", "relative_estimates", "warn_about"]
+__all__ = ["ESTIMATE_WARN", "FOLDED_ADVICE", "answer_concerns", "relative_estimates",
+           "warn_about"]
 
 ESTIMATE_WARN = 0.02
 """An estimated error above this fraction of a probe's displacement is worth a warning."""
+
+FOLDED_ADVICE = ("cells fold where the mesh is too coarse for the strain there (or too thin: "
+                 "a sliver): refine it (a smaller size, or [mesh] site_size / path_size near "
+                 "the actuators), raise the degree, or for a nearly incompressible material "
+                 "(nu >= 0.49) use the mixed formulation")
+"""What to try when an answer is invalid for inverted cells."""
 
 
 def relative_estimates(res) -> dict:
@@ -35,7 +42,9 @@ def answer_concerns(res) -> list[str]:
     extra = getattr(res, "extra", None) or {}
     out = []
     if extra.get("valid", True) is False:
-        out.append(f"the answer is not valid: {extra.get('invalid_reason')}")
+        why = str(extra.get("invalid_reason"))
+        out.append(f"the answer is not valid: {why}"
+                   + (f"; {FOLDED_ADVICE}" if "inverted cell" in why else ""))
     out += [str(w) for w in extra.get("warnings") or ()]
     why = extra.get("no_converged_value")
     if why:

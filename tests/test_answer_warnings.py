@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import tissue_reference.fem_reference as fr
-from tissue_reference.meshes.answer_warnings import answer_concerns
+from tissue_reference.meshes.answer_warnings import FOLDED_ADVICE, answer_concerns
 from tissue_reference.meshes.case import load_case
 from tissue_reference.meshes.errors import TissueWarning
 from tissue_reference.meshes.results import SolveResult
@@ -28,7 +28,9 @@ def _result(extra, probes=None):
 def test_each_concern_is_one_line():
     assert answer_concerns(_result({"valid": True})) == []
     assert answer_concerns(_result({"valid": False, "invalid_reason": "3 inverted cells"})) == \
-        ["the answer is not valid: 3 inverted cells"]
+        [f"the answer is not valid: 3 inverted cells; {FOLDED_ADVICE}"]
+    assert answer_concerns(_result({"valid": False, "invalid_reason": "runaway"})) == \
+        ["the answer is not valid: runaway"]
     big = _result({"probe_error_estimates": {"T1": 0.05}}, {"T1": np.array([1.0, 0.0, 0.0])})
     assert answer_concerns(big)[0].startswith("estimated discretization error up to 5.0%")
     small = _result({"probe_error_estimates": {"T1": 0.01}}, {"T1": np.array([1.0, 0.0, 0.0])})
