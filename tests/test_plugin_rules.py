@@ -45,6 +45,12 @@ def pair(case, pushes, **options):
 
 def folded(case, pushes, **options):
     return -2.0 * case.mesh.points     # x = -X: every cell mirrored, so inverted
+
+
+def scaled(case, pushes, scale=1.0, label="none", **options):
+    u = zero(case, pushes)
+    u[:, 2] = scale
+    return {"u": u, "extra": {"label": label}}
 '''
 CASE = "meshes/cases/phantom.toml"
 
@@ -92,3 +98,19 @@ def test_an_answer_that_folds_every_cell_is_not_valid(plugin_file, tmp_path, cap
 def test_two_candidates_cannot_share_a_name(plugin_file, capsys):
     assert _verify(plugin_file, "zero", "zero") == 2
     assert "given twice" in capsys.readouterr().err
+
+
+def test_a_solvers_options_come_from_the_command_line(plugin_file, tmp_path, capsys):
+    """--option SOLVER KEY=VALUE reaches that solver's solve as a keyword (a JSON value, else
+    text); a solver not scored or a setting without '=' is a named error (exit status 2)."""
+    name = f"{plugin_file}:scaled"
+    out = tmp_path / "v.json"
+    _verify(plugin_file, "scaled", extra=["--option", name, "scale=0.25", "--option", name,
+                                          "label=big", "--json", str(out)])
+    entry = json.loads(out.read_text())["solvers"]
+    entry = next(e for n, e in entry.items() if n.endswith("scaled"))
+    assert entry["options"] == {"scale": 0.25, "label": "big"}
+    assert _verify(plugin_file, "scaled", extra=["--option", "admm", "anderson=5"]) == 2
+    assert "'admm' is not among the solvers scored" in capsys.readouterr().err
+    assert _verify(plugin_file, "scaled", extra=["--option", name, "scale"]) == 2
+    assert "expected KEY=VALUE" in capsys.readouterr().err

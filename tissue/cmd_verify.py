@@ -4,7 +4,10 @@ my_module:solve ...] [--field FILE] [--degree N] [--formulation F] [--estimate] 
 reference on the same Case (``tissue.verify``)."""
 from __future__ import annotations
 
+import json
 import sys
+
+from tissue_reference.meshes.errors import CaseError
 
 from .common import (
     add_case_args,
@@ -61,6 +64,24 @@ def _line(name, e):
             f"{k} {v:.4g}" for k, v in e["discretization_error_estimate_mm"].items()))
 
 
+def _option(name: str, setting: str, names: list) -> tuple:
+    """(key, value) of ``--option NAME KEY=VALUE``: VALUE read as JSON (a number, true, false,
+    null, a quoted string, a list), else taken as text; CaseError for a solver not scored or a
+    setting that is not KEY=VALUE."""
+    if name not in names:
+        raise CaseError(f"--option {name} {setting}: {name!r} is not among the solvers scored "
+                        f"({', '.join(names) or 'none'})")
+    key, sep, text = setting.partition("=")
+    if not sep or not key.isidentifier():
+        raise CaseError(f"--option {name} {setting}: expected KEY=VALUE with KEY a Python "
+                        f"name (e.g. tol=1e-6)")
+    try:
+        value = json.loads(text)
+    except ValueError:
+        value = text
+    return key, value
+
+
 def run(args) -> int:
     check_outputs(args, files=("json",), dirs=("out",))
     pushes = parse_pushes(args.push)
@@ -75,6 +96,9 @@ def run(args) -> int:
         for name in names:
             if name.startswith("mass-tensor"):
                 options[name] = {"stop_mm": args.stop_mm}
+    for name, setting in args.option or ():
+        key, value = _option(name, setting, names)
+        options.setdefault(name, {})[key] = value
     res = verify(case, pushes, solvers=tuple(names), out_dir=args.out, json_file=args.json,
                  options=options, progress=False, estimate=args.estimate, field=args.field,
                  field_name=args.field_name, degree=args.degree, formulation=args.formulation,
@@ -123,6 +147,10 @@ def add_parser(sub):
                         f"{' '.join(DEFAULT_SOLVERS)}; none when --field is given)")
     p.add_argument("--solver", action="append", metavar="NAME",
                    help="one more solver to score (repeatable), as for --solvers")
+    p.add_argument("--option", nargs=2, action="append", metavar=("SOLVER", "KEY=VALUE"),
+                   help="a keyword argument for one solver's solve (repeatable; VALUE read as "
+                        "JSON: 1e-6, true, \"text\", else as text), e.g. --option "
+                        "my_solver.py:solve tol=1e-6 or --option admm anderson=5")
     p.add_argument("--field", metavar="FILE",
                    help="score a displacement field: VTU/VTK/XDMF (last time step) on any mesh "
                         "of the body, or NPY/CSV (n x 3, the case mesh's vertex order)")
