@@ -111,7 +111,7 @@ class _StderrHandler(logging.StreamHandler):
 # fem_reference.logs shows setuptools'/distutils' gcc lines only at the level given to
 # "tissue.compiler": none by default, so a first solve prints no compiler lines).
 _COMPILER_LOGGERS = ("tissue.compiler", "FFCx", "ffcx")
-_QUIET_LOGGERS = ("UFL", "matplotlib")
+_QUIET_LOGGERS = ("UFL", "matplotlib", "h5py", "PIL")   # third-party debug chatter
 
 
 @contextlib.contextmanager
