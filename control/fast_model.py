@@ -141,12 +141,7 @@ class FastModel:
         if not self.case.indenters() or self.press_widths <= 0:
             return pushes
         ops, _ = self._setup(pushes)
-        out = dict(pushes)
-        for t in ops.contact.tips:
-            floor = self.press_widths * ops.contact.smoothing_width(t.name)
-            if 0.0 <= float(out.get(t.name, 0.0)) < floor:
-                out[t.name] = floor
-        return out
+        return ops.contact.pressed(pushes, self.press_widths)
 
     def _factor(self, ops, u, tips=None):
         t0 = time.perf_counter()

@@ -368,12 +368,7 @@ def admm_indenter_sensitivity():
     ``case`` with ``pushes``; a tip touching without pressing (0 <= push < PRESS_WIDTHS of its
     smoothing widths) is first pushed to that depth by an ADMM solve from ``u``."""
     def sensitivity(case, pushes, u, target):
-        cset = prepare(case.with_pushes(pushes)).contact
-        at = dict(pushes)
-        for t in cset.tips:
-            floor = PRESS_WIDTHS * cset.smoothing_width(t.name)
-            if 0.0 <= float(at.get(t.name, 0.0)) < floor:
-                at[t.name] = floor
+        at = prepare(case.with_pushes(pushes)).contact.pressed(pushes, PRESS_WIDTHS)
         if at != dict(pushes):
             res = admm_solve(case, pushes=at, initial=u, initial_pushes=pushes,
                              **ADMM_CONTROL_OPTIONS)

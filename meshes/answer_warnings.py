@@ -11,8 +11,8 @@ import numpy as np
 
 from .errors import TissueWarning
 
-__all__ = ["ESTIMATE_WARN", "FOLDED_ADVICE", "answer_concerns", "relative_estimates",
-           "warn_about"]
+__all__ = ["ESTIMATE_WARN", "FOLDED_ADVICE", "advice_for", "answer_concerns",
+           "relative_estimates", "warn_about"]
 
 ESTIMATE_WARN = 0.02
 """An estimated error above this fraction of a probe's displacement is worth a warning."""
@@ -22,6 +22,12 @@ FOLDED_ADVICE = ("cells fold where the mesh is too coarse for the strain there (
                  "the actuators), raise the degree, or for a nearly incompressible material "
                  "(nu >= 0.49) use the mixed formulation")
 """What to try when an answer is invalid for inverted cells."""
+
+
+def advice_for(reason) -> str:
+    """What to try for an answer not valid for ``reason`` (``invalid_reason``): FOLDED_ADVICE
+    when cells inverted, else ""."""
+    return FOLDED_ADVICE if "inverted cell" in str(reason) else ""
 
 
 def relative_estimates(res) -> dict:
@@ -42,9 +48,8 @@ def answer_concerns(res) -> list[str]:
     extra = getattr(res, "extra", None) or {}
     out = []
     if extra.get("valid", True) is False:
-        why = str(extra.get("invalid_reason"))
-        out.append(f"the answer is not valid: {why}"
-                   + (f"; {FOLDED_ADVICE}" if "inverted cell" in why else ""))
+        why, advice = extra.get("invalid_reason"), advice_for(extra.get("invalid_reason"))
+        out.append(f"the answer is not valid: {why}" + (f"; {advice}" if advice else ""))
     out += [str(w) for w in extra.get("warnings") or ()]
     why = extra.get("no_converged_value")
     if why:

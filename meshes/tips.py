@@ -71,11 +71,10 @@ def default_tip_start(case: Case, rule=None) -> str:
     return tip_start_for(default_contact_rule(case) if rule is None else rule)
 
 
-def gap_and_normal(y, o, d, flat, edge, xp=np):
-    """(g (k,), n (k, gdim)): the gap (mm) of points y (k, gdim) from tips whose rounded ends
-    are centred at o and which point along d (each (gdim,) or (k, gdim)), flat and edge radii
-    ``flat``, ``edge`` (scalars or (k,)); n = grad_y g (module docstring). ``xp``: the array
-    module (numpy or CuPy)."""
+def _gap_parts(y, o, d, flat, edge, xp=np):
+    """The pieces of the gap at points y (k, gdim) (``gap_and_normal``'s arguments): h (k,)
+    along the axis, rho (k,) from it, e_rho (k, gdim) (zero on the axis), rho_ex (k,), r (k,)
+    from the rim's centre circle, g (k,) and n (k, gdim)."""
     w = y - o
     h = (w * d).sum(axis=1)
     wp = w - h[:, None] * d
@@ -88,7 +87,15 @@ def gap_and_normal(y, o, d, flat, edge, xp=np):
     g = xp.where(front, r - edge, rho - (flat + edge))
     nf = (rex[:, None] * er + hc[:, None] * d) / xp.where(r > 0, r, 1.0)[:, None]
     nf = xp.where((r > 0)[:, None], nf, d + 0.0 * nf)
-    return g, xp.where(front[:, None], nf, er)
+    return h, rho, er, rex, r, g, xp.where(front[:, None], nf, er)
+
+
+def gap_and_normal(y, o, d, flat, edge, xp=np):
+    """(g (k,), n (k, gdim)): the gap (mm) of points y (k, gdim) from tips whose rounded ends
+    are centred at o and which point along d (each (gdim,) or (k, gdim)), flat and edge radii
+    ``flat``, ``edge`` (scalars or (k,)); n = grad_y g (module docstring). ``xp``: the array
+    module (numpy or CuPy)."""
+    return _gap_parts(y, o, d, flat, edge, xp)[5:]
 
 
 def gap_hessian(y, o, d, flat, edge) -> np.ndarray:
@@ -100,14 +107,7 @@ def gap_hessian(y, o, d, flat, edge) -> np.ndarray:
     k, gdim = y.shape
     d = np.broadcast_to(np.asarray(d, float), (k, gdim))
     flat = np.broadcast_to(np.asarray(flat, float), (k,))
-    _, n = gap_and_normal(y, o, d, flat, edge)
-    w = y - o
-    h = np.einsum("ki,ki->k", w, d)
-    wp = w - h[:, None] * d
-    rho = np.linalg.norm(wp, axis=1)
-    er = wp / np.where(rho > 0, rho, 1.0)[:, None]
-    rex = np.maximum(rho - flat, 0.0)
-    r = np.sqrt(rex ** 2 + np.maximum(h, 0.0) ** 2)
+    h, rho, er, rex, r, _, n = _gap_parts(y, o, d, flat, edge)
     eye = np.eye(gdim)
     ephi = eye - np.einsum("ki,kj->kij", d, d) - np.einsum("ki,kj->kij", er, er)
     tt = eye - np.einsum("ki,kj->kij", n, n) - ephi

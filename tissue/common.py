@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_reference.meshes.answer_warnings import FOLDED_ADVICE
+from tissue_reference.meshes.answer_warnings import advice_for
 from tissue_reference.meshes.builders import MAX_CELLS, estimate_cells
 from tissue_reference.meshes.case import (
     CONTACT_RULES,
@@ -311,8 +311,8 @@ def report_validity(command: str, res, what: str = "the answer") -> int:
     extra = getattr(res, "extra", {}) or {}
     if extra.get("valid", True):
         return 0
-    why = str(extra.get("invalid_reason"))
-    print(f"tissue {command}: error: {what} is not valid: {why} "
-          f"(outputs written, marked valid = false)"
-          + (f"; {FOLDED_ADVICE}" if "inverted cell" in why else ""), file=sys.stderr)
+    advice = advice_for(extra.get("invalid_reason"))
+    print(f"tissue {command}: error: {what} is not valid: {extra.get('invalid_reason')} "
+          f"(outputs written, marked valid = false)" + (f"; {advice}" if advice else ""),
+          file=sys.stderr)
     return 1

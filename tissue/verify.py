@@ -261,15 +261,10 @@ def _score_builtin(name, case, pushes, opts, refs, out):
     key, defaults, _ = FAST_SOLVERS[name]
     try:
         solve = get_solver(key)
-    except ImportError as exc:
-        msg = f"{name}: {SOLVERS[key]} not importable ({exc}); skipped"
-        print(f"tissue verify: {msg}")
-        out["skipped"][name] = msg
-        return None, None
-    try:
         solver_module(key).require_modeled(case)
-    except NotModeledError as exc:   # e.g. a linear model and a rigid tip: no score, said so
-        msg = f"{name}: {exc}; skipped"
+    except (ImportError, NotModeledError) as exc:   # no score, and the reason said
+        why = f"{SOLVERS[key]} not importable ({exc})" if isinstance(exc, ImportError) else exc
+        msg = f"{name}: {why}; skipped"
         print(f"tissue verify: {msg}")
         out["skipped"][name] = msg
         return None, None

@@ -213,7 +213,6 @@ class ContactSet:
         self.dirs = np.concatenate(dirs) if start else np.zeros((0, gdim))
         self.flat, self.edge = cat(flat), cat(edge)
         self.c0 = CONTACT_WEIGHT * rho * self.W * cat(k) / (penalty * E)   # rho W / h
-        self.key = (rule, self.beta, tip_start)
 
     # ------------------------------------------------------------------ the tips' positions
     def pushes_of(self, case) -> np.ndarray:
@@ -249,16 +248,26 @@ class ContactSet:
         _, g, _ = self._state(u, o)
         return float(self.Wk @ _phi(-g, self.eps)[0])
 
-    def _point_forces(self, u, o):
-        """dPi_c / dy_p (P, gdim), mN."""
-        _, g, nrm = self._state(u, o)
-        return -(self.Wk * _phi(-g, self.eps)[1])[:, None] * nrm
-
     def gradient(self, u, o) -> np.ndarray:
-        """dPi_c / du (mN, node-major (N,))."""
+        """dPi_c / du (mN, node-major (N,)): S^T of -W k phi'(pen) n at each point."""
         if not self.P:
             return np.zeros(self.n * self.d)
-        return (self.S.T @ self._point_forces(u, o)).reshape(-1)
+        _, g, nrm = self._state(u, o)
+        return (self.S.T @ (-(self.Wk * _phi(-g, self.eps)[1])[:, None] * nrm)).reshape(-1)
+
+    def _point_hessians(self, u, o, curvature: bool = True):
+        """(on, H): the points in contact (phi' > 0) and d^2 Pi_c / dy_p^2 at each of them
+        (k, gdim, gdim), mN/mm: W k (phi'' n n^T - phi' Hess g), the tips' curvature term
+        -phi' Hess g only with ``curvature``."""
+        y, g, nrm = self._state(u, o)
+        _, d1, d2 = _phi(-g, self.eps)
+        on = np.flatnonzero(d1 > 0)
+        H = self.Wk[on, None, None] * (d2[on, None, None]
+                                       * np.einsum("ki,kj->kij", nrm[on], nrm[on]))
+        if curvature and len(on):
+            Hg = gap_hessian(y[on], o[on], self.dirs[on], self.flat[on], self.edge[on])
+            H -= (self.Wk[on] * d1[on])[:, None, None] * Hg
+        return on, H
 
     def hessian(self, u, o, curvature: bool = True) -> sp.csr_matrix:
         """d^2 Pi_c / du^2 (mN/mm, (N, N) node-major): W k (phi'' n n^T - phi' Hess g) at each
@@ -268,16 +277,9 @@ class ContactSet:
         N = self.n * self.d
         if not self.P:
             return sp.csr_matrix((N, N))
-        y, g, nrm = self._state(u, o)
-        _, d1, d2 = _phi(-g, self.eps)
-        on = np.flatnonzero(d1 > 0)
+        on, Hp = self._point_hessians(u, o, curvature)
         if not len(on):
             return sp.csr_matrix((N, N))
-        Hp = self.Wk[on, None, None] * (d2[on, None, None]
-                                        * np.einsum("ki,kj->kij", nrm[on], nrm[on]))
-        if curvature:
-            Hg = gap_hessian(y[on], o[on], self.dirs[on], self.flat[on], self.edge[on])
-            Hp -= (self.Wk[on] * d1[on])[:, None, None] * Hg
         d = self.d
         pv, pN = self.pv[on], self.pN[on]
         # entries (a i, b j) = N_a N_b H_ij for each pair of vertices a, b of a point's facet
@@ -297,12 +299,9 @@ class ContactSet:
         out = np.zeros((N, len(self.tips)))
         if not self.P:
             return out
-        y, g, nrm = self._state(u, o)
-        _, d1, d2 = _phi(-g, self.eps)
-        Hg = gap_hessian(y, o, self.dirs, self.flat, self.edge)
-        Hp = self.Wk[:, None, None] * (d2[:, None, None] * np.einsum("ki,kj->kij", nrm, nrm)
-                                       - d1[:, None, None] * Hg)
-        Hd = np.einsum("kij,kj->ki", Hp, self.dirs)            # H_p d (P, gdim)
+        on, Hp = self._point_hessians(u, o)
+        Hd = np.zeros((self.P, self.d))                           # H_p d (P, gdim)
+        Hd[on] = np.einsum("kij,kj->ki", Hp, self.dirs[on])
         for i, t in enumerate(self.tips):
             part = np.zeros_like(Hd)
             part[t.sl] = Hd[t.sl]
@@ -315,6 +314,17 @@ class ContactSet:
         t = next(t for t in self.tips if t.name == name)
         return float(self.eps[t.sl].max(initial=0.0))
 
+    def pressed(self, pushes: dict, widths: float) -> dict:
+        """``pushes`` (name -> mm) with each tip at 0 <= push < ``widths`` of its smoothing
+        widths (a tip missing from ``pushes`` is at 0) pushed to that depth: a tip touching the
+        skin without pressing it has a zero Jacobian column (``control.plants.PRESS_WIDTHS``)."""
+        out = dict(pushes)
+        for t in self.tips:
+            floor = widths * self.smoothing_width(t.name)
+            if 0.0 <= float(out.get(t.name, 0.0)) < floor:
+                out[t.name] = floor
+        return out
+
     # ------------------------------------------------------------------ report
     def report(self, u, pushes) -> dict:
         """Per tip, what the reference reports (``fem_reference.contact`` module docstring):
@@ -324,8 +334,8 @@ class ContactSet:
         (surface_penetration, tip_through_surface)."""
         o = self.origins(pushes)
         uu = np.asarray(u, float).reshape(self.n, self.d)
-        f = -self._point_forces(uu, o) if self.P else np.zeros((0, self.d))
-        _, g, _ = self._state(uu, o) if self.P else (None, np.zeros(0), None)
+        _, g, nrm = self._state(uu, o)
+        f = (self.Wk * _phi(-g, self.eps)[1])[:, None] * nrm    # -dPi_c / dy_p: on the skin
         out = {}
         bary = facet_samples(self.d, SURFACE_SAMPLES)
         for t, p in zip(self.tips, np.asarray(pushes, float)):
@@ -353,8 +363,8 @@ class ContactBlocks:
     """The contact blocks of one ADMM solve (one load or time step, the tips' ends at ``o``) on
     the array module of the backend: ``xdata`` (their share of the x-step's data), ``update``
     (gather, z-step, dual update, residuals after an x-step), ``halve_dual`` (rho doubled).
-    ``u0`` (host, node-major): the start state; the blocks start at S u0 with the dual of the
-    penalty's force there. ``dev``: an object with ``put`` (host -> array) and ``sparse`` (the
+    ``u0`` (host, node-major): the start state; the blocks start with one z-step from S u0 and
+    a zero dual. ``dev``: an object with ``put`` (host -> array) and ``sparse`` (the
     array module's sparse matrix constructor), or None for numpy/scipy."""
 
     def __init__(self, ops, cset: ContactSet, up, u0, o, zstep, dev=None):
@@ -372,7 +382,7 @@ class ContactBlocks:
         self.o, self.dirs = put(o), put(cset.dirs)
         self.flat, self.edge = put(cset.flat), put(cset.edge)
         self.Wk, self.eps, self.c0 = put(cset.Wk), put(cset.eps), put(cset.c0)
-        self.P, self.d = cset.P, d
+        self.d = d
         # start: one z-step from S u0 with a zero dual (the dual of the penalty's force at a
         # state the tips were just pushed into would be that force over c: hundreds of mm)
         self.z = put((Sd @ u0).reshape(-1, d))

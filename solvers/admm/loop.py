@@ -78,8 +78,6 @@ class Anderson:
     def __init__(self, m: int, xp=np):
         self.m, self.xp = int(m), xp
         self.DF = self.DG = None
-        self.rejected = 0
-        self.accepted = 0
         self.reset()
 
     def reset(self):
@@ -94,7 +92,6 @@ class Anderson:
         """Drop the accelerated iterate just proposed for the plain one, G(x_k), and restart
         the history (an element the extrapolation inverts)."""
         g = self.g_prev
-        self.rejected += 1
         self.reset()
         self.x = g
 
@@ -109,13 +106,8 @@ class Anderson:
         f = g - self.x
         fn = float(xp.sqrt(f @ f))
         if self.accelerated and self.fnorm is not None and fn > self.fnorm:
-            fallback = self.g_prev
-            self.rejected += 1
-            self.reset()
-            self.x = fallback
+            self.refuse()
             return None
-        if self.accelerated:
-            self.accepted += 1
         self.fnorm = fn
         if self.f_prev is not None and self.m > 0:
             if self.DF is None or self.DF.shape[1] != len(f):
