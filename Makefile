@@ -1,5 +1,6 @@
 # Two commands do all the set-up on a fresh Debian 12 machine:
-#   make demo   builds the phantom, solves, verifies, writes a report under out/
+#   make demo   solves the phantom pressed by four rigid tips, verifies the fast solvers, writes
+#               a report under out/ (about 10 minutes on 2 cores)
 #   make test   runs the test suite
 # Each installs what is missing (apt-get as root, the venv, pip with constraints.txt), quickly when not.
 # libopenblas0-pthread replaces Debian's reference BLAS (the default libblas3), which made every

@@ -100,7 +100,9 @@ OPTIONS = [
     (["implant", "--synthetic", "--json", "OUT/i.json"], "--width", "positive"),
     (["implant", "--synthetic", "--json", "OUT/i.json"], "--free-ring", "nonneg"),
     (["demo", "--out", "OUT/demo"], "--size", "positive"),
-    (["demo", "--out", "OUT/demo"], "--verify-push", "finite"),
+    (["demo", "--out", "OUT/demo"], "--verify-push", "positive"),
+    (["demo", "--out", "OUT/demo"], "--verify-size", "positive"),
+    (["demo", "--out", "OUT/demo"], "--pushes", "positive"),
 ]
 BAD_NUMBERS = [(cmd, opt, v) for cmd, opt, kind in OPTIONS for v in REAL_BAD[kind]]
 

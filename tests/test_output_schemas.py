@@ -74,8 +74,9 @@ RUNS = {
                                           "OUT/m"], 0, ["m/manipulability_phantom.json"]),
     "implant": ("implant", ["implant", "--synthetic", "--no-reference", "-q", "--json",
                             "OUT/i.json"], 0, ["i.json"]),
-    # the smallest phantom the demo builds at both of its sizes (~13 s with the verification)
-    "demo": ("demo", ["demo", "--out", "OUT/d", "--size", "14", "--verify-size", "14", "-q"], 0,
+    # the demo at coarse sizes, P1 and small pushes (its default takes minutes)
+    "demo": ("demo", ["demo", "--out", "OUT/d", "--size", "14", "--degree", "1", "--pushes", "1",
+                      "2", "--verify-size", "14", "--verify-push", "1", "-q"], 0,
              ["d/summary.json"]),
 }
 
@@ -194,7 +195,7 @@ MISSING = [
     ("dynamics", ("discretization",)),
     ("dynamics", ("final", "pushes_mm")),
     ("implant", ("material",)),
-    ("demo", ("reference", "series", 0, "probe_error_estimates_mm")),
+    ("demo", ("reference", "series", 0, "accuracy")),
     ("demo", ("verify", "reference", "material")),   # the verify schema, inside the demo's
 ]
 
@@ -235,26 +236,60 @@ def test_the_demo_summary_says_what_was_run_and_its_page_is_well_formed(outputs,
 
     _, [summary] = outputs.get("demo")
     assert summary["mesh"]["size_mm"] == 14.0
-    assert [r["push_mm"] for r in summary["reference"]["series"]] == [5.0, 10.0, 15.0]
-    assert set(summary["verify"]["solvers"]) == {"admm", "admm-plain", "mass-tensor"}
+    assert summary["mesh"]["case"] == summary["reference"]["case"] == "phantom-indenter-quarter"
+    series = summary["reference"]["series"]
+    assert [r["push_mm"] for r in series] == [1.0, 2.0]
+    for r in series:
+        # another size and degree than the case's measured ones: no error bar, and it says so
+        assert r["converged"] and r["accuracy"] is None
+        assert r["accuracy_line"].startswith("not measured"), r["accuracy_line"]
+        assert r["tip_forces_mN"]["A1"] > 0.0
+    # the tips press harder the deeper they go
+    assert series[1]["tip_forces_mN"]["A1"] > series[0]["tip_forces_mN"]["A1"]
+    v = summary["verify"]
+    assert v["reference"]["case"] == "phantom-indenter-control"
+    assert set(v["solvers"]) == {"admm", "admm-plain", "admm-anderson"}
+    assert "does not model contact" in v["skipped"]["mass-tensor"]
     out = outputs.folder("demo") / "d"
     found = check_page(out / "report.html")
-    assert "verify/report.html" in found["links"] and "fem/probes_vs_push.png" in found["images"]
+    assert "verify/report.html" in found["links"] and "fem/tips_vs_push.png" in found["images"]
     check_page(out / "verify" / "report.html")
     # what make demo tells a newcomer to open, as a browser draws it: every picture loaded
     drawn = render_page(out / "report.html", require_browser(), tmp_path / "demo.png")
     assert len(drawn["image_widths"]) == len(found["images"]) and min(drawn["image_widths"]) > 0
 
 
+def test_the_demo_default_answers_carry_measured_error_bars_within_two_percent():
+    """What the demo shows by default is ground truth: its case file measured the default
+    discretization at every default push, all tips pushed, within 2 % of converged answers."""
+    from tissue_reference.fem_reference.solver import default_tip_start
+    from tissue_reference.meshes.case import load_case
+    from tissue_reference.tissue.cmd_demo import CASE, PUSHES_MM
+
+    case = load_case(CASE)
+    start = default_tip_start(case)
+    for push in PUSHES_MM:
+        rows = [r for r in case.reference_measured
+                if set(r["pushes"]) == {a.name for a in case.actuators}
+                and all(v == push for v in r["pushes"].values())
+                and r.get("contact_quadrature", case.reference_contact_quadrature)
+                == case.reference_contact_quadrature and r.get("tip_start", start) == start]
+        assert len(rows) == 1, (push, rows)
+        assert rows[0].get("converged", True) and rows[0]["force"] <= 0.02 \
+            and rows[0]["probes"] <= 0.02, rows[0]
+
+
 @pytest.mark.slow
 def test_the_demo_writes_its_reference_solves_as_tissue_solve_does(tmp_path, capsys):
-    """The demo's per-push JSON files (out/fem/A1_*mm.json) are solve outputs: they match
+    """The demo's per-push JSON files (out/fem/tips_*mm.json) are solve outputs: they match
     solve.schema.json, settings included."""
     out = tmp_path / "demo"
-    assert main(["demo", "--out", str(out), "--size", "14", "--skip-verify", "-q"]) == 0
+    assert main(["demo", "--out", str(out), "--size", "14", "--degree", "1", "--pushes", "1", "2",
+                 "--skip-verify", "-q"]) == 0
     capsys.readouterr()
-    files = sorted((out / "fem").glob("A1_*mm.json"))
-    assert len(files) == 3
+    files = sorted((out / "fem").glob("tips_*mm.json"))
+    assert [f.name for f in files] == ["tips_1mm.json", "tips_2mm.json"]
     for f in files:
         validate_file("solve", f)
-        assert json.loads(f.read_text())["solver_settings"]["estimate"] is True
+        settings = json.loads(f.read_text())["solver_settings"]
+        assert "newton" in settings and settings["estimate"] is False

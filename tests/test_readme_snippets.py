@@ -1,6 +1,6 @@
 """The README's Python runs as a newcomer would run it: copied into a folder outside the
 repository. Every answer it computes is valid and within the loads where answers converge (its
-warnings may say the glued rims are compressed or an estimate is large: the README says so)."""
+warnings would say what is wrong)."""
 import json
 import subprocess
 import sys
@@ -27,7 +27,7 @@ def python_block(heading: str) -> str:
 
 def test_the_readme_python_runs_from_another_folder(tmp_path):
     code = python_block("## Python in 20 lines")
-    assert 'load_case("phantom"' in code
+    assert 'load_case("phantom-indenter' in code
     p = subprocess.run([sys.executable, "-c", PRELUDE + code], cwd=tmp_path, capture_output=True,
                        text=True, timeout=600, check=False)
     assert p.returncode == 0, p.stderr[-3000:]
