@@ -15,6 +15,9 @@ the tips' first load steps grew to 0.2 of their radius (``tip_step = 0.1``):
            1e-4 of the load step's first (``contact_curvature_below``)
   step     shift with the tips' first load steps 0.2 of their radius (``tip_step``)
   default  far and step (the default)
+  step04   the default with the tips' first load steps 0.4 of their radius
+  step1    the default with the tips' first load steps a whole radius
+  secant   the default with the secant predictor (linear extrapolation of the last two states)
 
 Models: ``--model half`` (meshes/cases/phantom-indenter-half.toml, forces doubled) or ``whole``
 (phantom-indenter.toml); ``--load one`` pushes A1, ``four`` all four actuators; the mesh is the
@@ -53,6 +56,9 @@ SETTINGS = {
     "far": {"tip_step": 0.1},
     "step": {"contact_curvature_below": math.inf},
     "default": {},
+    "step04": {"tip_step": 0.4},
+    "step1": {"tip_step": 1.0},
+    "secant": {"predictor": "secant"},
 }
 
 
