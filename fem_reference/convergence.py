@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from tissue_reference.meshes.case import Case, load_case
+from tissue_reference.meshes.case_file import case_path
 from tissue_reference.meshes.converged_range import unconverged_load
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.mesh import MeshData
@@ -142,6 +143,7 @@ def refinement_study(case: Case, *, levels: int = MIN_LEVELS, degree: int = 1, p
         check_budget(meshes[0].n_cells, meshes[0].gdim, len(meshes), max_cells)
         if meshes[0] is not case.mesh:
             case = case.with_mesh(meshes[0])
+    curved = None if all(m.geometry_order == 2 for m in meshes) else False
     h0 = _mean_edge(meshes[0])
     h = tuple(h0 / RATIO ** k for k in range(len(meshes)))
     probes: dict = {p.name: [] for p in case.probes}
@@ -151,9 +153,9 @@ def refinement_study(case: Case, *, levels: int = MIN_LEVELS, degree: int = 1, p
     for k, mesh in enumerate(meshes):
         c = case if mesh is case.mesh else case.with_mesh(mesh)
         t0 = time.perf_counter()
-        # every level straight-sided (its boundary vertices on the true geometry): the curved
-        # edges of the coarsest mesh have no counterpart on the refined ones
-        solver = ReferenceSolver(c, degree=degree, **{"curved": False, **solver_options})
+        # every level curved where the hierarchy carries curved edges on all of them
+        # (``mesh_hierarchy`` of a curved builtin), else every level straight-sided
+        solver = ReferenceSolver(c, degree=degree, **{"curved": curved, **solver_options})
         try:
             res = solver.solve(pushes)
         except ConvergenceError as exc:
@@ -206,11 +208,12 @@ def _no_limit(vec: VectorConvergence) -> VectorConvergence:
 
 
 def load_study_case(path, *, size: float | None = None):
-    """(Case, projection) of a Case file: its mesh built at ``size`` (mm; a builtin mesh only,
-    default the file's own) and the boundary projection of its builtin (None for a mesh file,
-    whose boundary is taken as it is)."""
-    case = load_case(Path(path), size=size)
-    builder = tomllib.loads(Path(path).read_text()).get("mesh", {}).get("builtin")
+    """(Case, projection) of a Case file, or of a shipped case by its name (``thick-sphere``): its
+    mesh built at ``size`` (mm; a builtin mesh only, default the file's own) and the boundary
+    projection of its builtin (None for a mesh file, whose boundary is taken as it is)."""
+    path = case_path(path)
+    case = load_case(path, size=size)
+    builder = tomllib.loads(path.read_text()).get("mesh", {}).get("builtin")
     return case, (projector_for(builder) if builder is not None else None)
 
 

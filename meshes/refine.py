@@ -26,13 +26,17 @@ two or three chords) raises MeshQualityError naming the largest move. Lengths in
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
+from .curved import validate
 from .errors import CaseError, MeshQualityError
 from .mesh import MeshData, boundary_facets, check_cells, orient_cells
 from .projection import DomeProjection, ShellProjection, projector_for  # noqa: F401 (re-exported)
 
-__all__ = ["DomeProjection", "mesh_hierarchy", "projector_for", "refine_uniform"]
+__all__ = ["DomeProjection", "curve_boundary", "mesh_hierarchy", "projector_for",
+           "refine_uniform"]
 
 # local edges of a cell and the local index (after the cell's own vertices) of their midpoints
 _TET_EDGES = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
@@ -273,15 +277,39 @@ def _harmonic_extension(cells: np.ndarray, delta: np.ndarray, free: np.ndarray) 
     return out
 
 
+def curve_boundary(mesh: MeshData, project) -> MeshData:
+    """``mesh`` with second-order geometry on its curved boundary (``meshes.curved``): the
+    midpoint of every boundary edge moved onto the true geometry by ``project`` (module
+    docstring), kept as a curved edge where it lies off the straight midpoint by more than 1e-9
+    of the edge's length. Curved edges that would fold a cell are straightened
+    (``curved.validate``). Replaces any curved edges ``mesh`` had."""
+    X, cells = mesh.points, mesh.cells
+    n, d = len(X), mesh.gdim
+    local_edges = _TET_EDGES if d == 3 else _TRI_EDGES
+    table = np.unique(_edge_keys(cells[:, local_edges[:, 0]], cells[:, local_edges[:, 1]], n))
+    edges, regions, _ = _boundary_edges(mesh, table)
+    lo, hi = table[edges] // n, table[edges] % n
+    mid = 0.5 * (X[lo] + X[hi])
+    moved = np.asarray(project(mid.copy(), regions), dtype=np.float64).reshape(mid.shape)
+    off = np.linalg.norm(moved - mid, axis=1) > 1e-9 * np.linalg.norm(X[hi] - X[lo], axis=1)
+    curved = replace(mesh, curved_edges=np.stack([lo, hi], axis=1)[off],
+                     curved_points=moved[off])
+    return validate(curved)[0]
+
+
 def mesh_hierarchy(mesh: MeshData, levels: int, *, project=None) -> list:
-    """``levels`` nested meshes: ``mesh`` and ``levels - 1`` successive uniform refinements."""
+    """``levels`` nested meshes: ``mesh`` and ``levels - 1`` successive uniform refinements.
+    When ``mesh`` has curved (second-order) edges and ``project`` is given, every refinement gets
+    its own on the true geometry (``curve_boundary``), so each level is as curved as the first."""
     if levels < 1:
         raise CaseError(f"mesh_hierarchy needs levels >= 1, got {levels}")
+    curved = project is not None and mesh.geometry_order == 2
     out = [mesh]
     for k in range(1, levels):
         try:
-            out.append(refine_uniform(out[-1], project=project))
+            fine = refine_uniform(out[-1], project=project)
         except MeshQualityError as exc:
             raise MeshQualityError(f"refinement {k} of {levels - 1} (from {out[-1].n_cells:,} "
                                    f"cells): {exc}") from None
+        out.append(curve_boundary(fine, project) if curved else fine)
     return out
