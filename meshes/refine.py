@@ -130,10 +130,7 @@ def refine_uniform(mesh: MeshData, *, project=None) -> MeshData:
             return n + _lookup(_edge_keys(u, v, n), table, "the boundary")
 
         if len(edges):
-            moved = np.asarray(project(points[n + edges].copy(), regions), dtype=np.float64)
-            if moved.shape != (len(edges), d) or not np.all(np.isfinite(moved)):
-                raise CaseError(f"refine_uniform: project returned shape {moved.shape} or "
-                                f"non-finite values for {len(edges)} boundary midpoints")
+            moved = _projected(project, points[n + edges], regions)
             delta = np.zeros_like(points)
             delta[n + edges] = moved - points[n + edges]
             # midpoints inside one region follow the moves of the region borders (e.g. a patch
@@ -143,9 +140,8 @@ def refine_uniform(mesh: MeshData, *, project=None) -> MeshData:
             if np.any(inner) and np.any(delta[n + edges[~inner]]):
                 ids = n + edges[inner]
                 spread = _harmonic_extension(_split_facets(bf, mid_of, d), delta, ids)
-                moved[inner] = np.asarray(project(points[ids] + spread[ids],
-                                                  [regions[i] for i in np.flatnonzero(inner)]),
-                                          dtype=np.float64)
+                moved[inner] = _projected(project, points[ids] + spread[ids],
+                                          [regions[i] for i in np.flatnonzero(inner)])
                 delta[ids] = moved[inner] - points[ids]
             # the new interior vertices follow the boundary
             interior = np.ones(len(points), bool)
@@ -194,6 +190,16 @@ def _boundary_facets(cells: np.ndarray, n: int) -> np.ndarray:
         key = key * n + faces[:, j]
     _, first, counts = np.unique(key, return_index=True, return_counts=True)
     return faces[first[counts == 1]]
+
+
+def _projected(project, x: np.ndarray, regions) -> np.ndarray:
+    """``project(x, regions)`` (module docstring) on a copy of the points ``x`` (k, gdim), checked:
+    CaseError unless it returns k finite points."""
+    moved = np.asarray(project(np.array(x, dtype=np.float64), regions), dtype=np.float64)
+    if moved.shape != x.shape or not np.all(np.isfinite(moved)):
+        raise CaseError(f"refine_uniform: project returned shape {moved.shape} or non-finite "
+                        f"values for {len(x)} boundary midpoints")
+    return moved
 
 
 def _boundary_edges(mesh: MeshData, table: np.ndarray):
@@ -290,7 +296,7 @@ def curve_boundary(mesh: MeshData, project) -> MeshData:
     edges, regions, _ = _boundary_edges(mesh, table)
     lo, hi = table[edges] // n, table[edges] % n
     mid = 0.5 * (X[lo] + X[hi])
-    moved = np.asarray(project(mid.copy(), regions), dtype=np.float64).reshape(mid.shape)
+    moved = _projected(project, mid, regions)
     off = np.linalg.norm(moved - mid, axis=1) > 1e-9 * np.linalg.norm(X[hi] - X[lo], axis=1)
     curved = replace(mesh, curved_edges=np.stack([lo, hi], axis=1)[off],
                      curved_points=moved[off])
