@@ -3,7 +3,7 @@ model follows the pushes: "fast" (``control.fast_model``: chord Newton on the mo
 Jacobian by refinement with a lagged factorization) and "solve" (a full ADMM solve with polish and
 an assembled tangent every step, as before).
 
-The loop: the seed's phantom at --size (10 mm: 1782 tets, the seed's 1.7k), plant the reference
+The loop: the seed's phantom at --size (10 mm: 1748 tets, the seed's 1.7k), plant the reference
 (P1, same mesh), model ADMM with E x 1.2 (a mismatch), target T1, task 1 of --task-mm (inside the
 glued patches' converged range), gain weights, --steps steps. Per step: the model's update and
 Jacobian (ms), the QP (ms), their sum; medians and 90th percentiles; and the fast Jacobian's

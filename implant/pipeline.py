@@ -105,8 +105,8 @@ class PlanSettings:
     """shape 'round' | 'anatomical'; volume_cc (cc); side 'left' | 'right'; at: (x, y) mm or
     None (under the thickest tissue); width / projection (mm, optional); free_ring (mm, 0 or
     None for none; seed: 30); sliding: switch targets to sliding on the implant after reaching
-    them; E (kPa), nu; stop_mm: Mass Tensor stopping rule (seed: 0.01 mm); method 'pcg' |
-    'descent'; tissue_size: tetrahedron edge (mm, default the skin's mean edge)."""
+    them; E (kPa), nu; stop_mm: Mass Tensor stopping rule (seed: 0.01 mm); method 'direct' |
+    'pcg' | 'descent' (``solvers.mass_tensor.METHODS``); tissue_size: tetrahedron edge (mm, default the skin's mean edge)."""
 
     shape: str = "round"
     volume_cc: float = 245.0
@@ -119,7 +119,7 @@ class PlanSettings:
     E: float = 48.0
     nu: float = 0.45
     stop_mm: float = 0.01
-    method: str = "pcg"
+    method: str = "direct"
     tissue_size: float | None = None
 
     def __post_init__(self):

@@ -80,7 +80,10 @@ class CaseVariantsMixin:
                  for n, a in patches.items()]
         actuators = tuple(replace(a, push=float(pushes[a.name])) if a.name in acts else a
                           for a in self.actuators)
-        return replace(self, boundaries=tuple(kept + added), actuators=actuators)
+        pushed = replace(self, boundaries=tuple(kept + added), actuators=actuators)
+        if "probe_locations" in self.__dict__:   # same mesh and probes: located once
+            pushed.__dict__["probe_locations"] = self.__dict__["probe_locations"]
+        return pushed
 
     def glued_unconverged(self) -> dict[str, str]:
         """Actuator name -> why, for each glued patch pushed deeper than GLUED_CONVERGED_RADII

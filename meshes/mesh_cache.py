@@ -16,7 +16,9 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import logging
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +27,10 @@ from .errors import WriteError
 from .io import atomic_path, user_cache_root
 from .mesh import MeshData
 
-__all__ = ["cache_dir", "cached", "fingerprint", "mesh_key"]
+__all__ = ["builds", "cache_dir", "cached", "fingerprint", "mesh_key"]
+
+_LOG = logging.getLogger("tissue.meshes")
+_BUILDS = [0]
 
 _KINDS = ("facet_regions", "point_regions", "cell_regions")
 
@@ -92,15 +97,31 @@ def cached(name: str, size: float, local: dict, build) -> MeshData:
     else ``build()`` and kept there."""
     folder = cache_dir()
     if folder is None:
-        return build()
+        return _built(name, size, build, None)
     path = folder / f"{mesh_key(name, size, local)}.npz"
     if path.is_file():
         mesh = _load(path)
         if mesh is not None:
+            _LOG.debug("mesh %r at size %g mm read from the cache (%s)", name, size, path)
             return mesh
-    mesh = build()
+    mesh = _built(name, size, build, path)
     try:
         _save(path, mesh)
     except (OSError, WriteError):   # a cache that cannot be written is no cache: the mesh is
         pass                        # still built
+    return mesh
+
+
+def builds() -> int:
+    """How many builtin meshes this process has meshed with gmsh (not read from the cache)."""
+    return _BUILDS[0]
+
+
+def _built(name: str, size: float, build, path: Path | None) -> MeshData:
+    _LOG.info("meshing %r at size %g mm with gmsh%s", name, size,
+              "" if path is None else f" (kept in the mesh cache: {path.parent})")
+    t0 = time.perf_counter()
+    mesh = build()
+    _BUILDS[0] += 1
+    _LOG.info("meshed %r: %d cells in %.1f s", name, mesh.n_cells, time.perf_counter() - t0)
     return mesh

@@ -170,7 +170,8 @@ def test_a_first_solve_prints_no_compiler_lines_and_verbose_shows_them(tmp_path)
     assert "gcc" not in quiet.stdout + quiet.stderr and "build_ext" not in quiet.stderr, \
         quiet.stderr
     assert quiet.stdout.startswith("phantom: fem converged=True")
-    assert all(line.startswith(("  load", "tissue fem:", "tissue solve: warning:"))
+    assert all(line.startswith(("  load", "tissue fem:", "tissue solve: warning:",
+                                "tissue solve: meshed"))
                for line in quiet.stderr.splitlines())
     verbose = outputs["-v"]
     assert "INFO root: running build_ext" in verbose.stderr and "gcc" in verbose.stderr

@@ -161,17 +161,17 @@ def test_verify_at_such_a_load_exits_1_and_within_it_0(tmp_path, capsys):
 
 def test_the_rim_warning_reads_a_degree_2_fields_own_J(monkeypatch):
     """A P2 rim cell can fold between its vertices: the warning reads the field's J, not the
-    straight cell's through the vertex displacements. At A1 = 5 mm on the coarse phantom the
-    field's smallest rim J (0.53) is below the vertex one (0.71); with the threshold set between
+    straight cell's through the vertex displacements. At A1 = 4 mm on the coarse phantom the
+    field's smallest rim J (0.46) is below the vertex one (0.62); with the threshold set between
     them, only a warning that reads the field fires."""
     import tissue_reference.meshes.case_variants as variants
     from tissue_reference.meshes.mesh import cell_jacobians
 
     c = load_case(CASE, size=14.0)
-    monkeypatch.setattr(variants, "RIM_J_WARN", 0.6)
-    r = fr.solve(c, pushes={"A1": 5.0}, degree=2)
+    monkeypatch.setattr(variants, "RIM_J_WARN", 0.55)
+    r = fr.solve(c, pushes={"A1": 4.0}, degree=2)
     rim = np.isin(c.mesh.cells, c.mesh.region_vertices(c.actuator("A1").region)).any(axis=1)
-    assert cell_jacobians(c.mesh.points, c.mesh.cells, r.u)[rim].min() > 0.6
+    assert cell_jacobians(c.mesh.points, c.mesh.cells, r.u)[rim].min() > 0.55
     lines = [w for w in r.extra["warnings"] if "'A1'" in w]
-    assert len(lines) == 1 and "compressed to J = 0.5" in lines[0]
+    assert len(lines) == 1 and "compressed to J = 0.4" in lines[0]
     assert r.extra["valid"] is True

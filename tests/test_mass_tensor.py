@@ -301,13 +301,18 @@ def plane_triangulation(z0, half=40.0, k=6):
     return mt.TriSurface(P, np.array(tris))
 
 
-@pytest.mark.parametrize("method", ["pcg", "descent"])
-def test_sliding_on_triangulated_plane_equals_sliding_on_plane(slab, method):
+def _slab_pushed_down(slab):
+    """The slab's model, its base, top and free xmax side, and the top's targets 0.5 mm down."""
     m = mt.MassTensorModel(slab.points, slab.cells, MAT)
     base = slab.region_vertices("zmin")
     top = slab.region_vertices("zmax")
     xmax = np.setdiff1d(slab.region_vertices("xmax"), np.r_[base, top])
-    push = slab.points[top] + [0.0, 0.0, -0.5]
+    return m, base, top, xmax, slab.points[top] + [0.0, 0.0, -0.5]
+
+
+@pytest.mark.parametrize("method", ["pcg", "descent"])
+def test_sliding_on_triangulated_plane_equals_sliding_on_plane(slab, method):
+    m, base, top, xmax, push = _slab_pushed_down(slab)
     a = m.solve(m.point_types().target(top, push).sliding(base, mt.Plane((0, 0, 0), (0, 0, 1)))
                 .border(xmax), method=method, stop_mm=1e-9)
     b = m.solve(m.point_types().target(top, push).sliding(base, plane_triangulation(0.0))
@@ -371,7 +376,7 @@ def test_indefinite_stiffness_raises_diverged(cube):
     pts = m.point_types().border(cube.region_vertices("xmin")).displacement(
         cube.region_vertices("xmax"), (1.0, 0.0, 0.0))
     with pytest.raises(SolverDivergedError, match="iteration"):
-        m.solve(pts, stop_mm=1e-12, max_iter=10000)
+        m.solve(pts, method="pcg", stop_mm=1e-12, max_iter=10000)
 
 
 def test_bad_options_rejected(cube):
@@ -401,3 +406,51 @@ def test_surface_sliding_that_cycles_between_planes_stops_as_not_converged():
     state.run(types, np.zeros((3, 3)), "pcg")
     assert state.ok is False
     assert len(rounds) <= mt._State.STALL_ROUNDS + 2
+
+
+# ----------------------------------------------------------------- the direct solve
+def test_the_direct_solve_equals_the_independent_assembly_and_reuses_its_factorization(cube,
+                                                                                       K_ref):
+    """method "direct" (the default): the equilibrium of the independently assembled stiffness
+    to round-off; a second solve with other prescribed values on the same point types reuses
+    the model's factorization (one back-substitution) and is as exact."""
+    from tissue_reference.solvers.mass_tensor import driver
+
+    driver._MODELS.clear()
+    calls = []
+
+    def counted(A, cache):                             # no factorization: SuperLU, as
+        calls.append(A.shape)                          # without the hook
+
+    case = stretch_case(cube)
+    c = case.constraints
+    res = mt.solve(case, factorize=counted)
+    assert res.converged and res.iterations == 1 and res.extra["method"] == "direct"
+    assert np.abs(res.u - direct_solve(K_ref, cube.n_vertices, 3, c.dofs, c.values)).max() < 1e-10
+    other = Case(mesh=cube, material=MAT, boundaries=[
+        Boundary("xmin", "fixed"), Boundary("xmax", "displacement", value=(-0.7, 0.2, 0.9))])
+    c2 = other.constraints
+    res2 = mt.solve(other, factorize=counted)
+    assert np.abs(res2.u - direct_solve(K_ref, cube.n_vertices, 3, c2.dofs, c2.values)).max() \
+        < 1e-10
+    assert len(calls) == 1                             # the second solve factorized nothing
+
+
+def test_the_direct_solve_with_surface_sliding_equals_sliding_on_the_plane(slab):
+    m, base, top, xmax, push = _slab_pushed_down(slab)
+    a = m.solve(m.point_types().target(top, push).sliding(base, mt.Plane((0, 0, 0), (0, 0, 1)))
+                .border(xmax), method="direct", stop_mm=1e-9)
+    b = m.solve(m.point_types().target(top, push).sliding(base, plane_triangulation(0.0))
+                .border(xmax), method="pcg", stop_mm=1e-12)
+    c = m.solve(m.point_types().target(top, push).sliding(base, plane_triangulation(0.0))
+                .border(xmax), method="direct", stop_mm=1e-9)
+    assert a.iterations == 1
+    assert np.abs(a.u - b.u).max() < 1e-6 and np.abs(c.u - b.u).max() < 1e-6
+
+
+def test_the_direct_solve_refuses_an_indefinite_stiffness(cube):
+    m = mt.MassTensorModel(cube.points, cube.cells, mu=-1.0, lmbda=0.5)
+    pts = m.point_types().border(cube.region_vertices("xmin")).displacement(
+        cube.region_vertices("xmax"), (1.0, 0.0, 0.0))
+    with pytest.raises(SolverDivergedError, match="not positive definite"):
+        m.solve(pts, method="direct")

@@ -58,3 +58,22 @@ def test_the_cache_can_be_turned_off(tmp_path, monkeypatch):
     monkeypatch.setenv("TISSUE_MESH_CACHE", "off")
     builders.build("box", 5.0)
     assert mesh_cache.cache_dir() is None and list(tmp_path.glob("**/*.npz")) == []
+
+
+def test_the_command_line_says_when_gmsh_meshed_and_the_next_run_reads_the_cache(cache,
+                                                                                 monkeypatch,
+                                                                                 capsys):
+    from tissue_reference.tissue import common
+    from tissue_reference.tissue.cli import main
+
+    monkeypatch.setattr(common, "ANNOUNCE_LOAD_S", 0.0)   # say it however fast gmsh was
+    argv = ["solve", "phantom", "--size", "15", "--push", "A1=1", "--no-estimate"]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert "meshed 'phantom' at size 15 mm with gmsh" in err
+    assert "later runs read it from the mesh cache" in err
+    built = mesh_cache.builds()
+    assert main(argv + ["-v"]) == 0
+    err = capsys.readouterr().err
+    assert "with gmsh" not in err and "read from the cache" in err   # -v: where it came from
+    assert mesh_cache.builds() == built

@@ -34,3 +34,29 @@ def test_a_2d_mesh_is_drawn_as_its_deformed_triangles(tmp_path):
     out = render(m, u, np.linalg.norm(u, axis=1), tmp_path / "flat.png", label="|u| (mm)")
     data = (tmp_path / "flat.png").read_bytes()
     assert data[:4] == b"\x89PNG" and out["method"] == "matplotlib" and out["why"] == "a 2D mesh"
+
+
+def test_several_views_of_one_state_come_from_one_child_process(tmp_path, monkeypatch):
+    import subprocess
+
+    from tissue_reference.tissue import views
+
+    started = []
+    real = subprocess.Popen
+
+    def counted(*a, **k):
+        started.append(a[0])
+        return real(*a, **k)
+
+    monkeypatch.setattr(views.subprocess, "Popen", counted)
+    m = box(5.0)
+    u = 0.1 * m.points
+    pending = views.start_views(m, u, [
+        {"scalar": np.linalg.norm(u, axis=1), "path": tmp_path / "a.png", "label": "|u| (mm)"},
+        {"scalar": m.points[:, 2], "path": tmp_path / "b.png", "label": "z (mm)"}])
+    out = pending.wait()
+    assert len(started) == 1
+    assert [o["path"] for o in out] == [str(tmp_path / "a.png"), str(tmp_path / "b.png")]
+    a, b = (tmp_path / "a.png").read_bytes(), (tmp_path / "b.png").read_bytes()
+    assert a[:4] == b[:4] == b"\x89PNG" and a != b
+    assert {o["method"] for o in out} <= {"pyvista", "matplotlib"}

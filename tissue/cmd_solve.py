@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -162,8 +163,12 @@ def run(args) -> int:
                 print(f"tissue solve: last converged state (load fraction {exc.load_fraction:.4f})"
                       f" written to {Path(args.out) / 'last_converged.xdmf'}", file=sys.stderr)
         raise
+    t_out = time.perf_counter()
     write_outputs(case.with_pushes(pushes), res, args.out, args.json, settings=settings,
                   report=True)
+    if _rank() == 0 and args.out and not args.quiet:
+        print(f"tissue solve: wrote {Path(args.out) / REPORT} and the fields (displacement.xdmf, "
+              f".vtu) in {time.perf_counter() - t_out:.1f} s", file=sys.stderr)
     if _rank() == 0:
         print(f"{case.name}: {args.solver} converged={res.converged} "
               f"iterations={res.iterations} load_steps={res.load_steps} "

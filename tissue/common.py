@@ -12,11 +12,13 @@ import argparse
 import dataclasses
 import math
 import sys
+import time
 import tomllib
 from pathlib import Path
 
 import numpy as np
 
+from tissue_reference.meshes import mesh_cache
 from tissue_reference.meshes.answer_warnings import advice_for
 from tissue_reference.meshes.builders import MAX_CELLS, estimate_cells
 from tissue_reference.meshes.case import (
@@ -39,6 +41,9 @@ __all__ = ["PROGRESS_FROM_CELLS", "SOLVER_NAMES", "add_case_args", "add_discreti
 SOLVER_NAMES = ("fem", "admm", "mass-tensor")
 PROGRESS_FROM_CELLS = 100_000
 """A builtin mesh estimated at more cells than this announces the estimate before gmsh starts."""
+ANNOUNCE_LOAD_S = 1.0
+"""A case whose builtin mesh gmsh meshed (not read from the cache) in longer than this (s) says
+so on the command line."""
 
 
 # --------------------------------------------------------------------------- option values
@@ -271,7 +276,16 @@ def case_from_args(args, *, size: float | None = None) -> Case:
     b = builtin_of(path, size)
     if b is not None:
         announce_build(getattr(args, "command", "") or "", *b, max_cells)
+    t0, meshed = time.perf_counter(), mesh_cache.builds()
     case = load_case(path, size=size, max_cells=max_cells)
+    took = time.perf_counter() - t0
+    if mesh_cache.builds() > meshed and took > ANNOUNCE_LOAD_S \
+            and not getattr(args, "quiet", False):
+        later = "later runs read it from the mesh cache" if mesh_cache.cache_dir() is not None \
+            else "the mesh cache is off (TISSUE_MESH_CACHE=off)"
+        print(f"tissue {getattr(args, 'command', '') or ''}: meshed {b[0]!r} at size {b[1]:g} mm "
+              f"with gmsh ({case.mesh.n_cells:,} cells) in {took:.1f} s; {later}",
+              file=sys.stderr, flush=True)
     if getattr(args, "contact_quadrature", None) is not None:
         case = dataclasses.replace(case, reference_contact_quadrature=args.contact_quadrature)
     if getattr(args, "tip_start", None) is not None:
@@ -301,6 +315,10 @@ def run_solver(name: str, case: Case, *, degree: int | None = None, formulation:
             kw["factorize"] = cholmod_factor  # the polish's tangents by CHOLMOD (PETSc)
     elif name == "mass-tensor":
         from tissue_reference.solvers.mass_tensor import solve
+        if "factorize" not in kw and kw.get("method", "direct") == "direct":
+            from tissue_reference.fem_reference import cholmod_factor
+
+            kw["factorize"] = cholmod_factor  # its direct solve by CHOLMOD (PETSc)
     else:
         raise CaseError(f"unknown solver {name!r}; solvers: {list(SOLVER_NAMES)}")
     return solve(case, pushes=pushes, initial=initial, progress=progress, **kw)

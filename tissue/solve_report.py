@@ -206,28 +206,31 @@ def write_solve_report(case, res, out_dir, *, data: dict | None = None, stem: st
     """Write ``out_dir``/report.html for the solve ``res`` of ``case`` (its pushes applied) and
     its pictures; ``data``: the solve's JSON (``res.to_json_dict(case)`` with its settings),
     ``stem``: the name of the field files beside it. Returns the page's path."""
-    from .views import render
+    from .views import start_views
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     d = data if data is not None else res.to_json_dict(case)
     u = np.asarray(res.u, float)
-    mag = np.linalg.norm(u, axis=1)
-    figs = []
     title = f"{case.name}, {res.solver}"
-    view = render(case.mesh, u, mag, out / f"{stem}_view_u.png", label="displacement magnitude (mm)",
-                  title=f"{title}: displacement magnitude (mm)", use_pyvista=use_pyvista)
-    figs.append(image(Path(view["path"]).name, "deformed tissue coloured by |u|",
-                      f"deformed tissue coloured by |u| (mm), drawn with {view['method']}", 640))
-    view = render(case.mesh, u, vertex_min_J(case.mesh, u), out / f"{stem}_view_J.png",
-                  label="J = det F", use_pyvista=use_pyvista,
-                  title=f"{title}: J = det F (smallest of the cells at each vertex)")
-    figs.append(image(Path(view["path"]).name, "deformed tissue coloured by J",
-                      "J = det F, the smallest of the cells at each vertex (1: no volume change, "
-                      f"<= 0: inverted), drawn with {view['method']}", 640))
+    # the two views are drawn in one child process while the history is plotted here
+    pending = start_views(case.mesh, u, [
+        {"scalar": np.linalg.norm(u, axis=1), "path": out / f"{stem}_view_u.png",
+         "label": "displacement magnitude (mm)",
+         "title": f"{title}: displacement magnitude (mm)"},
+        {"scalar": vertex_min_J(case.mesh, u), "path": out / f"{stem}_view_J.png",
+         "label": "J = det F",
+         "title": f"{title}: J = det F (smallest of the cells at each vertex)"},
+    ], use_pyvista=use_pyvista)
     hist = out / f"{stem}_history.png"
     history = image(hist.name, "load stepping and iteration history", None, 800) \
         if _history_plot(res.history or {}, res.solver, hist) else "No iteration history."
+    view_u, view_J = pending.wait()
+    figs = [image(Path(view_u["path"]).name, "deformed tissue coloured by |u|",
+                  f"deformed tissue coloured by |u| (mm), drawn with {view_u['method']}", 640),
+            image(Path(view_J["path"]).name, "deformed tissue coloured by J",
+                  "J = det F, the smallest of the cells at each vertex (1: no volume change, "
+                  f"<= 0: inverted), drawn with {view_J['method']}", 640)]
     files = [f for f in (f"{stem}.xdmf", f"{stem}.vtu") if (out / f).is_file()]
     links = Raw("<p>Fields (ParaView): " + ", ".join(
         f"<a href='{html.escape(f)}'>{html.escape(f)}</a>" for f in files) + "</p>") \

@@ -57,7 +57,8 @@ FAST_SOLVERS = {
     "admm": ("admm", {}, None),
     "admm-plain": ("admm", {"polish": False}, None),
     "admm-anderson": ("admm", {"polish": False, "anderson": 5}, None),
-    "mass-tensor": ("mass-tensor", {"method": "pcg", "stop_mm": 0.01}, "linear-elastic"),
+    "mass-tensor": ("mass-tensor", {"method": "direct"}, "linear-elastic"),
+    "mass-tensor-pcg": ("mass-tensor", {"method": "pcg", "stop_mm": 0.01}, "linear-elastic"),
     "mass-tensor-descent": ("mass-tensor", {"method": "descent", "stop_mm": 0.01},
                             "linear-elastic"),
 }
@@ -271,10 +272,11 @@ def _score_builtin(name, case, pushes, opts, refs, out):
     rcase, res_ref = refs.get(reference_material_for(case, name), 1, "displacement")
     model = rcase.material.model
     kw = {**defaults, **opts}
-    if key == "admm" and "factorize" not in kw:
+    if key in ("admm", "mass-tensor") and "factorize" not in kw:
         from tissue_reference.fem_reference import cholmod_factor
 
-        kw["factorize"] = cholmod_factor  # the polish's tangents by CHOLMOD (PETSc)
+        # ADMM's polish tangents and the Mass Tensor direct solve by CHOLMOD (PETSc)
+        kw["factorize"] = cholmod_factor
     # run 1 (traced): error to the reference and largest displacement at every iteration
     trace = {"iteration": [], "max_error_mm": [], "max_step_mm": []}
     state = {"prev": None}

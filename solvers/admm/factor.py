@@ -5,12 +5,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse.linalg as spla
 
-
-def _spd_splu(A):
-    """SuperLU of a symmetric positive definite matrix: symmetric ordering, no pivoting (keeps
-    the fill of the minimum-degree ordering; ~4x faster solves than partial pivoting here)."""
-    return spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                     options={"SymmetricMode": True})
+from ..spd import spd_splu as _spd_splu
 
 
 def _sym_splu(A, cache=None, factorize=None):

@@ -63,14 +63,16 @@ def require_modeled(case) -> None:
     case.require_no_contact("the Mass Tensor solver")
 
 
-def solve(case, *, pushes=None, initial=None, method: str = "pcg", stop_mm: float = 0.01,
+def solve(case, *, pushes=None, initial=None, method: str = "direct", stop_mm: float = 0.01,
           max_iter: int = 200000, callback=None, progress: bool = False,
-          step_scale: float | None = None) -> SolveResult:
+          step_scale: float | None = None, factorize=None) -> SolveResult:
     """Mass Tensor solve of a Case (linear elasticity with the Case's E, nu, whatever its model).
 
-    pushes: actuator name -> push (mm); initial (n, d) mm warm start; method "pcg" | "descent";
-    stop_mm: stopping rule (largest per-vertex displacement in one iteration, mm); callback(it, u)
-    every iteration. Returns SolveResult(solver="mass-tensor"): u (n, d) mm, probes (mm),
+    pushes: actuator name -> push (mm); initial (n, d) mm warm start; method "direct" (default),
+    "pcg" | "descent" (``model.METHODS``); stop_mm: stopping rule of the iterations and of the
+    surface-sliding rounds (largest per-vertex displacement in one iteration, mm); callback(it, u)
+    every iteration; factorize: the direct solve's factorization hook
+    (``MassTensorModel.solve``). Returns SolveResult(solver="mass-tensor"): u (n, d) mm, probes (mm),
     reactions per Dirichlet region = sum over its prescribed directions of F(u) - f_ext (mN),
     strain_energy 1/2 u.F(u) (kPa mm^3), iterations, residual (largest free-direction force
     imbalance, mN), history={"max_step_mm": [...]}.
@@ -91,7 +93,8 @@ def solve(case, *, pushes=None, initial=None, method: str = "pcg", stop_mm: floa
             if _cb is not None:
                 _cb(it, u)
     sol = model.solve(types, f_ext=f, initial=initial, method=method, stop_mm=stop_mm,
-                      max_iter=max_iter, step_scale=step_scale, callback=cb)
+                      max_iter=max_iter, step_scale=step_scale, callback=cb,
+                      factorize=factorize)
     u = sol.u
     F = model.forces(u)
     r = F - f

@@ -4,12 +4,15 @@ common stopping rule (largest per-vertex move of one iteration below ``stop_mm``
 surface sliding (solve on frozen tangent planes, project, refresh) and the divergence checks."""
 from __future__ import annotations
 
+import hashlib
 import logging
 
 import numpy as np
+import scipy.sparse as sp
 
 from tissue_reference.meshes.errors import SolverDivergedError
 
+from ..spd import spd_splu
 from .tensors import _blockdiag
 
 log = logging.getLogger("tissue.mass_tensor")
@@ -18,15 +21,15 @@ log = logging.getLogger("tissue.mass_tensor")
 class _State:
     """Iteration bookkeeping shared by the phases of one solve."""
 
-    def __init__(self, model, f, stop_mm, max_iter, callback, step_scale):
+    def __init__(self, model, f, stop_mm, max_iter, callback, step_scale, factorize=None):
         self.model, self.f, self.stop = model, f, float(stop_mm)
+        self.factorize = factorize
         self.max_iter, self.callback, self.step_scale = int(max_iter), callback, step_scale
         self.K = model.matrix()
         self.it = 0
         self.steps: list = []
         self.residual = float("nan")
         self.ok = True
-        self.hnorm = np.linalg.norm(model.T_ii, ord=2, axis=(1, 2))   # ||T_ii||_2, mN/mm
         ext = np.ptp(model.points, axis=0).max() if len(model.points) else 1.0
         self.blowup = 1e6 * max(1.0, ext)
 
@@ -37,7 +40,7 @@ class _State:
     def _prec(self, types, P, method):
         """Per-vertex preconditioner blocks (n, d, d), restricted to the free directions."""
         if method == "descent":
-            return P / self.hnorm[:, None, None]
+            return P / self.model.vertex_norms()[:, None, None]
         T = self.model.T_ii
         c = np.trace(T, axis1=1, axis2=2)[:, None, None] / self.model.gdim
         NN = np.einsum("nla,nlb->nab", types.N, types.N)         # rows beyond m are zero
@@ -116,9 +119,62 @@ class _State:
 
         return proj, applyM, Kproj
 
+    # direct factorizations kept per model (one per pattern of point types)
+    KEPT_FACTORS = 4
+
+    def _factor(self, types, Pm):
+        """The factorization of P K P + I - P for ``types``' pattern, from the model's store or
+        made now."""
+        key = hashlib.sha1(np.ascontiguousarray(types.N).tobytes()
+                           + np.ascontiguousarray(types.m).tobytes()).hexdigest()
+        kept = self.model._factors
+        if key in kept:
+            return kept[key]
+        n, d = self.model.n_vertices, self.model.gdim
+        A = (Pm @ self.K @ Pm + sp.identity(n * d, format="csr") - Pm).tocsc()
+        A.sort_indices()
+        factor = self.factorize(A, {}) if self.factorize is not None else None
+        if factor is None:
+            try:
+                factor = spd_splu(A)
+            except RuntimeError as exc:   # singular: a free body part, nothing to hold it
+                self._diverged(f"the projected stiffness is singular ({exc}): a part of the body "
+                               f"free of every prescription", np.full((n, d), np.nan))
+            # without pivoting U's diagonal holds the pivots of A's LDL^T: all positive iff A is
+            # positive definite
+            pivots = factor.U.diagonal()
+            if not np.all(pivots > 0):
+                bad = np.zeros(n * d)
+                bad[factor.perm_c[np.flatnonzero(~(pivots > 0))]] = np.inf
+                self._diverged("the stiffness is not positive definite (a non-positive pivot of "
+                               "the projected tensors' factorization)", bad.reshape(n, d))
+        while len(kept) >= self.KEPT_FACTORS:
+            kept.pop(next(iter(kept)))
+        kept[key] = factor
+        return factor
+
+    def _direct(self, types, u):
+        """One exact solve on u = u_c + P w: (P K P + I - P) w = P (f - K u_c), whose matrix is
+        symmetric positive definite (the identity on the prescribed directions), factorized once
+        per pattern of point types."""
+        n, d = self.model.n_vertices, self.model.gdim
+        Pm = _blockdiag(types.projector())
+        uc = types.prescribed_part()
+        w = self._factor(types, Pm).solve(Pm @ (self.f - self.Kx(uc)).reshape(-1))
+        new = uc + (Pm @ w).reshape(n, d)
+        self.it += 1
+        move = np.linalg.norm(new - u, axis=1)
+        self.steps.append(float(move.max(initial=0.0)))
+        self.residual = float(np.abs(Pm @ (self.f - self.Kx(new)).reshape(-1)).max(initial=0.0))
+        if self.callback is not None:
+            self.callback(self.it, new)
+        return new
+
     def _linear(self, types, u, method, refresh=None):
         """Iterate on u = u_c + P w until the stopping rule (refresh: re-project surfaces each
-        iteration, descent only)."""
+        iteration, descent only); "direct": one exact solve."""
+        if method == "direct":
+            return self._direct(types, u)
         proj, applyM, Kproj = self._operators(types, method, fold=refresh is None)
         u = types.prescribed_part() + proj(u)
         r = proj(self.f - self.Kx(u))

@@ -14,6 +14,11 @@ from .iterations import _State
 from .point_types import PointTypes
 from .tensors import _bsr_from_blocks, stiffness_tensors
 
+METHODS = ("direct", "pcg", "descent")
+"""How a solve reaches equilibrium: "direct" (one sparse factorization of the projected tensors
+per phase or sliding round: the answer the iterations tend to, without their stopping error),
+"pcg" and "descent" (iterations stopped by the rule on the largest per-vertex move)."""
+
 
 @dataclass(frozen=True)
 class MTSolution:
@@ -52,6 +57,17 @@ class MassTensorModel:
         self.T_ii, self.edges, self.T_ij = stiffness_tensors(self.points, self.cells, self.mu,
                                                              self.lmbda)
         self._K = None
+        # direct solves: the factorization of the projected tensors per pattern of point types
+        # (which directions are prescribed where), kept while the model is: a solve with new
+        # prescribed values (another push) only back-substitutes
+        self._factors: dict = {}
+        self._norms = None
+
+    def vertex_norms(self) -> np.ndarray:
+        """||T_ii||_2 per vertex (mN/mm): the descent's step scale, computed once."""
+        if self._norms is None:
+            self._norms = np.linalg.norm(self.T_ii, ord=2, axis=(1, 2))
+        return self._norms
 
     # -- forces
     def forces(self, u) -> np.ndarray:
@@ -89,19 +105,22 @@ class MassTensorModel:
         return PointTypes(self.n_vertices, self.gdim, self.points)
 
     # -- solve
-    def solve(self, types: PointTypes, *, f_ext=None, initial=None, method: str = "pcg",
+    def solve(self, types: PointTypes, *, f_ext=None, initial=None, method: str = "direct",
               stop_mm: float = 0.01, max_iter: int = 200000, step_scale: float | None = None,
-              callback=None) -> MTSolution:
+              callback=None, factorize=None) -> MTSolution:
         """Quasi-static equilibrium with the given point types.
 
         f_ext (n, d) mN external nodal forces (default none); initial (n, d) mm warm start (its
-        prescribed components are replaced by the prescriptions); method "pcg" | "descent";
+        prescribed components are replaced by the prescriptions); method: one of ``METHODS``;
         stop when the largest per-vertex displacement in one iteration < stop_mm (mm);
         max_iter total iterations (converged=False when reached); step_scale: fixed descent
         step (see the package docstring); callback(it, u) after every iteration (u (n, d) mm).
+        factorize(A, cache): optional, method "direct": a factorization of the SPD matrix A with
+        ``solve(b)``, or None for SuperLU (e.g. ``fem_reference.cholmod_factor``, which this
+        package does not import).
         """
-        if method not in ("pcg", "descent"):
-            raise CaseError(f"unknown Mass Tensor method {method!r}; methods: ['pcg', 'descent']")
+        if method not in METHODS:
+            raise CaseError(f"unknown Mass Tensor method {method!r}; methods: {list(METHODS)}")
         if not (isinstance(stop_mm, (int, float)) and stop_mm > 0):
             raise CaseError(f"stop_mm must be > 0 mm, got {stop_mm!r}")
         if types.n != self.n_vertices or types.d != self.gdim:
@@ -110,7 +129,7 @@ class MassTensorModel:
         n, d = self.n_vertices, self.gdim
         f = np.zeros((n, d)) if f_ext is None else np.asarray(f_ext, float).reshape(n, d)
         u = np.zeros((n, d)) if initial is None else np.asarray(initial, float).reshape(n, d).copy()
-        state = _State(self, f, stop_mm, max_iter, callback, step_scale)
+        state = _State(self, f, stop_mm, max_iter, callback, step_scale, factorize)
         phases = []
         u = state.run(types, u, method)
         phases.append(state.it)
