@@ -81,8 +81,9 @@ class CaseVariantsMixin:
         actuators = tuple(replace(a, push=float(pushes[a.name])) if a.name in acts else a
                           for a in self.actuators)
         pushed = replace(self, boundaries=tuple(kept + added), actuators=actuators)
-        if "probe_locations" in self.__dict__:   # same mesh and probes: located once
-            pushed.__dict__["probe_locations"] = self.__dict__["probe_locations"]
+        # the same mesh and probes: the probes are located once, on this case, for every pushed
+        # one (a control loop or a verification run pushes one case many times)
+        pushed.__dict__["probe_locations"] = self.probe_locations
         return pushed
 
     def glued_unconverged(self) -> dict[str, str]:
