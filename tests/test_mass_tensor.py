@@ -454,3 +454,30 @@ def test_the_direct_solve_refuses_an_indefinite_stiffness(cube):
         cube.region_vertices("xmax"), (1.0, 0.0, 0.0))
     with pytest.raises(SolverDivergedError, match="not positive definite"):
         m.solve(pts, method="direct")
+
+
+def test_the_direct_solve_refuses_a_body_held_by_nothing(cube):
+    m = mt.MassTensorModel(cube.points, cube.cells, MAT)
+    with pytest.raises(SolverDivergedError, match="singular|not positive definite|runaway"):
+        m.solve(m.point_types(), f_ext=np.ones((cube.n_vertices, 3)), method="direct")
+
+
+def test_the_direct_solve_by_cholmod_equals_the_one_by_superlu():
+    """The command line's factorization hook (CHOLMOD through PETSc, from 500 unknowns on)
+    gives SuperLU's answer."""
+    from tissue_reference.fem_reference import cholmod_factor
+    from tissue_reference.solvers.mass_tensor import driver
+
+    case = stretch_case(box(2.0, lengths=(10.0, 10.0, 10.0)))
+    driver._MODELS.clear()
+    a = mt.solve(case)
+    driver._MODELS.clear()
+    used = []
+
+    def hook(A, cache):
+        f = cholmod_factor(A, cache)
+        used.append(f is not None)
+        return f
+
+    b = mt.solve(case, factorize=hook)
+    assert used == [True] and np.abs(a.u - b.u).max() < 1e-10

@@ -279,7 +279,7 @@ def case_from_args(args, *, size: float | None = None) -> Case:
     t0, meshed = time.perf_counter(), mesh_cache.builds()
     case = load_case(path, size=size, max_cells=max_cells)
     took = time.perf_counter() - t0
-    if mesh_cache.builds() > meshed and took > ANNOUNCE_LOAD_S \
+    if b is not None and mesh_cache.builds() > meshed and took > ANNOUNCE_LOAD_S \
             and not getattr(args, "quiet", False):
         later = "later runs read it from the mesh cache" if mesh_cache.cache_dir() is not None \
             else "the mesh cache is off (TISSUE_MESH_CACHE=off)"

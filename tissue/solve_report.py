@@ -223,9 +223,11 @@ def write_solve_report(case, res, out_dir, *, data: dict | None = None, stem: st
          "title": f"{title}: J = det F (smallest of the cells at each vertex)"},
     ], use_pyvista=use_pyvista)
     hist = out / f"{stem}_history.png"
-    history = image(hist.name, "load stepping and iteration history", None, 800) \
-        if _history_plot(res.history or {}, res.solver, hist) else "No iteration history."
-    view_u, view_J = pending.wait()
+    try:
+        history = image(hist.name, "load stepping and iteration history", None, 800) \
+            if _history_plot(res.history or {}, res.solver, hist) else "No iteration history."
+    finally:   # the child is collected (and its folder removed) whatever the plot did
+        view_u, view_J = pending.wait()
     figs = [image(Path(view_u["path"]).name, "deformed tissue coloured by |u|",
                   f"deformed tissue coloured by |u| (mm), drawn with {view_u['method']}", 640),
             image(Path(view_J["path"]).name, "deformed tissue coloured by J",

@@ -132,6 +132,14 @@ class PendingViews:
                 self._proc.kill()
                 self._proc.communicate()
                 why = f"{type(exc).__name__}: {exc}"
+        try:
+            return self._collect(points, cells, u, why)
+        finally:
+            if self._tmp is not None:
+                self._tmp.cleanup()
+                self._tmp = None
+
+    def _collect(self, points, cells, u, why) -> list[dict]:
         out = []
         for k, v in enumerate(self._views):
             png = Path(self._tmp.name) / f"view{k}.png" if self._tmp is not None else None
@@ -148,9 +156,6 @@ class PendingViews:
             _matplotlib(points, cells, u, v["scalar"], v["path"], v["title"], v["label"])
             out.append({"path": str(v["path"]), "method": "matplotlib",
                         "why": why or "no picture from pyvista"})
-        if self._tmp is not None:
-            self._tmp.cleanup()
-            self._tmp = None
         return out
 
 

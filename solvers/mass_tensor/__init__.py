@@ -102,6 +102,7 @@ from .driver import (
     _model_for,
     _reactions,
     case_point_types,
+    forget_factorizations,
     require_modeled,
     solve,
 )
@@ -119,6 +120,7 @@ __all__ = [
     "PointTypes",
     "TriSurface",
     "case_point_types",
+    "forget_factorizations",
     "require_modeled",
     "solve",
     "stiffness_tensors",

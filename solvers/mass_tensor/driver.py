@@ -57,6 +57,13 @@ def _model_for(case) -> MassTensorModel:
     return m
 
 
+def forget_factorizations() -> None:
+    """Drop the direct solve's kept factorizations (the tensors stay): the next solve of each
+    pattern of point types factorizes again, as a first solve does."""
+    for m in _MODELS.values():
+        m._factors.clear()
+
+
 def require_modeled(case) -> None:
     """NotModeledError when ``case`` has what this linear model cannot hold: a rigid tip's
     contact."""

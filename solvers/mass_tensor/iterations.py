@@ -145,9 +145,11 @@ class _State:
             pivots = factor.U.diagonal()
             if not np.all(pivots > 0):
                 bad = np.zeros(n * d)
-                bad[factor.perm_c[np.flatnonzero(~(pivots > 0))]] = np.inf
+                bad[~(pivots[factor.perm_c] > 0)] = np.inf   # pivot perm_c[k] is dof k's
                 self._diverged("the stiffness is not positive definite (a non-positive pivot of "
                                "the projected tensors' factorization)", bad.reshape(n, d))
+        if types.surface_of:   # a sliding round's tangent planes: used once, not kept
+            return factor
         while len(kept) >= self.KEPT_FACTORS:
             kept.pop(next(iter(kept)))
         kept[key] = factor
@@ -164,6 +166,9 @@ class _State:
         new = uc + (Pm @ w).reshape(n, d)
         self.it += 1
         move = np.linalg.norm(new - u, axis=1)
+        if not np.all(np.isfinite(move)) or move.max(initial=0.0) > self.blowup:
+            self._diverged("the direct solve gave a non-finite or runaway displacement (a "
+                           "part of the body held by nothing?)", new)
         self.steps.append(float(move.max(initial=0.0)))
         self.residual = float(np.abs(Pm @ (self.f - self.Kx(new)).reshape(-1)).max(initial=0.0))
         if self.callback is not None:
