@@ -35,10 +35,13 @@ when the ``PointTypes`` is built, with a ``CaseError`` naming the vertex.
 
 Solves (all on the same tensors):
 
-* ``method="direct"`` (default) -- one sparse factorization (SuperLU, minimum-degree ordering)
-  of the projected tensors, P K P + (I - P), symmetric positive definite, per phase (and per
-  round of surface sliding): the equilibrium the iterations below tend to, to round-off, so the
-  answer carries no stopping error. The iterations' rule (a largest per-vertex move below
+* ``method="direct"`` (default) -- one sparse factorization of the projected tensors,
+  P K P + (I - P), symmetric positive definite, per phase (and per round of surface sliding):
+  by the ``factorize`` hook when given (the command line and ``tissue verify`` pass CHOLMOD
+  through PETSc, ``fem_reference.cholmod_factor``), else SuperLU with a minimum-degree ordering.
+  The factorization is kept in the model for each pattern of point types, so another push is
+  one back-substitution. It is the equilibrium the iterations below tend to, to round-off, so
+  the answer carries no stopping error. The iterations' rule (a largest per-vertex move below
   ``stop_mm``) bounds the last step, not the error: PCG stopped there on the phantom was 0.047 mm
   from the exact answer at A1 = 10 mm (5,965 tets), above its own 0.01 mm.
 
