@@ -124,20 +124,22 @@ def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANT
              "path_size": path_size, "rim_size": rim_size, "base_rim_size": base_rim_size,
              "path_reach": path_reach}
     first = _phantom_once(size, actuators, out, **local)
-    if quality(first).min_dihedral_deg >= MIN_DIHEDRAL_DEG:
+    angle = quality(first).min_dihedral_deg
+    if angle >= MIN_DIHEDRAL_DEG:
         return first
     try:
         turned = _phantom_once(size, actuators, out, seam_turn_deg=SEAM_TURN_DEG, **local)
+        turned_angle = quality(turned).min_dihedral_deg
     except Exception as exc:   # noqa: BLE001 - OCC or gmsh failing on the turned plugs
         _LOG.warning("phantom at size %g mm: meshing with the plugs' seams turned failed (%s); "
                      "kept the first mesh, below the quality floor", size, exc)
-        return _phantom_once(size, actuators, out, **local) if out is not None else first
-    best = max(quality(turned).min_dihedral_deg, quality(first).min_dihedral_deg)
-    if best < MIN_DIHEDRAL_DEG:
+        turned, turned_angle = None, -math.inf
+    if max(angle, turned_angle) < MIN_DIHEDRAL_DEG:
         _LOG.warning("phantom at size %g mm: smallest dihedral angle %.1f degrees, below the "
-                     "quality floor of %g", size, best, MIN_DIHEDRAL_DEG)
-    if quality(turned).min_dihedral_deg >= quality(first).min_dihedral_deg:
+                     "quality floor of %g", size, max(angle, turned_angle), MIN_DIHEDRAL_DEG)
+    if turned_angle >= angle:
         return turned
+    # the first mesh is kept; a file written meanwhile by the second is written again
     return _phantom_once(size, actuators, out, **local) if out is not None else first
 
 

@@ -36,7 +36,7 @@ from tissue_reference.meshes.mesh import RUNAWAY_FACTOR
 __all__ = ["PROGRESS_FROM_CELLS", "SOLVER_NAMES", "add_case_args", "add_discretization_args",
            "body_diameter", "case_from_args", "check_outputs", "check_prescribed",
            "check_pushes", "integer",
-           "parse_pushes", "real", "report_validity", "run_solver"]
+           "parse_pushes", "real", "report_validity", "run_solver", "with_factorization"]
 
 SOLVER_NAMES = ("fem", "admm", "mass-tensor")
 PROGRESS_FROM_CELLS = 100_000
@@ -309,19 +309,29 @@ def run_solver(name: str, case: Case, *, degree: int | None = None, formulation:
                         f"--formulation mixed apply to the reference (--solver fem)")
     if name == "admm":
         from tissue_reference.solvers.admm import solve
-        if "factorize" not in kw:
-            from tissue_reference.fem_reference import cholmod_factor
-
-            kw["factorize"] = cholmod_factor  # the polish's tangents by CHOLMOD (PETSc)
     elif name == "mass-tensor":
         from tissue_reference.solvers.mass_tensor import solve
-        if "factorize" not in kw and kw.get("method", "direct") == "direct":
-            from tissue_reference.fem_reference import cholmod_factor
-
-            kw["factorize"] = cholmod_factor  # its direct solve by CHOLMOD (PETSc)
     else:
         raise CaseError(f"unknown solver {name!r}; solvers: {list(SOLVER_NAMES)}")
-    return solve(case, pushes=pushes, initial=initial, progress=progress, **kw)
+    return solve(case, pushes=pushes, initial=initial, progress=progress,
+                 **with_factorization(name, kw))
+
+
+FACTORIZED_SOLVERS = ("admm", "mass-tensor")
+"""The built-in fast solvers that take a ``factorize`` hook: ADMM (its polish's tangents) and the
+Mass Tensor Method (its direct solve)."""
+
+
+def with_factorization(solver: str, options: dict) -> dict:
+    """``options`` of the built-in fast solver ``solver`` with CHOLMOD through PETSc
+    (``fem_reference.cholmod_factor``) as its ``factorize`` hook, where it takes one and none was
+    given: the fast solvers import no PETSc themselves."""
+    if solver not in FACTORIZED_SOLVERS or "factorize" in options:
+        return options
+    # the reference layer (dolfinx, PETSc) is imported only when a solve needs it
+    from tissue_reference.fem_reference import cholmod_factor
+
+    return {**options, "factorize": cholmod_factor}
 
 
 def report_validity(command: str, res, what: str = "the answer") -> int:

@@ -40,6 +40,7 @@ from tissue_reference.meshes.errors import CaseError, TissueError
 from tissue_reference.meshes.results import material_json, write_json
 
 from . import closed_forms as cf
+from .common import with_factorization
 
 __all__ = ["PROBLEMS", "Problem", "run_suite"]
 
@@ -195,12 +196,7 @@ def _run_one(solver, problem):
         from tissue_reference.solvers import get_solver
 
         key, opts, _ = FAST_SOLVERS[solver]
-        opts = dict(opts)
-        if key == "admm":
-            from tissue_reference.fem_reference import cholmod_factor
-
-            opts["factorize"] = cholmod_factor
-        res = get_solver(key)(case, **opts)
+        res = get_solver(key)(case, **with_factorization(key, opts))
         return _value(problem, res.probes), res.iterations, res.converged, res.wall_time_s, \
             {"formulation": "displacement", "degree": 1}
     run = run_plugin(resolve_solver(solver), case, {})

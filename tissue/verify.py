@@ -40,6 +40,7 @@ from tissue_reference.meshes.mesh import deformation_state
 from tissue_reference.meshes.results import material_json, write_json
 from tissue_reference.solvers import SOLVERS, get_solver, solver_module
 
+from .common import with_factorization
 from .plugins import resolve_solver, run_plugin
 from .scoring import Field, field_from_array, load_field, score_field
 from .verify_report import write_report as _write_report
@@ -271,12 +272,7 @@ def _score_builtin(name, case, pushes, opts, refs, out):
         return None, None
     rcase, res_ref = refs.get(reference_material_for(case, name), 1, "displacement")
     model = rcase.material.model
-    kw = {**defaults, **opts}
-    if key in ("admm", "mass-tensor") and "factorize" not in kw:
-        from tissue_reference.fem_reference import cholmod_factor
-
-        # ADMM's polish tangents and the Mass Tensor direct solve by CHOLMOD (PETSc)
-        kw["factorize"] = cholmod_factor
+    kw = with_factorization(key, {**defaults, **opts})
     # run 1 (traced): error to the reference and largest displacement at every iteration
     trace = {"iteration": [], "max_error_mm": [], "max_step_mm": []}
     state = {"prev": None}

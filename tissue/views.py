@@ -120,6 +120,11 @@ class PendingViews:
         self._views = views
         self._proc, self._tmp, self._why = proc, tmp, why
 
+    @staticmethod
+    def png(folder: str, k: int) -> Path:
+        """Where the child process writes view ``k`` in its temporary ``folder``."""
+        return Path(folder) / f"view{k}.png"
+
     def wait(self) -> list[dict]:
         points, cells, u = self._args
         why = self._why
@@ -142,7 +147,7 @@ class PendingViews:
     def _collect(self, points, cells, u, why) -> list[dict]:
         out = []
         for k, v in enumerate(self._views):
-            png = Path(self._tmp.name) / f"view{k}.png" if self._tmp is not None else None
+            png = self.png(self._tmp.name, k) if self._tmp is not None else None
             if self._proc is not None and why is None and png.is_file() \
                     and png.stat().st_size > 0:
                 with atomic_path(v["path"]) as tmp:
@@ -176,7 +181,7 @@ def start_views(mesh, u, views, *, use_pyvista: bool = True) -> PendingViews:
     npz = Path(tmp.name) / "views.npz"
     np.savez(npz, points=points, cells=cells, u=u,
              scalars=np.stack([v["scalar"] for v in views]))
-    spec = [(str(Path(tmp.name) / f"view{k}.png"), v["title"], v["label"])
+    spec = [(str(PendingViews.png(tmp.name, k)), v["title"], v["label"])
             for k, v in enumerate(views)]
     env = {**os.environ, "PYVISTA_OFF_SCREEN": "true"}
     try:
