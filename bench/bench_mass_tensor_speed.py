@@ -20,7 +20,7 @@ import warnings
 import numpy as np
 
 from tissue_reference.fem_reference import cholmod_factor
-from tissue_reference.fem_reference.kept import solve as reference_solve
+from tissue_reference.fem_reference import solve as reference_solve
 from tissue_reference.meshes.answer_warnings import TissueWarning
 from tissue_reference.meshes.case import load_case
 from tissue_reference.solvers import mass_tensor as mt

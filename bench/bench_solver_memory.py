@@ -4,7 +4,7 @@ when every solver is closed (``ReferenceSolver.close``, ``with ... as s``) and w
 dropped (its Python objects gone, collected), in one run, closed first.
 
 petsc4py queues a dropped PETSc object of a parallel communicator until
-``PETSc.garbage_cleanup`` runs on that communicator (``fem_reference.kept``), so a dropped
+``PETSc.garbage_cleanup`` runs on that communicator (``fem_reference.petsc_memory``), so a dropped
 solver's tangent and MUMPS factor stay resident until the process ends.
 
     .venv/bin/python bench/bench_solver_memory.py [--degree 3] [--solves 4] [--push 2]

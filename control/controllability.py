@@ -33,6 +33,9 @@ from scipy.optimize import linprog, nnls
 
 from tissue_reference.meshes.errors import CaseError, TissueError
 
+from .jacobian import dirichlet_jacobian, point_matrix
+from .mpc import quiet_qpoases
+
 log = logging.getLogger("tissue.control")
 
 __all__ = [
@@ -172,7 +175,6 @@ def inverse_push(Js, p, *, solver="highs", tol=1e-7):
 def _travel_lp_casadi(Js, p_star, plugin):
     import casadi as ca
 
-    from .mpc import quiet_qpoases
 
     _, r = Js.shape
     qp = {"h": ca.DM(r, r).sparsity(), "a": ca.DM(Js).sparsity()}
@@ -231,7 +233,6 @@ def manipulability_map(case, K, *, plane_z=15.0, spacing=4.0, tasks=(1, 2, 3), s
     "reachable": grid mask}."""
     import scipy.sparse as sp
 
-    from .jacobian import dirichlet_jacobian, point_matrix
 
     if not (np.isfinite(spacing) and spacing > 0):
         raise CaseError(f"map spacing must be > 0 mm, got {spacing!r}")

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.meshes.io import save_figure
 
 from .controllability import UnreachableGoalError, inverse_push, task_goal
 from .jacobian import dirichlet_jacobian
@@ -322,7 +323,6 @@ def plot_response(result: LoopResult, path, *, title=None):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from tissue_reference.meshes.io import save_figure
 
     fig, ax = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
     t = result.time_s

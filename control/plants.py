@@ -13,6 +13,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tissue_reference.control.jacobian import (
+    ControlJacobian,
+    dirichlet_jacobian,
+    fd_jacobian,
+    full_pushes,
+    max_rel_error,
+    p2_interpolation,
+    p2_region_nodes,
+)
+from tissue_reference.meshes.case import E_RANGE_KPA
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import material_json
 from tissue_reference.solvers.admm import prepare
@@ -41,8 +51,12 @@ def solver_description(name: str, case, *, degree: int | None = None,
     controls, which the control layer leaves at their defaults, or ``ADMM_CONTROL_OPTIONS``)."""
 
     if name == "fem":
+        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
+        from tissue_reference.fem_reference.discretization import (
+            default_degree,
+            resolve_formulation,
+        )
         from tissue_reference.fem_reference.newton import settings_json
-        from tissue_reference.fem_reference.solver import default_degree, resolve_formulation
 
         form = resolve_formulation(formulation, case.material)
         p = degree if degree is not None else default_degree(case, form)
@@ -63,6 +77,7 @@ def plant_for(name: str, *, degree: int | None = None, tight: bool = True):
     """plant(case, pushes, initial_u) -> SolveResult for solver ``name`` (fem | admm).
     tight: ADMM with ``ADMM_CONTROL_OPTIONS`` (else the solver's defaults)."""
     if name == "fem":
+        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
         from tissue_reference.fem_reference import solve
 
         return _full_warm_start(lambda case, pushes, initial: solve(
@@ -79,6 +94,7 @@ def plant_for(name: str, *, degree: int | None = None, tight: bool = True):
 def tangent_for(name: str):
     """tangent(case, u) -> CSR K (P1, node-major, Case numbering) for solver ``name``."""
     if name == "fem":
+        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
         from tissue_reference.fem_reference import tangent_stiffness
 
         return lambda case, u: tangent_stiffness(case, u).K
@@ -104,6 +120,7 @@ def reference_state(case, state_pushes, *, degree=None, formulation="auto"):
 def _solved_reference(case, state_pushes, degree, formulation):
     """(ReferenceSolver left at its converged state at ``state_pushes``, that SolveResult,
     plant(case, pushes, initial) re-solving with the same solver)."""
+    # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
     from tissue_reference.fem_reference import ReferenceSolver
 
     s = ReferenceSolver(case, degree=degree, formulation=formulation)
@@ -140,16 +157,6 @@ def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="a
     """J_s at ``state_pushes`` from the solver's exact tangent and, when fd_h > 0, its max relative
     error against central finite differences (step fd_h mm) of the same solver's nonlinear solve.
     actuators: the columns (default: every actuator of the Case; the others are held)."""
-    from tissue_reference.control.jacobian import (
-        ControlJacobian,
-        dirichlet_jacobian,
-        fd_jacobian,
-        full_pushes,
-        max_rel_error,
-        p2_interpolation,
-        p2_region_nodes,
-    )
-
     if degree not in (None, 1, 2):
         raise CaseError(f"--degree must be 1 or 2, got {degree}")
     if solver != "fem" and (degree == 2 or formulation == "mixed"):
@@ -162,6 +169,7 @@ def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="a
         raise CaseError(f"the Jacobian's actuators {names} mix indenters and glued patches: ask "
                         f"for the columns of one kind at a time (--actuators)")
     if solver == "fem" and tips & set(names):
+        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
         from tissue_reference.fem_reference.contact_jacobian import indenter_jacobian
 
         s, res, plant = _solved_reference(case, st, degree, formulation)
@@ -261,8 +269,6 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
     ``model_E_factor``. When model and plant coincide the model reuses the plant's solutions.
     ``scenario`` names the mismatch in the metadata. ``model_update``: MODEL_UPDATES (an ADMM
     model on glued patches that is not the plant itself; other models always solve)."""
-    from tissue_reference.meshes.case import E_RANGE_KPA
-
     if not (np.isfinite(model_E_factor) and model_E_factor > 0):
         raise CaseError(f"model E factor must be > 0, got {model_E_factor}")
     E = case.material.E * model_E_factor
@@ -350,6 +356,7 @@ def indenter_sensitivity(degree: int | None = None):
     ``pushes`` that starts from ``u`` (the model's answer there: the warm start is the state),
     each tip at least PRESS_WIDTHS of its smoothing widths in (``pressing``)."""
     def sensitivity(case, pushes, u, target):
+        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
         from tissue_reference.fem_reference.contact_jacobian import indenter_jacobian
         from tissue_reference.fem_reference.kept import solver_for
 

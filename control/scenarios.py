@@ -11,6 +11,7 @@ import numpy as np
 
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 
+from .loop import solve_checked
 from .plants import LoopSetup, build_loop
 
 __all__ = ["GRAVITY_MM_S2", "PLANT_NU", "SCENARIOS", "check_contact_plant",
@@ -185,8 +186,6 @@ def _check_plant_at_rest(loop, plant_case):
     """Solve the contact plant with every tip at its start: a plant whose skin is meshed too
     coarsely for its tips is invalid before any push (a tip between the skin's nodes), and every
     loop of the scenario would stop on its first step; say so once, before any loop runs."""
-    from .loop import solve_checked
-
     rest = {a.name: 0.0 for a in plant_case.actuators}
     try:
         solve_checked(loop.plant, plant_case, rest, None, "the contact plant")

@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from tissue_reference.control.controllability import UnreachableGoalError
+from tissue_reference.control.loop import LoopStopped, plot_response
 from tissue_reference.meshes.errors import ConvergenceError, TissueWarning
 from tissue_reference.meshes.html_page import Raw, image, kv_table, page, table, write_page
 from tissue_reference.meshes.io import atomic_path, save_figure
@@ -155,8 +157,6 @@ def write_table1(out, meta, rows, n_expected):
 def run_one(loop, t, task, settings, out, plots: bool = True) -> tuple[dict, str]:
     """One scenario of Table I on ``loop``: (its row, its progress line); a time-response PNG
     in ``out`` when it completes and ``plots``."""
-    from tissue_reference.control.controllability import UnreachableGoalError
-    from tissue_reference.control.loop import LoopStopped, plot_response
 
     try:
         with threadpool_limits(limits=LOOP_BLAS_THREADS):

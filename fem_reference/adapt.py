@@ -77,6 +77,9 @@ from tissue_reference.meshes.refine import refine_uniform
 from tissue_reference.meshes.refine_local import dorfler_mark, refine_local
 from tissue_reference.meshes.results import SolveResult
 
+from .answer import solve
+from .convergence import load_study_case
+from .discretization import default_degree, resolve_formulation
 from .dof_counts import entity_counts, predicted_dofs, refined_counts
 from .estimate import ESTIMATE_RTOL, MAX_DEGREE, error_estimate
 from .indicators import energy_indicators
@@ -175,12 +178,8 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
     accuracy or a glued patch pushed past the range where its answers converge
     (``Case.glued_unconverged``), ConvergenceError when a solve fails.
     """
-    from .solver import default_degree, resolve_formulation
-
     t0 = time.perf_counter()
     if isinstance(case, (str, Path)):
-        from .convergence import load_study_case
-
         case, found = load_study_case(case)
         project = project if project is not None else found
     if not case.probes:
@@ -354,8 +353,6 @@ def _answer(case, degree, pushes, formulation, options, start):
     parents) of the coarser level (its enriched answer, carried to the refined mesh by
     ``transfer.prolong``), or from rest when there is none, when the warm start does not converge
     within WARM_ANSWER_ITERATIONS, or for the mixed formulation (its pressure is not carried)."""
-    from .solver import solve
-
     if start is not None and formulation == "displacement" and degree >= 2:
         ref = solver_for(case, degree, formulation=formulation, **options)
         try:

@@ -26,6 +26,7 @@ from tissue_reference.meshes.case import Case, load_case
 from tissue_reference.meshes.case_file import case_path
 from tissue_reference.meshes.converged_range import unconverged_load
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.meshes.io import save_figure
 from tissue_reference.meshes.mesh import MeshData
 from tissue_reference.meshes.refine import mesh_hierarchy, projector_for
 
@@ -43,6 +44,7 @@ from .richardson import (
     observed_order,
     richardson,
 )
+from .solver import ReferenceSolver
 
 __all__ = [
     "MAX_CELLS",
@@ -133,8 +135,6 @@ def refinement_study(case: Case, *, levels: int = MIN_LEVELS, degree: int = 1, p
     finest mesh would exceed it. solver_options: passed on as
     ``ReferenceSolver(case, degree=degree, **solver_options)``.
     """
-    from .solver import ReferenceSolver
-
     if meshes is None:
         check_budget(case.mesh.n_cells, case.mesh.gdim, levels, max_cells)
         meshes = mesh_hierarchy(case.mesh, levels, project=project)
@@ -305,7 +305,6 @@ def plot_studies(studies, path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from tissue_reference.meshes.io import save_figure
 
     path = Path(path)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))

@@ -15,6 +15,7 @@ import ufl
 from dolfinx.mesh import meshtags_from_entities
 from mpi4py import MPI
 
+from tissue_reference.meshes.curved import p2_cells, p2_facets
 from tissue_reference.meshes.mesh import MeshData
 
 __all__ = ["DolfinxMesh", "to_dolfinx"]
@@ -48,8 +49,6 @@ def to_dolfinx(md: MeshData, comm=MPI.COMM_WORLD, *, geometry_order: int = 1) ->
         values = np.concatenate([np.full(len(md.facet_regions[n]), tags[n], np.int32) for n in names]) \
             if names else np.zeros(0, np.int32)
         if geometry_order == 2:
-            from tissue_reference.meshes.curved import p2_cells, p2_facets
-
             x, cells, edges = p2_cells(md)
             facets = p2_facets(md, facets, edges)
     else:

@@ -51,8 +51,8 @@ from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.results import DynamicsResult
 
+from .discretization import default_degree, resolve_formulation
 from .kept import solver_for
-from .solver import default_degree, resolve_formulation
 
 __all__ = ["MASS_KINDS", "DynamicsResult", "simulate"]
 

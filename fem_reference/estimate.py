@@ -70,6 +70,11 @@ from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.results import SolveResult
 
+from .dof_counts import entity_counts, predicted_dofs
+from .kept import solver_for
+from .newton import NewtonSettings
+from .transfer import match_points, warm_newton
+
 __all__ = ["AUTO_MAX_DOFS", "ESTIMATE_METHOD", "ESTIMATE_RTOL", "MAX_DEGREE", "ErrorEstimate",
            "auto_estimate", "error_estimate", "estimate"]
 
@@ -166,10 +171,6 @@ def error_estimate(case: Case, result: SolveResult, *, pushes=None, progress: bo
     mesh, a degree-2 answer without its nodal state) and ConvergenceError when the enriched
     solve fails.
     """
-    from .kept import solver_for
-    from .newton import NewtonSettings
-    from .transfer import warm_newton
-
     t0 = time.perf_counter()
     if result.solver != "fem":
         raise CaseError(f"error estimates are for reference (fem) answers, got a "
@@ -233,22 +234,17 @@ def error_estimate(case: Case, result: SolveResult, *, pushes=None, progress: bo
                          geo > disc.get("geometry_order", 1), warm, wall, setup, ratio, enriched)
 
 
-def estimate(case: Case, result: SolveResult | None = None, *, pushes=None,
-             progress: bool = False, **solver_options) -> SolveResult:
-    """The reference answer with its estimated discretization error.
+def estimate(case: Case, result: SolveResult, *, pushes=None, progress: bool = False,
+             **solver_options) -> SolveResult:
+    """The reference answer ``result`` with its estimated discretization error.
 
-    result: a reference SolveResult of ``case`` with ``pushes`` (actuator name -> mm); None
-        solves it first: ``fem_reference.solve(case, pushes=pushes, **solver_options)`` (degree
-        and formulation among ``solver_options``).
+    result: a reference SolveResult of ``case`` with ``pushes`` (actuator name -> mm)
+        (``fem_reference.solve(..., estimate=True)`` solves and estimates in one call).
     Returns ``result`` with ``extra`` holding ``probe_error_estimates`` (probe -> mm, the norm of
     the estimated error vector), ``reaction_error_estimates`` (region -> mN),
     ``estimate_method`` ("p-enrichment"), ``estimate_cost_ratio`` (estimate wall time / solve
     wall time), the error vectors and the enriched discretization (``ErrorEstimate.extras``).
     """
-    if result is None:
-        from .solver import solve
-
-        result = solve(case, pushes=pushes, progress=progress, **solver_options)
     est = error_estimate(case, result, pushes=pushes, progress=progress, **solver_options)
     return dataclasses.replace(result, extra={**result.extra, **est.extras()})
 
@@ -282,7 +278,6 @@ def _no_auto_estimate(case: Case, result: SolveResult, max_dofs: int, options: d
     """Why ``auto_estimate`` does not estimate ``result`` (None: it does)."""
     from mpi4py import MPI
 
-    from .dof_counts import entity_counts, predicted_dofs
 
     if result.solver != "fem":
         return f"a {result.solver!r} answer: estimates are for reference answers"
@@ -304,18 +299,6 @@ def _no_auto_estimate(case: Case, result: SolveResult, max_dofs: int, options: d
     return None
 
 
-def _match(source: np.ndarray, target: np.ndarray, what: str) -> np.ndarray:
-    """Index into ``source`` (k, gdim) of each point of ``target`` (mm), equal to round-off."""
-    from scipy.spatial import cKDTree
-
-    dist, idx = cKDTree(source).query(target)
-    scale = max(1.0, float(np.abs(target).max(initial=0.0)))
-    if np.any(dist > 1e-9 * scale):
-        raise CaseError(f"{what}: {np.count_nonzero(dist > 1e-9 * scale)} nodes do not match "
-                        f"(largest distance {dist.max():.3g} mm)")
-    return idx
-
-
 def _lift(enriched, result: SolveResult) -> SolveResult:
     """The degree-p state of ``result`` interpolated into the enriched solver's spaces, as a
     SolveResult its ``solve(initial=...)`` takes: the nodal displacement (mm) in its Tangent node
@@ -334,20 +317,20 @@ def _lift(enriched, result: SolveResult) -> SolveResult:
     Vp = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", int(result.degree)))
     up = dolfinx.fem.Function(Vp)
     up.x.array.reshape(-1, gdim)[:] = np.asarray(node_u, float)[
-        _match(np.asarray(node_points, float), Vp.tabulate_dof_coordinates()[:, :gdim],
+        match_points(np.asarray(node_points, float), Vp.tabulate_dof_coordinates()[:, :gdim],
                f"the degree-{result.degree} answer's nodes")]
     uq = dolfinx.fem.Function(enriched.V)
     uq.interpolate(up)
     points = enriched.node_points()
     own = enriched.V.tabulate_dof_coordinates()[:, :gdim]
-    state = {"node_u": uq.x.array.reshape(-1, gdim)[_match(own, points, "the enriched nodes")],
+    state = {"node_u": uq.x.array.reshape(-1, gdim)[match_points(own, points, "the enriched nodes")],
              "node_points": points}
     pressure = result.extra.get("pressure")
     if enriched.Q is not None and pressure is not None:
         Q1 = dolfinx.fem.FunctionSpace(mesh, ("Lagrange", 1))
         p1 = dolfinx.fem.Function(Q1)
         p1.x.array[:] = np.asarray(pressure, float)[
-            _match(enriched.case.mesh.points, Q1.tabulate_dof_coordinates()[:, :gdim],
+            match_points(enriched.case.mesh.points, Q1.tabulate_dof_coordinates()[:, :gdim],
                    "the pressure's vertices")]
         state["pressure"] = p1
     return dataclasses.replace(result, degree=enriched.degree, extra=state)

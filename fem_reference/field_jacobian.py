@@ -14,6 +14,8 @@ import itertools
 
 import numpy as np
 
+from .transfer import dolfinx_cells
+
 __all__ = ["LATTICE_ORDER", "cell_min_J", "lattice_points"]
 
 LATTICE_ORDER = 3
@@ -35,7 +37,6 @@ def cell_min_J(solver) -> np.ndarray:
     import dolfinx
     import ufl
 
-    from .transfer import dolfinx_cells
 
     mesh = solver.dm.mesh
     tdim = mesh.topology.dim

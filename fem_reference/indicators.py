@@ -32,6 +32,8 @@ from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import SolveResult
 
+from .transfer import dolfinx_cells, field
+
 __all__ = ["INDICATOR", "energy_indicators"]
 
 INDICATOR = "energy"
@@ -49,7 +51,6 @@ def energy_indicators(case: Case, answer: SolveResult, estimate) -> np.ndarray:
     import dolfinx.fem.petsc
     import ufl
 
-    from .transfer import dolfinx_cells, field
 
     solver = getattr(estimate, "solver", None)
     if solver is None:

@@ -21,6 +21,9 @@ import dataclasses
 
 from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.results import SolveResult
+from tissue_reference.meshes.tips import default_contact_rule, default_tip_start
+
+from .discretization import default_degree
 
 __all__ = ["PUSH_TOL", "accuracy_line", "describe", "measured_accuracy", "unmatched_note",
            "with_measured_accuracy"]
@@ -32,8 +35,6 @@ PUSH_TOL = 1e-9
 def _start(case: Case, result: SolveResult) -> str:
     """Where ``result``'s indenters started ("nodes" or "surface"); the case's without
     indenters."""
-    from .solver import default_tip_start
-
     for report in (result.extra.get("indenters") or {}).values():
         return report.get("started_on", "nodes")
     return default_tip_start(case)
@@ -44,8 +45,6 @@ def _rule(case: Case, result: SolveResult):
     indenters."""
     for report in (result.extra.get("indenters") or {}).values():
         return report.get("quadrature", "nodal")
-    from .solver import default_contact_rule
-
     return default_contact_rule(case)
 
 
@@ -68,8 +67,6 @@ def _same_discretization(case: Case, result: SolveResult, row: dict) -> bool:
     """Whether ``row`` was measured on ``result``'s discretization: its unknowns, degree and
     contact rule and where its indenters started (a row's degree and rule default to the case's,
     its start to the case's or, where the case names none, to the one of the row's rule)."""
-    from .solver import default_contact_rule, default_degree, default_tip_start
-
     disc = result.extra.get("discretization") or {}
     degree = row.get("degree", default_degree(case, disc.get("formulation", "displacement")))
     rule = row.get("contact_quadrature", default_contact_rule(case))

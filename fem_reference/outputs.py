@@ -20,6 +20,7 @@ from tissue_reference.meshes.mesh import deformation_state
 from tissue_reference.meshes.results import SolveResult
 from tissue_reference.meshes.tips import through_surface_state
 
+from .field_jacobian import cell_min_J
 from .outputs_state import StateMixin
 from .outputs_tangent import Tangent, TangentMixin
 
@@ -100,7 +101,6 @@ class OutputsMixin(StateMixin, TangentMixin):
         None at degree 1 (J is constant in a cell: the vertices give it) and under MPI."""
         if self.degree < 2 or self.comm.size > 1:
             return None
-        from .field_jacobian import cell_min_J
 
         return cell_min_J(self)
 

@@ -18,6 +18,8 @@ from petsc4py import PETSc
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import SolveResult
 
+from .forms import mixed_energy_density
+
 __all__ = ["StateMixin"]
 
 
@@ -82,7 +84,6 @@ class StateMixin:
         """p solving the mixed form's pressure equation at ``u``: int (vol(u) + p/kappa) q = 0."""
         import ufl
 
-        from .forms import mixed_energy_density
 
         if getattr(self, "_pproj", None) is None:
             dx = ufl.Measure("dx", domain=self.dm.mesh, metadata={"quadrature_degree": self.qdeg})

@@ -12,8 +12,9 @@ numbering and identical on all ranks.
 The concerns live in their own modules, mixed into ReferenceSolver: ``forms`` (energies),
 ``boundary`` (Dirichlet conditions), ``newton`` (Newton and load stepping; its settings in
 ``newton_settings``), ``linalg`` (factorizations and Krylov solves), ``outputs`` (states,
-probes, reactions, tangent export). ``kept`` holds the one-call ``solve`` and
-``tangent_stiffness``, which reuse solvers, and frees a solver's PETSc memory (``close``).
+probes, reactions, tangent export); its defaults (degree, formulation, quadrature) are
+``discretization``'s. ``kept`` keeps solvers for reuse and ``answer`` composes the one-call
+``solve``; ``petsc_memory`` frees a solver's PETSc memory (``close``).
 """
 from __future__ import annotations
 
@@ -34,13 +35,20 @@ from tissue_reference.meshes.tips import default_contact_rule, default_tip_start
 
 from .boundary import BoundaryMixin
 from .contact import DEFAULT_CONTACT_PENALTY, Contact
+from .discretization import (
+    DEFAULT_QUADRATURE,
+    FORMULATIONS,
+    MIXED_FROM_NU,
+    default_degree,
+    resolve_formulation,
+)
 from .dolfinx_mesh import DolfinxMesh, to_dolfinx
 from .forms import mixed_energy_density, strain_energy_density
-from .kept import release_petsc_garbage, solve, tangent_stiffness
 from .linalg import FIELDSPLIT_ABOVE_DOFS, LAGGED_ABOVE_DOFS, LinearSolveMixin, _has_cholmod
 from .logs import install_log_filters
 from .newton import NewtonMixin, NewtonSettings, _Timings
 from .outputs import OutputsMixin, Tangent
+from .petsc_memory import release_petsc_garbage
 
 __all__ = [
     "DEFAULT_QUADRATURE",
@@ -50,41 +58,10 @@ __all__ = [
     "ReferenceSolver",
     "Tangent",
     "resolve_formulation",
-    "solve",
-    "tangent_stiffness",
 ]
 
 log = logging.getLogger("tissue.fem")
 install_log_filters()
-
-# Quadrature degree per Lagrange degree. P1: F is constant per cell, degree 1 integrates the
-# energy and the body-force term exactly. P2: F is linear; psi is not polynomial, degree 4 is
-# checked against degree 6 in tests (UFL would estimate ~ 146 points per cell for J**(-2/3)).
-# P3 (used to estimate the error of P2 answers): F is quadratic, degree 6.
-DEFAULT_QUADRATURE = {1: 1, 2: 4, 3: 6}
-FORMULATIONS = ("auto", "displacement", "mixed")
-# "auto" picks the mixed u-p formulation from this Poisson ratio up: displacement elements lock
-# (P1) or show pressure oscillations in their reactions (P2) as nu -> 0.5.
-MIXED_FROM_NU = 0.49
-
-
-def resolve_formulation(formulation: str, material: Material) -> str:
-    """"displacement" or "mixed" for a requested ``formulation`` in FORMULATIONS: "auto" is mixed
-    for nu >= MIXED_FROM_NU, displacement below."""
-    if formulation not in FORMULATIONS:
-        raise CaseError(f"formulation must be one of {list(FORMULATIONS)}, got {formulation!r}")
-    if formulation == "auto":
-        return "mixed" if material.nu >= MIXED_FROM_NU else "displacement"
-    return formulation
-
-
-def default_degree(case: Case, formulation: str) -> int:
-    """The displacement degree of a solve that names none: the case's own (``[reference]
-    degree``), else 2 for the mixed formulation (Taylor-Hood) and 1 for displacement."""
-    if case.reference_degree is not None:
-        return int(case.reference_degree)
-    return 2 if formulation == "mixed" else 1
-
 
 class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin):
     """Neo-Hookean / linear-elastic reference on one Case mesh; build once, solve many times.
@@ -291,7 +268,7 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
     def close(self) -> None:
         """Free the solver's matrices, vectors and factorizations now; it cannot solve again.
         Collective: every rank calls it. Without it they are freed only at the process's end
-        (petsc4py defers destroying them: ``kept``). Also ``with ReferenceSolver(...) as s:``."""
+        (petsc4py defers destroying them: ``petsc_memory``). Also ``with ReferenceSolver(...) as s:``."""
         if self.__dict__.get("_closed"):
             return
         mesh = self.dm.mesh   # holds its communicator (freed with it) through the cleanup

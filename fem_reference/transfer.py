@@ -17,11 +17,22 @@ import contextlib
 import dataclasses
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import SolveResult
 
-__all__ = ["WARM_LINE_SEARCH", "dolfinx_cells", "field", "prolong", "warm_newton"]
+__all__ = ["WARM_LINE_SEARCH", "dolfinx_cells", "field", "match_points", "prolong", "warm_newton"]
+
+
+def match_points(source: np.ndarray, target: np.ndarray, what: str) -> np.ndarray:
+    """Index into ``source`` (k, gdim) of each point of ``target`` (mm), equal to round-off."""
+    dist, idx = cKDTree(source).query(target)
+    scale = max(1.0, float(np.abs(target).max(initial=0.0)))
+    if np.any(dist > 1e-9 * scale):
+        raise CaseError(f"{what}: {np.count_nonzero(dist > 1e-9 * scale)} nodes do not match "
+                        f"(largest distance {dist.max():.3g} mm)")
+    return idx
 
 
 def dolfinx_cells(solver) -> np.ndarray:
@@ -91,8 +102,6 @@ def field(solver, result: SolveResult):
     lower)."""
     import dolfinx.fem
 
-    from .estimate import _match
-
     gdim = solver.gdim
     p = int(result.degree)
     mesh = solver.dm.mesh
@@ -102,14 +111,14 @@ def field(solver, result: SolveResult):
     xp = Vp.tabulate_dof_coordinates()[:, :gdim]
     if p == 1:
         up.x.array.reshape(-1, gdim)[:] = np.asarray(result.u, float)[
-            _match(solver.case.mesh.points, xp, "the answer's vertices")]
+            match_points(solver.case.mesh.points, xp, "the answer's vertices")]
     else:
         node_u, node_points = result.extra.get("node_u"), result.extra.get("node_points")
         if node_u is None or node_points is None:
             raise CaseError(f"a degree-{p} answer without its nodal state (extra['node_u'], "
                             f"serial solves only)")
         up.x.array.reshape(-1, gdim)[:] = np.asarray(node_u, float)[
-            _match(np.asarray(node_points, float), xp, f"the degree-{p} answer's nodes")]
+            match_points(np.asarray(node_points, float), xp, f"the degree-{p} answer's nodes")]
     if Vp is solver.V:
         return up
     u = dolfinx.fem.Function(solver.V)
@@ -124,8 +133,6 @@ def prolong(coarse_solver, coarse: SolveResult, fine_solver, parents) -> SolveRe
 
     parents: (fine cells,) the coarse cell (Case numbering) of each fine cell.
     """
-    from .estimate import _match
-
     if coarse_solver.Q is not None or fine_solver.Q is not None:
         raise CaseError("prolong: the mixed formulation's pressure is not transferred")
     gdim = fine_solver.gdim
@@ -145,7 +152,7 @@ def prolong(coarse_solver, coarse: SolveResult, fine_solver, parents) -> SolveRe
     x = V.tabulate_dof_coordinates()
     values = _evaluate(u, owner, x[:, :gdim])
     points = fine_solver.node_points()
-    node_u = values[_match(x[:, :gdim], points, "the refined nodes")]
+    node_u = values[match_points(x[:, :gdim], points, "the refined nodes")]
     return SolveResult(u=node_u[:fine_solver.case.mesh.n_vertices].copy(), converged=True,
                        iterations=0, residual=0.0, wall_time_s=0.0, solver="fem",
                        degree=fine_solver.degree, case_name=coarse.case_name,

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tissue_reference.meshes.builders import _finish, _gmsh_session
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.mesh import MeshData, boundary_facets, cell_volumes
 
@@ -94,8 +95,6 @@ def implant_mesh(spec: ImplantSpec, *, size: float | None = None) -> MeshData:
     Facet regions: ``base`` (ground plane, z = 0) and ``shell`` (the upper surface).
     ``size``: target edge length (default: width / 16; the chordal volume deficit is ~0.8%).
     """
-    from tissue_reference.meshes.builders import _finish, _gmsh_session
-
     w, h, p = spec.dimensions()
     size = float(size) if size is not None else w / 16.0
     with _gmsh_session("implant", size) as gmsh:

@@ -20,6 +20,7 @@ import numpy as np
 from tissue_reference.meshes.case import Material
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.mesh import MeshData
+from tissue_reference.solvers import mass_tensor as mt
 
 from .library import ImplantSpec, implant_mesh
 from .placement import (
@@ -31,7 +32,7 @@ from .placement import (
     tissue_boundary_conditions,
 )
 from .rbf import MuscleFit, Thickness, muscle_surface
-from .surface import TriSurface, check_single_sheet, read_surface
+from .surface import TriSurface, check_single_sheet, read_surface, triangle_normals
 from .torso import SyntheticTorso, tissue_mesh
 
 __all__ = [
@@ -93,7 +94,6 @@ def patient_from_file(path, A: float, B: float, C: float, *, x_planes=None,
         x_planes = (mid - 0.35 * span, mid, mid + 0.35 * span)
     th = Thickness(A, B, C, *map(float, x_planes))
     # orient the sheet so that its normals point anterior (+z) on average
-    from .surface import triangle_normals
 
     if triangle_normals(skin.points, skin.triangles)[:, 2].mean() < 0:
         skin = TriSurface(skin.points, skin.triangles[:, ::-1])
@@ -202,8 +202,6 @@ def build_tissue(patient: Patient, *, size: float | None = None) -> tuple[Muscle
 def plan_implant(patient: Patient, settings: PlanSettings = PlanSettings()) -> ImplantPlan:
     """Run seed 001's pipeline (see module docstring); every fit / input check happens before
     the first solve. Raises CaseError on bad input, SolverDivergedError if a solve diverges."""
-    from tissue_reference.solvers import mass_tensor as mt
-
     t0 = time.perf_counter()
     tm = {}
     spec = settings.spec

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tissue_reference.meshes.builders import _finish, _gmsh_session
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.mesh import MeshData, check_cells
 
@@ -163,8 +164,6 @@ def tissue_mesh(skin: TriSurface, muscle: TriSurface, *, size: float | None = No
 
     Returns MeshData with facet regions ``skin``, ``muscle``, ``sides`` and cell region ``tissue``.
     """
-    from tissue_reference.meshes.builders import _finish, _gmsh_session
-
     check_single_sheet(skin)
     if skin.points.shape != muscle.points.shape or not np.array_equal(skin.triangles,
                                                                        muscle.triangles):

@@ -66,6 +66,7 @@ from .builders_gmsh import _GMSH_STATE, _finish, _gmsh_session  # noqa: F401  (r
 from .errors import CaseError
 from .mesh import MeshData
 from .mesh_cache import cached
+from .projection import DomeProjection, ShellProjection
 
 __all__ = [
     "BUILDERS",
@@ -268,3 +269,20 @@ def _built(name, size, local, out):
     if out is not None or builder is not _SHIPPED.get(name):
         return builder(size, out=out, **local)
     return cached(name, size, local, lambda: builder(size, **local))
+
+
+def projector_for(builder: str):
+    """The boundary projection of a builtin mesh (``BUILDERS``): a
+    DomeProjection for the phantoms (whole, parts, symmetric, three actuators), a
+    ShellProjection for ``shell-octant``, None for the flat ``box`` and ``rectangle``."""
+    if builder not in BUILDERS:
+        raise CaseError(f"unknown mesh builder {builder!r}; builders: {sorted(BUILDERS)}")
+    if builder == "shell-octant":
+        return ShellProjection()
+    patches = {"phantom": ACTUATORS_4, "phantom-half": ACTUATORS_4,
+               "phantom-quarter": ACTUATORS_4, "phantom-symmetric": ACTUATORS_4,
+               "phantom-3": ACTUATORS_3}.get(builder)
+    if patches is None:
+        return None
+    g = PHANTOM
+    return DomeProjection(g.radius, g.height, g.actuator_height, g.patch_radius, tuple(patches))

@@ -25,6 +25,7 @@ from .errors import CaseError
 from .mesh import MeshData, quality
 from .mirror import mirror
 from .projection import dome_side_point
+from .writers import write_mesh
 
 _LOG = logging.getLogger("tissue.meshes")
 
@@ -388,8 +389,6 @@ def phantom_symmetric(size: float = 6.0, *, out=None, **local: float | None) -> 
     half = mirror(quarter, "sym_x0", 0, {"act_px": "act_nx", "T2": "T4"})
     whole = mirror(half, "sym_y0", 1, {"act_py": "act_ny", "T3": "T5"})
     if out is not None:
-        from .writers import write_mesh
-
         write_mesh(whole, out, all_regions=True)
     return whole
 

@@ -13,9 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .case import Actuator, Boundary, Case, Material, Probe, tip_start_for
+from .builders import LOCAL_SIZES, MAX_CELLS, build
+from .case_model import Actuator, Boundary, Case, Material, Probe, tip_start_for
 from .case_schema import case_schema, schema_errors, show, where
 from .errors import CaseError, CaseReadError, ReadError
+from .io import read_mesh
 from .mesh import MeshData, boundary_facets
 
 __all__ = ["PROBE_TOLERANCE", "SHIPPED_CASES", "case_path", "load_case", "shipped_cases",
@@ -93,8 +95,6 @@ def _read(path) -> dict:
 
 
 def _mesh(data, base: Path, src: str, size, max_cells=None) -> MeshData:
-    from .builders import LOCAL_SIZES, MAX_CELLS, build
-    from .io import read_mesh
 
     m = data["mesh"]
     if "file" in m:
@@ -268,7 +268,16 @@ def _probe_errors(case: Case, src: str) -> list[str]:
 # --------------------------------------------------------------------------- the loader
 def load_case(path, *, mesh: MeshData | None = None, size: float | None = None,
               max_cells: float | None = None) -> Case:
-    """Read a Case TOML file; ``meshes.case.load_case`` documents it and calls this."""
+    """Read a Case TOML file (mesh paths relative to the file; format: docs/case-file.md), or
+    a shipped case by its name from any working directory (``load_case("phantom-indenter")``;
+    ``case_path``).
+
+    ``mesh`` replaces the file's mesh (e.g. a refined one); ``size`` (mm) overrides a builtin's
+    size. ``max_cells``: a builtin mesh whose estimated cell count exceeds it is refused before
+    gmsh starts (default None: ``meshes.builders.MAX_CELLS``; math.inf: no limit). Any input
+    either loads or raises CaseError (CaseReadError when a file cannot be read), one line per
+    fault naming the file and the key.
+    """
     path = case_path(path)
     data = _read(path)
     src = str(Path(path))

@@ -20,7 +20,7 @@ from .case_parts import Boundary
 from .mesh import MeshData, cell_jacobians
 
 if TYPE_CHECKING:
-    from .case import Case
+    from .case_model import Case
 
 __all__ = ["GLUED_CONVERGED_RADII", "RIM_J_WARN", "CaseVariantsMixin", "patch_radius"]
 

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 from .case_variants import GLUED_CONVERGED_RADII, patch_radius
 
 if TYPE_CHECKING:
-    from .case import Case
+    from .case_model import Case
 
 __all__ = ["UNCONVERGED_RADII", "converged_push_limit", "converged_travel", "past_converged_depth",
            "unconverged_load"]

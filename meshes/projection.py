@@ -14,9 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import CaseError
-
-__all__ = ["DomeProjection", "ShellProjection", "dome_side_point", "projector_for"]
+__all__ = ["DomeProjection", "ShellProjection", "dome_side_point"]
 
 
 def dome_side_point(radius: float, height: float, z: float, azimuth_deg: float) -> np.ndarray:
@@ -130,22 +128,3 @@ class DomeProjection:
                         break
             x[idx] = y
         return x
-
-
-def projector_for(builder: str):
-    """The boundary projection of a builtin mesh (see ``meshes.builders.BUILDERS``): a
-    DomeProjection for the phantoms (whole, parts, symmetric, three actuators), a
-    ShellProjection for ``shell-octant``, None for the flat ``box`` and ``rectangle``."""
-    from .builders import ACTUATORS_3, ACTUATORS_4, BUILDERS, PHANTOM
-
-    if builder not in BUILDERS:
-        raise CaseError(f"unknown mesh builder {builder!r}; builders: {sorted(BUILDERS)}")
-    if builder == "shell-octant":
-        return ShellProjection()
-    patches = {"phantom": ACTUATORS_4, "phantom-half": ACTUATORS_4,
-               "phantom-quarter": ACTUATORS_4, "phantom-symmetric": ACTUATORS_4,
-               "phantom-3": ACTUATORS_3}.get(builder)
-    if patches is None:
-        return None
-    g = PHANTOM
-    return DomeProjection(g.radius, g.height, g.actuator_height, g.patch_radius, tuple(patches))

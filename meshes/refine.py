@@ -10,7 +10,7 @@ Without projection the children of an affine cell fill it exactly, so the volume
 A curved boundary is followed with ``project``: a callable ``project(x, regions) -> x'`` that
 receives the midpoints ``x`` (k, gdim) mm of the boundary edges and, for each, the frozenset of
 facet-region names of the boundary facets sharing that edge, and returns the points moved onto
-the true geometry. ``projector_for(builder)`` (``meshes.projection``) gives the one of each
+the true geometry. ``projector_for(builder)`` (``meshes.builders``) gives the one of each
 builtin mesh (None for the flat ``box`` and ``rectangle``). The old vertices never move (they
 lie on the boundary already), so the meshes stay nested away from the curved boundary. Since a
 midpoint can move by a good part of its edge (a patch rim drawn by a few chords goes onto its
@@ -30,10 +30,11 @@ from dataclasses import replace
 
 import numpy as np
 
+from .builders import projector_for
 from .curved import validate
 from .errors import CaseError, MeshQualityError
 from .mesh import MeshData, boundary_facets, check_cells, orient_cells
-from .projection import DomeProjection, ShellProjection, projector_for  # noqa: F401 (re-exported)
+from .projection import DomeProjection, ShellProjection  # noqa: F401 (re-exported)
 
 __all__ = ["DomeProjection", "curve_boundary", "mesh_hierarchy", "projector_for",
            "refine_uniform"]

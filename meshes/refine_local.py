@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .curved import validate
 from .errors import CaseError, MeshQualityError
 from .mesh import MeshData, cell_volumes, check_cells
 from .refine import _boundary_edges, _edge_keys, _harmonic_extension
@@ -298,8 +299,6 @@ def _place_boundary(old: MeshData, mesh: MeshData, split, mid_keys, project) -> 
             f"{'/'.join(sorted(breg[i]))}): the mesh is too coarse to follow that boundary; "
             f"start from a finer one") from None
     if curved:
-        from .curved import validate
-
         out, _ = validate(out)
     return out
 

@@ -8,7 +8,7 @@ it with ``meshio.xdmf.TimeSeriesReader``, and the VTU written beside field outpu
 are stored as field data, name -> [tag, dim].
 
 Writers are registered by suffix in ``WRITERS``; each writes to a temporary file in the target
-folder and renames it (``meshes.io.atomic_path``), so a file is written whole or not at all.
+folder and renames it (``meshes.files.atomic_path``), so a file is written whole or not at all.
 """
 from __future__ import annotations
 
@@ -19,14 +19,17 @@ from pathlib import Path
 
 import numpy as np
 
+from .curved import _MESHIO_EDGES, EDGES, FACET_EDGES, p2_cells, p2_facets
 from .errors import WriteError
-from .io import _CELL, _FACET, _why, atomic_path
+from .files import _why, atomic_path
 from .mesh import MeshData
 
 __all__ = ["REGION", "WRITERS", "region_tags", "write_mesh", "write_point_data"]
 
 REGION = "region"  # the integer cell field holding each cell's region tag
 XDMF_TIME = 0.0  # the time of the one step an XDMF file holds
+_CELL = {3: "tetra", 2: "triangle"}  # meshio's names of the cells and facets by dimension
+_FACET = {3: "triangle", 2: "line"}
 
 
 def region_tags(mesh: MeshData) -> list[tuple[str, int, int, np.ndarray]]:
@@ -186,8 +189,6 @@ def _second_order(mesh):
     """(nodes, cells, facets_of): a curved mesh's nodes (vertices first) and cells in meshio's
     second-order node order (tetra10 / triangle6), and a function giving a facet region's
     second-order facets (triangle6 / line3)."""
-    from .curved import _MESHIO_EDGES, EDGES, FACET_EDGES, p2_cells, p2_facets
-
     d = mesh.gdim
     x, cells, edges = p2_cells(mesh)
     order = [d + 1 + EDGES[d].index(e) for e in _MESHIO_EDGES[d]]

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import importlib
 
+from tissue_reference.meshes.errors import CaseError
+
 __all__ = ["SOLVERS", "get_solver", "solver_module"]
 
 # name -> module whose ``solve`` it is
@@ -23,8 +25,6 @@ def solver_module(name: str):
     try:
         modname = SOLVERS[name]
     except KeyError:
-        from tissue_reference.meshes.errors import CaseError
-
         raise CaseError(f"unknown fast solver {name!r}; solvers: {sorted(SOLVERS)}") from None
     return importlib.import_module(modname)
 

@@ -1,4 +1,4 @@
-"""Freeing a reference solver's PETSc memory (fem_reference.kept): petsc4py queues a dropped
+"""Freeing a reference solver's PETSc memory (fem_reference.petsc_memory, fem_reference.kept): petsc4py queues a dropped
 PETSc object of a parallel communicator until PETSc.garbage_cleanup runs on that communicator,
 so a dropped solver keeps its matrices and factor for the life of the process. A closed or
 forgotten solver leaves nothing queued; PETSc's own garbage listing is the witness."""
@@ -9,6 +9,7 @@ from petsc4py import PETSc
 
 import tissue_reference.fem_reference as fr
 from tissue_reference.fem_reference import kept
+from tissue_reference.fem_reference.petsc_memory import release_petsc_garbage
 from tissue_reference.meshes.case import load_case
 
 CASE = "meshes/cases/phantom.toml"
@@ -36,7 +37,7 @@ def test_a_dropped_solver_leaves_its_matrices_queued_and_a_closed_one_does_not(c
     gc.collect()
     # the tangent (on the mesh's communicator) and the factorizing KSP (on the solver's)
     assert _queued(dm.mesh.comm, capfd) >= 1 and _queued(comm, capfd) >= 1
-    kept.release_petsc_garbage(dm.mesh.comm, comm)
+    release_petsc_garbage(dm.mesh.comm, comm)
     assert _queued(dm.mesh.comm, capfd) + _queued(comm, capfd) == 0
 
     with fr.ReferenceSolver(case, degree=1) as s:

@@ -27,7 +27,7 @@ from tissue_reference.meshes.errors import TissueError, TissueWarning
 
 # Each module defines add_parser(subparsers) that registers its command(s) with set_defaults(func=...).
 COMMAND_MODULES = ["cmd_mesh", "cmd_solve", "cmd_verify", "cmd_converge", "cmd_jacobian",
-                   "cmd_control", "cmd_implant", "cmd_demo", "cmd_dynamics", "cmd_suite"]
+                   "cmd_control", "cmd_table1", "cmd_implant", "cmd_demo", "cmd_dynamics", "cmd_suite"]
 DISTRIBUTION = "tissue-reference"  # [project] name in pyproject.toml
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from .cli import build_parser
+
 __all__ = ["cli_markdown", "options_without_help"]
 
 EXIT_CODES = """Exit status (every command): 0 done; 1 an answer was computed but is not valid
@@ -47,8 +49,6 @@ def _cell(text) -> str:
 def cli_markdown(parser=None) -> str:
     """docs/cli.md as text."""
     if parser is None:
-        from .cli import build_parser
-
         parser = build_parser()
     out = ["<!-- generated from the tissue parser by tools/cli_doc.py; do not edit -->", "",
            "# Command-line reference", "",

@@ -13,113 +13,26 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_reference.control.mpc import WEIGHTS
-from tissue_reference.control.plants import MODEL_UPDATES, tangent_for
+from tissue_reference.control.controllability import UnreachableGoalError, manipulability_map
+from tissue_reference.control.loop import LoopStopped, plot_response
+from tissue_reference.control.plants import material_json, solver_description, tangent_for
 from tissue_reference.meshes.case_file import case_path
-from tissue_reference.meshes.converged_range import converged_push_limit
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.io import check_output_dir, check_output_file, save_figure
 from tissue_reference.meshes.results import write_json
 
 from .common import (
     add_case_args,
-    body_diameter,
     case_from_args,
     check_outputs,
-    check_prescribed,
-    integer,
     real,
 )
+from .loop_options import add_loop_args, loop_from_args
 from .manipulability_report import write_manipulability_report
 from .mpc_report import mpc_stem, write_mpc_report
 
 MAX_MAP_POINTS = 20_000
 """Grid points of one manipulability map at most (each is a small linear program)."""
-
-
-_POSITIVE_MM = real("positive", "mm, or auto")
-
-
-def _travel(text):
-    """--max-travel: a positive push limit (mm), or "auto" (``_setup`` resolves it)."""
-    return "auto" if text == "auto" else _POSITIVE_MM(text)
-
-
-def _loop_args(p):
-    p.add_argument("--plant", choices=("fem", "admm"), default="fem",
-                   help="the solver playing the tissue (the \"true\" plant)")
-    p.add_argument("--model", choices=("fem", "admm"), default=None,
-                   help="controller's model solver (default: the plant's)")
-    p.add_argument("--model-update", choices=MODEL_UPDATES, default="fast",
-                   help="how an ADMM model follows the pushes: fast (chord Newton on its P1 "
-                        "energy and the Jacobian by refinement, milliseconds a step; the same "
-                        "state and Jacobian within 1e-6 mm and 1e-5) or solve (a full ADMM solve "
-                        "and an assembled tangent every step)")
-    p.add_argument("--model-E-factor", type=real("positive"), default=1.0,
-                   help="the model's E = factor * the Case's E")
-    p.add_argument("--model-size", type=real("positive", "mm"), default=None,
-                   help="the model's mesh size (mm; default: the plant's mesh)")
-    p.add_argument("--noise", type=real("nonneg", "mm"), default=0.0,
-                   help="measurement noise std (mm)")
-    p.add_argument("--seed", type=integer(0, 2 ** 32 - 1), default=0,
-                   help="seed of the measurement noise")
-    p.add_argument("--steps", type=integer(1, 100_000), default=60, help="MPC steps")
-    p.add_argument("--dt", type=real("positive", "s"), default=1.0, help="time per MPC step (s)")
-    p.add_argument("--horizon", type=integer(1, 1000), default=5,
-                   help="MPC prediction horizon Np (steps)")
-    p.add_argument("--q", type=real("positive", "1/mm^2"), default=3.0,
-                   help="MPC tracking weight Q = q I (1/mm^2)")
-    p.add_argument("--r", type=real("positive", "1/mm^2"), default=2.0,
-                   help="MPC push-increment weight R = r I (1/mm^2)")
-    p.add_argument("--weights", choices=WEIGHTS, default="absolute",
-                   help="absolute: R = r I as given (seed 000's Q = 3, R = 2 were tuned on its "
-                        "phantom); gain: R = r g^2 I, g the largest singular value of the "
-                        "model's weighted J_s, so the loop closes as fast on a body whose targets "
-                        "move little per mm of push")
-    p.add_argument("--max-travel", type=_travel, default=None, metavar="MM|auto",
-                   help="push limit per actuator (mm); auto: the deepest push at which the "
-                        "plant's and the model's answers still converge (a glued patch's "
-                        "radius, 2.5 radii of a rounded tip), so the loop stays in range")
-    p.add_argument("--qp-solver", default="qpoases", help="casadi conic plugin")
-    p.add_argument("--task-mm", type=real("positive", "mm"), default=5.0,
-                   help="how far a task moves the target along each controlled axis (mm; the "
-                        "seed's tasks: 5)")
-
-
-def _setup(args, case):
-    """The loop (plant, model, mismatch) and settings named by the command line."""
-    from tissue_reference.control.loop import LoopSettings
-    from tissue_reference.control.mpc import MPCSettings
-    from tissue_reference.control.plants import build_loop
-
-    check_prescribed(case)
-    diam = body_diameter(case)
-    if args.noise > diam:
-        raise CaseError(f"--noise {args.noise:g}: expected a measurement noise <= the body's "
-                        f"diameter ({diam:.4g} mm)")
-    mcase = case_from_args(args, size=args.model_size) if args.model_size is not None else None
-    try:
-        loop = build_loop(case, plant=args.plant, model=args.model,
-                          model_E_factor=args.model_E_factor, model_case=mcase,
-                          model_update=args.model_update)
-    except CaseError as exc:
-        raise CaseError(f"--model-E-factor / --model: {exc}") from None
-    travel = args.max_travel
-    if travel == "auto":
-        travel = converged_push_limit(loop.case, loop.model_case)
-    settings = LoopSettings(steps=args.steps, dt_s=args.dt, noise_mm=args.noise, seed=args.seed,
-                            task_mm=args.task_mm,
-                            mpc=MPCSettings(horizon=args.horizon, q=args.q, r=args.r,
-                                            weights=args.weights,
-                                            max_travel=travel, solver=args.qp_solver))
-    loop.meta.update({"size": args.size, "model_size": args.model_size,
-                      "settings": {"steps": args.steps, "dt_s": args.dt,
-                                   "horizon": args.horizon, "q": args.q, "r": args.r,
-                                   "weights": args.weights,
-                                   "max_travel_mm": travel, "noise_mm": args.noise,
-                                   "seed": args.seed, "qp_solver": args.qp_solver,
-                                   "task_mm": args.task_mm}})
-    return loop, settings
 
 
 def _fmt(v, spec):
@@ -135,8 +48,6 @@ def _write_mpc(args, d: dict, png: Path | None = None):
 
 
 def run_mpc(args) -> int:
-    from tissue_reference.control.controllability import UnreachableGoalError
-    from tissue_reference.control.loop import LoopStopped, plot_response
 
     check_outputs(args, files=("json",), dirs=("out",))
     if args.out and Path(args.out).is_dir():
@@ -145,7 +56,7 @@ def run_mpc(args) -> int:
                               "--out")
     case = case_from_args(args)
     case.probe(args.target)   # a missing target is named before any solve
-    loop, settings = _setup(args, case)
+    loop, settings = loop_from_args(args, case)
     meta = {**loop.meta, "target": args.target, "task": args.task}
     try:
         res = loop.run(args.target, args.task, settings, progress=_step_progress(args))
@@ -215,8 +126,6 @@ def run_manipulability(args) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from tissue_reference.control.controllability import manipulability_map
-    from tissue_reference.control.plants import material_json, solver_description
 
     paths = [args.case] + list(args.compare or [])
     out = check_output_dir(args.out, "--out")
@@ -290,15 +199,11 @@ def add_parser(sub):
     p.add_argument("--target", required=True, help="the probe to steer, e.g. T1")
     p.add_argument("--task", type=int, required=True, choices=(1, 2, 3),
                    help="1: -x (y free); 2: -y (x free); 3: +x and +y; each by --task-mm (5 mm)")
-    _loop_args(p)
+    add_loop_args(p)
     p.add_argument("--out", help="folder for the time-response PNGs and the loop's page "
                                  "(mpc_TARGET_taskN.html)")
     p.add_argument("--json", help="write the result here")
     p.set_defaults(func=run_mpc)
-
-    from . import cmd_table1  # after this module: it uses the loop options above
-
-    cmd_table1.add_parser(sub)
 
     p = sub.add_parser("manipulability", help="manipulability maps over the z = 15 mm section")
     add_case_args(p)

@@ -22,6 +22,7 @@ from .common import (
     parse_pushes,
     real,
 )
+from .converge_report import write_converge_report
 
 PRECHECK_FROM_CELLS = 20_000
 OUT_FILES = ("convergence.png", "convergence.json", "report.html")
@@ -34,6 +35,7 @@ def _material_of(path) -> Material:
 
 
 def run(args) -> int:
+    # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
     from tissue_reference.fem_reference.convergence import (
         MAX_CELLS,
         format_study,
@@ -90,8 +92,6 @@ def run(args) -> int:
     if args.json:
         write_json(out, args.json)
     if args.out:
-        from .converge_report import write_converge_report
-
         png = plot_studies(studies, Path(args.out) / "convergence.png")
         write_json(out, Path(args.out) / "convergence.json")
         page = write_converge_report(out, args.out, plot=png.name)

@@ -13,14 +13,17 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_reference.meshes.builders import MAX_CELLS
 from tissue_reference.meshes.case import load_case
 from tissue_reference.meshes.html_page import Raw, image, page, table, write_page
 from tissue_reference.meshes.io import save_figure
 from tissue_reference.meshes.mesh import quality
 from tissue_reference.meshes.results import write_json
+from tissue_reference.tissue.verify import verify
 
 from .cmd_solve import solver_settings, write_outputs
 from .common import add_max_cells, check_outputs, check_pushes, real
+from .views import render
 
 CASE = "phantom-indenter-quarter"
 """The reference's case: the tip phantom cut by its two mirror planes (both sliding)."""
@@ -41,6 +44,8 @@ def _say(msg):
 def _accuracy(res) -> tuple[dict | None, str]:
     """The measured accuracy of a reference answer (its case's ``[reference.measured]`` row,
     ``fem_reference.measured``) and one line saying what it is, or why there is none."""
+    # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
+    # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
     from tissue_reference.fem_reference.measured import accuracy_line
 
     row = res.extra.get("measured_accuracy")
@@ -54,6 +59,7 @@ def reference_series(case, out: Path, pushes_mm=PUSHES_MM, *, degree=None,
                      progress=True) -> dict:
     """All tips pushed each of ``pushes_mm`` in turn (each solve warm-started from the last):
     fields, solve outputs, the measured accuracy of each answer, a plot and a 3D view."""
+    # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
     import tissue_reference.fem_reference as fr
 
     tips = [a.name for a in case.actuators]
@@ -97,8 +103,6 @@ def reference_series(case, out: Path, pushes_mm=PUSHES_MM, *, degree=None,
 
 def _views(case, res, folder: Path, push: float) -> list:
     """A 3D picture of the deformed quarter coloured by the displacement magnitude (mm)."""
-    from .views import render
-
     folder.mkdir(parents=True, exist_ok=True)
     pics = [render(case.mesh, res.u, np.linalg.norm(res.u, axis=1),
                    folder / f"view_tips_{push:g}mm.png", label="displacement (mm)",
@@ -191,8 +195,6 @@ def _verify_parts(v: dict, case_name: str) -> list:
 
 
 def run(args) -> int:
-    from tissue_reference.meshes.builders import MAX_CELLS
-
     check_outputs(args, dirs=("out",))
     limit = args.max_cells if args.max_cells is not None else MAX_CELLS
     out = Path(args.out)
@@ -213,8 +215,6 @@ def run(args) -> int:
     summary["reference"] = reference_series(case, out, tuple(args.pushes), degree=args.degree,
                                             progress=not args.quiet)
     if vcase is not None:
-        from tissue_reference.tissue.verify import verify
-
         solvers = ("admm", "admm-plain", "admm-anderson", "mass-tensor")
         pushes = {a.name: args.verify_push for a in vcase.actuators}
         _say(f"verification: {', '.join(solvers)} against the P1 reference on {vcase.name}, "

@@ -11,8 +11,10 @@ import numpy as np
 
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.io import atomic_path, check_output_file, write_mesh
-from tissue_reference.meshes.results import write_json
+from tissue_reference.meshes.results import material_json, write_json
+from tissue_reference.solvers.trajectory import admm_trajectory
 
+from .cmd_solve import solver_settings, write_outputs
 from .common import (
     add_case_args,
     add_discretization_args,
@@ -25,6 +27,7 @@ from .common import (
     real,
     report_validity,
 )
+from .dynamics_report import write_dynamics_report
 
 STEMS = ("displacement", "last_converged", "trajectory")
 # the page and its pictures (tissue.dynamics_report)
@@ -52,9 +55,6 @@ def trajectory_json(case, traj, args) -> dict:
     """The JSON summary: the trajectory (``DynamicsResult.to_json_dict``) with what was solved:
     the pushes (mm), the material, gravity (mm/s^2), the discretization (reference) and the
     solver settings; ``final`` is the last step's summary with the Case's material and pushes."""
-    from tissue_reference.meshes.results import material_json
-
-    from .cmd_solve import solver_settings
 
     d = traj.to_json_dict()
     if traj.final is not None:
@@ -76,8 +76,6 @@ def trajectory_json(case, traj, args) -> dict:
 
 
 def run(args) -> int:
-    from .cmd_solve import write_outputs
-
     check_outputs(args, files=("json",), dirs=("out",))
     if args.out and Path(args.out).is_dir():
         for stem in STEMS:
@@ -102,14 +100,15 @@ def run(args) -> int:
     progress = not args.quiet
     try:
         if args.solver == "fem":
+            # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
             from tissue_reference.fem_reference.dynamics import simulate
 
             traj = simulate(case, dt=args.dt, steps=args.steps, pushes=pushes,
                             degree=args.degree, formulation=args.formulation, mass=args.mass,
                             ramp_steps=args.ramp_steps, progress=progress)
         else:
+            # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
             from tissue_reference.fem_reference import cholmod_factor
-            from tissue_reference.solvers.trajectory import admm_trajectory
 
             traj = admm_trajectory(case.with_pushes(pushes), dt=args.dt, steps=args.steps,
                                    progress=progress, factorize=cholmod_factor)
@@ -124,8 +123,6 @@ def run(args) -> int:
     pushed = case.with_pushes(pushes)
     data = trajectory_json(pushed, traj, args)
     if args.out:
-        from .dynamics_report import write_dynamics_report
-
         write_outputs(pushed, traj.final, args.out, None)
         _write_trajectory(pushed, traj, args.out)
         write_dynamics_report(pushed, data, traj.u[-1], args.out)

@@ -20,7 +20,23 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_reference.implant.pipeline import (
+    PlanSettings,
+    patient_from_file,
+    plan_implant,
+    synthetic_patient,
+)
+from tissue_reference.implant.registration import icp, surface_distances
+from tissue_reference.implant.render import render_distance_png, write_surface_vtu
+from tissue_reference.implant.surface import check_single_sheet, read_surface
+from tissue_reference.meshes.case import Boundary, Case, Material
+from tissue_reference.meshes.errors import CaseError, ReadError
+from tissue_reference.meshes.io import check_output_file, write_mesh
+from tissue_reference.meshes.mesh import MeshData
+from tissue_reference.meshes.results import write_json
+
 from .common import check_outputs, real
+from .implant_report import write_implant_report
 
 WIDTH_MM = (40.0, 300.0)        # base widths of the implants in use, with a margin
 PROJECTION_RATIO = (0.1, 1.0)   # projection / width
@@ -80,8 +96,6 @@ def check_dimensions(spec, args):
                      if v is not None)
     if not (WIDTH_MM[0] <= w <= WIDTH_MM[1] and
             PROJECTION_RATIO[0] <= p / w <= PROJECTION_RATIO[1]):
-        from tissue_reference.meshes.errors import CaseError
-
         raise CaseError(f"{given}: the implant would be {w:.4g} mm wide with a projection of "
                         f"{p:.4g} mm; expected a width of {WIDTH_MM[0]:g} to {WIDTH_MM[1]:g} mm "
                         f"and a projection of {PROJECTION_RATIO[0]:g} to {PROJECTION_RATIO[1]:g} "
@@ -92,8 +106,6 @@ def reference_case(plan, *, model: str = "linear-elastic"):
     """The Case for the reference: same mesh and material, the cut sides fixed (they are border
     points); every other border point and the targets go in through ``plan.dirichlet()`` as
     ``dirichlet_override`` (per-vertex values cannot be one region's Boundary value)."""
-    from tissue_reference.meshes.case import Boundary, Case, Material
-    from tissue_reference.meshes.mesh import MeshData
 
     t = plan.tissue
     regions = dict(t.facet_regions)
@@ -108,6 +120,7 @@ def reference_case(plan, *, model: str = "linear-elastic"):
 
 def reference_solve(plan, *, model: str = "linear-elastic"):
     """Reference displacement (n, 3) mm with exactly the plan's step-2 boundary conditions."""
+    # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
     from tissue_reference.fem_reference import solve
 
     case = reference_case(plan, model=model)
@@ -115,21 +128,9 @@ def reference_solve(plan, *, model: str = "linear-elastic"):
 
 
 def run(args) -> int:
-    from tissue_reference.implant.pipeline import (
-        PlanSettings,
-        patient_from_file,
-        plan_implant,
-        synthetic_patient,
-    )
-    from tissue_reference.implant.registration import icp, surface_distances
-    from tissue_reference.implant.surface import check_single_sheet, read_surface
-    from tissue_reference.meshes.errors import CaseError, ReadError
-    from tissue_reference.meshes.results import write_json
 
     check_outputs(args, files=("json",), dirs=("out",))
     if args.out is not None and args.out.is_dir():
-        from tissue_reference.meshes.io import check_output_file
-
         check_output_file(args.out / "report.html", "--out")
     for opt, f in (("--skin", args.skin), ("--postop", args.postop)):
         if f is not None and not f.is_file():
@@ -222,8 +223,6 @@ def run(args) -> int:
                          "icp_rms_mm": reg.rms_mm, "icp_iterations": reg.iterations}
         dist = st.distance
     if args.out is not None:
-        from tissue_reference.implant.render import render_distance_png, write_surface_vtu
-        from tissue_reference.meshes.io import write_mesh
 
         args.out.mkdir(parents=True, exist_ok=True)
         labels = np.zeros(plan.tissue.n_vertices)
@@ -240,7 +239,6 @@ def run(args) -> int:
                               point_data={"distance_mm": d})
             out["render_backend"] = render_distance_png(pred, skin_t, d,
                                                         args.out / "skin_distance.png")
-        from .implant_report import write_implant_report
 
         write_implant_report(out, args.out,
                              distance_png="skin_distance.png" if dist is not None else None)

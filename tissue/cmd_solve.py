@@ -14,7 +14,10 @@ from tissue_reference.meshes.converged_range import unconverged_load
 from tissue_reference.meshes.errors import AccuracyNotReached, CaseError, ConvergenceError
 from tissue_reference.meshes.io import check_output_file, write_point_data
 from tissue_reference.meshes.mesh import cell_jacobians
+from tissue_reference.meshes.refine import projector_for
 from tissue_reference.meshes.results import write_json
+from tissue_reference.solvers import admm, mass_tensor
+from tissue_reference.solvers.admm import require_device
 
 from .common import (
     SOLVER_NAMES,
@@ -31,7 +34,7 @@ from .common import (
     report_validity,
     run_solver,
 )
-from .solve_report import REPORT
+from .solve_report import REPORT, write_solve_report
 
 STEMS = ("displacement", "last_converged")
 # what --out gets besides report.html: per stem, the fields and the report's pictures
@@ -70,8 +73,6 @@ def write_outputs(case, res, out_dir=None, json_file=None, stem="displacement", 
     if json_file:
         write_json(data, json_file)
     if out_dir and report:
-        from .solve_report import write_solve_report
-
         write_solve_report(case, res, out_dir, data=data, stem=stem)
 
 
@@ -87,13 +88,11 @@ def solver_settings(name: str, **given) -> dict:
     import inspect
 
     if name == "fem":
+        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
         from tissue_reference.fem_reference.newton import settings_json
 
         return {**settings_json(), **given}
-    if name == "admm":
-        from tissue_reference.solvers.admm import solve
-    else:
-        from tissue_reference.solvers.mass_tensor import solve
+    solve = admm.solve if name == "admm" else mass_tensor.solve
     out = {k: p.default for k, p in inspect.signature(solve).parameters.items()
            if p.kind is inspect.Parameter.KEYWORD_ONLY and k not in _NOT_SETTINGS
            and (p.default is None or isinstance(p.default, (bool, int, float, str)))}
@@ -123,7 +122,6 @@ def run(args) -> int:
     if args.device != "cpu":
         if args.solver != "admm":
             raise CaseError(f"--device {args.device} applies to the ADMM solver (--solver admm)")
-        from tissue_reference.solvers.admm import require_device
 
         require_device(args.device)  # no CuPy / no GPU: a one-line error before the mesh is built
     pushes = parse_pushes(args.push)
@@ -145,6 +143,7 @@ def run(args) -> int:
                              **({"estimate": True} if args.estimate else {}),
                              **({"device": args.device} if args.solver == "admm" else {}))
             if args.solver == "fem" and args.estimate is None:
+                # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
                 from tissue_reference.fem_reference.estimate import auto_estimate
 
                 res = auto_estimate(case, res, pushes=pushes, progress=not args.quiet,
@@ -206,8 +205,8 @@ def solve_adaptive(case, pushes, args):
     """(case on the final mesh, answer): the reference refined until every probe's estimated
     error is within ``args.accuracy`` (relative) of its value: P1, P2, then local (or, with
     ``--refine uniform``, uniform) refinement (fem_reference.adapt)."""
+    # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
     from tissue_reference.fem_reference.adapt import solve_to_accuracy
-    from tissue_reference.meshes.refine import projector_for
 
     opts = {} if args.formulation == "auto" else {"formulation": args.formulation}
     b = builtin_of(args.case, args.size)
@@ -222,6 +221,10 @@ def solve_adaptive(case, pushes, args):
 def print_answer(res):
     """Probes, reactions and indenters, each with its estimated discretization error when there is
     one, and the smallest J of the state."""
+    # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
+    # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
+    from tissue_reference.fem_reference.measured import accuracy_line
+
     pe = res.extra.get("probe_error_estimates") or {}
     re_ = res.extra.get("reaction_error_estimates") or {}
     rels = relative_estimates(res)
@@ -253,7 +256,6 @@ def print_answer(res):
         print(f"  smallest J = det F: {res.extra['min_J']:.3f}")
     if res.extra.get("estimate_note"):
         print(f"  error estimate: none: {res.extra['estimate_note']}")
-    from tissue_reference.fem_reference.measured import accuracy_line
 
     if line := accuracy_line(res.extra):
         print(f"  accuracy: {line}")

@@ -9,18 +9,18 @@ import json
 import sys
 from pathlib import Path
 
-from tissue_reference.control.scenarios import SCENARIOS
+from tissue_reference.control.scenarios import SCENARIOS, scenario_loop
+from tissue_reference.control.table1 import plot_scenarios, write_scenarios_page
+from tissue_reference.control.table1 import run_table1 as run_all
 from tissue_reference.meshes.converged_range import converged_push_limit
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import write_json
 
-from .cmd_control import _loop_args, _setup
 from .common import add_case_args, case_from_args, check_outputs, contact_rule, integer
+from .loop_options import add_loop_args, loop_from_args
 
 
 def run_table1(args) -> int:
-    from tissue_reference.control.table1 import run_table1 as run_all
-
     check_outputs(args, dirs=("out",))
     for flag, value in (("--contact-plant", args.contact_plant),
                         ("--contact-quadrature", args.plant_contact_quadrature)):
@@ -31,7 +31,7 @@ def run_table1(args) -> int:
     targets = args.targets or [p.name for p in case.probes]
     for t in targets:
         case.probe(t)   # a missing target is named before any solve
-    loop, settings = _setup(args, case)
+    loop, settings = loop_from_args(args, case)
     if args.scenarios:
         return _run_scenarios(args, case, targets, settings, loop.meta)
     summ = run_all(case, targets, loop, settings, args.out, meta=loop.meta,
@@ -68,7 +68,7 @@ def table1_loop(argv: dict, scenario: str | None):
     args = argparse.Namespace(**argv)
     case = case_from_args(args)
     if scenario is None:
-        return _setup(args, case)[0]
+        return loop_from_args(args, case)[0]
     return _scenario_loops(args, case, [scenario])[scenario]
 
 
@@ -83,8 +83,6 @@ def _jobs(args, scenario=None) -> dict:
 def _scenario_loops(args, case, names) -> dict:
     """The loop of each mismatch scenario in ``names`` (a plant that does not fit is refused
     here, before any solve)."""
-    from tissue_reference.control.scenarios import scenario_loop
-
     coarse = plant = None
     if "mesh" in names:
         h = args.size if args.size is not None else 6.0
@@ -105,8 +103,6 @@ def _scenario_loops(args, case, names) -> dict:
 def _run_scenarios(args, case, targets, settings, base_meta) -> int:
     """The Table I analog once per mismatch scenario, each in ``--out``/NAME, with a combined
     summary (table1_scenarios.json) and the ITAE plot."""
-    from tissue_reference.control.table1 import plot_scenarios, write_scenarios_page
-    from tissue_reference.control.table1 import run_table1 as run_all
 
     out = Path(args.out)
     loops = _scenario_loops(args, case, args.scenarios)   # every one first: refusals before solves
@@ -138,7 +134,7 @@ def _run_scenarios(args, case, targets, settings, base_meta) -> int:
 def add_parser(sub):
     p = sub.add_parser("table1", help="5 targets x 3 tasks, open vs closed loop (seed Table I)")
     add_case_args(p)
-    _loop_args(p)
+    add_loop_args(p)
     p.add_argument("--targets", nargs="*", default=None,
                    help="probes to steer (default: every probe of the case)")
     p.add_argument("--scenarios", nargs="+", choices=tuple(SCENARIOS), default=None,

@@ -32,6 +32,7 @@ from tissue_reference.meshes.case_file import case_path
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.io import check_output_dir, check_output_file
 from tissue_reference.meshes.mesh import RUNAWAY_FACTOR
+from tissue_reference.solvers import admm, mass_tensor
 
 __all__ = ["PROGRESS_FROM_CELLS", "SOLVER_NAMES", "add_case_args", "add_discretization_args",
            "body_diameter", "case_from_args", "check_outputs", "check_prescribed",
@@ -300,6 +301,7 @@ def run_solver(name: str, case: Case, *, degree: int | None = None, formulation:
     ``formulation`` are the reference's; the fast solvers are P1 displacement solvers and refuse
     anything else."""
     if name == "fem":
+        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
         from tissue_reference.fem_reference import solve
 
         return solve(case, degree=degree, formulation=formulation, pushes=pushes,
@@ -308,9 +310,9 @@ def run_solver(name: str, case: Case, *, degree: int | None = None, formulation:
         raise CaseError(f"solver {name!r} is a P1 displacement solver: --degree and "
                         f"--formulation mixed apply to the reference (--solver fem)")
     if name == "admm":
-        from tissue_reference.solvers.admm import solve
+        solve = admm.solve
     elif name == "mass-tensor":
-        from tissue_reference.solvers.mass_tensor import solve
+        solve = mass_tensor.solve
     else:
         raise CaseError(f"unknown solver {name!r}; solvers: {list(SOLVER_NAMES)}")
     return solve(case, pushes=pushes, initial=initial, progress=progress,
@@ -328,7 +330,7 @@ def with_factorization(solver: str, options: dict) -> dict:
     given: the fast solvers import no PETSc themselves."""
     if solver not in FACTORIZED_SOLVERS or "factorize" in options:
         return options
-    # the reference layer (dolfinx, PETSc) is imported only when a solve needs it
+    # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
     from tissue_reference.fem_reference import cholmod_factor
 
     return {**options, "factorize": cholmod_factor}

@@ -18,6 +18,7 @@ from tissue_reference.meshes.html_page import Raw, fmt, image, kv_table, page, t
 from tissue_reference.meshes.io import save_figure
 
 from .solve_report import validity_block
+from .views import render
 
 __all__ = ["HISTORY_PNG", "REPORT", "VIEW_PNG", "plot_history", "write_dynamics_report"]
 
@@ -104,8 +105,6 @@ def write_dynamics_report(case, d: dict, u_final, out_dir, *, use_pyvista: bool 
     """Write ``out_dir``/report.html for the trajectory ``d`` (the JSON of ``tissue dynamics``)
     of ``case`` (its pushes applied), with the final displacement ``u_final`` ((n, dim) mm at
     the case's vertices) drawn in 3D. Returns the page's path."""
-    from .views import render
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     final = d.get("final")

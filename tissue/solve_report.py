@@ -18,6 +18,8 @@ from tissue_reference.meshes.html_page import Raw, fmt, image, kv_table, page, t
 from tissue_reference.meshes.io import save_figure
 from tissue_reference.meshes.mesh import cell_jacobians
 
+from .views import start_views
+
 __all__ = ["REPORT", "validity_block", "vertex_min_J", "write_solve_report"]
 
 REPORT = "report.html"
@@ -143,6 +145,10 @@ def _what(d: dict) -> list:
 
 
 def _answer(d: dict) -> list:
+    # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
+    # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
+    from tissue_reference.fem_reference.measured import accuracy_line
+
     its = d.get("newton_iterations") if d.get("solver") == "fem" else d.get("iterations")
     rows = [("converged", d.get("converged")), ("iterations", its),
             ("load steps", d.get("load_steps")), ("load fraction", d.get("load_fraction")),
@@ -186,7 +192,6 @@ def _answer(d: dict) -> list:
                         "two degrees." if d.get("no_converged_value") else ""))
     elif d.get("estimate_note"):
         parts.append(f"No error estimate: {d['estimate_note']}.")
-    from tissue_reference.fem_reference.measured import accuracy_line
 
     if line := accuracy_line(d):
         parts.append(f"Accuracy: {line}.")
@@ -206,8 +211,6 @@ def write_solve_report(case, res, out_dir, *, data: dict | None = None, stem: st
     """Write ``out_dir``/report.html for the solve ``res`` of ``case`` (its pushes applied) and
     its pictures; ``data``: the solve's JSON (``res.to_json_dict(case)`` with its settings),
     ``stem``: the name of the field files beside it. Returns the page's path."""
-    from .views import start_views
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     d = data if data is not None else res.to_json_dict(case)

@@ -36,11 +36,17 @@ from functools import cached_property
 
 import numpy as np
 
+from tissue_reference.meshes.builders import box, cook_membrane, shell_octant
+from tissue_reference.meshes.case import Boundary, Case, Material, Probe
 from tissue_reference.meshes.errors import CaseError, TissueError
 from tissue_reference.meshes.results import material_json, write_json
+from tissue_reference.solvers import get_solver
 
 from . import closed_forms as cf
 from .common import with_factorization
+from .plugins import resolve_solver, run_plugin
+from .suite_report import write_scorecard
+from .verify import FAST_SOLVERS
 
 __all__ = ["PROBLEMS", "Problem", "run_suite"]
 
@@ -72,14 +78,10 @@ class Problem:
 
 
 def _material(nu, model="neo-hookean", E=E_TISSUE):
-    from tissue_reference.meshes.case import Material
-
     return Material(model, E=E, nu=nu)
 
 
 def _uniaxial():
-    from tissue_reference.meshes.builders import box
-    from tissue_reference.meshes.case import Boundary, Case, Probe
 
     return Case(mesh=box(5.0), material=_material(0.45), name="uniaxial-stretch",
                 boundaries=(Boundary("xmin", "sliding", normal=[1, 0, 0]),
@@ -95,8 +97,6 @@ def _uniaxial_expected():
 
 
 def _shear():
-    from tissue_reference.meshes.builders import box
-    from tissue_reference.meshes.case import Boundary, Case, Probe
 
     G = [[0.0, 0.3, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
     return Case(mesh=box(5.0), material=_material(0.45), name="shear-patch",
@@ -107,8 +107,6 @@ def _shear():
 
 def _sphere(nu):
     def build():
-        from tissue_reference.meshes.builders import shell_octant
-        from tissue_reference.meshes.case import Boundary, Case, Probe
 
         return Case(mesh=shell_octant(2.5), material=_material(nu), name=f"thick-sphere-{nu}",
                     boundaries=(Boundary("xsym", "sliding", normal=[1, 0, 0]),
@@ -126,8 +124,6 @@ def _sphere_expected(nu):
 
 
 def _cook():
-    from tissue_reference.meshes.builders import cook_membrane
-    from tissue_reference.meshes.case import Boundary, Case, Probe
 
     return Case(mesh=cook_membrane(2.0), material=_material(0.25, "linear-elastic", 15.0 / 16.0),
                 name="cook-membrane",
@@ -170,10 +166,10 @@ def _options(solver, problem) -> dict:
     Newton controls (left at their defaults), a built-in fast solver's options, {} for a
     plugin."""
     if solver == "fem":
+        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
         from tissue_reference.fem_reference.newton import settings_json
 
         return {**problem.reference, **settings_json()}
-    from .verify import FAST_SOLVERS
 
     if isinstance(solver, str) and solver in FAST_SOLVERS:
         return dict(FAST_SOLVERS[solver][1])
@@ -184,17 +180,14 @@ def _run_one(solver, problem):
     """(value, iterations, converged, wall s, discretization) of ``solver`` on ``problem``."""
     case = problem.case
     if solver == "fem":
+        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
         from tissue_reference.fem_reference import solve
 
         res = solve(case, **problem.reference)
         return _value(problem, res.probes), res.iterations, res.converged, res.wall_time_s, \
             res.extra.get("discretization")
-    from .plugins import resolve_solver, run_plugin
-    from .verify import FAST_SOLVERS
 
     if isinstance(solver, str) and solver in FAST_SOLVERS:
-        from tissue_reference.solvers import get_solver
-
         key, opts, _ = FAST_SOLVERS[solver]
         res = get_solver(key)(case, **with_factorization(key, opts))
         return _value(problem, res.probes), res.iterations, res.converged, res.wall_time_s, \
@@ -207,7 +200,6 @@ def _run_one(solver, problem):
 def _name(solver) -> str:
     if isinstance(solver, str):
         return solver
-    from .plugins import resolve_solver
 
     return resolve_solver(solver).name
 
@@ -253,8 +245,6 @@ def run_suite(solvers=("fem",), problems=None, *, json_file=None, out_dir=None,
     if json_file is not None:
         write_json(out, json_file)
     if out_dir is not None:
-        from .suite_report import write_scorecard
-
         out["report"] = str(write_scorecard(out, out_dir))
     return out
 

@@ -109,6 +109,7 @@ class _References:
     def _solve(self, c, degree, formulation):
         if self.user is not None:
             return self.user(c.with_pushes(self.pushes))
+        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
         from tissue_reference.fem_reference import solve as fem_solve
 
         return fem_solve(c, degree=degree, formulation=formulation, pushes=self.pushes,
@@ -119,6 +120,7 @@ class _References:
         controls (left at their defaults); None for a caller's own reference_solve."""
         if self.user is not None:
             return None
+        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
         from tissue_reference.fem_reference.newton import settings_json
 
         return {"degree": degree, "formulation": formulation, **settings_json()}
@@ -132,6 +134,7 @@ class _References:
             first = self._solve(rcase, degree, formulation)
             res = self._solve(rcase, degree, formulation) if warm else first
             if self.estimate:
+                # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
                 from tissue_reference.fem_reference.estimate import estimate as with_estimate
 
                 res = with_estimate(rcase.with_pushes(self.pushes), res)

@@ -4,13 +4,7 @@ Jacobians and a push-only MPC for soft-tissue simulation and control.
 The one installed top-level name. Its layers are subpackages: ``tissue_reference.meshes``,
 ``.fem_reference``, ``.solvers``, ``.control``, ``.implant`` and ``.tissue`` (the command line).
 Installed, they are folders inside this package; in the repository they are the top-level folders
-beside this one (pyproject.toml's ``package-dir`` maps them), so a checkout on ``sys.path``
-(``PYTHONPATH=.``) finds them there.
+beside this one (pyproject.toml's ``package-dir`` maps them), and this folder holds a symbolic
+link to each, so that a checkout on ``sys.path`` (``PYTHONPATH=.``), editors and type checkers
+find them under their installed names.
 """
-from pathlib import Path as _Path
-
-_here = _Path(__file__).resolve().parent
-if not (_here / "meshes").is_dir() and (_here.parent / "meshes" / "__init__.py").is_file() \
-        and (_here.parent / "pyproject.toml").is_file():
-    __path__.append(str(_here.parent))
-del _Path, _here

@@ -9,6 +9,7 @@ import scipy.sparse as sp
 
 from tissue_reference.solvers import _ckernel
 
+from .amg_array import ArrayAmgPcg
 from .factor import _spd_splu
 from .kernel_c import use_kernel
 
@@ -66,6 +67,8 @@ class _AmgPcg:
     iterates to a relative residual of SOLVE_RTOL."""
 
     theta = 0.08
+    pcg_rtol, step_maxit = PCG_RTOL, STEP_MAXIT
+    solve_maxit, solve_rtol = SOLVE_MAXIT, SOLVE_RTOL
     coarse = 500
     smooth_levels = 1  # levels with a smoothed prolongator (below: plain aggregation)
 
@@ -166,8 +169,6 @@ class _AmgPcg:
         if self._c is not None:
             return self._pcg_compiled(B, X, maxit, rtol, step_tol)
         if self._arrays is None:   # the iteration the array backends run, here on numpy
-            from .amg_array import ArrayAmgPcg
-
             self._arrays = ArrayAmgPcg(self, np)
         it = self._arrays
         before = it.iterations

@@ -7,7 +7,7 @@ coarsest level is solved on a GPU by its dense inverse, computed there (one matr
 V-cycle instead of triangular solves; on 1e6 tets the aggregation stops at about 20k coarse
 unknowns, 3 GiB), on numpy by the CPU path's own SuperLU factor. The iteration is
 ``_AmgPcg``'s, stopping rules and bounds included: the ADMM x-step is warm-started from the
-previous iterate and stops once its largest vertex update is below PCG_RTOL of the first or
+previous iterate and stops once its largest vertex update is below ``amg.PCG_RTOL`` of the first or
 below the step tolerance, so the array backend's iterates follow the CPU path's (up to
 round-off) with a few V-cycles per x-step instead of the hundreds of Jacobi-CG iterations an
 exact solve takes on 1e5-1e6 tets."""
@@ -15,14 +15,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .amg import PCG_RTOL, SOLVE_MAXIT, SOLVE_RTOL, STEP_MAXIT, _AmgPcg
-
 MAX_COARSE = 30_000   # coarsest level's unknowns at most for its dense inverse on a GPU (7 GiB)
 
 
 def usable(solver) -> bool:
     """Whether ``solver`` (one group of the CPU path's x-step) has a hierarchy to mirror."""
-    return (isinstance(solver, _AmgPcg) and bool(solver.levels)
+    return (bool(getattr(solver, "levels", None))
             and solver.coarse_matrix.shape[0] <= MAX_COARSE)
 
 
@@ -31,13 +29,16 @@ class ArrayAmgPcg:
     the array backends' x-step, and ``_AmgPcg``'s own iteration on numpy without the compiled
     kernel."""
 
-    def __init__(self, amg: _AmgPcg, xp):
+    def __init__(self, amg, xp):
         if xp is np:
             from scipy import sparse
         else:
             from cupyx.scipy import sparse
         self.xp = xp
         self.iters = amg.iters
+        # the stopping rules and bounds of ``amg``'s own iteration
+        self.pcg_rtol, self.step_maxit = amg.pcg_rtol, amg.step_maxit
+        self.solve_maxit, self.solve_rtol = amg.solve_maxit, amg.solve_rtol
         self.A = sparse.csr_matrix(amg.A)
         self.levels = [(sparse.csr_matrix(A), xp.asarray(dw), sparse.csr_matrix(P),
                         sparse.csr_matrix(R)) for A, dw, P, R in amg.levels]
@@ -69,7 +70,7 @@ class ArrayAmgPcg:
     def pcg(self, B, X, maxit, rtol, step_tol=0.0):
         """PCG from X (updated in place) to a relative residual ``rtol`` per column, at most
         ``maxit`` iterations; with ``step_tol`` > 0 also stopped (after ``iters``) once the
-        largest vertex update is below step_tol or PCG_RTOL times the first."""
+        largest vertex update is below step_tol or ``pcg_rtol`` times the first."""
         xp, A = self.xp, self.A
         r = B - A @ X
         stop = rtol * xp.sqrt(xp.einsum("ij,ij->j", B, B))
@@ -89,7 +90,7 @@ class ArrayAmgPcg:
             if step_tol > 0:
                 dmax = float(xp.einsum("ij,ij->i", dx, dx).max())
                 if it == 0:
-                    lim = max(step_tol ** 2, (PCG_RTOL ** 2) * dmax)
+                    lim = max(step_tol ** 2, (self.pcg_rtol ** 2) * dmax)
                 if it + 1 >= self.iters and dmax <= lim:
                     break
             z = self._vcycle(r)
@@ -102,9 +103,9 @@ class ArrayAmgPcg:
         return X
 
     def solve(self, B):
-        """K X = B to a relative residual of SOLVE_RTOL (from zero)."""
-        return self.pcg(B, self.xp.zeros_like(B), SOLVE_MAXIT, SOLVE_RTOL)
+        """K X = B to a relative residual of ``solve_rtol`` (from zero)."""
+        return self.pcg(B, self.xp.zeros_like(B), self.solve_maxit, self.solve_rtol)
 
     def step(self, B, X0, tol_mm):
         """The ADMM x-step from X0 (see ``_AmgPcg.step``)."""
-        return self.pcg(B, X0.copy(), STEP_MAXIT, 0.0, tol_mm)
+        return self.pcg(B, X0.copy(), self.step_maxit, 0.0, tol_mm)

@@ -1,0 +1,91 @@
+"""The options and the set-up that the closed-loop commands (``tissue mpc``, ``tissue table1``)
+share: the plant, the model and their mismatch, the MPC's weights and limits, the task."""
+from __future__ import annotations
+
+from tissue_reference.control.loop import LoopSettings
+from tissue_reference.control.mpc import WEIGHTS, MPCSettings
+from tissue_reference.control.plants import MODEL_UPDATES, build_loop
+from tissue_reference.meshes.converged_range import converged_push_limit
+from tissue_reference.meshes.errors import CaseError
+
+from .common import body_diameter, case_from_args, check_prescribed, integer, real
+
+POSITIVE_MM = real("positive", "mm, or auto")
+
+
+def travel(text):
+    """--max-travel: a positive push limit (mm), or "auto" (``loop_from_args`` resolves it)."""
+    return "auto" if text == "auto" else POSITIVE_MM(text)
+
+
+def add_loop_args(p):
+    p.add_argument("--plant", choices=("fem", "admm"), default="fem",
+                   help="the solver playing the tissue (the \"true\" plant)")
+    p.add_argument("--model", choices=("fem", "admm"), default=None,
+                   help="controller's model solver (default: the plant's)")
+    p.add_argument("--model-update", choices=MODEL_UPDATES, default="fast",
+                   help="how an ADMM model follows the pushes: fast (chord Newton on its P1 "
+                        "energy and the Jacobian by refinement, milliseconds a step; the same "
+                        "state and Jacobian within 1e-6 mm and 1e-5) or solve (a full ADMM solve "
+                        "and an assembled tangent every step)")
+    p.add_argument("--model-E-factor", type=real("positive"), default=1.0,
+                   help="the model's E = factor * the Case's E")
+    p.add_argument("--model-size", type=real("positive", "mm"), default=None,
+                   help="the model's mesh size (mm; default: the plant's mesh)")
+    p.add_argument("--noise", type=real("nonneg", "mm"), default=0.0,
+                   help="measurement noise std (mm)")
+    p.add_argument("--seed", type=integer(0, 2 ** 32 - 1), default=0,
+                   help="seed of the measurement noise")
+    p.add_argument("--steps", type=integer(1, 100_000), default=60, help="MPC steps")
+    p.add_argument("--dt", type=real("positive", "s"), default=1.0, help="time per MPC step (s)")
+    p.add_argument("--horizon", type=integer(1, 1000), default=5,
+                   help="MPC prediction horizon Np (steps)")
+    p.add_argument("--q", type=real("positive", "1/mm^2"), default=3.0,
+                   help="MPC tracking weight Q = q I (1/mm^2)")
+    p.add_argument("--r", type=real("positive", "1/mm^2"), default=2.0,
+                   help="MPC push-increment weight R = r I (1/mm^2)")
+    p.add_argument("--weights", choices=WEIGHTS, default="absolute",
+                   help="absolute: R = r I as given (seed 000's Q = 3, R = 2 were tuned on its "
+                        "phantom); gain: R = r g^2 I, g the largest singular value of the "
+                        "model's weighted J_s, so the loop closes as fast on a body whose targets "
+                        "move little per mm of push")
+    p.add_argument("--max-travel", type=travel, default=None, metavar="MM|auto",
+                   help="push limit per actuator (mm); auto: the deepest push at which the "
+                        "plant's and the model's answers still converge (a glued patch's "
+                        "radius, 2.5 radii of a rounded tip), so the loop stays in range")
+    p.add_argument("--qp-solver", default="qpoases", help="casadi conic plugin")
+    p.add_argument("--task-mm", type=real("positive", "mm"), default=5.0,
+                   help="how far a task moves the target along each controlled axis (mm; the "
+                        "seed's tasks: 5)")
+
+
+def loop_from_args(args, case):
+    """The loop (plant, model, mismatch) and settings named by the command line."""
+    check_prescribed(case)
+    diam = body_diameter(case)
+    if args.noise > diam:
+        raise CaseError(f"--noise {args.noise:g}: expected a measurement noise <= the body's "
+                        f"diameter ({diam:.4g} mm)")
+    mcase = case_from_args(args, size=args.model_size) if args.model_size is not None else None
+    try:
+        loop = build_loop(case, plant=args.plant, model=args.model,
+                          model_E_factor=args.model_E_factor, model_case=mcase,
+                          model_update=args.model_update)
+    except CaseError as exc:
+        raise CaseError(f"--model-E-factor / --model: {exc}") from None
+    limit = args.max_travel
+    if limit == "auto":
+        limit = converged_push_limit(loop.case, loop.model_case)
+    settings = LoopSettings(steps=args.steps, dt_s=args.dt, noise_mm=args.noise, seed=args.seed,
+                            task_mm=args.task_mm,
+                            mpc=MPCSettings(horizon=args.horizon, q=args.q, r=args.r,
+                                            weights=args.weights,
+                                            max_travel=limit, solver=args.qp_solver))
+    loop.meta.update({"size": args.size, "model_size": args.model_size,
+                      "settings": {"steps": args.steps, "dt_s": args.dt,
+                                   "horizon": args.horizon, "q": args.q, "r": args.r,
+                                   "weights": args.weights,
+                                   "max_travel_mm": limit, "noise_mm": args.noise,
+                                   "seed": args.seed, "qp_solver": args.qp_solver,
+                                   "task_mm": args.task_mm}})
+    return loop, settings
