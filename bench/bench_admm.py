@@ -25,7 +25,9 @@ import numpy as np
 
 from tissue_reference.meshes.builders import phantom
 from tissue_reference.meshes.case import load_case
+from tissue_reference.meshes.errors import SolverDivergedError
 from tissue_reference.solvers import admm
+from tissue_reference.solvers.admm import operators
 
 CASE = "meshes/cases/phantom.toml"
 TOL = 0.01  # mm, ADMM stopping tolerance of the warm re-solve; its error to the reference printed
@@ -71,7 +73,7 @@ def time_per_iteration_of_solve(case, pushes, tol=SCALING_TOL):
 def peak_memory_mib(case, pushes):
     """Peak memory (MiB) of building the operators (fresh) and 5 ADMM iterations: numpy/scipy
     arrays traced by tracemalloc plus SuperLU's own factor storage (not traced)."""
-    admm._CACHE.clear()
+    operators.OPERATOR_CACHE.clear()
     tracemalloc.start()
     admm.solve(case, pushes=pushes, polish=False, lift=False, load_steps=1, max_iter=5,
                tol_mm=1e-30)
@@ -93,7 +95,7 @@ def accuracy():
     t = time.perf_counter()
     try:
         rp = admm.solve(case, pushes=pushes, polish=False, tol_mm=1e-3, max_iter=5000)
-    except admm.SolverDivergedError as exc:
+    except SolverDivergedError as exc:
         print(f"[accuracy] plain ADMM (no Newton polish, tol_mm 1e-3, 5000 it per load step) "
               f"FAILED: {exc}", flush=True)
         rp = None
@@ -187,7 +189,7 @@ def scaling(sizes, pushes, rounds):
         t = time.perf_counter()
         case = load_case(CASE, mesh=phantom(s))
         tm = time.perf_counter() - t
-        admm._CACHE.clear()
+        operators.OPERATOR_CACHE.clear()
         t = time.process_time()
         ops = admm.prepare(case.with_pushes(pushes))
         ts = time.process_time() - t

@@ -43,7 +43,7 @@ import numpy as np
 from tissue_reference.meshes.builders import CELLS_PER_VOLUME, box, structured_box
 from tissue_reference.meshes.case import Boundary, Case, Material
 from tissue_reference.solvers import admm
-from tissue_reference.solvers.admm import kernel_c
+from tissue_reference.solvers.admm import kernel_c, operators
 
 DEFAULT_BYTES_PER_TET = 10 * 1024  # host memory guess before a size has been measured
 
@@ -113,7 +113,7 @@ def per_iteration_ms(case, u0, device, iters, repeats):
 def memory_mib(case, u0, device):
     """(host peak MiB of operator setup + 3 iterations incl. SuperLU's untraced factor, GPU
     pool MiB or None)."""
-    admm._CACHE.clear()
+    operators.OPERATOR_CACHE.clear()
     tracemalloc.start()
     admm.solve(case, initial=u0, polish=False, lift=False, load_steps=1, max_iter=3,
                tol_mm=1e-30, device=device)
@@ -168,7 +168,7 @@ def main():
         mesh, how = build_box(target, a.mesher)
         t_mesh = time.perf_counter() - t
         case = box_case(mesh)
-        admm._CACHE.clear()
+        operators.OPERATOR_CACHE.clear()
         u0 = admm.solve(case, polish=False, lift=False, load_steps=1, max_iter=10).u
         setup_cpu = admm.prepare(case).setup_s
         row = {"tets": mesh.n_cells, "vertices": mesh.n_vertices, "mesh_s": t_mesh,

@@ -27,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tissue_reference.meshes.case import load_case
 from tissue_reference.solvers import mass_tensor as mt
+from tissue_reference.solvers.mass_tensor import driver as mt_driver
 
 CASE = Path(__file__).resolve().parents[1] / "meshes" / "cases" / "phantom.toml"
 PUSHES = {"A1": 15.0, "A2": 15.0, "A3": 15.0, "A4": 15.0}
@@ -115,9 +116,9 @@ def scaling(sizes):
     data = []
     for size in sizes:
         case = phantom_case(size)
-        mt._MODELS.clear()
+        mt_driver.MODEL_CACHE.clear()
         t = time.perf_counter()
-        mt._model_for(case).matrix()
+        mt_driver.model_for(case).matrix()
         build = time.perf_counter() - t
         times = {}
         for method in ("pcg", "descent"):                # timed without tracemalloc (it slows numpy)
@@ -125,7 +126,7 @@ def scaling(sizes):
             mt.solve(case, method=method, stop_mm=1e-30, max_iter=50,  # set-up excluded
                      callback=lambda it, u, s=stamps: s.append(time.perf_counter()))
             times[method] = (stamps[-1] - stamps[0]) / (len(stamps) - 1)
-        mt._MODELS.clear()
+        mt_driver.MODEL_CACHE.clear()
         tracemalloc.start()
         mt.solve(case, method="pcg", stop_mm=1e-30, max_iter=5)
         peak = tracemalloc.get_traced_memory()[1] / 2 ** 20

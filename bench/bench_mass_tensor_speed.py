@@ -40,7 +40,7 @@ def row(size: float, pushes=(4.0, 3.5)) -> None:
         reference_solve(case, pushes={"A1": p}, degree=1)            # first call: compiles
         refs[p], t = _timed(lambda p=p: reference_solve(case, pushes={"A1": p}, degree=1))
         ref_t.append(t)
-    driver._MODELS.clear()                                           # a cold Mass Tensor model
+    driver.MODEL_CACHE.clear()                                           # a cold Mass Tensor model
     cold, t_cold = _timed(lambda: mt.solve(case, pushes={"A1": pushes[0]},
                                            factorize=cholmod_factor))
     warm, t_warm = _timed(lambda: mt.solve(case, pushes={"A1": pushes[1]},

@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def run(full: bool, steps: int, task_mm: float):
     import tissue_reference.fem_reference as fr
     from tissue_reference.control.loop import LoopSettings
-    from tissue_reference.control.plants import _full_warm_start
+    from tissue_reference.control.plants import full_warm_start
     from tissue_reference.control.scenarios import scenario_loop
     from tissue_reference.fem_reference.kept import forget_solvers
     from tissue_reference.meshes.builders import build
@@ -39,7 +39,7 @@ def run(full: bool, steps: int, task_mm: float):
     def vertex_plant(c, pushes, initial):   # what a loop got before: the vertex field
         return fr.solve(c, pushes=pushes, initial=initial)
 
-    inner = _full_warm_start(vertex_plant) if full else vertex_plant
+    inner = full_warm_start(vertex_plant) if full else vertex_plant
 
     def plant(c, pushes, initial):
         t0 = time.perf_counter()

@@ -95,7 +95,7 @@ def ball_only() -> None:
         return np.linalg.norm(np.asarray(y, float) - o, axis=1) - self.edge
 
     global TIP
-    cg._gap_ufl = ci._gap_ufl = gap_ufl
+    cg.gap_ufl = ci.gap_ufl = gap_ufl
     cg.TipShape.gap = gap
     TIP = "free ball"
 

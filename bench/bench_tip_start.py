@@ -2,7 +2,7 @@
 dome, and what A1's force becomes when that offset is taken out.
 
 A tip starts where it first touches the contact surface's displacement nodes
-(``contact_indenter._Indenter._start``). The nodes lie on the true dome, but the first point
+(``contact_indenter.Indenter._start``). The nodes lie on the true dome, but the first point
 of contact between the sphere and the dome generally lies between them, so on every mesh the tip
 starts deeper than on the true body by some delta >= 0 (mm), which varies from level to level
 with where the nodes happen to fall, not smoothly with the cell size. Every push of that level

@@ -175,7 +175,6 @@ def inverse_push(Js, p, *, solver="highs", tol=1e-7):
 def _travel_lp_casadi(Js, p_star, plugin):
     import casadi as ca
 
-
     _, r = Js.shape
     qp = {"h": ca.DM(r, r).sparsity(), "a": ca.DM(Js).sparsity()}
     opts = {"qpoases": {"printLevel": "none"}, "highs": {"highs": {"output_flag": False}}}
@@ -232,7 +231,6 @@ def manipulability_map(case, K, *, plane_z=15.0, spacing=4.0, tasks=(1, 2, 3), s
     "task<k>": {"index": grid (NaN outside the mesh or where the goal is unreachable),
     "reachable": grid mask}."""
     import scipy.sparse as sp
-
 
     if not (np.isfinite(spacing) and spacing > 0):
         raise CaseError(f"map spacing must be > 0 mm, got {spacing!r}")

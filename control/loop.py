@@ -323,7 +323,6 @@ def plot_response(result: LoopResult, path, *, title=None):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-
     fig, ax = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
     t = result.time_s
     for c in np.flatnonzero(result.mask):

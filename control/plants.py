@@ -80,13 +80,13 @@ def plant_for(name: str, *, degree: int | None = None, tight: bool = True):
         # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
         from tissue_reference.fem_reference import solve
 
-        return _full_warm_start(lambda case, pushes, initial: solve(
+        return full_warm_start(lambda case, pushes, initial: solve(
             case, degree=degree, pushes=pushes, initial=initial))
     if name == "admm":
         kw = dict(ADMM_CONTROL_OPTIONS) if tight else {}
         # the previous answer itself warm-starts: with rigid tips it carries their pushes, so
         # the tips start where that state was solved
-        return _full_warm_start(lambda case, pushes, initial: admm_solve(
+        return full_warm_start(lambda case, pushes, initial: admm_solve(
             case, pushes=pushes, initial=initial, **kw))
     raise CaseError(f"unknown plant/model solver {name!r}; choose fem or admm")
 
@@ -128,11 +128,11 @@ def _solved_reference(case, state_pushes, degree, formulation):
     if not res.converged:
         raise CaseError(f"the state solve at pushes {state_pushes} did not converge")
 
-    return s, res, _full_warm_start(lambda c, pushes, initial: s.solve(pushes, case=c,
+    return s, res, full_warm_start(lambda c, pushes, initial: s.solve(pushes, case=c,
                                                                         initial=initial))
 
 
-def _full_warm_start(solve):
+def full_warm_start(solve):
     """plant(case, pushes, initial) around a reference ``solve`` of the same signature: when
     ``initial`` is the vertex field (``.u``) of the plant's own previous answer, that answer
     itself warm-starts the solve, so a degree-2 or mixed solve starts from its full state (edge

@@ -225,7 +225,7 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
             solver_options.get("curved") is not False
         try:
             if answer is None:
-                answer = _answer(case, p, pushes, formulation, solver_options, start)
+                answer = level_answer(case, p, pushes, formulation, solver_options, start)
             if p >= 2 and finite_strain and not answer.extra.get("valid", True):
                 kept, kept_case = (last[0], last_case) if last is not None else (answer, case)
                 raise AccuracyNotReached(
@@ -348,7 +348,7 @@ def _invalid_level(case, answer, level: int, degree: int, accuracy: float,
             + f"; refining further would chase that point; {last}")
 
 
-def _answer(case, degree, pushes, formulation, options, start):
+def level_answer(case, degree, pushes, formulation, options, start):
     """The degree-``degree`` answer of ``case``: warm-started from ``start`` = (solver, answer,
     parents) of the coarser level (its enriched answer, carried to the refined mesh by
     ``transfer.prolong``), or from rest when there is none, when the warm start does not converge

@@ -10,6 +10,7 @@ from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import SolveResult
 
+from .estimate import auto_estimate
 from .estimate import estimate as with_estimate
 from .kept import solver_for
 from .measured import with_measured_accuracy
@@ -18,7 +19,7 @@ __all__ = ["solve"]
 
 
 def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None,
-          dirichlet_override=None, progress: bool = False, estimate: bool = False,
+          dirichlet_override=None, progress: bool = False, estimate: bool | str = False,
           **kw) -> SolveResult:
     """Solve a Case with the reference (compiled forms are cached per mesh and degree).
 
@@ -28,19 +29,26 @@ def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None,
     pushes: actuator name -> push (mm); initial: warm start (n_vertices, gdim) mm;
     dirichlet_override: (node-major Case dofs, values in mm) added to the Case's prescriptions.
     estimate: add the estimated discretization error (``fem_reference.estimate``: one more solve
-    at degree + 1) to ``extra``: probe_error_estimates (mm), reaction_error_estimates (mN), ...
+    at degree + 1) to ``extra``: probe_error_estimates (mm), reaction_error_estimates (mN), ...;
+    "auto": only where that is cheap (``estimate.auto_estimate``; otherwise
+    ``extra["estimate_note"]`` says why there is none), as ``tissue solve`` does by default.
     A case file's measured accuracy for exactly this load and discretization
     (``[reference.measured]``, ``fem_reference.measured``) is in ``extra["measured_accuracy"]``.
     An answer that is not valid, past the loads where answers converge, or with an estimated
     error above 2 % also warns (``meshes.errors.TissueWarning``; ``meshes.answer_warnings``).
     """
+    if estimate not in (False, True, "auto"):
+        raise CaseError(f"estimate must be True, False or 'auto', got {estimate!r}")
     if estimate and dirichlet_override is not None:
-        raise CaseError("estimate=True: the error estimate does not take dirichlet_override")
+        raise CaseError(f"estimate={estimate!r}: the error estimate does not take "
+                        f"dirichlet_override")
     s = solver_for(case, degree, **kw)
     res = s.solve(pushes, case=case, initial=initial, dirichlet_override=dirichlet_override,
                   progress=progress)
     if dirichlet_override is None:   # another problem than the case's: no row describes it
         res = with_measured_accuracy(case, res, pushes)
-    if estimate:
+    if estimate == "auto":
+        res = auto_estimate(case, res, pushes=pushes, progress=progress, degree=degree, **kw)
+    elif estimate:
         res = with_estimate(case, res, pushes=pushes, progress=progress, **kw)
     return warn_about(res)

@@ -15,7 +15,7 @@ class BoundaryMixin:
     """Builds the DirichletBCs of a Case on the displacement part ``self.Wu`` of the unknown's space
     (needs self.dm, self.gdim, self._oblique)."""
 
-    def _bcs(self, case: Case, scale: float, override=None):
+    def dirichlet_bcs(self, case: Case, scale: float, override=None):
         """Dirichlet conditions of ``case`` at load ``scale`` (topological on facet regions), as
         (DirichletBC, its value Function, parent dofs, collapsed dofs) per component."""
         V, mesh = self.Wu, self.dm.mesh

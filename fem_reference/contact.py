@@ -121,12 +121,12 @@ from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import SolveResult
 from tissue_reference.meshes.tips import DEFAULT_CONTACT_PENALTY
 
-from .contact_geometry import TipShape, _gap_ufl, nodal_rule  # noqa: F401  (re-exported)
+from .contact_geometry import TipShape, gap_ufl, nodal_rule  # noqa: F401  (re-exported)
 from .contact_indenter import (  # noqa: F401  (re-exported)
     SLIP_FRACTION,
     SURFACE_SAMPLES,
-    _facet_samples,
-    _Indenter,
+    Indenter,
+    facet_sample_points,
 )
 
 __all__ = ["DEFAULT_CONTACT_PENALTY", "Contact", "TipShape", "contact_key", "nodal_rule"]
@@ -167,7 +167,7 @@ class Contact:
         self.comm = solver.comm
         self._total, self._energy = None, 0.0
         self.key = contact_key(case)
-        self.indenters: list[_Indenter] = []
+        self.indenters: list[Indenter] = []
         self.energy = 0
         self.normal_energy = 0
         if not self.key:
@@ -182,7 +182,7 @@ class Contact:
         ds = ufl.Measure("ds", domain=mesh, subdomain_data=solver.dm.facet_tags, metadata=md)
         X = ufl.SpatialCoordinate(mesh)
         for a in case.indenters():
-            ind = _Indenter(a, solver, case, penalty, ds, X, solver.u_ufl, self._cell_sizes(),
+            ind = Indenter(a, solver, case, penalty, ds, X, solver.u_ufl, self._cell_sizes(),
                             tip_start)
             self.indenters.append(ind)
             self.energy = self.energy + ind.energy
@@ -191,7 +191,7 @@ class Contact:
     def tangent_without_curvature(self, v, w):
         """Newton's iteration matrix for the contact after a halved correction (UFL bilinear
         form, or None without indenters): the normal penalties' Hessians less the tips'
-        curvature terms (``_Indenter.tangent_without_curvature``). Away from the answer a node
+        curvature terms (``Indenter.tangent_without_curvature``). Away from the answer a node
         pressed deep into a convex tip makes the exact tangent indefinite and its corrections
         huge; this part is positive semi-definite. Subtract ``normal_energy``'s own Hessian
         from the exact tangent to use it."""
@@ -318,7 +318,7 @@ class Contact:
 
     def warnings(self) -> list[str]:
         """The ``unconverged`` lines and, with a Gauss rule, one per indenter whose contact is
-        narrower than the cells under it (``_Indenter.contact_width``: radius below GAUSS_NARROW
+        narrower than the cells under it (``Indenter.contact_width``: radius below GAUSS_NARROW
         x their longest edge), where the rule over-constrains the skin (module docstring); []
         when neither."""
         out = self.unconverged()

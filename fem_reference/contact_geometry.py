@@ -2,7 +2,7 @@
 
 Units: length mm.
 
-``_gap_ufl``: the gap of ``meshes.tips.TipShape`` (a rounded punch; a sphere is the punch with
+``gap_ufl``: the gap of ``meshes.tips.TipShape`` (a rounded punch; a sphere is the punch with
 no flat) as a UFL expression of the current position, for the penalty forms. ``TipShape`` (the
 gap in numpy) and ``nodal_rule`` (one quadrature point per displacement node of a contact facet,
 ``meshes.facet_quadrature``) live in the meshes layer, which the fast solvers share; they are
@@ -18,7 +18,7 @@ from tissue_reference.meshes.tips import TipShape
 __all__ = ["TipShape", "nodal_rule"]
 
 
-def _gap_ufl(y, o, d, flat, edge, sphere: bool):
+def gap_ufl(y, o, d, flat, edge, sphere: bool):
     """The gap g (mm) of the current position y (UFL), as TipShape.gap."""
     w = y - o
     h = ufl.dot(w, d)

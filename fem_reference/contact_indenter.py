@@ -3,7 +3,7 @@ position on the contact surface, and what each solve reports about it.
 
 Units: length mm, force mN, area mm^2, penalty stiffness kPa/mm.
 
-``_Indenter`` builds the node-to-surface penalty (``fem_reference.contact`` module docstring)
+``Indenter`` builds the node-to-surface penalty (``fem_reference.contact`` module docstring)
 for one actuator of type "indenter". Its ``report`` gives the push, force, contact area and
 nodal penetration and the surface-penetration check: the penalty acts at the surface's nodes
 only, so a tip narrower than the facets can pass between them; each contact facet is sampled
@@ -36,12 +36,12 @@ from tissue_reference.meshes.tips import (
     passed_through,
 )
 
-from .contact_geometry import _gap_ufl
+from .contact_geometry import gap_ufl
 
 __all__ = ["SLIP_FRACTION", "START_SAMPLES", "SURFACE_SAMPLES"]
 
 
-def _facet_samples(nv: int, n: int | None = None) -> np.ndarray:
+def facet_sample_points(nv: int, n: int | None = None) -> np.ndarray:
     """Barycentric sample points (s, nv) of a facet with nv vertices (2: edge, 3: triangle),
     ``n`` (default SURFACE_SAMPLES) per edge."""
     return facet_samples(nv, SURFACE_SAMPLES if n is None else n)
@@ -57,7 +57,7 @@ def _facet_sample_points(mesh, facets, f2c):
     geo = dolfinx.cpp.mesh.entities_to_geometry(getattr(mesh, "_mesh", mesh), fdim,
                                                 np.asarray(facets, np.int32), False)
     corners = mesh.geometry.x[geo[:, :fdim + 1], :gdim]     # the facets' vertices first
-    bary = _facet_samples(fdim + 1)
+    bary = facet_sample_points(fdim + 1)
     pts = np.einsum("sk,fkd->fsd", bary, corners).reshape(-1, gdim)
     cells = np.repeat([f2c.links(f)[0] for f in facets], len(bary)).astype(np.int32)
     return pts, cells
@@ -80,7 +80,7 @@ def _curved_facet_points(mesh, facets, f2c, n: int, keep=None) -> np.ndarray:
             facets, verts = np.asarray(facets)[mask], verts[mask]
     if not len(facets):
         return np.zeros((0, gdim))
-    bary = _facet_samples(fdim + 1, n)                               # (s, nv)
+    bary = facet_sample_points(fdim + 1, n)                               # (s, nv)
     dofmap = mesh.geometry.dofmap
     if len(dofmap.links(0)) == fdim + 2:                             # straight cells
         return np.einsum("sk,fkd->fsd", bary, verts).reshape(-1, gdim)
@@ -96,7 +96,7 @@ def _curved_facet_points(mesh, facets, f2c, n: int, keep=None) -> np.ndarray:
     return np.vstack(out)
 
 
-class _Indenter:
+class Indenter:
     """One indenter's constants, forms and start position on a ReferenceSolver."""
 
     def __init__(self, a: Actuator, solver, case: Case, beta: float, ds, X, u, h_cell,
@@ -150,7 +150,7 @@ class _Indenter:
         k = beta * solver.E / h_cell
         self.E = solver.E
         y = ufl.variable(X + u)
-        g = _gap_ufl(y, self.q - edge * d, d, flat, edge, self.shape.sphere)
+        g = gap_ufl(y, self.q - edge * d, d, flat, edge, self.shape.sphere)
         pen = -g
         eps = h_cell / beta  # smoothing width (mm) of the penalty's kink
         pi = k * ufl.conditional(ufl.le(pen, 0.0), 0.0, ufl.conditional(

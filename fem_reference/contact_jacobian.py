@@ -44,8 +44,8 @@ def indenter_jacobian(solver, case: Case, *, actuators=None, targets=None,
         raise CaseError(f"{missing} are not indenters of this solver; indenters: {list(by_name)}")
     probes = [p.name for p in case.probes] if targets is None else list(targets)
     x0 = solver.x.x.array.copy()
-    bcs = [e[0] for e in solver._bcs(case, 1.0, None)]
-    solver._assemble_tangent(bcs)
+    bcs = [e[0] for e in solver.dirichlet_bcs(case, 1.0, None)]
+    solver.assemble_tangent(bcs)
 
     def lu(percent=None):
         k = PETSc.KSP().create(solver.comm)
@@ -68,7 +68,7 @@ def indenter_jacobian(solver, case: Case, *, actuators=None, targets=None,
             sides = []
             for sign in (1.0, -1.0):
                 ind.q.value = q0 + sign * step * ind.d
-                solver._assemble_residual(bcs)
+                solver.assemble_residual(bcs)
                 sides.append(solver.b.copy())
             ind.q.value = q0
             # K du = -(R(q + h d) - R(q - h d)) / (2 h)
@@ -93,7 +93,7 @@ def indenter_jacobian(solver, case: Case, *, actuators=None, targets=None,
         solver.x.x.array[:] = x0
         solver.x.x.scatter_forward()
         solver._sync_fields()
-        solver._assemble_residual(bcs)
+        solver.assemble_residual(bcs)
         ksp.destroy()
         rhs.destroy()
         du.destroy()

@@ -38,11 +38,11 @@ from .richardson import (
     RATIO,
     QuantityConvergence,
     VectorConvergence,
-    _vector,
     assess,
     gci,
     observed_order,
     richardson,
+    vector_convergence,
 )
 from .solver import ReferenceSolver
 
@@ -186,9 +186,9 @@ def refinement_study(case: Case, *, levels: int = MIN_LEVELS, degree: int = 1, p
     r_scale = max((float(np.abs(v).max()) for v in reactions.values()), default=0.0)
     u_noise = max(NOISE_REL * u_scale, NOISE_ABS["mm"])
     r_noise = max(NOISE_REL * r_scale, NOISE_ABS["mN"])
-    pv = {n: _vector(n, "mm", v, h, degree + 1, order_tol, component_floor, u_noise)
+    pv = {n: vector_convergence(n, "mm", v, h, degree + 1, order_tol, component_floor, u_noise)
           for n, v in probes.items()}
-    rv = {n: _vector(n, "mN", v, h, 2 * degree, order_tol, component_floor, r_noise)
+    rv = {n: vector_convergence(n, "mN", v, h, 2 * degree, order_tol, component_floor, r_noise)
           for n, v in reactions.items()}
 
     why = tuple(unconverged_load(case, pushes))
@@ -304,7 +304,6 @@ def plot_studies(studies, path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
 
     path = Path(path)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))

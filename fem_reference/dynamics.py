@@ -171,7 +171,7 @@ def _vertex_dofs(solver, values) -> np.ndarray:
     """A vertex field (n_vertices, gdim) as a full local dof array of the solver's unknown (the
     P1 interpolant at degree >= 2; zero pressure); the solver's state is left unchanged."""
     saved = solver.x.x.array.copy()
-    solver._set_state(np.asarray(values, float))
+    solver.set_state(np.asarray(values, float))
     out = solver.x.x.array.copy()
     if solver.Q is not None:
         out[solver._pmap] = 0.0
@@ -246,9 +246,9 @@ def simulate(case: Case, *, dt: float, steps: int, pushes=None, initial=None,
             const.value = val
         solver.x.x.array[:] = 0.0
         if initial is not None:
-            solver._set_state(initial)
+            solver.set_state(initial)
         prescribed = np.zeros(len(solver.x.x.array), bool)
-        for _, g, parent, coll in solver._bcs(case0, 1.0):
+        for _, g, parent, coll in solver.dirichlet_bcs(case0, 1.0):
             solver.x.x.array[parent] = g.x.array[coll]
             prescribed[parent] = True
         solver.x.x.scatter_forward()

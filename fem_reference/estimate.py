@@ -278,7 +278,6 @@ def _no_auto_estimate(case: Case, result: SolveResult, max_dofs: int, options: d
     """Why ``auto_estimate`` does not estimate ``result`` (None: it does)."""
     from mpi4py import MPI
 
-
     if result.solver != "fem":
         return f"a {result.solver!r} answer: estimates are for reference answers"
     if not result.converged or not result.extra.get("valid", True):

@@ -7,7 +7,7 @@ import numpy as np
 import scipy.sparse as sp
 from petsc4py import PETSc
 
-from .linalg import _has_cholmod, _quiet_c_output
+from .linalg import has_cholmod, quiet_c_output
 
 __all__ = ["cholmod_factor"]
 
@@ -20,7 +20,7 @@ def cholmod_factor(A, cache: dict | None = None):
     same sparsity pattern only refactorizes numerically. This is the ``factorize`` hook of
     ``solvers.admm.solve`` (the fast solvers import no PETSc): on the 4k-dof phantom tangent it
     factorizes in 0.036 s against SuperLU's 0.1 s."""
-    if A.shape[0] < 500 or not _has_cholmod():
+    if A.shape[0] < 500 or not has_cholmod():
         return None
     cache = {} if cache is None else cache
     A = sp.csr_matrix(A)
@@ -29,11 +29,11 @@ def cholmod_factor(A, cache: dict | None = None):
         f.M.setValuesCSR(*f.keep[:2], np.array(A.data, dtype=PETSc.ScalarType))
         f.M.assemble()
     else:
-        f = cache["cholmod"] = _PetscFactor(A)
+        f = cache["cholmod"] = PetscFactor(A)
     try:
         # the numeric factorization runs at the first solve: one here, so that a matrix that is
         # not positive definite is caught now (CHOLMOD prints a warning for it: silenced)
-        with _quiet_c_output():
+        with quiet_c_output():
             f.ksp.setUp()
             f.solve(np.ones(A.shape[0]))
     except (PETSc.Error, RuntimeError):  # not positive definite: the caller falls back
@@ -42,7 +42,7 @@ def cholmod_factor(A, cache: dict | None = None):
     return f
 
 
-class _PetscFactor:
+class PetscFactor:
     """A CHOLMOD-factorizing PETSc KSP of a CSR matrix as a ``solve(b)`` object (petsc4py uses
     the CSR arrays by reference: they live here as long as the matrix)."""
 

@@ -37,7 +37,6 @@ def cell_min_J(solver) -> np.ndarray:
     import dolfinx
     import ufl
 
-
     mesh = solver.dm.mesh
     tdim = mesh.topology.dim
     u = solver.u

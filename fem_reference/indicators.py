@@ -51,7 +51,6 @@ def energy_indicators(case: Case, answer: SolveResult, estimate) -> np.ndarray:
     import dolfinx.fem.petsc
     import ufl
 
-
     solver = getattr(estimate, "solver", None)
     if solver is None:
         raise CaseError("energy_indicators: the estimate does not carry its enriched solver")

@@ -29,7 +29,7 @@ FIELDSPLIT_ABOVE_DOFS = 100_000
 
 
 @functools.cache
-def _has_cholmod() -> bool:
+def has_cholmod() -> bool:
     """Whether this PETSc build has SuiteSparse's CHOLMOD (Debian's has)."""
     try:
         m = PETSc.Mat().createAIJ((1, 1), nnz=1, comm=PETSc.COMM_SELF)
@@ -46,7 +46,7 @@ def _has_cholmod() -> bool:
         return False
 
 
-class _quiet_c_output:
+class quiet_c_output:
     """Silences C-level stdout and stderr (file descriptors 1 and 2) inside the block (CHOLMOD
     prints its warnings with printf)."""
 
@@ -71,7 +71,7 @@ class _quiet_c_output:
 class LinearSolveMixin(SaddleSolveMixin):
     """The ReferenceSolver's linear solves (needs self.A, self.b, self.du, self.comm, ...)."""
 
-    negative_pivots = None  # the inertia of the last factorized tangent (``_krylov_solve``)
+    negative_pivots = None  # the inertia of the last factorized tangent (``krylov_solve``)
     mumps_workspace = None  # MUMPS's ICNTL(14) (percent), None: its default
     _factor_broken = False  # the factor's last factorization failed: it needs a new one
 
@@ -135,17 +135,17 @@ class LinearSolveMixin(SaddleSolveMixin):
         the symbolic analysis of the fixed pattern and a grown MUMPS workspace."""
         if self.linear_solver in ("direct", "lagged") and \
                 self.factor_package != self._first_factor_package:
-            self._use_factor(self._first_factor_package)
-        self._refactor = True
+            self.use_factor(self._first_factor_package)
+        self.refactor = True
         if self.linear_solver == "fieldsplit":
             self._fresh_its = None
 
-    def _use_factor(self, pkg: str):
+    def use_factor(self, pkg: str):
         """(Re)build the factorizing KSP with ``pkg``; P is made at the next refresh."""
         self.factor_package = pkg
         self.P = None
         self._T = None
-        self._refactor = True
+        self.refactor = True
         self._factor_broken = False
         self.ksp = self.direct_ksp = self._factor_ksp(pkg)
 
@@ -196,16 +196,16 @@ class LinearSolveMixin(SaddleSolveMixin):
             self.ksp.setOperators(self.A, self.P)
             if self.factor_package == "mumps":
                 set_mumps_workspace(self.ksp, self.mumps_workspace)
-        self._refactor = False
+        self.refactor = False
         self.timings.factorizations += 1
 
-    def _krylov_solve(self, eta):
+    def krylov_solve(self, eta):
         """One solve of the current factorizing KSP; a CHOLMOD failure (tangent not positive
         definite) switches to MUMPS and solves again. ``negative_pivots``: the inertia of the
         tangent when it was factorized for this solve, else None."""
         if self._factor_broken:
-            self._use_factor(self.factor_package)
-        refresh = self.linear_solver == "direct" or self._refactor
+            self.use_factor(self.factor_package)
+        refresh = self.linear_solver == "direct" or self.refactor
         if refresh:
             self._refresh_factor()
         self.negative_pivots = None
@@ -213,7 +213,7 @@ class LinearSolveMixin(SaddleSolveMixin):
             self.ksp.setTolerances(rtol=eta)
         try:
             if self.factor_package == "cholmod":
-                with _quiet_c_output():  # CHOLMOD printf's a warning on an indefinite tangent
+                with quiet_c_output():  # CHOLMOD printf's a warning on an indefinite tangent
                     self.ksp.solve(self.b, self.du.vector)
             else:
                 self.ksp.solve(self.b, self.du.vector)
@@ -221,11 +221,11 @@ class LinearSolveMixin(SaddleSolveMixin):
             if self.factor_package != "cholmod":
                 raise
             log.info("tangent not positive definite for CHOLMOD: switching to MUMPS LDL^T")
-            self._use_factor("mumps")
-            self._krylov_solve(eta)
+            self.use_factor("mumps")
+            self.krylov_solve(eta)
             return
         if self._after_mumps_failure(self.ksp):
-            self._krylov_solve(eta)
+            self.krylov_solve(eta)
             return
         if refresh:
             self.negative_pivots = self._inertia()
@@ -240,7 +240,7 @@ class LinearSolveMixin(SaddleSolveMixin):
         except PETSc.Error:
             return None
 
-    def _linear_solve(self, eta: float) -> bool:
+    def linear_solve(self, eta: float) -> bool:
         """du = -A^-1 b at relative tolerance ``eta`` (Krylov modes); False when it fails."""
         lagged = self.linear_solver == "lagged"
         self.b.scale(-1.0)
@@ -257,18 +257,18 @@ class LinearSolveMixin(SaddleSolveMixin):
                                                         self.du.vector, self._fallback_factor)
                     self.timings.factorizations += 1
             else:
-                self._krylov_solve(eta)
+                self.krylov_solve(eta)
                 ksp = self.ksp
                 its = ksp.getIterationNumber()
                 if ksp.getConvergedReason() < 0 and lagged:
                     # the old factor is too far from this tangent: refactorize and solve again
-                    self._refactor = True
-                    self._krylov_solve(eta)
+                    self.refactor = True
+                    self.krylov_solve(eta)
                     ksp = self.ksp
                     its += ksp.getIterationNumber()
         except PETSc.Error as exc:  # MUMPS on NaN entries (error 76) and the like
             log.debug("linear solve failed: %s", exc)
-            self._refactor = True
+            self.refactor = True
             # the factor may be left half set up: the next solve builds a new one
             self._factor_broken = self.linear_solver in ("direct", "lagged")
             return False
@@ -277,7 +277,7 @@ class LinearSolveMixin(SaddleSolveMixin):
         if self.linear_solver != "direct":
             self.timings.krylov_iterations += its
             if lagged and its > self.settings.lag_max_its:
-                self._refactor = True
+                self.refactor = True
         self.du.x.scatter_forward()
         return ksp.getConvergedReason() > 0
 

@@ -20,7 +20,7 @@ from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.results import SolveResult
 
-from .newton_settings import NewtonSettings, _Timings, settings_json
+from .newton_settings import NewtonSettings, Timings, settings_json
 
 __all__ = ["NewtonMixin", "NewtonSettings", "settings_json"]
 
@@ -46,7 +46,7 @@ class NewtonMixin:
         """E h_min (mN/mm): the diagonal of the Dirichlet rows."""
         return float(self.E.value) * float(self.dm.h_min)
 
-    def _assemble_residual(self, bcs) -> float:
+    def assemble_residual(self, bcs) -> float:
         """b = R(u) with the Dirichlet rows set to E h_min (u - g) (lifting included); returns
         |b| (mN)."""
         t0 = time.perf_counter()
@@ -62,7 +62,7 @@ class NewtonMixin:
         self.timings.assemble += time.perf_counter() - t0
         return b.norm()
 
-    def _assemble_tangent(self, bcs, drop: bool = False):
+    def assemble_tangent(self, bcs, drop: bool = False):
         """The exact tangent, or with indenters and ``drop`` the one without the tips' curvature
         terms (``K_halved_form``, fem_reference.contact)."""
         t0 = time.perf_counter()
@@ -83,7 +83,7 @@ class NewtonMixin:
         d.abs()
         d.scale(mu)
         self.A.setDiagonal(d, addv=PETSc.InsertMode.ADD_VALUES)
-        self._refactor = True
+        self.refactor = True
 
     def _correction(self, bcs, eta, drop, shift, test):
         """Newton's correction du from the tangent (without the tips' curvature if ``drop``,
@@ -95,12 +95,12 @@ class NewtonMixin:
         Returns (ok, slope (uJ; None untested), drop, shift): the tangent used."""
         s = self.settings
         while True:
-            self._assemble_tangent(bcs, drop)
+            self.assemble_tangent(bcs, drop)
             if shift > 0:
                 self._shift_tangent(shift)
                 self.timings.shifts += 1
             t0 = time.perf_counter()
-            ok = self._linear_solve(eta)
+            ok = self.linear_solve(eta)
             self.timings.solve += time.perf_counter() - t0
             if not (ok and test):
                 return ok, None, drop, shift
@@ -132,7 +132,7 @@ class NewtonMixin:
         energy = self.contact.energy_search  # the line search tests the energy (indenters)
         shift = 0.0  # Levenberg-Marquardt shift of the tangent (relative to its diagonal)
         floor = 0.5 ** s.line_search  # the shortest step, taken regardless
-        rnorm = self._assemble_residual(bcs)
+        rnorm = self.assemble_residual(bcs)
         for it in range(1, s.max_iterations + 1):
             if trace is not None:
                 trace.append(rnorm)
@@ -164,7 +164,7 @@ class NewtonMixin:
             alpha = 1.0
             while True:
                 u.x.array[:] = u_old + alpha * du.x.array
-                rnew = self._assemble_residual(bcs)
+                rnew = self.assemble_residual(bcs)
                 if math.isfinite(rnew) and self.contact.accepts(
                         rnew, rnorm, it == 1 or alpha <= floor):
                     break
@@ -221,7 +221,7 @@ class NewtonMixin:
         when a load step still fails after the cut-backs.
         """
         t_start = time.perf_counter()
-        self.timings = _Timings(setup=self.timings.setup)  # per-solve counters
+        self.timings = Timings(setup=self.timings.setup)  # per-solve counters
         self._fresh_linear_state()   # nothing of an earlier solve steers this one
         case = (case or self.case).with_pushes(pushes or {})
         if case.mesh is not self.case.mesh:
@@ -238,13 +238,13 @@ class NewtonMixin:
         s = self.settings
         warm = initial is not None
         if warm:
-            self._set_state(initial)
+            self.set_state(initial)
         else:
             self.x.x.array[:] = 0.0
         # Dirichlet data at full load; each load step sets g = start + lam (full - start), where
         # start is the state's own boundary values (0 when cold), so a warm start ramps from
         # where it is to the new prescriptions.
-        entries = self._bcs(case, 1.0, dirichlet_override)
+        entries = self.dirichlet_bcs(case, 1.0, dirichlet_override)
         bcs = [e[0] for e in entries]
         ramps = []
         span = 0.0

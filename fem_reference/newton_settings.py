@@ -112,7 +112,7 @@ def settings_json(settings: NewtonSettings | None = None) -> dict:
 
 
 @dataclass
-class _Timings:
+class Timings:
     """Per-solve counters: seconds in assembly, linear solves and setup; factorizations, Krylov
     iterations, preconditioner builds, and Newton corrections solved with a shifted tangent."""
 

@@ -84,7 +84,6 @@ class StateMixin:
         """p solving the mixed form's pressure equation at ``u``: int (vol(u) + p/kappa) q = 0."""
         import ufl
 
-
         if getattr(self, "_pproj", None) is None:
             dx = ufl.Measure("dx", domain=self.dm.mesh, metadata={"quadrature_degree": self.qdeg})
             q, pt = ufl.TestFunction(self.Q), ufl.TrialFunction(self.Q)
@@ -117,7 +116,7 @@ class StateMixin:
             out[i] = v
         return out
 
-    def _set_state(self, initial, *, exact: bool = False):
+    def set_state(self, initial, *, exact: bool = False):
         """Load a displacement state into the solver's field.
 
         initial: a SolveResult of a reference solve (at degree 2 it carries the full nodal state,

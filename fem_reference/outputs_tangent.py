@@ -73,7 +73,7 @@ class TangentMixin:
         if self.comm.size > 1:
             raise CaseError("internal_forces export runs in serial")
         if u is not None:
-            self._set_state(u, exact=True)
+            self.set_state(u, exact=True)
         r = dolfinx.fem.petsc.assemble_vector(self.R_int_form)
         out = np.empty(len(r.array))
         out[self._w_out()] = r.array
@@ -86,14 +86,14 @@ class TangentMixin:
         u: a SolveResult of a reference solve on this mesh, or an array: (n_vertices, gdim)
         vertex values at degree 1; at degree 2 the full (n_nodes, gdim) nodal state in the
         Tangent node order (vertices, then the edge nodes of ``Tangent.node_points``) -- degree-2
-        vertex values alone raise CaseError unless all zero (see :meth:`_set_state`).
+        vertex values alone raise CaseError unless all zero (see :meth:`set_state`).
         """
         if self.comm.size > 1:
             raise CaseError("tangent export runs in serial (it returns one scipy matrix)")
         import scipy.sparse as sp
 
         if u is not None:
-            self._set_state(u, exact=True)
+            self.set_state(u, exact=True)
         case = self.case.with_pushes(pushes or {})
         self.load.value = 1.0
         A = dolfinx.fem.petsc.assemble_matrix(self.K_form)
@@ -109,7 +109,7 @@ class TangentMixin:
         P = sp.csr_matrix((np.ones(len(perm)), (perm, np.arange(len(perm)))), shape=(n, n))
         K = (P @ K @ P.T).tocsr()
         node_points = self._output_node_points()
-        bc_dofs = [perm[e[2]] for e in self._bcs(case, 1.0)]
+        bc_dofs = [perm[e[2]] for e in self.dirichlet_bcs(case, 1.0)]
         dd = np.unique(np.concatenate(bc_dofs)) if bc_dofs else np.zeros(0, np.int64)
         return Tangent(K, dd, node_points, nv, self.degree, n - len(self._umap),
                        self.formulation)

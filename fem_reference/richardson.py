@@ -207,7 +207,7 @@ class VectorConvergence:
         return d
 
 
-def _vector(name, unit, values, h, expected, order_tol, floor, noise) -> VectorConvergence:
+def vector_convergence(name, unit, values, h, expected, order_tol, floor, noise) -> VectorConvergence:
     v = np.asarray(values, dtype=np.float64)
     fine = np.abs(v[-1])
     k = int(np.argmax(fine))

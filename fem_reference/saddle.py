@@ -157,7 +157,7 @@ class SaddleSolveMixin:
 
     def _use_fallback_factor(self):
         """The fallback: MUMPS LDL^T of A itself (refactorized whenever A changed)."""
-        self._use_factor("mumps")
+        self.use_factor("mumps")
         self.ksp.setOperators(self.A, self.A)
         set_mumps_workspace(self.ksp, self.mumps_workspace)
 

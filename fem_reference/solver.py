@@ -44,9 +44,9 @@ from .discretization import (
 )
 from .dolfinx_mesh import DolfinxMesh, to_dolfinx
 from .forms import mixed_energy_density, strain_energy_density
-from .linalg import FIELDSPLIT_ABOVE_DOFS, LAGGED_ABOVE_DOFS, LinearSolveMixin, _has_cholmod
+from .linalg import FIELDSPLIT_ABOVE_DOFS, LAGGED_ABOVE_DOFS, LinearSolveMixin, has_cholmod
 from .logs import install_log_filters
-from .newton import NewtonMixin, NewtonSettings, _Timings
+from .newton import NewtonMixin, NewtonSettings, Timings
 from .outputs import OutputsMixin, Tangent
 from .petsc_memory import release_petsc_garbage
 
@@ -239,7 +239,7 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
         self.b = dolfinx.fem.petsc.create_vector(self.R_form)
         # The tangent is symmetric (Dirichlet rows and columns are both zeroed).
         self.A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
-        self._refactor = True
+        self.refactor = True
         if linear_solver == "iterative":
             # CG + smoothed-aggregation AMG with the rigid-body modes as near null space;
             # tight tolerance so Newton keeps its quadratic convergence; MUMPS as the fallback
@@ -258,12 +258,12 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
             # solves ~3x faster than MUMPS here; a tangent that is not positive definite switches
             # the solver to MUMPS LDL^T, which "direct" (exact solves of indefinite tangents),
             # the mixed formulation's saddle-point tangent and MPI runs always use.
-            pkg = "cholmod" if linear_solver == "lagged" and comm.size == 1 and _has_cholmod() \
+            pkg = "cholmod" if linear_solver == "lagged" and comm.size == 1 and has_cholmod() \
                 and self.formulation == "displacement" else "mumps"
-            self._use_factor(pkg)
+            self.use_factor(pkg)
             self._first_factor_package = pkg
         self._region_dofs = {}
-        self.timings = _Timings(setup=time.perf_counter() - t0)
+        self.timings = Timings(setup=time.perf_counter() - t0)
 
     def close(self) -> None:
         """Free the solver's matrices, vectors and factorizations now; it cannot solve again.

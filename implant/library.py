@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tissue_reference.meshes.builders import _finish, _gmsh_session
+from tissue_reference.meshes.builders import finish, gmsh_session
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.mesh import MeshData, boundary_facets, cell_volumes
 
@@ -97,7 +97,7 @@ def implant_mesh(spec: ImplantSpec, *, size: float | None = None) -> MeshData:
     """
     w, h, p = spec.dimensions()
     size = float(size) if size is not None else w / 16.0
-    with _gmsh_session("implant", size) as gmsh:
+    with gmsh_session("implant", size) as gmsh:
         occ = gmsh.model.occ
         s = occ.addSphere(0, 0, 0, 1.0)
         occ.dilate([(3, s)], 0, 0, 0, w / 2, h / 2, p)
@@ -114,7 +114,7 @@ def implant_mesh(spec: ImplantSpec, *, size: float | None = None) -> MeshData:
         for tag, (name, group) in enumerate((("base", base), ("shell", shell)), start=10):
             gmsh.model.addPhysicalGroup(2, group, tag)
             gmsh.model.setPhysicalName(2, tag, name)
-        mesh = _finish(gmsh, 3, None)
+        mesh = finish(gmsh, 3, None)
     pts = mesh.points.copy()
     if spec.shape == "anatomical":
         pts[:, 2] *= 1.0 - ANATOMICAL_ALPHA * pts[:, 1] / (h / 2)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tissue_reference.meshes.builders import _finish, _gmsh_session
+from tissue_reference.meshes.builders import finish, gmsh_session
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.mesh import MeshData, check_cells
 
@@ -173,7 +173,7 @@ def tissue_mesh(skin: TriSurface, muscle: TriSurface, *, size: float | None = No
     side = _side_triangles(tris, n)
     h = float(size) if size is not None else skin.mean_edge()
     pts = np.vstack([skin.points, muscle.points])
-    with _gmsh_session("tissue", h) as gmsh:
+    with gmsh_session("tissue", h) as gmsh:
         surfs = [(1, "skin", tris), (2, "muscle", tris + n), (3, "sides", side)]
         for tag, _, _ in surfs:
             gmsh.model.addDiscreteEntity(2, tag)
@@ -189,7 +189,7 @@ def tissue_mesh(skin: TriSurface, muscle: TriSurface, *, size: float | None = No
         gmsh.model.addPhysicalGroup(3, [vol], 1)
         gmsh.model.setPhysicalName(3, 1, "tissue")
         try:
-            mesh = _finish(gmsh, 3, out)
+            mesh = finish(gmsh, 3, out)
         except Exception as exc:
             if isinstance(exc, CaseError):
                 raise

@@ -62,7 +62,7 @@ from .builders_curved import (  # noqa: F401  (re-exported)
     phantom_symmetric,
     shell_octant,
 )
-from .builders_gmsh import _GMSH_STATE, _finish, _gmsh_session  # noqa: F401  (re-exported)
+from .builders_gmsh import GMSH_STATE, finish, gmsh_session  # noqa: F401  (re-exported)
 from .errors import CaseError
 from .mesh import MeshData
 from .mesh_cache import cached

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import builders_gmsh
-from .builders_gmsh import _finish
+from .builders_gmsh import finish
 from .mesh import MeshData
 
 __all__ = ["INDENT_BLOCK", "IndentBlock", "box", "cook_membrane", "indent_block", "rectangle",
@@ -25,7 +25,7 @@ def _axis_block(kind: str, size: float, lengths, out) -> MeshData:
     """Axis-aligned block (3D) or rectangle (2D) from the origin, with the cell group ``tissue``
     and one facet group per side: xmin, xmax, ymin, ymax (, zmin, zmax)."""
     d = len(lengths)
-    with builders_gmsh._gmsh_session(kind, size) as gmsh:
+    with builders_gmsh.gmsh_session(kind, size) as gmsh:
         occ = gmsh.model.occ
         tag = occ.addBox(0, 0, 0, *lengths) if d == 3 else occ.addRectangle(0, 0, 0, *lengths)
         occ.synchronize()
@@ -40,7 +40,7 @@ def _axis_block(kind: str, size: float, lengths, out) -> MeshData:
                 if abs(c[axis] - val) < 1e-9 * max(lengths):
                     gmsh.model.addPhysicalGroup(d - 1, [f], 10 + i)
                     gmsh.model.setPhysicalName(d - 1, 10 + i, name)
-        return _finish(gmsh, d, out)
+        return finish(gmsh, d, out)
 
 
 def box(size: float = 5.0, *, lengths=(10.0, 10.0, 10.0), out=None) -> MeshData:
@@ -112,7 +112,7 @@ def cook_membrane(size: float = 4.0, *, out=None) -> MeshData:
     (48, 52)). Plane stress (E, nu) is plane strain with E* = E (1 + 2 nu) / (1 + nu)^2,
     nu* = nu / (1 + nu): E* = 15/16, nu* = 1/4 here."""
     corners = [(0.0, 0.0), (48.0, 44.0), (48.0, 52.0), (48.0, 60.0), (0.0, 44.0)]
-    with builders_gmsh._gmsh_session("cook-membrane", size) as gmsh:
+    with builders_gmsh.gmsh_session("cook-membrane", size) as gmsh:
         occ = gmsh.model.occ
         pts = [occ.addPoint(x, y, 0.0) for x, y in corners]
         lines = [occ.addLine(pts[k], pts[(k + 1) % 5]) for k in range(5)]
@@ -128,7 +128,7 @@ def cook_membrane(size: float = 4.0, *, out=None) -> MeshData:
         for k, (name, p) in enumerate((("mid_edge", pts[2]), ("corner", pts[3]))):
             gmsh.model.addPhysicalGroup(0, [p], 20 + k)
             gmsh.model.setPhysicalName(0, 20 + k, name)
-        return _finish(gmsh, 2, out)
+        return finish(gmsh, 2, out)
 
 
 @dataclass(frozen=True)
@@ -168,7 +168,7 @@ def indent_block(size: float = 0.25, *, out=None, geometry: IndentBlock = INDENT
     a (1 + nu) (3 - 2 nu) / (pi (1 - nu^2) D) (0.4 % for a = 1 mm, nu = 0.45)."""
     g = geometry
     W, D, rp = g.half_width, g.depth, g.patch_radius
-    with builders_gmsh._gmsh_session("indent-block", size) as gmsh:
+    with builders_gmsh.gmsh_session("indent-block", size) as gmsh:
         occ = gmsh.model.occ
         blk = occ.addBox(0, 0, -D, W, W, D)
         o = occ.addPoint(0, 0, 0)
@@ -203,5 +203,5 @@ def indent_block(size: float = 0.25, *, out=None, geometry: IndentBlock = INDENT
             field, "F", f"Min({hmax!r}, {size!r} + {g.growth!r} * "
                         f"Max(0, Sqrt(x*x + y*y + z*z) - {g.core!r}))")
         gmsh.model.mesh.field.setAsBackgroundMesh(field)
-        return _finish(gmsh, 3, out)
+        return finish(gmsh, 3, out)
 

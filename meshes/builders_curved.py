@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import builders_gmsh
-from .builders_gmsh import _finish
+from .builders_gmsh import finish
 from .errors import CaseError
 from .mesh import MeshData, quality
 from .mirror import mirror
@@ -118,18 +118,18 @@ def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANT
              path_size: float | None = None, rim_size: float | None = None,
              base_rim_size: float | None = None,
              path_reach: float | None = None) -> MeshData:
-    """The phantom meshed as ``_phantom_once``, and again with the plugs' seams turned when the
+    """The phantom meshed as ``phantom_once``, and again with the plugs' seams turned when the
     first mesh has slivers below ``MIN_DIHEDRAL_DEG``; the better of the two (a warning when
     even that is below the floor, and the first when the second cannot be built)."""
     local = {"geometry": geometry, "site_size": site_size, "part": part,
              "path_size": path_size, "rim_size": rim_size, "base_rim_size": base_rim_size,
              "path_reach": path_reach}
-    first = _phantom_once(size, actuators, out, **local)
+    first = phantom_once(size, actuators, out, **local)
     angle = quality(first).min_dihedral_deg
     if angle >= MIN_DIHEDRAL_DEG:
         return first
     try:
-        turned = _phantom_once(size, actuators, out, seam_turn_deg=SEAM_TURN_DEG, **local)
+        turned = phantom_once(size, actuators, out, seam_turn_deg=SEAM_TURN_DEG, **local)
         turned_angle = quality(turned).min_dihedral_deg
     except Exception as exc:   # noqa: BLE001 - OCC or gmsh failing on the turned plugs
         _LOG.warning("phantom at size %g mm: meshing with the plugs' seams turned failed (%s); "
@@ -141,10 +141,10 @@ def _phantom(size: float, actuators, out=None, geometry: PhantomGeometry = PHANT
     if turned_angle >= angle:
         return turned
     # the first mesh is kept; a file written meanwhile by the second is written again
-    return _phantom_once(size, actuators, out, **local) if out is not None else first
+    return phantom_once(size, actuators, out, **local) if out is not None else first
 
 
-def _phantom_once(size: float, actuators, out=None, geometry: PhantomGeometry = PHANTOM,
+def phantom_once(size: float, actuators, out=None, geometry: PhantomGeometry = PHANTOM,
                   site_size: float | None = None, part: str = "full",
                   path_size: float | None = None, rim_size: float | None = None,
                   base_rim_size: float | None = None, path_reach: float | None = None,
@@ -170,7 +170,7 @@ def _phantom_once(size: float, actuators, out=None, geometry: PhantomGeometry = 
 
     actuators = [(n, az) for n, az in actuators if inside(g.side_point(az))]
     targets = [(n, xyz) for n, xyz in g.targets if inside(xyz)]
-    with builders_gmsh._gmsh_session("phantom", size) as gmsh:
+    with builders_gmsh.gmsh_session("phantom", size) as gmsh:
         occ = gmsh.model.occ
         s = occ.addSphere(0, 0, 0, g.radius)
         if planes:  # the sphere's seam (in the plane y = 0) away from the mirror planes: OCC's
@@ -274,7 +274,7 @@ def _phantom_once(size: float, actuators, out=None, geometry: PhantomGeometry = 
             _local_sizes(gmsh, sites, site_size, size, paths=paths, path_size=path_size,
                          path_reach=path_reach or PATH_REACH, rims=rims, rim_size=rim_size,
                          base_rim=base_rim, base_rim_size=base_rim_size)
-        return _finish(gmsh, 3, out, curved=True)
+        return finish(gmsh, 3, out, curved=True)
 
 
 def _vertex_at(gmsh, xyz, tag: int, tol: float) -> int:
@@ -406,7 +406,7 @@ def shell_octant(size: float = 2.5, *, inner: float = 10.0, outer: float = 20.0,
     ysym, zsym; cell group tissue."""
     if not (0 < inner < outer):
         raise CaseError(f"shell radii must satisfy 0 < inner < outer, got {inner!r}, {outer!r}")
-    with builders_gmsh._gmsh_session("shell-octant", size) as gmsh:
+    with builders_gmsh.gmsh_session("shell-octant", size) as gmsh:
         occ = gmsh.model.occ
         big = occ.addSphere(0, 0, 0, outer)
         small = occ.addSphere(0, 0, 0, inner)
@@ -428,5 +428,5 @@ def shell_octant(size: float = 2.5, *, inner: float = 10.0, outer: float = 20.0,
         for i, (name, fs) in enumerate(groups.items()):
             gmsh.model.addPhysicalGroup(2, fs, 10 + i)
             gmsh.model.setPhysicalName(2, 10 + i, name)
-        return _finish(gmsh, 3, out, curved=True)
+        return finish(gmsh, 3, out, curved=True)
 

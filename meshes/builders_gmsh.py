@@ -1,13 +1,13 @@
 """The gmsh session shared by the mesh builders, and the step from a gmsh model to a MeshData.
 Lengths in mm.
 
-``_gmsh_session`` opens one gmsh model with fixed meshing options (uniform characteristic
-length ``size`` in mm, Delaunay 3D, one thread) and removes it afterwards; ``_finish`` meshes
+``gmsh_session`` opens one gmsh model with fixed meshing options (uniform characteristic
+length ``size`` in mm, Delaunay 3D, one thread) and removes it afterwards; ``finish`` meshes
 the model, writes a gmsh 4.1 .msh (to ``out`` or a temporary file) and reads it back through
 ``meshes.io.read_msh``.
 
 The builders of ``meshes.builders_curved`` and ``meshes.builders_blocks`` open the session
-through this module's attribute (``builders_gmsh._gmsh_session``), so replacing it here reaches
+through this module's attribute (``builders_gmsh.gmsh_session``), so replacing it here reaches
 every one of them (tests do, to show that a refused build never starts gmsh). Other callers
 import it from ``meshes.builders``.
 """
@@ -22,19 +22,19 @@ from .errors import CaseError
 from .io import atomic_path, read_msh
 from .mesh import MeshData
 
-_GMSH_STATE = {"on": False}
+GMSH_STATE = {"on": False}
 
 
 @contextlib.contextmanager
-def _gmsh_session(name: str, size: float, *, order: int = 1):
+def gmsh_session(name: str, size: float, *, order: int = 1):
     import gmsh
 
     if size <= 0 or not math.isfinite(size):
         raise CaseError(f"mesh size must be a positive length in mm, got {size!r}")
-    started = not _GMSH_STATE["on"]
+    started = not GMSH_STATE["on"]
     if started:
         gmsh.initialize(readConfigFiles=False)
-        _GMSH_STATE["on"] = True
+        GMSH_STATE["on"] = True
     try:
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.model.add(name)
@@ -52,10 +52,10 @@ def _gmsh_session(name: str, size: float, *, order: int = 1):
         gmsh.model.remove()
         if started:
             gmsh.finalize()
-            _GMSH_STATE["on"] = False
+            GMSH_STATE["on"] = False
 
 
-def _finish(gmsh, dim: int, out, *, curved: bool = False) -> MeshData:
+def finish(gmsh, dim: int, out, *, curved: bool = False) -> MeshData:
     """Mesh, write a .msh (to ``out`` or a temporary) and read it back through ``read_msh``.
     curved: second-order mesh (mid-edge nodes on the true geometry), read as linear cells plus
     curved edges (meshes.curved)."""

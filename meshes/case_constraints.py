@@ -14,13 +14,13 @@ from functools import cached_property
 
 import numpy as np
 
-from .case_parts import Boundary, VertexConstraints, _vec
+from .case_parts import Boundary, VertexConstraints, vec
 from .errors import CaseError
 
 __all__ = ["CaseConstraintsMixin"]
 
 
-def _axis_of(normal, tol=1e-12):
+def axis_of(normal, tol=1e-12):
     n = np.abs(normal)
     k = int(np.argmax(n))
     return k if np.all(np.delete(n, k) <= tol) else None
@@ -40,7 +40,7 @@ class CaseConstraintsMixin:
         if b.type == "displacement":
             if b.value is None:
                 raise CaseError(f"{what} needs value = [ux, uy{', uz' if gdim == 3 else ''}] (mm)")
-            _vec(b.value, gdim, f"{what}: value")
+            vec(b.value, gdim, f"{what}: value")
             if b.components is not None:
                 comps = list(b.components)
                 if not comps or any(not isinstance(c, int) or not 0 <= c < gdim for c in comps):
@@ -50,11 +50,11 @@ class CaseConstraintsMixin:
             g = np.asarray(b.gradient if b.gradient is not None else np.zeros((gdim, gdim)), float)
             if g.shape != (gdim, gdim) or not np.all(np.isfinite(g)):
                 raise CaseError(f"{what}: gradient must be a {gdim}x{gdim} matrix, got {b.gradient!r}")
-            _vec(b.offset if b.offset is not None else np.zeros(gdim), gdim, f"{what}: offset")
+            vec(b.offset if b.offset is not None else np.zeros(gdim), gdim, f"{what}: offset")
         elif b.type == "sliding":
             if b.normal is None:
                 raise CaseError(f"{what} needs normal = [nx, ny{', nz' if gdim == 3 else ''}]")
-            n = _vec(b.normal, gdim, f"{what}: normal")
+            n = vec(b.normal, gdim, f"{what}: normal")
             if np.linalg.norm(n) == 0:
                 raise CaseError(f"{what}: normal must be non-zero")
             float(b.value or 0.0)
@@ -62,7 +62,7 @@ class CaseConstraintsMixin:
             if b.region not in self.mesh.facet_regions:
                 raise CaseError(f"{what}: traction needs a boundary (facet) region; facet regions: "
                                 f"{sorted(self.mesh.facet_regions)}")
-            _vec(b.value, gdim, f"{what}: value (kPa)")
+            vec(b.value, gdim, f"{what}: value (kPa)")
 
     def _check_rigid_body(self, where):
         """Rank of the constraints restricted to rigid-body modes must be full (6 in 3D, 3 in 2D)."""
@@ -140,7 +140,7 @@ class CaseConstraintsMixin:
                 n = n / np.abs(n).max()
                 n = n / np.linalg.norm(n)
                 g = float(b.value or 0.0)
-                k = _axis_of(n)
+                k = axis_of(n)
                 if k is not None:
                     put(verts, k, g * np.sign(n[k]), b.region)
                 else:

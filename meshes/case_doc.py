@@ -2,7 +2,7 @@
 document and the loader never disagree. ``tools/schema_doc.py`` writes it to docs/case-file.md."""
 from __future__ import annotations
 
-from .case_schema import _is_table, _resolve, case_schema, expected, show
+from .case_schema import case_schema, expected, is_table, resolve_ref, show
 
 __all__ = ["case_file_markdown"]
 
@@ -26,21 +26,21 @@ def _branches(table: dict) -> list[tuple]:
 def _nested(name: str, s: dict):
     """(its title, the table) when key ``name`` with schema ``s`` holds a table with keys
     (``[name]``) or an array of tables (``[[name]]``); None otherwise."""
-    if _is_table(s) and s.get("properties"):
+    if is_table(s) and s.get("properties"):
         return f"[{name}]", s
-    if s.get("type") == "array" and _is_table(s.get("items")):
-        return f"[[{name}]]", _resolve(s["items"])
+    if s.get("type") == "array" and is_table(s.get("items")):
+        return f"[[{name}]]", resolve_ref(s["items"])
     return None
 
 
 def _keys(table: dict, prefix: str = "") -> list[str]:
-    table = _resolve(table)
+    table = resolve_ref(table)
     required = set(table.get("required", ()))
     varies = {k for _, then in _branches(table) for k, v in then.get("properties", {}).items()
               if isinstance(v, dict)}
     rows = ["| Key | Expected | Default | Description |", "|---|---|---|---|"]
     for key, s in table.get("properties", {}).items():
-        s = _resolve(s)
+        s = resolve_ref(s)
         want = "depends on `type` (below)" if key in varies else expected(s)
         if nested := _nested(f"{prefix}{key}", s):
             want = f"{'tables' if s.get('type') == 'array' else 'a table'}, see {nested[0]}"
@@ -51,7 +51,7 @@ def _keys(table: dict, prefix: str = "") -> list[str]:
 
 
 def _types(table: dict) -> list[str]:
-    table = _resolve(table)
+    table = resolve_ref(table)
     rows = ["| `type` | Needs | May have | Condition |", "|---|---|---|---|"]
     common = set(table.get("required", ())) | {"type"}
     for kind, then in _branches(table):
@@ -71,7 +71,7 @@ def _types(table: dict) -> list[str]:
 def _section(name: str, s: dict, heading: str) -> list[str]:
     """The section of the table (or array of tables) ``name`` and of the tables nested in it;
     [] for a key that holds no table."""
-    s = _resolve(s)
+    s = resolve_ref(s)
     if not (nested := _nested(name, s)):
         return []
     title, table = nested

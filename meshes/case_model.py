@@ -20,7 +20,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .case_constraints import CaseConstraintsMixin, _axis_of  # noqa: F401  (re-exported)
+from .case_constraints import CaseConstraintsMixin, axis_of  # noqa: F401  (re-exported)
 from .case_parts import (
     ACTUATOR_TYPES,
     BOUNDARY_TYPES,
@@ -34,7 +34,7 @@ from .case_parts import (
     Probe,
     ProbeLocation,
     VertexConstraints,
-    _vec,
+    vec,
 )
 from .case_variants import RIM_J_WARN, CaseVariantsMixin  # noqa: F401  (re-exported)
 from .errors import CaseError, NotModeledError
@@ -127,7 +127,7 @@ class Case(CaseConstraintsMixin, CaseVariantsMixin):
             if p.name in names:
                 raise CaseError(f"{where}: probe name {p.name!r} used twice")
             names.add(p.name)
-            _vec(p.point, gdim, f"{where}: probe {p.name!r} point")
+            vec(p.point, gdim, f"{where}: probe {p.name!r} point")
         anames = set()
         for a in self.actuators:
             if a.name in anames:
@@ -144,7 +144,7 @@ class Case(CaseConstraintsMixin, CaseVariantsMixin):
                                         f"only; {r!r} is not one; facet regions: "
                                         f"{sorted(self.mesh.facet_regions)}")
         if self.gravity is not None:
-            object.__setattr__(self, "gravity", tuple(_vec(self.gravity, gdim, f"{where}: gravity")))
+            object.__setattr__(self, "gravity", tuple(vec(self.gravity, gdim, f"{where}: gravity")))
         if self.reference_degree is not None and (isinstance(self.reference_degree, bool) or
                                                   self.reference_degree not in (1, 2, 3)):
             raise CaseError(f"{where}: reference degree must be 1, 2 or 3, got "

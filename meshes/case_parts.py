@@ -121,7 +121,7 @@ class Material:
                             f"(fem_reference.solve(case, formulation='mixed'))")
 
 
-def _vec(value, n, what):
+def vec(value, n, what):
     try:
         v = np.asarray(value, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError) as exc:
@@ -244,7 +244,7 @@ class Actuator:
         elif self.edge_radius is not None:
             raise CaseError(f"{what}: edge_radius only for tip = 'punch', not a sphere")
         if self.point is not None:
-            object.__setattr__(self, "point", tuple(_vec(self.point, len(self.direction),
+            object.__setattr__(self, "point", tuple(vec(self.point, len(self.direction),
                                                          f"{what}: point").tolist()))
         contact = "frictionless" if self.contact is None else self.contact
         if contact not in CONTACT_TYPES:

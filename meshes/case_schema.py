@@ -36,24 +36,24 @@ def _validator():
 
 
 # --------------------------------------------------------------------------- schema walking
-def _resolve(s):
+def resolve_ref(s):
     """A schema with its ``$ref`` (local, ``#/$defs/...``) merged under its own keys."""
     if isinstance(s, dict) and "$ref" in s:
         node = case_schema()
         for part in s["$ref"].removeprefix("#/").split("/"):
             node = node[part]
-        return {**_resolve(node), **{k: v for k, v in s.items() if k != "$ref"}}
+        return {**resolve_ref(node), **{k: v for k, v in s.items() if k != "$ref"}}
     return s
 
 
-def _is_table(s) -> bool:
-    return isinstance(s, dict) and _resolve(s).get("type") == "object"
+def is_table(s) -> bool:
+    return isinstance(s, dict) and resolve_ref(s).get("type") == "object"
 
 
 def _child(s, key, instance):
     """Schema of ``instance[key]`` under ``s``: the items of an array, or a property, taking the
     branch (if/then) that applies to ``instance``; None for a key the table does not know."""
-    s = _resolve(s)
+    s = resolve_ref(s)
     if isinstance(key, int):
         return s.get("items")
     out = s.get("properties", {}).get(key)
@@ -92,8 +92,8 @@ def _leaf(path, data) -> tuple:
     """The path cut at the key of a table (or at the first place that is not a table)."""
     s, x = case_schema(), data
     for i, key in enumerate(path):
-        if not isinstance(s, dict) or not (_is_table(s) or (
-                isinstance(key, int) and _is_table(_resolve(s).get("items")))):
+        if not isinstance(s, dict) or not (is_table(s) or (
+                isinstance(key, int) and is_table(resolve_ref(s).get("items")))):
             return tuple(path[:i])
         s = _child(s, key, x)
         try:
@@ -112,14 +112,14 @@ def where(loc) -> str:
     """``[mesh].size``, ``[[boundary]][2].type`` (arrays of tables counted from 1), ``name``."""
     out, s = "", case_schema()
     for i, key in enumerate(loc):
-        r = _resolve(s) if s else {}
+        r = resolve_ref(s) if s else {}
         if isinstance(key, int):
             out += f"[{key + 1}]"
             s = r.get("items")
         elif i == 0 and r.get("properties", {}).get(key) is not None:
-            sub = _resolve(r["properties"][key])
+            sub = resolve_ref(r["properties"][key])
             kind = sub.get("type")
-            out += f"[[{key}]]" if kind == "array" and _is_table(_resolve(sub).get("items")) \
+            out += f"[[{key}]]" if kind == "array" and is_table(resolve_ref(sub).get("items")) \
                 else f"[{key}]" if kind == "object" else _key(key)
             s = sub
         else:
@@ -155,7 +155,7 @@ def expected(s) -> str:
     """What a schema asks for, in words: 'a finite number > 0', "one of 'box', ..."."""
     if s is None or s is False:
         return "nothing here"
-    s = _resolve(s)
+    s = resolve_ref(s)
     if "enum" in s:
         return (repr(s["enum"][0]) if len(s["enum"]) == 1 else
                 "one of " + ", ".join(repr(v) for v in s["enum"]))
@@ -167,8 +167,8 @@ def expected(s) -> str:
     if kind == "object":
         return f"a table with keys {', '.join(s.get('properties', {}))}"
     if kind == "array":
-        items = _resolve(s.get("items", {}))
-        if _is_table(items):
+        items = resolve_ref(s.get("items", {}))
+        if is_table(items):
             return "an array of tables"
         if items.get("type") == "array":
             return f"a square matrix: {_count(s)} rows of {_count(items)} finite numbers"
@@ -211,7 +211,7 @@ def show(v, limit: int = 60) -> str:
 def _found(v, s) -> str:
     """``show(v)``, with its kind when the kind is what is wrong."""
     kind = _KINDS.get(type(v), f"a {type(v).__name__}")
-    want = _resolve(s).get("type") if isinstance(s, dict) else None
+    want = resolve_ref(s).get("type") if isinstance(s, dict) else None
     wrong_kind = want is not None and not {
         "number": isinstance(v, (int, float)) and not isinstance(v, bool),
         "integer": isinstance(v, int) and not isinstance(v, bool),
@@ -235,7 +235,7 @@ def _lines_of(err, data, skip_mesh: bool) -> list[tuple]:
             not isinstance(err.instance, dict):
         return []  # these apply to tables only; the type error reports the value
     if v == "additionalProperties":
-        allowed = list(_resolve(err.schema).get("properties", {}))
+        allowed = list(resolve_ref(err.schema).get("properties", {}))
         table = where(path) or "the top level"
         return [(path + (k,), (f"expected a key of {table} ({', '.join(allowed)}), found unknown "
                                f"key {k!r}{_suggest(k, allowed)}"))
@@ -260,11 +260,11 @@ def _lines_of(err, data, skip_mesh: bool) -> list[tuple]:
                 for k, deps in err.validator_value.items()
                 if k in err.instance and any(d not in err.instance for d in deps)]
     if v is None:  # a key that the branch of this table forbids (False schema)
-        if not _is_table(_walk(path, data)[0]):
+        if not is_table(_walk(path, data)[0]):
             path = path[:-1]
         parent = _walk(path, data)[1]
         bad = [k for k in parent if _walk(path + (k,), data)[0] is False]
-        used = [k for k in _resolve(_walk(path, data)[0]).get("properties", {})
+        used = [k for k in resolve_ref(_walk(path, data)[0]).get("properties", {})
                 if _walk(path + (k,), data)[0] is not False]
         return [(path + (k,), (f"expected no {k} with {_forbidding(path, data, parent, k)} "
                                f"(its keys: {', '.join(used)}), found {k} = {show(parent[k])}"))
@@ -290,7 +290,7 @@ def _condition(path, data, parent, key, schema) -> str | None:
     ``key`` in ``parent`` the schema ``schema`` (False: forbids it); None when no branch does."""
     if schema is None:
         return None
-    for branch in _resolve(_walk(path, data)[0]).get("allOf", ()):
+    for branch in resolve_ref(_walk(path, data)[0]).get("allOf", ()):
         if branch["then"].get("properties", {}).get(key) == schema and _branch_validator(
                 json.dumps(branch["if"])).is_valid(parent):
             return ", ".join(f"{k} = {show(v['const'])}"

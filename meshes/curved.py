@@ -21,7 +21,7 @@ __all__ = ["EDGES", "FACET_EDGES", "from_high_order_cells", "p2_cells", "p2_face
 EDGES = {3: ((2, 3), (1, 3), (1, 2), (0, 3), (0, 2), (0, 1)), 2: ((1, 2), (0, 2), (0, 1))}
 FACET_EDGES = {3: ((1, 2), (0, 2), (0, 1)), 2: ()}
 # meshio's (VTK) order of the mid-edge nodes of tetra10 / triangle6 after the corners
-_MESHIO_EDGES = {3: ((0, 1), (1, 2), (0, 2), (0, 3), (1, 3), (2, 3)), 2: ((0, 1), (1, 2), (0, 2))}
+MESHIO_EDGES = {3: ((0, 1), (1, 2), (0, 2), (0, 3), (1, 3), (2, 3)), 2: ((0, 1), (1, 2), (0, 2))}
 
 
 def from_high_order_cells(points, cells_ho, gdim):
@@ -31,7 +31,7 @@ def from_high_order_cells(points, cells_ho, gdim):
     nv = gdim + 1
     corners = np.asarray(cells_ho[:, :nv], np.int64)
     pairs, nodes = [], []
-    for k, (a, b) in enumerate(_MESHIO_EDGES[gdim]):
+    for k, (a, b) in enumerate(MESHIO_EDGES[gdim]):
         pairs.append(np.sort(corners[:, [a, b]], axis=1))
         nodes.append(cells_ho[:, nv + k])
     pairs = np.concatenate(pairs)

@@ -18,7 +18,7 @@ __all__ = ["atomic_path", "check_output_dir", "check_output_file", "save_figure"
            "user_cache_root"]
 
 
-def _why(exc: OSError) -> str:
+def os_reason(exc: OSError) -> str:
     return exc.strerror or str(exc)
 
 
@@ -49,7 +49,7 @@ class atomic_path:
             fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.", suffix=self.suffix,
                                        dir=self.path.parent)
         except OSError as exc:
-            raise WriteError(f"cannot write {str(self.path)!r}: {_why(exc)}") from None
+            raise WriteError(f"cannot write {str(self.path)!r}: {os_reason(exc)}") from None
         try:
             os.close(fd)
         finally:
@@ -75,7 +75,7 @@ class atomic_path:
             os.replace(self.tmp, self.path)
         except OSError as err:
             self._discard()
-            raise WriteError(f"cannot write {str(self.path)!r}: {_why(err)}") from None
+            raise WriteError(f"cannot write {str(self.path)!r}: {os_reason(err)}") from None
         except BaseException:
             self._discard()
             raise

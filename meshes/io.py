@@ -19,7 +19,15 @@ from .files import (
     user_cache_root,
 )
 from .mesh import MeshData, check_tangles
-from .writers import _CELL, _FACET, REGION, WRITERS, region_tags, write_mesh, write_point_data
+from .writers import (
+    MESHIO_CELL,
+    MESHIO_FACET,
+    REGION,
+    WRITERS,
+    region_tags,
+    write_mesh,
+    write_point_data,
+)
 
 __all__ = [
     "REGION",
@@ -91,7 +99,7 @@ def read_msh(path, *, overlap_check: bool = True) -> MeshData:
                 out.append((data, np.asarray(tags)))
         return out
 
-    cell_blocks = tagged(_CELL[dim])
+    cell_blocks = tagged(MESHIO_CELL[dim])
     cells = np.concatenate([d for d, _ in cell_blocks]).astype(np.int64)
     cell_tags = np.concatenate([t for _, t in cell_blocks])
     pts = np.asarray(m.points, dtype=np.float64)
@@ -101,7 +109,7 @@ def read_msh(path, *, overlap_check: bool = True) -> MeshData:
                             f"no tetrahedra)")
         pts = pts[:, :2]
     curved = {}
-    ho = [d for t, d in high_order if t == _CELL[dim]]
+    ho = [d for t, d in high_order if t == MESHIO_CELL[dim]]
     if ho:
         try:
             _, edges, xe = from_high_order_cells(pts, np.concatenate(ho).astype(np.int64), dim)
@@ -123,7 +131,7 @@ def read_msh(path, *, overlap_check: bool = True) -> MeshData:
         for tag in np.unique(cell_tags):
             cell_regions[name_of(dim, tag)] = np.flatnonzero(cell_tags == tag)
     facet_regions = {}
-    for data, tags in tagged(_FACET[dim]):
+    for data, tags in tagged(MESHIO_FACET[dim]):
         for tag in np.unique(tags):
             f = remap[data[tags == tag]]
             if np.any(f < 0):

@@ -76,7 +76,7 @@ def _save(path: Path, mesh: MeshData):
         np.savez(f, **arrays)
 
 
-def _load(path: Path) -> MeshData | None:
+def read_cached(path: Path) -> MeshData | None:
     try:
         with np.load(path, allow_pickle=False) as z:
             parts = {kind: {} for kind in _KINDS}
@@ -100,7 +100,7 @@ def cached(name: str, size: float, local: dict, build) -> MeshData:
         return _built(name, size, build, None)
     path = folder / f"{mesh_key(name, size, local)}.npz"
     if path.is_file():
-        mesh = _load(path)
+        mesh = read_cached(path)
         if mesh is not None:
             _LOG.debug("mesh %r at size %g mm read from the cache (%s)", name, size, path)
             return mesh

@@ -57,7 +57,7 @@ _TET_DIAGONALS = [(4, 9), (5, 8), (6, 7)]
 _TRI_CHILDREN = [(0, 3, 4), (3, 1, 5), (4, 5, 2), (3, 5, 4)]
 
 
-def _edge_keys(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+def edge_keys(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
     lo, hi = np.minimum(a, b), np.maximum(a, b)
     return lo.astype(np.int64) * n + hi.astype(np.int64)
 
@@ -86,7 +86,7 @@ def refine_uniform(mesh: MeshData, *, project=None) -> MeshData:
     local_edges = _TET_EDGES if d == 3 else _TRI_EDGES
     a = cells[:, local_edges[:, 0]]
     b = cells[:, local_edges[:, 1]]
-    keys = _edge_keys(a, b, n)                       # (m, n_edges)
+    keys = edge_keys(a, b, n)                       # (m, n_edges)
     table, inv = np.unique(keys.ravel(), return_inverse=True)
     mid_ids = (n + inv).reshape(keys.shape)          # midpoint vertex id of each cell edge
     lo, hi = table // n, table % n
@@ -114,7 +114,7 @@ def refine_uniform(mesh: MeshData, *, project=None) -> MeshData:
             facet_regions[name] = f.reshape(0, d)
             continue
         facet_regions[name] = _split_facets(
-            f, lambda u, v, name=name: n + _lookup(_edge_keys(u, v, n), table,
+            f, lambda u, v, name=name: n + _lookup(edge_keys(u, v, n), table,
                                                    f"facet region {name!r}"), d)
     nchild = 8 if d == 3 else 4
     cell_regions = {name: (nchild * np.asarray(ids, np.int64)[:, None]
@@ -125,10 +125,10 @@ def refine_uniform(mesh: MeshData, *, project=None) -> MeshData:
 
     moved = None
     if project is not None:
-        edges, regions, bf = _boundary_edges(mesh, table)
+        edges, regions, bf = boundary_edges(mesh, table)
 
         def mid_of(u, v):
-            return n + _lookup(_edge_keys(u, v, n), table, "the boundary")
+            return n + _lookup(edge_keys(u, v, n), table, "the boundary")
 
         if len(edges):
             moved = _projected(project, points[n + edges], regions)
@@ -140,7 +140,7 @@ def refine_uniform(mesh: MeshData, *, project=None) -> MeshData:
             inner = np.array([len(r) == 1 for r in regions], bool)
             if np.any(inner) and np.any(delta[n + edges[~inner]]):
                 ids = n + edges[inner]
-                spread = _harmonic_extension(_split_facets(bf, mid_of, d), delta, ids)
+                spread = harmonic_extension(_split_facets(bf, mid_of, d), delta, ids)
                 moved[inner] = _projected(project, points[ids] + spread[ids],
                                           [regions[i] for i in np.flatnonzero(inner)])
                 delta[ids] = moved[inner] - points[ids]
@@ -148,7 +148,7 @@ def refine_uniform(mesh: MeshData, *, project=None) -> MeshData:
             interior = np.ones(len(points), bool)
             interior[:n] = False
             interior[n + edges] = False
-            points += _harmonic_extension(new_cells, delta, np.flatnonzero(interior))
+            points += harmonic_extension(new_cells, delta, np.flatnonzero(interior))
     out = MeshData(points, new_cells, facet_regions, point_regions, cell_regions)
     if moved is None:
         check_cells(out, source="refine_uniform")
@@ -203,13 +203,13 @@ def _projected(project, x: np.ndarray, regions) -> np.ndarray:
     return moved
 
 
-def _boundary_edges(mesh: MeshData, table: np.ndarray):
+def boundary_edges(mesh: MeshData, table: np.ndarray):
     """Edge ids (into ``table``) of the boundary facets' edges, for each the frozenset of the
     facet regions whose boundary facets contain it, and the boundary facets."""
     n, d = mesh.n_vertices, mesh.gdim
     bf = _boundary_facets(mesh.cells, n)                  # sorted vertex ids
     pairs = [(0, 1), (0, 2), (1, 2)] if d == 3 else [(0, 1)]
-    bkeys = np.unique(np.concatenate([_edge_keys(bf[:, i], bf[:, j], n) for i, j in pairs]))
+    bkeys = np.unique(np.concatenate([edge_keys(bf[:, i], bf[:, j], n) for i, j in pairs]))
     edges = _lookup(bkeys, table, "the boundary")
     # the region facets that lie on the boundary, matched by their sorted vertex ids
     names = sorted(mesh.facet_regions)
@@ -227,7 +227,7 @@ def _boundary_edges(mesh: MeshData, table: np.ndarray):
         start += len(regs[r])
         if len(f) == 0:
             continue
-        ek = np.unique(np.concatenate([_edge_keys(f[:, i], f[:, j], n) for i, j in pairs]))
+        ek = np.unique(np.concatenate([edge_keys(f[:, i], f[:, j], n) for i, j in pairs]))
         for e in np.searchsorted(bkeys, ek).tolist():
             tags[e].append(r)
     regions = tuple(frozenset(names[r] for r in t) for t in tags)
@@ -246,7 +246,7 @@ def _cg_tolerance() -> dict:
 _CG_TOL = _cg_tolerance()
 
 
-def _harmonic_extension(cells: np.ndarray, delta: np.ndarray, free: np.ndarray) -> np.ndarray:
+def harmonic_extension(cells: np.ndarray, delta: np.ndarray, free: np.ndarray) -> np.ndarray:
     """Moves (mm) of all vertices: ``delta`` for all but the ``free`` ones, which get the discrete
     harmonic extension of it over the graph of ``cells`` (cells or facets; uniform edge
     weights)."""
@@ -293,8 +293,8 @@ def curve_boundary(mesh: MeshData, project) -> MeshData:
     X, cells = mesh.points, mesh.cells
     n, d = len(X), mesh.gdim
     local_edges = _TET_EDGES if d == 3 else _TRI_EDGES
-    table = np.unique(_edge_keys(cells[:, local_edges[:, 0]], cells[:, local_edges[:, 1]], n))
-    edges, regions, _ = _boundary_edges(mesh, table)
+    table = np.unique(edge_keys(cells[:, local_edges[:, 0]], cells[:, local_edges[:, 1]], n))
+    edges, regions, _ = boundary_edges(mesh, table)
     lo, hi = table[edges] // n, table[edges] % n
     mid = 0.5 * (X[lo] + X[hi])
     moved = _projected(project, mid, regions)

@@ -47,7 +47,7 @@ import numpy as np
 from .curved import validate
 from .errors import CaseError, MeshQualityError
 from .mesh import MeshData, cell_volumes, check_cells
-from .refine import _boundary_edges, _edge_keys, _harmonic_extension
+from .refine import boundary_edges, edge_keys, harmonic_extension
 
 __all__ = ["dorfler_mark", "refine_local"]
 
@@ -228,8 +228,8 @@ def _place_boundary(old: MeshData, mesh: MeshData, split, mid_keys, project) -> 
     sa, sb = split
     points = mesh.points.copy()
     local = _TET_EDGES if d == 3 else _TRI_EDGES
-    table = np.unique(_edge_keys(mesh.cells[:, local[:, 0]], mesh.cells[:, local[:, 1]], n))
-    edges, regions, bf = _boundary_edges(mesh, table)
+    table = np.unique(edge_keys(mesh.cells[:, local[:, 0]], mesh.cells[:, local[:, 1]], n))
+    edges, regions, bf = boundary_edges(mesh, table)
     # a new vertex lies inside an edge that was cut: it is on the boundary when a boundary facet
     # holds it, and its regions are those of the facets holding it (those of the cut edge)
     on = np.zeros(n, bool)
@@ -245,7 +245,7 @@ def _place_boundary(old: MeshData, mesh: MeshData, split, mid_keys, project) -> 
         inner = np.array([len(r) == 1 for r in breg], bool)
         if np.any(inner) and np.any(delta[bnew[~inner]]):
             ids = bnew[inner]
-            spread = _harmonic_extension(bf, delta, ids)
+            spread = harmonic_extension(bf, delta, ids)
             moved[inner] = _project(project, points[ids] + spread[ids],
                                     [breg[i] for i in np.flatnonzero(inner)], d)
             delta[ids] = moved[inner] - points[ids]
@@ -269,7 +269,7 @@ def _place_boundary(old: MeshData, mesh: MeshData, split, mid_keys, project) -> 
         is_bnew = np.zeros(n, bool)
         is_bnew[bnew] = True
         for attempt in range(DAMPINGS + 1):
-            trial = points + _harmonic_extension(mesh.cells, delta, free)
+            trial = points + harmonic_extension(mesh.cells, delta, free)
             flat = cell_volumes(trial, mesh.cells) <= MIN_VOLUME_KEPT * straight
             ids = np.unique(mesh.cells[flat])
             ids = ids[is_bnew[ids]]
@@ -340,7 +340,7 @@ def _carry_curved(old, points, table, edges, regions, n, project):
     nodes; the new boundary edges get their projected midpoints (none without ``project``)."""
     n0 = old.n_vertices
     ce = np.sort(np.asarray(old.curved_edges, np.int64), axis=1)
-    ok = np.isin(_edge_keys(ce[:, 0], ce[:, 1], n), table)
+    ok = np.isin(edge_keys(ce[:, 0], ce[:, 1], n), table)
     keep_e, keep_p = ce[ok], np.asarray(old.curved_points, float)[ok]
     if project is not None and len(edges):
         lo, hi = table[edges] // n, table[edges] % n

@@ -19,17 +19,17 @@ from pathlib import Path
 
 import numpy as np
 
-from .curved import _MESHIO_EDGES, EDGES, FACET_EDGES, p2_cells, p2_facets
+from .curved import EDGES, FACET_EDGES, MESHIO_EDGES, p2_cells, p2_facets
 from .errors import WriteError
-from .files import _why, atomic_path
+from .files import atomic_path, os_reason
 from .mesh import MeshData
 
 __all__ = ["REGION", "WRITERS", "region_tags", "write_mesh", "write_point_data"]
 
 REGION = "region"  # the integer cell field holding each cell's region tag
 XDMF_TIME = 0.0  # the time of the one step an XDMF file holds
-_CELL = {3: "tetra", 2: "triangle"}  # meshio's names of the cells and facets by dimension
-_FACET = {3: "triangle", 2: "line"}
+MESHIO_CELL = {3: "tetra", 2: "triangle"}  # meshio's names of the cells and facets by dimension
+MESHIO_FACET = {3: "triangle", 2: "line"}
 
 
 def region_tags(mesh: MeshData) -> list[tuple[str, int, int, np.ndarray]]:
@@ -73,14 +73,14 @@ def _meshio_mesh(mesh: MeshData, point_data=None, cell_data=None, all_regions=Fa
             v = np.column_stack([v, np.zeros(len(v))])
         pd[k] = v
     regions = region_tags(mesh)
-    blocks = [(_CELL[mesh.gdim], mesh.cells)]
+    blocks = [(MESHIO_CELL[mesh.gdim], mesh.cells)]
     tags = [_cell_tags(mesh, regions)]
     if all_regions:
         facets = [(f.reshape(-1, mesh.gdim), tag) for _, tag, dim, f in regions
                   if dim == mesh.gdim - 1 and dim > 0]
         points = [(v.reshape(-1, 1), tag) for _, tag, dim, v in regions
                   if dim == 0 and vertex_cells]
-        for ctype, group in ((_FACET[mesh.gdim], facets), ("vertex", points)):
+        for ctype, group in ((MESHIO_FACET[mesh.gdim], facets), ("vertex", points)):
             if group:
                 blocks.append((ctype, np.concatenate([c for c, _ in group]).astype(np.int64)))
                 tags.append(np.concatenate([np.full(len(c), t, np.int32) for c, t in group]))
@@ -171,7 +171,7 @@ def _write_xdmf(mesh, path, point_data=None, cell_data=None, all_regions=False):
         path.parent.mkdir(parents=True, exist_ok=True)
         tmpdir = Path(tempfile.mkdtemp(prefix=".xdmf-", dir=path.parent))
     except OSError as exc:
-        raise WriteError(f"cannot write {str(path)!r}: {_why(exc)}") from None
+        raise WriteError(f"cannot write {str(path)!r}: {os_reason(exc)}") from None
     try:
         tmp_x = tmpdir / path.name
         m = _meshio_mesh(mesh, point_data, cell_data, all_regions, vertex_cells=False)
@@ -191,10 +191,10 @@ def _second_order(mesh):
     second-order facets (triangle6 / line3)."""
     d = mesh.gdim
     x, cells, edges = p2_cells(mesh)
-    order = [d + 1 + EDGES[d].index(e) for e in _MESHIO_EDGES[d]]
+    order = [d + 1 + EDGES[d].index(e) for e in MESHIO_EDGES[d]]
     cells = cells[:, list(range(d + 1)) + order]
     if d == 3:  # triangle6: its mid-edge nodes in meshio's order of a triangle's edges
-        f_order = [0, 1, 2] + [3 + FACET_EDGES[3].index(e) for e in _MESHIO_EDGES[2]]
+        f_order = [0, 1, 2] + [3 + FACET_EDGES[3].index(e) for e in MESHIO_EDGES[2]]
     else:
         f_order = [0, 1, 2]
     return x, cells, lambda facets: p2_facets(mesh, facets, edges)[:, f_order]
@@ -208,7 +208,7 @@ def _write_msh(mesh, path, point_data=None, cell_data=None, all_regions=True):
 
     d = mesh.gdim
     pts, cells, facets_of = mesh.points, mesh.cells, (lambda f: f)
-    types = (_CELL[d], _FACET[d])
+    types = (MESHIO_CELL[d], MESHIO_FACET[d])
     if mesh.geometry_order == 2:
         pts, cells, facets_of = _second_order(mesh)
         types = ({3: "tetra10", 2: "triangle6"}[d], {3: "triangle6", 2: "line3"}[d])

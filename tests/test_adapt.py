@@ -156,7 +156,7 @@ def test_an_invalid_refined_answer_stops_the_loop_and_keeps_the_last_valid_one(m
     case = Case(mesh=box(5.0), material=Material("neo-hookean", E=6.0, nu=0.45),
                 boundaries=[Boundary("zmin", "fixed")], probes=[Probe("T", (5.0, 5.0, 5.0))],
                 actuators=[Actuator("A1", "zmax", (1.0, 0.0, -1.0))], name="block")
-    real = adapt._answer
+    real = adapt.level_answer
     folded = []
 
     def folding(case, degree, pushes, formulation, options, start):
@@ -169,7 +169,7 @@ def test_an_invalid_refined_answer_stops_the_loop_and_keeps_the_last_valid_one(m
         folded.append(bad)
         return bad
 
-    monkeypatch.setattr(adapt, "_answer", folding)
+    monkeypatch.setattr(adapt, "level_answer", folding)
     with pytest.raises(AccuracyNotReached) as info:
         solve_to_accuracy(case, {"A1": 1.0}, accuracy=0.002, progress=False)
     msg = str(info.value)

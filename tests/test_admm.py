@@ -12,6 +12,7 @@ from tissue_reference.meshes.case import Boundary, Case, Material, load_case
 from tissue_reference.meshes.errors import SolverDivergedError
 from tissue_reference.meshes.mesh import cell_volumes
 from tissue_reference.solvers import admm
+from tissue_reference.solvers.admm import amg, driver, operators
 
 CASE_TOML = "meshes/cases/phantom.toml"
 
@@ -200,33 +201,33 @@ def test_plain_admm_without_polish_meets_the_fast_solver_tolerances_on_phantom(p
 
 
 def test_iterative_x_step_of_large_meshes_gives_the_same_answer(phantom12, monkeypatch):
-    """The AMG-preconditioned CG x-step (used from admm.PCG_MIN free vertices on) converges to
+    """The AMG-preconditioned CG x-step (used from operators.PCG_MIN free vertices on) converges to
     the same ADMM fixed point as the SuperLU one."""
     pushes = {"A1": 3.0, "A3": 3.0}
     kw = {"pushes": pushes, "polish": False, "tol_mm": 1e-6, "max_iter": 5000}
     direct = admm.solve(phantom12, **kw)
     assert admm.prepare(phantom12.with_pushes(pushes)).lu.kind == "Direct"
-    monkeypatch.setattr(admm, "PCG_MIN", 0)
-    monkeypatch.setattr(admm._AmgPcg, "coarse", 50)  # several AMG levels on this small mesh
-    admm._CACHE.clear()
+    monkeypatch.setattr(operators, "PCG_MIN", 0)
+    monkeypatch.setattr(amg.AmgPcg, "coarse", 50)  # several AMG levels on this small mesh
+    operators.OPERATOR_CACHE.clear()
     try:
         ops = admm.prepare(phantom12.with_pushes(pushes))
         assert ops.lu.kind == "AmgPcg" and len(ops.lu.groups[0][0].levels) >= 1
         cg = admm.solve(phantom12, **kw)
     finally:
-        admm._CACHE.clear()
+        operators.OPERATOR_CACHE.clear()
     assert cg.converged and direct.converged
     assert np.abs(cg.u - direct.u).max() < 1e-4
 
 
 def test_amg_pcg_solves_a_poisson_matrix_to_the_requested_accuracy(monkeypatch):
     import scipy.sparse as sp
-    monkeypatch.setattr(admm._AmgPcg, "coarse", 100)
+    monkeypatch.setattr(amg.AmgPcg, "coarse", 100)
     k = 14
     T = sp.diags([-np.ones(k - 1), 2.0 * np.ones(k), -np.ones(k - 1)], [-1, 0, 1])
     I = sp.identity(k)
     A = (sp.kron(sp.kron(T, I), I) + sp.kron(sp.kron(I, T), I) + sp.kron(sp.kron(I, I), T)).tocsr()
-    M = admm._AmgPcg(A)
+    M = amg.AmgPcg(A)
     assert len(M.levels) >= 1
     B = np.random.default_rng(0).standard_normal((A.shape[0], 3))
     X = M.solve(B)
@@ -255,7 +256,7 @@ def test_polish_restart_starts_from_this_steps_boundary_values(small_box, monkey
     lift that state still has the previous step's boundary values, which Newton (free dofs only)
     would keep: the restart must carry it to this step's values first."""
     case = _box_case(small_box)
-    real = admm._newton
+    real = driver.newton
     calls = {"n": 0}
 
     def newton_failing_once(*a, **kw):
@@ -264,7 +265,7 @@ def test_polish_restart_starts_from_this_steps_boundary_values(small_box, monkey
             raise SolverDivergedError("forced: left Newton's basin")
         return real(*a, **kw)
 
-    monkeypatch.setattr(admm, "_newton", newton_failing_once)
+    monkeypatch.setattr(driver, "newton", newton_failing_once)
     res = admm.solve(case, lift=False, load_steps=1, max_iter=5)
     assert len(res.extra["polish_restarts"]) == 1 and res.converged
     c = case.constraints

@@ -17,6 +17,7 @@ from tissue_reference.meshes.builders import box, rectangle
 from tissue_reference.meshes.case import Boundary, Case, Material, load_case
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.solvers import admm
+from tissue_reference.solvers.admm import backends, kernel_array, operators
 from tissue_reference.tissue.cli import main
 
 CASE_TOML = "meshes/cases/phantom.toml"
@@ -62,7 +63,7 @@ def _same_iterates(ref, res, tol=1e-8):
 def test_array_backend_on_numpy_gives_the_kernels_iterates_on_the_phantom(phantom):
     """100 iterations of one 5 mm load step with all four actuators: u within 1e-8 (relative)
     of the compiled kernel's, same rho doublings."""
-    assert admm.ARRAY_XSTEP_RTOL == 1e-10
+    assert backends.ARRAY_XSTEP_RTOL == 1e-10
     ref = admm.solve(phantom, pushes=PUSHES, **ITERATES)
     res = admm.solve(phantom, pushes=PUSHES, device="array-cpu", **ITERATES)
     assert ref.extra["device"] == "cpu" and res.extra["device"] == "array-cpu"
@@ -116,7 +117,7 @@ def test_element_pass_branches_of_cupy_on_a_numpy_stand_in(model):
     ops = admm.prepare(case)
     rng = np.random.default_rng(3)
     d, m = ops.d, ops.m
-    up = admm._particular(case, ops)
+    up = operators.particular(case, ops)
     F = np.eye(d)[:, :, None] + 0.35 * rng.standard_normal((d, d, m))
     F[:, :, :5] = np.eye(d)[:, :, None] * 0.2
     lam = 0.2 * rng.standard_normal((d, d, m))
@@ -124,7 +125,7 @@ def test_element_pass_branches_of_cupy_on_a_numpy_stand_in(model):
     dev = types.SimpleNamespace(DZ=ops.DZ, DZtW=ops.DZtW, h=ops.h, put=np.array)
     out = []
     for mod, where in ((np, None), (xp, dev)):
-        el = admm.kernel_array._ArrayElements(ops, admm._ZStep(ops, 2.0 * ops.rho, xp=mod), up,
+        el = kernel_array.ArrayElements(ops, kernel_array.ZStep(ops, 2.0 * ops.rho, xp=mod), up,
                                               F.copy(), lam.copy(), dev=where)
         with np.errstate(invalid="ignore", divide="ignore"):
             r, dsq = el.update(q)

@@ -7,13 +7,14 @@ import pytest
 
 from tissue_reference.meshes.builders import box, rectangle
 from tissue_reference.meshes.case import Boundary, Case, Material
-from tissue_reference.solvers import _ckernel, admm
+from tissue_reference.solvers import admm, ckernel
+from tissue_reference.solvers.admm import amg, factor, kernel_array, kernel_c, mechanics, operators
 
 
 def test_the_compiled_loop_is_built_here():
     # `make test` installs gcc and python3-dev (as dolfinx's own JIT needs); without them the
     # solver falls back to numpy and every comparison below would compare numpy with itself
-    assert _ckernel.load() is not None, "the ADMM kernel did not build: is gcc installed?"
+    assert ckernel.load() is not None, "the ADMM kernel did not build: is gcc installed?"
     assert admm.use_kernel()
 
 
@@ -27,7 +28,7 @@ def _case(mesh, model, boundaries=None, nu=0.45):
 def _both(fn, monkeypatch):
     out = []
     for use in (False, True):
-        monkeypatch.setattr(admm, "USE_CKERNEL", use)
+        monkeypatch.setattr(kernel_c, "USE_CKERNEL", use)
         assert admm.use_kernel() is use
         out.append(fn())
     return out
@@ -41,22 +42,22 @@ def test_one_update_from_a_strained_state_matches_numpy_element_by_element(model
     ops = admm.prepare(case)
     rng = np.random.default_rng(3)
     d, m = ops.d, ops.m
-    up = admm._particular(case, ops)
+    up = operators.particular(case, ops)
     F = np.eye(d)[:, :, None] + 0.35 * rng.standard_normal((d, d, m))
     F[:, :, :5] = np.eye(d)[:, :, None] * 0.2  # J = 0.008: below the safe-step bound
     lam = 0.2 * rng.standard_normal((d, d, m))
     q = rng.standard_normal(ops.nq)
-    zstep = admm._ZStep(ops, 2.0 * ops.rho)  # as after one rho doubling
+    zstep = kernel_array.ZStep(ops, 2.0 * ops.rho)  # as after one rho doubling
     if model == "neo-hookean":
-        J0, _ = admm._det_cof(admm._aos(F))
+        J0, _ = mechanics.det_cof(kernel_array.aos(F))
         assert (J0 <= 0.05).sum() >= 5 and (J0 > 0.5).sum() > m // 4
     res = {}
-    for cls in (admm._NumpyElements, admm._KernelElements):
+    for cls in (kernel_array.NumpyElements, kernel_c.KernelElements):
         el = cls(ops, zstep, up, F.copy(), lam.copy())
         x0 = el.xdata().copy()
         r, dsq = el.update(q)
         res[cls] = (x0, r.copy(), dsq.copy(), np.array(el.F), np.array(el.lam), el.xdata().copy())
-    a, b = res[admm._NumpyElements], res[admm._KernelElements]
+    a, b = res[kernel_array.NumpyElements], res[kernel_c.KernelElements]
     names = ["x-step data (start)", "primal r", "dual dsq", "F", "lambda", "x-step data"]
     for name, x, y in zip(names, a, b):
         assert np.all(np.isfinite(x)), name
@@ -92,12 +93,12 @@ def test_compiled_amg_pcg_matches_the_numpy_one(mode, monkeypatch):
     """The large-mesh x-step (CG with the AMG V-cycle) in C against its numpy form on the x-step
     matrix of a box mesh fixed on one face, with two AMG levels: same iterates, same iteration
     counts."""
-    monkeypatch.setattr(admm._AmgPcg, "coarse", 100)
+    monkeypatch.setattr(amg.AmgPcg, "coarse", 100)
     mesh = box(0.8)
-    L = admm._scalar_laplacian(admm.element_kinematics(mesh), 9.0, mesh.n_vertices).tocsr()
+    L = operators.scalar_laplacian(admm.element_kinematics(mesh), 9.0, mesh.n_vertices).tocsr()
     free = np.setdiff1d(np.arange(mesh.n_vertices), mesh.region_vertices("xmin"))
     A = L[free][:, free].tocsr()
-    M = admm._AmgPcg(A)
+    M = amg.AmgPcg(A)
     assert M._c is not None and len(M.levels) >= 2
     rng = np.random.default_rng(4)
     B = rng.standard_normal((A.shape[0], 3))
@@ -129,31 +130,31 @@ def test_polish_factorization_is_cholmod_while_definite_and_superlu_otherwise():
     import scipy.sparse.linalg as spla
 
     from tissue_reference.fem_reference import cholmod_factor
-    from tissue_reference.fem_reference.factor import _PetscFactor
-    from tissue_reference.fem_reference.linalg import _has_cholmod
+    from tissue_reference.fem_reference.factor import PetscFactor
+    from tissue_reference.fem_reference.linalg import has_cholmod
     case = _case(box(1.5), "neo-hookean")
     ops = admm.prepare(case)
     u = admm.solve(case, polish=False, max_iter=50).u.ravel()
     K, _ = ops.reduced_tangent(u)
     assert K.shape[0] >= 500
     b = np.random.default_rng(5).standard_normal(K.shape[0])
-    assert not isinstance(admm._sym_splu(K), _PetscFactor)
+    assert not isinstance(factor.sym_splu(K), PetscFactor)
     cache = {}
-    f1 = admm._sym_splu(K, cache, cholmod_factor)
-    assert isinstance(f1, _PetscFactor) == _has_cholmod()
+    f1 = factor.sym_splu(K, cache, cholmod_factor)
+    assert isinstance(f1, PetscFactor) == has_cholmod()
     ref = spla.spsolve(K.tocsc(), b)
     assert np.abs(f1.solve(b) - ref).max() <= 1e-9 * np.abs(ref).max()
     K2 = K * 1.5 + sp.diags(np.full(K.shape[0], 0.1 * abs(K.diagonal()).max()))
-    f2 = admm._sym_splu(K2.tocsc(), cache, cholmod_factor)
-    if _has_cholmod():
+    f2 = factor.sym_splu(K2.tocsc(), cache, cholmod_factor)
+    if has_cholmod():
         assert f2 is f1  # same pattern: the same CHOLMOD matrix, refactorized
     ref2 = spla.spsolve(K2.tocsc(), b)
     assert np.abs(f2.solve(b) - ref2).max() <= 1e-9 * np.abs(ref2).max()
     # indefinite (shifted): SuperLU, still solved
     K3 = (K - sp.diags(np.full(K.shape[0], 0.5 * abs(K.diagonal()).min()))).tocsc()
     assert np.linalg.eigvalsh(K3.toarray()).min() < 0
-    f3 = admm._sym_splu(K3, cache, cholmod_factor)
-    assert not isinstance(f3, _PetscFactor)
+    f3 = factor.sym_splu(K3, cache, cholmod_factor)
+    assert not isinstance(f3, PetscFactor)
     ref3 = spla.spsolve(K3, b)
     assert np.abs(f3.solve(b) - ref3).max() <= 1e-8 * np.abs(ref3).max()
 

@@ -266,8 +266,8 @@ def test_output_paths_are_refused_before_any_work(work, capsys, monkeypatch):
         raise AssertionError("meshed before the output check")
 
     # the builders open the session from builders_gmsh; implant's geometry from meshes.builders
-    monkeypatch.setattr(meshes.builders_gmsh, "_gmsh_session", no_meshing)
-    monkeypatch.setattr(meshes.builders, "_gmsh_session", no_meshing)
+    monkeypatch.setattr(meshes.builders_gmsh, "gmsh_session", no_meshing)
+    monkeypatch.setattr(meshes.builders, "gmsh_session", no_meshing)
     for argv, opt, why in output_mistakes(work):
         rc, _, err = run(fill(argv, work), capsys)
         assert_refused(rc, err, opt, why)

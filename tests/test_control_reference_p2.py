@@ -10,7 +10,7 @@ pytest.importorskip("dolfinx")
 from test_control_support import column_case
 
 from tissue_reference.control.jacobian import full_pushes, max_rel_error, p2_interpolation
-from tissue_reference.control.plants import _full_warm_start, plant_for, reference_state
+from tissue_reference.control.plants import full_warm_start, plant_for, reference_state
 from tissue_reference.control.plants import jacobian_at as compute
 from tissue_reference.fem_reference import solve
 
@@ -50,7 +50,7 @@ def test_a_degree2_plant_warm_starts_from_its_own_full_state(case):
         seen.append(initial)
         return solve(cc, pushes=pushes, initial=initial)
 
-    plant = _full_warm_start(spy)
+    plant = full_warm_start(spy)
     r1 = plant(c, full_pushes(c, {"A1": 1.0}), None)
     r2 = plant(c, full_pushes(c, {"A1": 1.3}), r1.u)
     assert seen[1] is r1                             # the full answer, not its vertex values

@@ -139,3 +139,14 @@ def test_an_import_inside_a_function_says_why():
         if not (k >= 0 and lines[k].strip().startswith("# lazy:")):
             silent.append(f"{graph.modules[module].relative_to(ROOT)}:{line}")
     assert silent == []
+
+
+def test_commands_share_helpers_through_modules_of_their_own():
+    """A command module (``tissue/cmd_*.py``) imports no other command module: what two commands
+    share lives in a module of its own (``tissue.common``, ``tissue.solve_outputs``,
+    ``tissue.loop_options``, ...)."""
+    graph = import_graph.build()
+    prefix = "tissue_reference.tissue.cmd_"
+    crossing = sorted((a, b) for a, out in graph.edges.items() if a.startswith(prefix)
+                      for b in out if b.startswith(prefix))
+    assert crossing == []

@@ -45,7 +45,7 @@ class _BareSolve(LinearSolveMixin):
         self.linear_solver = "direct"
         self.timings = SimpleNamespace(factorizations=0)
         self.mumps_workspace = workspace
-        self._use_factor("mumps")
+        self.use_factor("mumps")
 
 
 def test_workspace_too_small_is_grown_and_the_solve_repeated():
@@ -53,7 +53,7 @@ def test_workspace_too_small_is_grown_and_the_solve_repeated():
     rhs = np.random.default_rng(0).standard_normal(M.shape[0])
     s = _BareSolve(M, workspace=0)
     s.b.array[:] = rhs
-    s._krylov_solve(1e-8)
+    s.krylov_solve(1e-8)
     # the first factorization failed for want of workspace and a grown one solved the system
     assert s.mumps_workspace > 0
     assert s.timings.factorizations >= 2
@@ -126,7 +126,7 @@ def test_a_singular_tangent_does_not_break_later_solves():
     assert s.solve({"A1": 1.0}).converged  # an assembled tangent, factorized
     s.A.scale(0.0)  # the same pattern, all zero: MUMPS's factorization fails (singular)
     s.b.set(1.0)
-    assert not s._linear_solve(1e-3)
+    assert not s.linear_solve(1e-3)
     assert s.ksp.getPC().getFactorMatrix().getMumpsInfog(1) < 0
     r = s.solve(pushes)
     assert r.converged

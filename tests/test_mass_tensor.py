@@ -12,6 +12,7 @@ from tissue_reference.meshes.builders import box, rectangle
 from tissue_reference.meshes.case import Boundary, Case, Material, Probe
 from tissue_reference.meshes.errors import CaseError, SolverDivergedError
 from tissue_reference.solvers import mass_tensor as mt
+from tissue_reference.solvers.mass_tensor.iterations import IterationState
 
 MAT = Material(model="linear-elastic", E=48.0, nu=0.45)
 
@@ -391,7 +392,7 @@ def test_surface_sliding_that_cycles_between_planes_stops_as_not_converged():
     """A vertex at a crease can bounce between two triangles' tangent planes forever (seen on
     the implant plan with OpenBLAS); the rounds must stop once their move stops shrinking and
     the result must say it did not converge, not loop to max_iter."""
-    state = mt._State.__new__(mt._State)
+    state = IterationState.__new__(IterationState)
     state.stop, state.max_iter, state.it, state.ok = 0.01, 200000, 0, True
     rounds = []
 
@@ -400,12 +401,12 @@ def test_surface_sliding_that_cycles_between_planes_stops_as_not_converged():
         rounds.append(1)
         return u + 0.08 * (1 if len(rounds) % 2 else -1)   # moves 0.08 mm, then back
 
-    state._linear = linear
-    state._planes = lambda types, u: (types, 0.0)
+    state.solve_linear = linear
+    state.active_planes = lambda types, u: (types, 0.0)
     types = type("T", (), {"surface_of": {0: object()}})()
     state.run(types, np.zeros((3, 3)), "pcg")
     assert state.ok is False
-    assert len(rounds) <= mt._State.STALL_ROUNDS + 2
+    assert len(rounds) <= IterationState.STALL_ROUNDS + 2
 
 
 # ----------------------------------------------------------------- the direct solve
@@ -416,7 +417,7 @@ def test_the_direct_solve_equals_the_independent_assembly_and_reuses_its_factori
     the model's factorization (one back-substitution) and is as exact."""
     from tissue_reference.solvers.mass_tensor import driver
 
-    driver._MODELS.clear()
+    driver.MODEL_CACHE.clear()
     calls = []
 
     def counted(A, cache):                             # no factorization: SuperLU, as
@@ -469,9 +470,9 @@ def test_the_direct_solve_by_cholmod_equals_the_one_by_superlu():
     from tissue_reference.solvers.mass_tensor import driver
 
     case = stretch_case(box(2.0, lengths=(10.0, 10.0, 10.0)))
-    driver._MODELS.clear()
+    driver.MODEL_CACHE.clear()
     a = mt.solve(case)
-    driver._MODELS.clear()
+    driver.MODEL_CACHE.clear()
     used = []
 
     def hook(A, cache):

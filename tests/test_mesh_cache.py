@@ -27,8 +27,8 @@ def _same(a, b):
 
 def test_a_mesh_is_read_back_whole(cache, monkeypatch):
     reads = []
-    real = mesh_cache._load
-    monkeypatch.setattr(mesh_cache, "_load", lambda p: reads.append(p) or real(p))
+    real = mesh_cache.read_cached
+    monkeypatch.setattr(mesh_cache, "read_cached", lambda p: reads.append(p) or real(p))
     first = builders.build("phantom", 14.0)
     assert len(list(cache.glob("phantom-*.npz"))) == 1 and reads == []
     again = builders.build("phantom", 14.0)
@@ -51,7 +51,7 @@ def test_a_damaged_file_is_built_again(cache):
     (path,) = cache.glob("box-*.npz")
     path.write_bytes(b"not an npz file")
     _same(first, builders.build("box", 5.0))
-    _same(first, mesh_cache._load(path))
+    _same(first, mesh_cache.read_cached(path))
 
 
 def test_the_cache_can_be_turned_off(tmp_path, monkeypatch):

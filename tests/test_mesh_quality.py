@@ -28,13 +28,13 @@ def test_every_shipped_case_meets_the_quality_floor_at_its_default_and_documente
 
 def test_a_mesh_above_the_floor_is_meshed_once_and_one_below_it_again(monkeypatch):
     calls = []
-    real = builders_curved._phantom_once
+    real = builders_curved.phantom_once
 
     def counted(*a, **k):
         calls.append(k.get("seam_turn_deg", 0.0))
         return real(*a, **k)
 
-    monkeypatch.setattr(builders_curved, "_phantom_once", counted)
+    monkeypatch.setattr(builders_curved, "phantom_once", counted)
     builders_curved.phantom_quarter(10.0)   # 12.5 degrees with the seams where OCC puts them
     assert calls == [0.0]
     calls.clear()

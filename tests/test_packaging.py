@@ -48,7 +48,7 @@ else:                 # installed into a --target folder together with another "
     assert Path(tissue_reference.__file__).resolve().parent == where / "tissue_reference"
 from tissue_reference.control.mpc import PushOnlyMPC
 from tissue_reference.meshes.case_schema import SCHEMA_PATH, schema_errors
-from tissue_reference.solvers._ckernel import SOURCE
+from tissue_reference.solvers.ckernel import SOURCE
 from tissue_reference.tissue.output_schema import schema
 import tomllib
 step = PushOnlyMPC(1, [True, False, False]).step(np.array([[-1.0], [0.0], [0.0]]),

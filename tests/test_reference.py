@@ -211,11 +211,11 @@ def test_lagged_solver_switches_to_mumps_when_the_tangent_is_not_positive_defini
     s = fr.ReferenceSolver(case, linear_solver="lagged")
     if s.factor_package != "cholmod":
         pytest.skip("this PETSc has no CHOLMOD")
-    bcs = [e[0] for e in s._bcs(case, 1.0)]
-    s._assemble_residual(bcs)
-    s._assemble_tangent(bcs)
+    bcs = [e[0] for e in s.dirichlet_bcs(case, 1.0)]
+    s.assemble_residual(bcs)
+    s.assemble_tangent(bcs)
     s.A.scale(-1.0)  # negative definite: what CHOLMOD must refuse
-    assert s._linear_solve(1e-12)
+    assert s.linear_solve(1e-12)
     assert s.factor_package == "mumps"
     r = s.b.duplicate()
     s.A.mult(s.du.vector, r)

@@ -8,7 +8,7 @@ import pytest
 from tissue_reference.meshes.builders import box
 from tissue_reference.meshes.case import Boundary, Case, Material, Probe
 from tissue_reference.tissue.implant_report import distance_rows
-from tissue_reference.tissue.suite_report import _cell
+from tissue_reference.tissue.suite_report import result_cell
 from tissue_reference.tissue.verify import verify
 
 
@@ -26,8 +26,8 @@ def pulled():
 def test_a_scorecard_cell_names_iterations_that_were_not_reported():
     row = {"passed": True, "value_mm": 1.0, "error_rel": 1e-3, "wall_time_s": 0.5,
            "iterations": None}
-    assert "None" not in _cell(row) and "iterations not reported" in _cell(row)
-    assert "12 its" in _cell({**row, "iterations": 12})
+    assert "None" not in result_cell(row) and "iterations not reported" in result_cell(row)
+    assert "12 its" in result_cell({**row, "iterations": 12})
 
 
 def test_distance_rows_on_one_mesh_say_no_registration_was_needed():

@@ -45,7 +45,7 @@ def test_degree2_tangent_from_the_solve_result_is_the_tangent_at_the_solution(so
         assert abs(K2 - K).max() <= 1e-10 * abs(K).max()
     # the old reconstruction (edge nodes = mean of their end vertices) is far off at this state
     s = fr.ReferenceSolver(case, degree=2)
-    s._set_state(res.u)                               # warm-start path: P1 field into P2
+    s.set_state(res.u)                               # warm-start path: P1 field into P2
     Kmid = s.tangent(None, pushes=st).K
     assert abs(Kmid - K).max() > 1e-3 * abs(K).max()
 

@@ -139,7 +139,7 @@ def test_a_degree_2_field_folded_between_its_vertices_is_reported_inverted():
     c = 0.5
     nodes = np.zeros((len(s.node_vertex), 3))
     nodes[m.n_vertices:, 0] = c
-    s._set_state(nodes, exact=True)
+    s.set_state(nodes, exact=True)
     P = m.points[m.cells]                                    # (cells, 4, 3)
     inv = np.linalg.inv(np.transpose(P[:, 1:] - P[:, :1], (0, 2, 1)))  # rows: grad l_1..l_3
     dldx = np.concatenate([-inv[:, :, 0].sum(axis=1, keepdims=True), inv[:, :, 0]], axis=1)
@@ -260,7 +260,7 @@ def test_the_cell_estimate_is_within_fifteen_percent_of_a_real_build(name, size)
 def test_a_build_above_the_limit_is_refused_before_gmsh_starts(monkeypatch):
     import tissue_reference.meshes.builders_gmsh as b
 
-    monkeypatch.setattr(b, "_gmsh_session", lambda *a, **k: pytest.fail("gmsh started"))
+    monkeypatch.setattr(b, "gmsh_session", lambda *a, **k: pytest.fail("gmsh started"))
     with pytest.raises(CaseError, match=r"about 40,726,426 cells, more than the limit of "
                                         r"2,000,000"):
         build("phantom", 0.3)

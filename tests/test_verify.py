@@ -151,13 +151,13 @@ def test_plot_trace_error_is_the_distance_to_the_reference(small_case, monkeypat
     import tissue_reference.tissue.verify as tv
 
     seen = {}
-    real = tv._write_report
+    real = tv.write_report
 
     def spy(out_dir, case, out, traces):
         seen.update(traces)
         return real(out_dir, case, out, traces)
 
-    monkeypatch.setattr(tv, "_write_report", spy)
+    monkeypatch.setattr(tv, "write_report", spy)
     import tempfile
 
     with tempfile.TemporaryDirectory() as d:

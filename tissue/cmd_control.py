@@ -126,7 +126,6 @@ def run_manipulability(args) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-
     paths = [args.case] + list(args.compare or [])
     out = check_output_dir(args.out, "--out")
     if out.is_dir():

@@ -21,8 +21,8 @@ from tissue_reference.meshes.mesh import quality
 from tissue_reference.meshes.results import write_json
 from tissue_reference.tissue.verify import verify
 
-from .cmd_solve import solver_settings, write_outputs
 from .common import add_max_cells, check_outputs, check_pushes, real
+from .solve_outputs import solver_settings, write_outputs
 from .views import render
 
 CASE = "phantom-indenter-quarter"
@@ -44,7 +44,6 @@ def _say(msg):
 def _accuracy(res) -> tuple[dict | None, str]:
     """The measured accuracy of a reference answer (its case's ``[reference.measured]`` row,
     ``fem_reference.measured``) and one line saying what it is, or why there is none."""
-    # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
     # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
     from tissue_reference.fem_reference.measured import accuracy_line
 

@@ -14,7 +14,6 @@ from tissue_reference.meshes.io import atomic_path, check_output_file, write_mes
 from tissue_reference.meshes.results import material_json, write_json
 from tissue_reference.solvers.trajectory import admm_trajectory
 
-from .cmd_solve import solver_settings, write_outputs
 from .common import (
     add_case_args,
     add_discretization_args,
@@ -28,6 +27,7 @@ from .common import (
     report_validity,
 )
 from .dynamics_report import write_dynamics_report
+from .solve_outputs import solver_settings, write_outputs
 
 STEMS = ("displacement", "last_converged", "trajectory")
 # the page and its pictures (tissue.dynamics_report)

@@ -7,16 +7,11 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 from tissue_reference.meshes.answer_warnings import ESTIMATE_WARN, relative_estimates
 from tissue_reference.meshes.converged_range import unconverged_load
 from tissue_reference.meshes.errors import AccuracyNotReached, CaseError, ConvergenceError
-from tissue_reference.meshes.io import check_output_file, write_point_data
-from tissue_reference.meshes.mesh import cell_jacobians
+from tissue_reference.meshes.io import check_output_file
 from tissue_reference.meshes.refine import projector_for
-from tissue_reference.meshes.results import write_json
-from tissue_reference.solvers import admm, mass_tensor
 from tissue_reference.solvers.admm import require_device
 
 from .common import (
@@ -34,69 +29,12 @@ from .common import (
     report_validity,
     run_solver,
 )
-from .solve_report import REPORT, write_solve_report
+from .solve_outputs import rank, solver_settings, write_outputs
+from .solve_report import REPORT
 
 STEMS = ("displacement", "last_converged")
 # what --out gets besides report.html: per stem, the fields and the report's pictures
 SUFFIXES = (".xdmf", ".h5", ".vtu", "_view_u.png", "_view_J.png", "_history.png")
-
-
-def _rank():
-    try:
-        from mpi4py import MPI
-
-        return MPI.COMM_WORLD.rank
-    except ImportError:  # pragma: no cover
-        return 0
-
-
-def write_outputs(case, res, out_dir=None, json_file=None, stem="displacement", settings=None,
-                  report=False):
-    """Fields (XDMF + VTU: displacement, its magnitude, pressure for the mixed formulation, and
-    per cell J = det F and ``inverted`` = 1 where J <= 0) and the JSON summary (with ``valid``
-    and ``invalid_reason``, and ``settings`` as its ``solver_settings`` when given); with
-    ``report`` also ``out_dir``/report.html (tissue.solve_report); rank 0 writes, each file
-    whole or not at all."""
-    if _rank() != 0:
-        return
-    if out_dir:
-        u = res.u
-        fields = {"displacement": u, "displacement_magnitude": np.linalg.norm(u, axis=1)}
-        if res.extra.get("pressure") is not None:  # mixed formulation, kPa
-            fields["pressure"] = np.asarray(res.extra["pressure"], float)
-        J = cell_jacobians(case.mesh.points, case.mesh.cells, u)
-        write_point_data(case.mesh, out_dir, stem, fields,
-                         cell_data={"J": J, "inverted": (~(J > 0)).astype(float)})
-    data = res.to_json_dict(case)
-    if settings is not None:
-        data["solver_settings"] = settings
-    if json_file:
-        write_json(data, json_file)
-    if out_dir and report:
-        write_solve_report(case, res, out_dir, data=data, stem=stem)
-
-
-# keyword arguments of a fast solver's solve() that are inputs or hooks, not settings
-_NOT_SETTINGS = {"case", "pushes", "initial", "callback", "progress", "factorize", "dynamics"}
-
-
-def solver_settings(name: str, **given) -> dict:
-    """The settings a solve by ``name`` ran with, JSON-ready: for the reference its Newton and
-    load-stepping controls (``fem_reference.newton.NewtonSettings``, which the command line
-    leaves at their defaults), for a fast solver the defaults of its ``solve`` keywords (null:
-    the solver picks the value itself); ``given`` (what the command chose) goes over them."""
-    import inspect
-
-    if name == "fem":
-        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-        from tissue_reference.fem_reference.newton import settings_json
-
-        return {**settings_json(), **given}
-    solve = admm.solve if name == "admm" else mass_tensor.solve
-    out = {k: p.default for k, p in inspect.signature(solve).parameters.items()
-           if p.kind is inspect.Parameter.KEYWORD_ONLY and k not in _NOT_SETTINGS
-           and (p.default is None or isinstance(p.default, (bool, int, float, str)))}
-    return {**out, **given}
 
 
 def _settings_of(args) -> dict:
@@ -138,16 +76,11 @@ def run(args) -> int:
         if args.accuracy is not None:
             case, res = solve_adaptive(case, pushes, args)
         else:
+            estimate = {"estimate": "auto" if args.estimate is None else bool(args.estimate)} \
+                if args.solver == "fem" else {}
             res = run_solver(args.solver, case, degree=args.degree, formulation=args.formulation,
-                             pushes=pushes, progress=not args.quiet,
-                             **({"estimate": True} if args.estimate else {}),
+                             pushes=pushes, progress=not args.quiet, **estimate,
                              **({"device": args.device} if args.solver == "admm" else {}))
-            if args.solver == "fem" and args.estimate is None:
-                # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-                from tissue_reference.fem_reference.estimate import auto_estimate
-
-                res = auto_estimate(case, res, pushes=pushes, progress=not args.quiet,
-                                    degree=args.degree, formulation=args.formulation)
     except AccuracyNotReached as exc:
         if exc.result is not None:   # the last answer, on the mesh it was solved on
             write_outputs(exc.result.case.with_pushes(pushes), exc.result.result, args.out,
@@ -158,17 +91,17 @@ def run(args) -> int:
         if exc.last_converged is not None:
             write_outputs(case.with_pushes(pushes), exc.last_converged, args.out, args.json,
                           stem="last_converged", settings=settings, report=True)
-            if _rank() == 0 and args.out:
+            if rank() == 0 and args.out:
                 print(f"tissue solve: last converged state (load fraction {exc.load_fraction:.4f})"
                       f" written to {Path(args.out) / 'last_converged.xdmf'}", file=sys.stderr)
         raise
     t_out = time.perf_counter()
     write_outputs(case.with_pushes(pushes), res, args.out, args.json, settings=settings,
                   report=True)
-    if _rank() == 0 and args.out and not args.quiet:
+    if rank() == 0 and args.out and not args.quiet:
         print(f"tissue solve: wrote {Path(args.out) / REPORT} and the fields (displacement.xdmf, "
               f".vtu) in {time.perf_counter() - t_out:.1f} s", file=sys.stderr)
-    if _rank() == 0:
+    if rank() == 0:
         print(f"{case.name}: {args.solver} converged={res.converged} "
               f"iterations={res.iterations} load_steps={res.load_steps} "
               f"time={res.wall_time_s:.2f}s vertices={res.n_vertices} cells={res.n_cells}")
@@ -221,7 +154,6 @@ def solve_adaptive(case, pushes, args):
 def print_answer(res):
     """Probes, reactions and indenters, each with its estimated discretization error when there is
     one, and the smallest J of the state."""
-    # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
     # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
     from tissue_reference.fem_reference.measured import accuracy_line
 

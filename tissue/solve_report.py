@@ -146,7 +146,6 @@ def _what(d: dict) -> list:
 
 def _answer(d: dict) -> list:
     # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-    # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
     from tissue_reference.fem_reference.measured import accuracy_line
 
     its = d.get("newton_iterations") if d.get("solver") == "fem" else d.get("iterations")

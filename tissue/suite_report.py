@@ -15,7 +15,7 @@ _STYLE = ("body{font-family:sans-serif;margin:2em}table{border-collapse:collapse
           "td.l{text-align:left}")
 
 
-def _cell(r) -> str:
+def result_cell(r) -> str:
     if "refused" in r:
         return f"<td class='refused' title='{html.escape(r['refused'])}'>refused</td>"
     if "error" in r:
@@ -39,7 +39,7 @@ def write_scorecard(out: dict, out_dir) -> Path:
             f"<tr><td class='l'><b>{html.escape(p['name'])}</b><br>"
             f"{html.escape(p['description'])}</td><td>{p['expected_mm']:.6g} mm<br>"
             f"<small>{html.escape(p['source'])}</small></td><td>{p['tolerance_rel']:g}</td>"
-            + "".join(_cell(p["results"][s]) for s in solvers) + "</tr>")
+            + "".join(result_cell(p["results"][s]) for s in solvers) + "</tr>")
     summary = "".join(
         f"<tr><td class='l'>{html.escape(s)}</td><td>{v['passed']}</td><td>{v['failed']}</td>"
         f"<td>{v['refused']}</td></tr>" for s, v in out["summary"].items())

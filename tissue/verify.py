@@ -43,7 +43,7 @@ from tissue_reference.solvers import SOLVERS, get_solver, solver_module
 from .common import with_factorization
 from .plugins import resolve_solver, run_plugin
 from .scoring import Field, field_from_array, load_field, score_field
-from .verify_report import write_report as _write_report
+from .verify_report import write_report
 
 __all__ = ["DEFAULT_SOLVERS", "FAST_SOLVERS", "VALIDITY_KEYS", "invalid_runs",
            "reference_material_for", "verify"]
@@ -106,14 +106,19 @@ class _References:
         self.runs = {}        # key -> (case, SolveResult)
         self.json = {}
 
-    def _solve(self, c, degree, formulation):
-        if self.user is not None:
-            return self.user(c.with_pushes(self.pushes))
+    def _solve(self, c, degree, formulation, estimate=False):
+        """The reference answer of ``c`` under the pushes, with its estimated error when
+        ``estimate``: the caller's reference_solve, or the reference's answer composed by
+        ``fem_reference.solve``."""
         # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-        from tissue_reference.fem_reference import solve as fem_solve
+        import tissue_reference.fem_reference as fr
+        from tissue_reference.fem_reference.estimate import estimate as with_estimate
 
-        return fem_solve(c, degree=degree, formulation=formulation, pushes=self.pushes,
-                         progress=self.progress)
+        if self.user is not None:
+            res = self.user(c.with_pushes(self.pushes))
+            return with_estimate(c.with_pushes(self.pushes), res) if estimate else res
+        return fr.solve(c, degree=degree, formulation=formulation, pushes=self.pushes,
+                        progress=self.progress, estimate=estimate)
 
     def _settings(self, degree, formulation):
         """The reference's settings for the JSON: the options asked of it and its Newton
@@ -131,13 +136,9 @@ class _References:
         model = rcase.material.model
         key = (model, degree, formulation)
         if key not in self.runs:
-            first = self._solve(rcase, degree, formulation)
-            res = self._solve(rcase, degree, formulation) if warm else first
-            if self.estimate:
-                # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-                from tissue_reference.fem_reference.estimate import estimate as with_estimate
-
-                res = with_estimate(rcase.with_pushes(self.pushes), res)
+            first = self._solve(rcase, degree, formulation, estimate=self.estimate and not warm)
+            res = self._solve(rcase, degree, formulation, estimate=self.estimate) if warm \
+                else first
             self.runs[key] = (rcase, res)
             name = model if (degree, formulation) == (1, "displacement") else \
                 f"{model} ({formulation}, degree {degree or 'default'})"
@@ -241,7 +242,7 @@ def verify(case, pushes=None, solvers=DEFAULT_SOLVERS, out_dir=None, *, json_fil
     if field is not None:
         out["solvers"]["field"] = _score_field(field, case, refs, degree, formulation, outside)
     if out_dir is not None:
-        out["report"] = str(_write_report(Path(out_dir), case, out, traces))
+        out["report"] = str(write_report(Path(out_dir), case, out, traces))
     if json_file is not None:
         write_json(out, json_file)
     return out

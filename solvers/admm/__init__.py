@@ -22,7 +22,7 @@ Material (seed eq. 14, ``case.material``): psi = mu/2 (J^(-2/3) I1 - 3) + kappa/
 or linear elasticity psi = mu eps:eps + lambda/2 tr(eps)^2. 2D meshes are plane strain (F33 = 1).
 
 z-step: linear elasticity in closed form. Neo-Hookean: one safeguarded model-Newton step per
-ADMM iteration for every element, warm-started from the previous z (``kernel_array._ZStep``); at
+ADMM iteration for every element, warm-started from the previous z (``kernel_array.ZStep``); at
 a fixed point the z-step gradient vanishes, so the fixed point is exact whatever the model. The
 element work of an iteration (gather of D u, z-step, dual update, residuals, scatter of the next
 x-step data) runs in one compiled pass (``kernel_c``, built on first use) or on numpy/CuPy arrays
@@ -80,116 +80,36 @@ tips), ``factor`` and ``amg``
 backend), ``backends`` (devices), ``loop`` (iterations, stopping, history), ``polish``
 (Newton, lifts), ``dynamics`` (implicit Euler), ``driver`` (``solve``).
 
-Tunables (PCG_MIN, XSTEP_TOL, CHUNK, USE_CKERNEL, ARRAY_XSTEP_RTOL, ...) may be set on this
-package: the new value reaches the module that uses it.
+Tunables (PCG_MIN and XSTEP_TOL in ``operators``, CHUNK in ``kernel_array``, USE_CKERNEL in
+``kernel_c``, ARRAY_XSTEP_RTOL in ``backends``, ...) are set on the module that defines them.
+This package exposes the solver and what a caller builds with it; the iteration's parts are
+imported from their modules.
 
 Units: mm, kPa, mN, kg, s; energy uJ = kPa mm^3 = mN mm.
 """
-# ruff: noqa: F401  (the names of the former single module are re-exported from their modules)
 from __future__ import annotations
 
-import sys
-import types
-
-from tissue_reference.meshes.errors import CaseError, SolverDivergedError
-from tissue_reference.meshes.mesh import deformation_state
-from tissue_reference.meshes.results import SolveResult
-from tissue_reference.solvers import _ckernel
-
-from . import (
-    amg,
-    backends,
-    constraints,
-    contact,
-    driver,
-    dynamics,
-    factor,
-    kernel_array,
-    kernel_c,
-    loop,
-    mechanics,
-    operators,
-    polish,
-)
-from .amg import PCG_RTOL, _aggregate, _AmgPcg
-from .backends import (
-    ARRAY_XSTEP_MAXIT,
-    ARRAY_XSTEP_RTOL,
-    DEVICES,
-    GpuUnavailableError,
-    array_module,
-    require_device,
-)
-from .constraints import _Reduction, _reduction, _vertex_rank
-from .contact import CONTACT_WEIGHT, ContactSet, require_modeled
-from .driver import MIN_LOAD_STEP, _reactions, solve
+from .backends import DEVICES, GpuUnavailableError, array_module, require_device
+from .contact import require_modeled
+from .driver import solve
 from .dynamics import ImplicitEuler
-from .factor import _CoupledSolver, _Direct, _spd_splu, _sym_splu
-from .kernel_array import CHUNK, ROUNDS, _aos, _NumpyElements, _soa, _ZStep
-from .kernel_c import USE_CKERNEL, _KernelElements, use_kernel
-from .loop import RHO_MAX, _admm, _check_J, _diverged
-from .mechanics import (
-    ElementKinematics,
-    _as_u,
-    _assemble,
-    _case_parts,
-    _det,
-    _det_cof,
-    _element_K,
-    _grad,
-    _Law,
-    _scatter,
-    element_kinematics,
-    internal_forces,
-    strain_energy,
-    tangent_stiffness,
-)
-from .operators import (
-    _CACHE,
-    PCG_ITERS,
-    PCG_MIN,
-    XSTEP_TOL,
-    AdmmOperators,
-    _ComponentSolver,
-    _particular,
-    _scalar_laplacian,
-    _structure_key,
-    _vertex_norm_max,
-    prepare,
-)
-from .polish import _energy, _newton, _residual, _tangent_lift
+from .kernel_c import use_kernel
+from .mechanics import element_kinematics, internal_forces, strain_energy, tangent_stiffness
+from .operators import AdmmOperators, prepare
 
 __all__ = [
+    "DEVICES",
     "AdmmOperators",
     "GpuUnavailableError",
     "ImplicitEuler",
+    "array_module",
     "element_kinematics",
     "internal_forces",
     "prepare",
+    "require_device",
     "require_modeled",
     "solve",
     "strain_energy",
     "tangent_stiffness",
+    "use_kernel",
 ]
-
-_PARTS = (mechanics, constraints, contact, factor, kernel_c, amg, operators, kernel_array,
-          backends, loop, polish, dynamics, driver)
-_UNSET = object()
-
-
-class _Package(types.ModuleType):
-    """This package as a module object whose attribute assignments also reach the submodules:
-    a tunable set here (``admm.PCG_MIN = 0``) or a helper replaced (``admm._newton``, e.g. by a
-    test's monkeypatch) is set in every submodule that holds the same object under that name."""
-
-    def __setattr__(self, name, value):
-        old = self.__dict__.get(name, _UNSET)
-        super().__setattr__(name, value)
-        if old is _UNSET:
-            return
-        for mod in _PARTS:
-            if mod.__dict__.get(name, _UNSET) is old:
-                setattr(mod, name, value)
-
-
-sys.modules[__name__].__class__ = _Package

@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from tissue_reference.solvers import _ckernel
+from tissue_reference.solvers import ckernel
 
+from ..spd import spd_splu
 from .amg_array import ArrayAmgPcg
-from .factor import _spd_splu
 from .kernel_c import use_kernel
 
 PCG_RTOL = 0.3  # PCG x-step: ... or below PCG_RTOL times its first update
@@ -18,7 +18,7 @@ STEP_MAXIT = 25  # PCG iterations of one x-step at most
 SOLVE_MAXIT, SOLVE_RTOL = 500, 1e-12  # a full solve (harmonic lift): its bounds
 
 
-def _aggregate(A):
+def strength_aggregates(A):
     """Smoothed-aggregation aggregates (Vanek, Mandel, Brezina 1996) on the graph of the
     strength matrix A (CSR): roots whose neighbourhood is still free, then the leftovers joined
     to a neighbouring aggregate, then isolated ones. Returns (agg (n,), number of aggregates)."""
@@ -49,7 +49,7 @@ def _aggregate(A):
     return np.asarray(agg, dtype=np.int64), na
 
 
-class _AmgPcg:
+class AmgPcg:
     """Preconditioned conjugate gradients on an SPD scalar matrix (the x-step matrix of a large
     mesh), multi-column, with an aggregation AMG V-cycle (strength theta = 0.08; Jacobi-smoothed
     prolongator on the finest level, plain aggregation below: smoothed coarse operators densify,
@@ -85,7 +85,7 @@ class _AmgPcg:
             dg = np.sqrt(np.abs(A.diagonal()))
             keep = (np.abs(C.data) >= self.theta * dg[C.row] * dg[C.col]) | (C.row == C.col)
             S = sp.csr_matrix((C.data[keep], (C.row[keep], C.col[keep])), shape=A.shape)
-            agg, na = _aggregate(S)
+            agg, na = strength_aggregates(S)
             if na > 0.6 * n:  # no real coarsening left
                 break
             T = sp.csr_matrix((np.ones(n), (np.arange(n), agg)), shape=(n, na))
@@ -102,7 +102,7 @@ class _AmgPcg:
             self.levels.append((A, ((4.0 / 3.0 / lam) * dinv)[:, None], P, R))
             A = (R @ A @ P).tocsr()
         self.coarse_matrix = A
-        self.lu = _spd_splu(A.tocsc())
+        self.lu = spd_splu(A.tocsc())
         self._arrays = None   # the numpy iteration (amg_array), built on first use
         mats = [lv[k] for lv in self.levels for k in (0, 2, 3)]
         self.bytes = sum(12 * M.nnz + 4 * M.shape[0] for M in mats) + 12 * (
@@ -118,7 +118,7 @@ class _AmgPcg:
         """The hierarchy as the compiled amg_pcg's level structs (int32 CSR arrays kept alive
         here) and the dense inverse of the coarsest matrix (<= 2000 unknowns; its direct solve
         by SuperLU in the numpy V-cycle: the two agree to round-off)."""
-        ffi, lib = _ckernel.load()
+        ffi, lib = ckernel.load()
         keep = []
 
         def arr(a, dtype=np.float64, kind="double *"):

@@ -1,12 +1,12 @@
 """The large-mesh x-step of the array backends: the CPU path's AMG-preconditioned conjugate
-gradients (``amg._AmgPcg``) run on the arrays of ``xp`` (CuPy on a GPU, or numpy).
+gradients (``amg.AmgPcg``) run on the arrays of ``xp`` (CuPy on a GPU, or numpy).
 
 The hierarchy (aggregates, smoothed prolongator, Galerkin coarse matrices) is the CPU path's,
 built once on the host; its matrices are copied as CSR and the Jacobi weights as columns. The
 coarsest level is solved on a GPU by its dense inverse, computed there (one matrix product per
 V-cycle instead of triangular solves; on 1e6 tets the aggregation stops at about 20k coarse
 unknowns, 3 GiB), on numpy by the CPU path's own SuperLU factor. The iteration is
-``_AmgPcg``'s, stopping rules and bounds included: the ADMM x-step is warm-started from the
+``AmgPcg``'s, stopping rules and bounds included: the ADMM x-step is warm-started from the
 previous iterate and stops once its largest vertex update is below ``amg.PCG_RTOL`` of the first or
 below the step tolerance, so the array backend's iterates follow the CPU path's (up to
 round-off) with a few V-cycles per x-step instead of the hundreds of Jacobi-CG iterations an
@@ -25,8 +25,8 @@ def usable(solver) -> bool:
 
 
 class ArrayAmgPcg:
-    """``_AmgPcg``'s PCG and V-cycle on the arrays of ``xp`` (multi-column right-hand sides):
-    the array backends' x-step, and ``_AmgPcg``'s own iteration on numpy without the compiled
+    """``AmgPcg``'s PCG and V-cycle on the arrays of ``xp`` (multi-column right-hand sides):
+    the array backends' x-step, and ``AmgPcg``'s own iteration on numpy without the compiled
     kernel."""
 
     def __init__(self, amg, xp):
@@ -107,5 +107,5 @@ class ArrayAmgPcg:
         return self.pcg(B, self.xp.zeros_like(B), self.solve_maxit, self.solve_rtol)
 
     def step(self, B, X0, tol_mm):
-        """The ADMM x-step from X0 (see ``_AmgPcg.step``)."""
+        """The ADMM x-step from X0 (see ``AmgPcg.step``)."""
         return self.pcg(B, X0.copy(), self.step_maxit, 0.0, tol_mm)

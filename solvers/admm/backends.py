@@ -27,10 +27,10 @@ import numpy as np
 
 from tissue_reference.meshes.errors import CaseError, TissueError
 
-from . import amg_array
-from .kernel_array import _ArrayElements, _NumpyElements, _ZStep
-from .kernel_c import _KernelElements, use_kernel
-from .operators import PCG_MIN, XSTEP_TOL
+from . import amg_array, operators
+from .kernel_array import ArrayElements, NumpyElements, ZStep
+from .kernel_c import KernelElements, use_kernel
+from .operators import XSTEP_TOL
 
 DEVICES = ("cpu", "gpu")  # the choices offered to users ("array-cpu": tests and benchmarks)
 ARRAY_XSTEP_RTOL = 1e-10  # array backend x-step: CG to |K q - b| <= this * |b|
@@ -106,10 +106,10 @@ class _HostBackend:
         return self.ops.lu.solve(rhs)
 
     def zstep(self, rho):
-        return _ZStep(self.ops, rho)
+        return ZStep(self.ops, rho)
 
     def elements(self, zstep, up, F, lam):
-        return (_KernelElements if use_kernel() else _NumpyElements)(self.ops, zstep, up, F, lam)
+        return (KernelElements if use_kernel() else NumpyElements)(self.ops, zstep, up, F, lam)
 
     def xstep(self, rhs, q, tol_mm):
         return self.ops.lu.step(rhs, q, XSTEP_TOL * tol_mm)
@@ -151,7 +151,7 @@ class _DeviceOperators:
         self.h = ops.h
         self.nbytes = sum(_csr_nbytes(M) for M in (ops.DZ, ops.DZtW, red.Z))
         self.amg = self.amg_shape = None
-        if red.separable and len(red.plain_dofs) >= PCG_MIN * ops.d:
+        if red.separable and len(red.plain_dofs) >= operators.PCG_MIN * ops.d:
             lu = ops.lu    # the CPU path's x-step: its AMG hierarchy where it has one
             if lu.whole is not None and amg_array.usable(lu.groups[0][0]):
                 self.amg = amg_array.ArrayAmgPcg(lu.groups[0][0], xp)
@@ -166,7 +166,7 @@ class _DeviceOperators:
 
 
 class _ArrayBackend:
-    """The array backend (``device`` "gpu" or "array-cpu"): element pass ``_ArrayElements`` and
+    """The array backend (``device`` "gpu" or "array-cpu"): element pass ``ArrayElements`` and
     a Jacobi-preconditioned CG x-step, both on the arrays of ``xp``."""
 
     def __init__(self, ops, xp, device):
@@ -186,10 +186,10 @@ class _ArrayBackend:
         return self.get(q)
 
     def zstep(self, rho):
-        return _ZStep(self.ops, rho, xp=self.xp)
+        return ZStep(self.ops, rho, xp=self.xp)
 
     def elements(self, zstep, up, F, lam):
-        return _ArrayElements(self.ops, zstep, up, F, lam, dev=self.dev)
+        return ArrayElements(self.ops, zstep, up, F, lam, dev=self.dev)
 
     def xstep(self, rhs, q, tol_mm):
         """The x-step from the previous iterate q: the AMG-PCG step to vertex updates below

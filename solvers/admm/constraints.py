@@ -13,7 +13,7 @@ from tissue_reference.meshes.errors import CaseError
 
 
 @dataclass(frozen=True)
-class _Reduction:
+class Reduction:
     """u = up + Z q; Z (N, nq) orthonormal columns, each on one vertex. separable: no oblique
     sliding, Z selects the plain free dofs ``plain_dofs`` (in this order)."""
 
@@ -25,7 +25,7 @@ class _Reduction:
 
 
 
-def _vertex_rank(mesh):
+def vertex_rank(mesh):
     """Rank of every vertex in a reverse Cuthill-McKee ordering of the mesh graph (cached)."""
     rank = getattr(mesh, "_admm_rcm_rank", None)
     if rank is None or len(rank) != mesh.n_vertices:
@@ -45,7 +45,7 @@ def _vertex_rank(mesh):
     return rank
 
 
-def _reduction(case) -> _Reduction:
+def constraint_reduction(case) -> Reduction:
     n, d = case.mesh.n_vertices, case.mesh.gdim
     N = n * d
     c = case.constraints
@@ -65,7 +65,7 @@ def _reduction(case) -> _Reduction:
     plain_dofs = np.flatnonzero(plain)
     # component-major (all x dofs, then y, ...): the x-step's multi-column right-hand side
     # is then a view of the reduced vector; vertices in reverse Cuthill-McKee order (locality)
-    plain_dofs = plain_dofs[np.lexsort((_vertex_rank(case.mesh)[plain_dofs // d], plain_dofs % d))]
+    plain_dofs = plain_dofs[np.lexsort((vertex_rank(case.mesh)[plain_dofs // d], plain_dofs % d))]
     zr, zc, zv = [plain_dofs], [np.arange(len(plain_dofs))], [np.ones(len(plain_dofs))]
     col = len(plain_dofs)
     for v in slide_v.tolist():
@@ -94,5 +94,5 @@ def _reduction(case) -> _Reduction:
             zv.append(b)
             col += 1
     Z = sp.csr_matrix((np.concatenate(zv), (np.concatenate(zr), np.concatenate(zc))), shape=(N, col))
-    return _Reduction(Z, up, separable=not len(slide_v), plain_dofs=plain_dofs,
+    return Reduction(Z, up, separable=not len(slide_v), plain_dofs=plain_dofs,
                       ZT=Z.T.tocsr())

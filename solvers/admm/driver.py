@@ -14,11 +14,11 @@ from tissue_reference.meshes.results import SolveResult
 from tissue_reference.meshes.tips import through_surface_state
 
 from .backends import backend, require_device
-from .dynamics import ImplicitEuler, _implicit_euler
-from .loop import _admm, _check_J
-from .mechanics import _as_u
-from .operators import _particular, _vertex_norm_max, prepare
-from .polish import _newton, _residual, _tangent_lift
+from .dynamics import ImplicitEuler, implicit_euler
+from .loop import check_J, run_admm
+from .mechanics import as_u
+from .operators import particular, prepare, vertex_norm_max
+from .polish import energy_gradient, newton, tangent_lift
 
 
 def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: int | None = None,
@@ -99,14 +99,14 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     if isinstance(initial, SolveResult):
         initial = initial.u
     be = backend(ops, device)
-    up = _particular(case, ops)
+    up = particular(case, ops)
     fext = case.external_forces(1.0)
     n, d = ops.n, ops.d
     if initial is None:
         u = np.zeros(ops.N)
     else:
-        u = _as_u(case, initial).copy()
-        _check_J(ops, ops.grad(u), 0, "the initial (warm-start) state")
+        u = as_u(case, initial).copy()
+        check_J(ops, ops.grad(u), 0, "the initial (warm-start) state")
     hist = {"primal": [], "dual": [], "max_step_mm": [], "newton_step_mm": [],
             "admm_clock_s": []}
 
@@ -115,12 +115,12 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         return None if cset is None else cset.origins(push0 + s * (push1 - push0))
 
     def admm_step(up_j, rhs_extra, u_j, it0, tol=tol_mm, s=1.0):
-        return _admm(ops, up_j, rhs_extra, u_j, tol_mm=max(tol, handoff_mm) if polish else tol,
+        return run_admm(ops, up_j, rhs_extra, u_j, tol_mm=max(tol, handoff_mm) if polish else tol,
                      max_iter=int(max_iter), callback=callback, it0=it0, progress=progress,
                      hist=hist, be=be, tips=tips_at(s), anderson=anderson)
 
     def newton_step(u_j, f, inertia, it0, tol=polish_tol_mm, s=1.0):
-        return _newton(ops, u_j, f, inertia, tol_mm=tol, max_iter=polish_max_iter, it0=it0,
+        return newton(ops, u_j, f, inertia, tol_mm=tol, max_iter=polish_max_iter, it0=it0,
                        hist=hist, callback=callback, factorize=factorize, tips=tips_at(s))
 
     restarts = []
@@ -137,16 +137,16 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
             tips_at=tips_at)
     else:
         lifts = 0
-        u, v, traj, admm_it, newton_it, converged = _implicit_euler(
+        u, v, traj, admm_it, newton_it, converged = implicit_euler(
             case, ops, dynamics, u, up, fext, admm_step=admm_step, newton_step=newton_step,
             polish=polish, polish_tol_mm=polish_tol_mm, hist=hist)
         extra = {"dt_s": dt, "steps": int(dynamics.steps), "probe_trajectory": traj,
                  "velocity": v.reshape(n, d)}
     H = ops.grad(u)
-    _check_J(ops, H, admm_it + newton_it, "the final state")
-    r = _residual(ops, u, fext, None, tips_at(1.0))
+    check_J(ops, H, admm_it + newton_it, "the final state")
+    r = energy_gradient(ops, u, fext, None, tips_at(1.0))
     free_res = float(np.abs(ops.red.ZT @ r).max(initial=0.0))
-    reactions = _reactions(case, r)
+    reactions = region_reactions(case, r)
     psi, _ = ops.law.psi_J(H)
     state = deformation_state(case.mesh, u.reshape(n, d))
     if cset is not None:
@@ -200,7 +200,7 @@ def _load_steps(case, ops, u, up, fext, *, admm_step, newton_step, polish, polis
     admm_it = newton_it = lifts = 0
     converged = True
     uc = u - ops.red.Z @ (ops.red.ZT @ u)
-    jump = max(_vertex_norm_max(up - uc, d), tip_travel)
+    jump = max(vertex_norm_max(up - uc, d), tip_travel)
     if not np.isfinite(jump):
         raise CaseError(f"{case.source or case.name}: the prescribed displacements are too "
                         f"large to be represented (|u| overflows)")
@@ -216,7 +216,7 @@ def _load_steps(case, ops, u, up, fext, *, admm_step, newton_step, polish, polis
         tol_j = tol_mm if last else max(tol_mm, intermediate_tol_mm)
         up_j = uc + s * (up - uc)
         if lift is True or (lift == "auto" and jump * inc > 1.0):
-            u = _tangent_lift(ops, u, up_j, admm_it + newton_it, factorize, tips_at(s))
+            u = tangent_lift(ops, u, up_j, admm_it + newton_it, factorize, tips_at(s))
             lifts += 1
         u_start = u
         u, k, converged = admm_step(up_j, s * fext, u, admm_it + newton_it, tol_j, s)
@@ -232,7 +232,7 @@ def _load_steps(case, ops, u, up, fext, *, admm_step, newton_step, polish, polis
                     # this step's boundary values first (without a lift it still has the
                     # previous step's, which Newton would keep: it moves free dofs only)
                     restarts.append(f"load step {j}: {exc}")
-                    u_start = _tangent_lift(ops, u_start, up_j, admm_it + newton_it,
+                    u_start = tangent_lift(ops, u_start, up_j, admm_it + newton_it,
                                             factorize, tips_at(s))
                     u, kn = newton_step(u_start, s * fext, None, admm_it + newton_it, ptol, s)
                 newton_it += kn
@@ -252,7 +252,7 @@ def _load_steps(case, ops, u, up, fext, *, admm_step, newton_step, polish, polis
     return u, taken, admm_it, newton_it, converged, lifts
 
 
-def _reactions(case, r):
+def region_reactions(case, r):
     """Region -> (gdim,) sum of r = f_int - f_ext (mN) over the region's prescribed dofs
     (oblique sliding regions: over all dofs of their vertices)."""
     d = case.mesh.gdim

@@ -10,7 +10,7 @@ import numpy as np
 
 from tissue_reference.meshes.errors import CaseError
 
-from .mechanics import _as_u
+from .mechanics import as_u
 
 
 @dataclass(frozen=True)
@@ -30,14 +30,14 @@ class ImplicitEuler:
             raise CaseError(f"ImplicitEuler steps must be >= 1, got {self.steps!r}")
 
 
-def _implicit_euler(case, ops, dynamics, u, up, fext, *, admm_step, newton_step, polish,
+def implicit_euler(case, ops, dynamics, u, up, fext, *, admm_step, newton_step, polish,
                     polish_tol_mm, hist):
     """The time steps from displacement u (mm, node-major): each one an ADMM solve
     ``admm_step(up, rhs_extra, u, it0) -> (u, iterations, converged)`` and, with ``polish``, a
     Newton polish ``newton_step(u, fext, inertia, it0) -> (u, iterations)``. Returns
     (u, v, probe trajectory, ADMM iterations, Newton iterations, converged)."""
     dt = dynamics.dt
-    v = np.zeros(ops.N) if dynamics.velocity is None else _as_u(case, dynamics.velocity).copy()
+    v = np.zeros(ops.N) if dynamics.velocity is None else as_u(case, dynamics.velocity).copy()
     mdt = ops.mass / dt ** 2
     u = up + ops.red.Z @ (ops.red.ZT @ (u - up))
     traj = []

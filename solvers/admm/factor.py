@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from ..spd import spd_splu as _spd_splu
+from ..spd import spd_splu
 
 
-def _sym_splu(A, cache=None, factorize=None):
+def sym_splu(A, cache=None, factorize=None):
     """Factorization of a symmetric tangent (CSC/CSR, mN/mm) with a ``solve(b)`` method.
     ``factorize(A, cache)`` (optional, e.g. ``fem_reference.cholmod_factor``: CHOLMOD through
     PETSc, which this package does not import) is tried first; when it is absent or returns None
@@ -24,11 +24,11 @@ def _sym_splu(A, cache=None, factorize=None):
                      options={"SymmetricMode": True})
 
 
-class _Direct:
+class Direct:
     """SuperLU of an SPD matrix; ``step`` (the ADMM x-step) is the exact solve."""
 
     def __init__(self, A):
-        self.lu = _spd_splu(A.tocsc())
+        self.lu = spd_splu(A.tocsc())
         self.nnz = self.lu.L.nnz + self.lu.U.nnz
         self.bytes = 12 * self.nnz  # factor values + row indices
         self.untracked_bytes = self.bytes  # SuperLU's own memory, not seen by tracemalloc
@@ -39,7 +39,7 @@ class _Direct:
     def step(self, B, X0, tol_mm=0.0):
         return self.solve(B)
 
-class _CoupledSolver(_Direct):
+class CoupledSolver(Direct):
     """SuperLU of the coupled reduced x-step matrix (oblique sliding)."""
 
     kind = "Direct"

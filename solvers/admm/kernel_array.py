@@ -30,17 +30,17 @@ def _dot_into(xp, a, b, out):
         out[...] = xp.einsum("ijk,ijk->k", a, b)
 
 
-def _aos(z):
+def aos(z):
     """(d, d, m) structure-of-arrays block -> (m, d, d) view."""
     return z.transpose(2, 0, 1)
 
 
-def _soa(H):
+def soa(H):
     """(m, d, d) -> contiguous (d, d, m)."""
     return np.ascontiguousarray(H.transpose(1, 2, 0))
 
 
-class _ZStep:
+class ZStep:
     """Per-element proximal step F = argmin psi(F) + rho/2 |F - Fhat|^2 (F = I + z) for all
     elements at once, on structure-of-arrays blocks (d, d, m): entry (i, J) of every element is
     one contiguous row. The ADMM loop keeps F = I + z in "extended" buffers E (5, 5, m) in 3D,
@@ -243,7 +243,7 @@ class _ZStep:
         return dz2, check, redo
 
 
-class _ArrayElements:
+class ArrayElements:
     """The element work of one ADMM iteration (gather D u, z-step, dual update, residuals and the
     x-step data D^T W (z - lam)) on (d, d, m) blocks of the z-step's array module, in chunks of
     CHUNK elements on numpy (all elements at once otherwise). ``F``, ``lam``: the start state
@@ -333,4 +333,4 @@ class _ArrayElements:
         return r, dsq
 
 
-_NumpyElements = _ArrayElements  # its name as the element pass without a C compiler
+NumpyElements = ArrayElements  # its name as the element pass without a C compiler

@@ -1,14 +1,14 @@
 """The element pass of an ADMM iteration in the compiled kernel (``admm_kernel.c``, built on first
-use by ``solvers._ckernel``): gather of D u, z-step, dual update, residuals and the scatter of
+use by ``solvers.ckernel``): gather of D u, z-step, dual update, residuals and the scatter of
 the next x-step data, in one pass over the element arrays. This is the default (``device="cpu"``)
 element pass; ``kernel_array`` holds the same arithmetic on numpy/CuPy arrays."""
 from __future__ import annotations
 
 import numpy as np
 
-from tissue_reference.solvers import _ckernel
+from tissue_reference.solvers import ckernel
 
-from .constraints import _vertex_rank
+from .constraints import vertex_rank
 
 
 def _det_rows(F, d):
@@ -24,13 +24,13 @@ USE_CKERNEL = True  # compiled element loop when a C compiler is usable (see use
 
 def use_kernel() -> bool:
     """Whether the ADMM loop runs its element-local work (z-step, dual update, residuals) in the
-    compiled kernel (``admm_kernel.c``, built on first use; see ``solvers._ckernel``). False
+    compiled kernel (``admm_kernel.c``, built on first use; see ``solvers.ckernel``). False
     (the numpy loop, same arithmetic) when no C compiler is usable, when USE_CKERNEL is False
     or with the environment variable TISSUE_NO_CKERNEL=1."""
-    return USE_CKERNEL and _ckernel.load() is not None
+    return USE_CKERNEL and ckernel.load() is not None
 
 
-class _KernelElements:
+class KernelElements:
     """The same element work in one call of the compiled ``admm_iteration`` (admm_kernel.c):
     gather of D u from the full displacement, z-step, dual update, residuals and the scatter of
     D^T W (z - lam + I) into a node vector, in one pass over the element arrays. F and lam live
@@ -38,7 +38,7 @@ class _KernelElements:
     ``lam`` properties give them back as (d, d, m)."""
 
     def __init__(self, ops, zstep, up, F, lam):
-        self.ffi, self.lib = _ckernel.load()
+        self.ffi, self.lib = ckernel.load()
         d, m = ops.d, ops.m
         self.ops, self.zstep, self.d, self.m, self.up = ops, zstep, d, m, up
         self.blk = int(self.lib.admm_block_size())
@@ -46,7 +46,7 @@ class _KernelElements:
         if kd is None:
             # vertices renumbered by their reverse Cuthill-McKee rank (the elements are sorted by
             # it too), so that the gather of u and the scatter of f stay local in memory
-            eo, rank = ops.elem_order, _vertex_rank(ops.mesh)
+            eo, rank = ops.elem_order, vertex_rank(ops.mesh)
             plain = ops.red.plain_dofs
             kd = ops._kernel_data = (
                 np.ascontiguousarray(rank[ops.mesh.cells[eo]], dtype=np.int32),

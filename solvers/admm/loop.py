@@ -17,29 +17,29 @@ import numpy as np
 from tissue_reference.meshes.errors import SolverDivergedError
 
 from .contact import ContactBlocks
-from .kernel_array import _aos, _soa
-from .mechanics import _det_cof
+from .kernel_array import aos, soa
+from .mechanics import det_cof
 
 RHO_MAX = 64.0  # rho doubles on stagnation up to this multiple of its start value
 
 
-def _diverged(msg, it, elem):
+def diverged_error(msg, it, elem):
     """SolverDivergedError naming the iteration and the element (a number) or other place."""
     where = f"element {elem}" if isinstance(elem, (int, np.integer)) else elem
     return SolverDivergedError(f"ADMM diverged at iteration {it}: {msg} ({where})")
 
 
-def _check_J(ops, H, it, what):
+def check_J(ops, H, it, what):
     if ops.law.model == "linear-elastic":
         if not np.all(np.isfinite(H)):
             e = int(np.flatnonzero(~np.isfinite(H.reshape(len(H), -1)).all(axis=1))[0])
-            raise _diverged(f"non-finite displacement gradient in {what}", it, e)
+            raise diverged_error(f"non-finite displacement gradient in {what}", it, e)
         return
-    J, _ = _det_cof(H + np.eye(ops.d))
+    J, _ = det_cof(H + np.eye(ops.d))
     bad = ~(J > 0)
     if bad.any():
         e = int(np.argmin(np.where(np.isfinite(J), J, -np.inf)))
-        raise _diverged(f"{int(bad.sum())} inverted element(s) in {what}, J = {J[e]:.3g} "
+        raise diverged_error(f"{int(bad.sum())} inverted element(s) in {what}, J = {J[e]:.3g} "
                         f"<= 0", it, e)
 
 
@@ -54,10 +54,10 @@ def _start(ops, be, up, u0):
     F = (ops.DZ @ q + ops.D @ up + ops.eye_soa).reshape(d, d, m)  # I + D u
     if ops.law.model != "linear-elastic":
         # elements the prescribed values invert in the start state start from F = I
-        J, _ = _det_cof(_aos(F))
+        J, _ = det_cof(aos(F))
         F[:, :, ~(J > 0.05)] = np.eye(d)[:, :, None]
-    P, _ = ops.law.stress(_aos(F) - np.eye(d))
-    return q, F, _soa(P) / ops.rho
+    P, _ = ops.law.stress(aos(F) - np.eye(d))
+    return q, F, soa(P) / ops.rho
 
 
 class Anderson:
@@ -175,7 +175,7 @@ def _where(ops, i):
     return f"element {int(ops.elem_order[i])}" if i < ops.m else f"contact point {i - ops.m}"
 
 
-def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, hist, be,
+def run_admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, hist, be,
           tips=None, anderson: int = 0):
     """ADMM iterations from u0 on the backend ``be`` (``backends.backend``). rhs_extra: f_ext
     (+ M u_tilde / dt^2), mN. tips: the ends of the rigid tips at every contact point
@@ -221,10 +221,10 @@ def _admm(ops, up, rhs_extra, u0, *, tol_mm, max_iter, callback, it0, progress, 
         hist["admm_clock_s"].append(time.perf_counter())
         if not (math.isfinite(primal) and math.isfinite(dual) and math.isfinite(step)):
             bad = be.get(~(xp.isfinite(r) & xp.isfinite(dsq)))
-            raise _diverged("non-finite residual", it0 + k,
+            raise diverged_error("non-finite residual", it0 + k,
                             _where(ops, np.flatnonzero(bad)[0]) if bad.any() else "unknown")
         if primal > big or step > big:
-            raise _diverged(f"residual growth, primal {primal:.3g} mm", it0 + k,
+            raise diverged_error(f"residual growth, primal {primal:.3g} mm", it0 + k,
                             _where(ops, xp.argmax(r)))
         if callback is not None:
             callback(it0 + k, (up + Z @ be.get(q)).reshape(-1, d))

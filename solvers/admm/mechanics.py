@@ -38,20 +38,20 @@ def element_kinematics(mesh) -> ElementKinematics:
     return ElementKinematics(G, V, dofs, d)
 
 
-def _grad(kin: ElementKinematics, u: np.ndarray) -> np.ndarray:
+def displacement_gradient(kin: ElementKinematics, u: np.ndarray) -> np.ndarray:
     """H_e = grad u (m, d, d), H_iJ = sum_a u_ai G_aJ."""
     ue = u.reshape(-1)[kin.dofs].reshape(len(kin.V), kin.d + 1, kin.d)
     return np.einsum("mai,maj->mij", ue, kin.G)
 
 
-def _scatter(kin: ElementKinematics, Pv: np.ndarray, n: int) -> np.ndarray:
+def scatter_forces(kin: ElementKinematics, Pv: np.ndarray, n: int) -> np.ndarray:
     """Nodal forces sum_e V_e P_e : grad N_a, with Pv = V_e P_e (m, d, d); node-major (n,)."""
     fe = np.einsum("mij,maj->mai", Pv, kin.G).reshape(len(kin.V), -1)
     return np.bincount(kin.dofs.ravel(), weights=fe.ravel(), minlength=n)
 
 
 # =========================================================================== material laws
-def _det(F):
+def det_closed_form(F):
     """det of (m, d, d), closed form."""
     if F.shape[1] == 3:
         return (F[:, 0, 0] * (F[:, 1, 1] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 1])
@@ -60,7 +60,7 @@ def _det(F):
     return F[:, 0, 0] * F[:, 1, 1] - F[:, 0, 1] * F[:, 1, 0]
 
 
-def _det_cof(F):
+def det_cof(F):
     """det and cofactor (J F^-T) of (m, d, d) with closed forms."""
     cof = np.empty_like(F)
     if F.shape[1] == 3:
@@ -77,7 +77,7 @@ def _det_cof(F):
     return J, cof
 
 
-class _Law:
+class Law:
     """Energy density psi (kPa), first Piola stress P = dpsi/dH (kPa) and A = dP/dH (kPa) of the
     displacement gradient H (m, d, d)."""
 
@@ -95,7 +95,7 @@ class _Law:
             tr = np.einsum("mii->m", eps)
             return self.mu * np.einsum("mij,mij->m", eps, eps) + 0.5 * self.lmbda * tr ** 2, None
         F = H + np.eye(d)
-        J, _ = _det_cof(F)
+        J, _ = det_cof(F)
         I1 = np.einsum("mij,mij->m", F, F) + (3 - d)
         # (no np.errstate here: it costs more than the arithmetic at these sizes; J == 0
         # exactly is measure-zero and only gives an inf)
@@ -114,7 +114,7 @@ class _Law:
             P[:, np.arange(d), np.arange(d)] += (self.lmbda * tr)[:, None]
             return P, None
         F = H + np.eye(d)
-        J, cof = _det_cof(F)
+        J, cof = det_cof(F)
         I1 = np.einsum("mij,mij->m", F, F) + (3 - d)
         a = self.mu * np.abs(J) ** (-2.0 / 3.0)
         # P = mu J^-2/3 (F - I1/3 F^-T) + kappa J (J - 1) F^-T,  J F^-T = cof
@@ -133,7 +133,7 @@ class _Law:
                 + self.lmbda * np.einsum("ij,kl->ijkl", I, I)
             return np.broadcast_to(A.reshape(d * d, d * d), (m, d * d, d * d)).copy()
         F = H + np.eye(d)
-        J, cof = _det_cof(F)
+        J, cof = det_cof(F)
         I1 = np.einsum("mij,mij->m", F, F) + (3 - d)
         Jm = np.abs(J) ** (-2.0 / 3.0)
         Fi = (cof / J[:, None, None]).reshape(m, -1)
@@ -153,12 +153,12 @@ class _Law:
 
 
 # =========================================================================== energy, forces, K
-def _case_parts(case):
+def case_parts(case):
     kin = element_kinematics(case.mesh)
-    return kin, _Law(case.material, kin.d)
+    return kin, Law(case.material, kin.d)
 
 
-def _as_u(case, u):
+def as_u(case, u):
     n, d = case.mesh.n_vertices, case.mesh.gdim
     u = np.asarray(u, dtype=np.float64)
     if u.size != n * d:
@@ -169,20 +169,20 @@ def _as_u(case, u):
 
 def strain_energy(case, u) -> float:
     """P1 strain energy sum_e V_e psi(F_e) (uJ = kPa mm^3) of displacement u (mm, (n, gdim))."""
-    kin, law = _case_parts(case)
-    psi, _ = law.psi_J(_grad(kin, _as_u(case, u)))
+    kin, law = case_parts(case)
+    psi, _ = law.psi_J(displacement_gradient(kin, as_u(case, u)))
     return float(kin.V @ psi)
 
 
 def internal_forces(case, u) -> np.ndarray:
     """f_int = dU/du (mN), node-major (n*gdim,), of displacement u (mm)."""
-    kin, law = _case_parts(case)
-    uu = _as_u(case, u)
-    P, _ = law.stress(_grad(kin, uu))
-    return _scatter(kin, kin.V[:, None, None] * P, uu.size)
+    kin, law = case_parts(case)
+    uu = as_u(case, u)
+    P, _ = law.stress(displacement_gradient(kin, uu))
+    return scatter_forces(kin, kin.V[:, None, None] * P, uu.size)
 
 
-def _element_K(kin, A):
+def element_K(kin, A):
     """Element stiffness (m, (d+1)d, (d+1)d): V B^T A B, B_(iJ),(a i') = delta_ii' G_aJ, i.e.
     Ke_(a i),(b k) = V sum_JL G_aJ A_iJkL G_bL, as two stacked matrix products."""
     m, d = len(kin.V), kin.d
@@ -193,7 +193,7 @@ def _element_K(kin, A):
     return Ke.reshape(m, k * d, k * d)
 
 
-def _assemble(kin, Ke, n):
+def assemble(kin, Ke, n):
     nd = kin.dofs.shape[1]
     rows = np.repeat(kin.dofs, nd, axis=1).ravel()
     cols = np.tile(kin.dofs, (1, nd)).ravel()
@@ -203,7 +203,7 @@ def _assemble(kin, Ke, n):
 def tangent_stiffness(case, u) -> sp.csr_matrix:
     """Exact Hessian d^2 U / du^2 (mN/mm) of the P1 energy at displacement u (mm), CSR,
     node-major dofs (gdim*v + c) in the Case vertex numbering, no boundary conditions applied."""
-    kin, law = _case_parts(case)
-    uu = _as_u(case, u)
-    return _assemble(kin, _element_K(kin, law.tangent(_grad(kin, uu))), uu.size)
+    kin, law = case_parts(case)
+    uu = as_u(case, u)
+    return assemble(kin, element_K(kin, law.tangent(displacement_gradient(kin, uu))), uu.size)
 

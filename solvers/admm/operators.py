@@ -28,24 +28,24 @@ import scipy.sparse as sp
 
 from tissue_reference.meshes.errors import CaseError
 
-from .amg import _AmgPcg
-from .constraints import _reduction, _vertex_rank
+from .amg import AmgPcg
+from .constraints import constraint_reduction, vertex_rank
 from .contact import ContactSet
-from .factor import _CoupledSolver, _Direct
-from .mechanics import _assemble, _case_parts, _element_K
+from .factor import CoupledSolver, Direct
+from .mechanics import assemble, case_parts, element_K
 
 PCG_MIN = 4000  # free vertices from which the x-step is solved by AMG-preconditioned CG
 PCG_ITERS = 1  # least warm-started PCG iterations per ADMM x-step
 XSTEP_TOL = 0.1  # PCG x-step: largest vertex update (mm) below XSTEP_TOL * tol_mm
 
 
-def _vertex_norm_max(du, d):
+def vertex_norm_max(du, d):
     """Largest vertex norm (mm) of a node-major displacement du."""
     du = du.reshape(-1, d)
     return float(np.sqrt(np.einsum("ij,ij->i", du, du).max(initial=0.0)))
 
 
-def _scalar_laplacian(kin, rho, n):
+def scalar_laplacian(kin, rho, n):
     """sum_e rho V_e G_e G_e^T (n, n): D^T W^2 D = this (x) I_d in node-major order."""
     k = kin.G.shape[1]
     Ke = rho * kin.V[:, None, None] * np.einsum("maj,mbj->mab", kin.G, kin.G)
@@ -55,7 +55,7 @@ def _scalar_laplacian(kin, rho, n):
     return sp.csr_matrix((Ke.ravel(), (rows, cols)), shape=(n, n))
 
 
-class _ComponentSolver:
+class ComponentSolver:
     """Solves the reduced x-step system when it is block diagonal per displacement component:
     one scalar solver per distinct free-vertex set (SuperLU, or AMG-preconditioned CG from
     PCG_MIN free vertices on), the components sharing a set solved together as a multi-column
@@ -71,7 +71,7 @@ class _ComponentSolver:
         self.groups = []
         for verts, poss in groups.values():
             A = Ls[verts][:, verts]
-            sol = _AmgPcg(A, PCG_ITERS) if len(verts) >= PCG_MIN else _Direct(A)
+            sol = AmgPcg(A, PCG_ITERS) if len(verts) >= PCG_MIN else Direct(A)
             self.groups.append((sol, np.stack(poss, axis=1)))
         self.nnz = sum(g.nnz for g, _ in self.groups)
         self.bytes = sum(g.bytes for g, _ in self.groups)
@@ -119,7 +119,7 @@ class AdmmOperators:
                  factor: bool = True, contact: dict | None = None):
         t0 = time.perf_counter()
         self.mesh = case.mesh
-        kin, law = _case_parts(case)
+        kin, law = case_parts(case)
         self.kin, self.law = kin, law
         n, d = case.mesh.n_vertices, kin.d
         self.n, self.d, self.N, self.m = n, d, n * d, len(kin.V)
@@ -129,13 +129,13 @@ class AdmmOperators:
         if not (np.isfinite(rho) and rho > 0):
             raise CaseError(f"ADMM rho must be > 0 kPa, got {rho!r}")
         self.rho = float(rho)
-        self.red = _reduction(case)
+        self.red = constraint_reduction(case)
         Z = self.red.Z
         m = self.m
         # the ADMM loop's element order: by the reverse Cuthill-McKee rank of their first
         # vertex (memory locality of the products with D on large meshes); internal element k
         # is mesh element elem_order[k]
-        self.elem_order = eo = np.argsort(_vertex_rank(case.mesh)[case.mesh.cells].min(axis=1),
+        self.elem_order = eo = np.argsort(vertex_rank(case.mesh)[case.mesh.cells].min(axis=1),
                                           kind="stable")
         self.h = kin.V[eo] ** (1.0 / d)
         # D: (m*d*d, N) with H_flat = D u, rows in structure-of-arrays order (i, J, k): H_iJ of
@@ -187,14 +187,14 @@ class AdmmOperators:
         if self.red.separable:
             # no oblique sliding: the x-step matrix is (rho scalar P1 Laplacian [+ M/dt^2]) x I_d;
             # factorize the scalar matrix once per distinct set of free vertices
-            Ls = _scalar_laplacian(self.kin, self.rho, self.n)
+            Ls = scalar_laplacian(self.kin, self.rho, self.n)
             if self.contact is not None:
                 Ls = Ls + self.contact.scalar_matrix()
             if self.dt is not None:
                 Ls = Ls + sp.diags(self.mass[::self.d] / self.dt ** 2)
-            lu = _ComponentSolver(Ls.tocsr(), self.red.plain_dofs, self.d)
+            lu = ComponentSolver(Ls.tocsr(), self.red.plain_dofs, self.d)
         else:
-            lu = _CoupledSolver(self.red.ZT @ self.Mx @ self.red.Z)
+            lu = CoupledSolver(self.red.ZT @ self.Mx @ self.red.Z)
         self.setup_s += time.perf_counter() - t0
         return lu
 
@@ -211,10 +211,10 @@ class AdmmOperators:
         whose entries couple dofs of one cell. Without oblique sliding it is assembled straight
         into a CSR pattern computed once (the matrix is symmetric, so its CSR arrays are its
         CSC)."""
-        Ke = _element_K(self.kin, self.law.tangent(self.grad(u)))
+        Ke = element_K(self.kin, self.law.tangent(self.grad(u)))
         Z = self.red.Z
         if not self.red.separable:
-            K = _assemble(self.kin, Ke, self.N)
+            K = assemble(self.kin, Ke, self.N)
             if diag is not None:
                 K = K + sp.diags(diag)
             if extra is not None:
@@ -262,12 +262,13 @@ class AdmmOperators:
         return self._Dm
 
     def grad(self, u):
-        """H_e = grad u (m, d, d), mesh element order (as ``_grad``, one sparse product)."""
+        """H_e = grad u (m, d, d), mesh element order (as ``mechanics.displacement_gradient``,
+        one sparse product)."""
         return (self._mesh_gradient()[0] @ u.reshape(-1)).reshape(self.m, self.d, self.d)
 
     def scatter(self, Pv):
         """Nodal forces sum_e Pv_e : grad N_a (node-major, (N,)) of Pv (m, d, d) (as
-        ``_scatter``, one sparse product)."""
+        ``mechanics.scatter_forces``, one sparse product)."""
         return self._mesh_gradient()[1] @ Pv.reshape(-1)
 
     def apply_elements(self, Ke, v):
@@ -329,7 +330,7 @@ class AdmmOperators:
     def prescribed(self, case) -> np.ndarray:
         """The prescribed part u_p (mm, full node-major) of the displacement for ``case``'s
         boundary values (a Case of this structure: other pushes, the same regions)."""
-        return _particular(case, self)
+        return particular(case, self)
 
     @property
     def contact_gather(self) -> sp.csr_matrix:
@@ -355,13 +356,13 @@ class AdmmOperators:
         if whole is not None:  # component-major plain dofs, every component on the same vertices
             dq = dq.reshape(whole[1], whole[0])
             return float(np.sqrt(np.einsum("ij,ij->j", dq, dq).max(initial=0.0)))
-        return _vertex_norm_max(self.red.Z @ dq, self.d)
+        return vertex_norm_max(self.red.Z @ dq, self.d)
 
 
-_CACHE: OrderedDict[tuple, AdmmOperators] = OrderedDict()
+OPERATOR_CACHE: OrderedDict[tuple, AdmmOperators] = OrderedDict()
 
 
-def _structure_key(case, rho, dt, contact):
+def structure_key(case, rho, dt, contact):
     c = case.constraints
     sl = tuple((np.asarray(v).tobytes(), tuple(np.asarray(nr, float).round(14))) for v, nr, _ in
                c.sliding)
@@ -377,23 +378,23 @@ def prepare(case, *, rho: float | None = None, dt: float | None = None,
     it is built on first use), cached for the last 4 Case structures: a Case differing only in
     prescribed values or pushes reuses them. ``contact``: the options of the tips' contact
     (``contact.ContactSet``: rule, penalty, tip_start; None for the case's defaults)."""
-    key = _structure_key(case, rho, dt, contact)
-    ops = _CACHE.get(key)
+    key = structure_key(case, rho, dt, contact)
+    ops = OPERATOR_CACHE.get(key)
     if ops is not None and ops.mesh is case.mesh:
-        _CACHE.move_to_end(key)
+        OPERATOR_CACHE.move_to_end(key)
         return ops
     ops = AdmmOperators(case, rho=rho, dt=dt, factor=factor, contact=contact)
-    _CACHE[key] = ops
-    while len(_CACHE) > 4:
-        _CACHE.popitem(last=False)
+    OPERATOR_CACHE[key] = ops
+    while len(OPERATOR_CACHE) > 4:
+        OPERATOR_CACHE.popitem(last=False)
     return ops
 
 
-def _particular(case, ops: AdmmOperators) -> np.ndarray:
+def particular(case, ops: AdmmOperators) -> np.ndarray:
     """Prescribed part u_p (mm) of the displacement for this Case's boundary values."""
     c = case.constraints
     if c.sliding:
-        return _reduction(case).up
+        return constraint_reduction(case).up
     up = np.zeros(ops.N)
     up[c.dofs] = c.values
     return up

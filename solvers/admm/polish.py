@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .factor import _sym_splu
-from .loop import _check_J, _diverged
-from .mechanics import _det_cof
-from .operators import _vertex_norm_max
+from .factor import sym_splu
+from .loop import check_J, diverged_error
+from .mechanics import det_cof
+from .operators import vertex_norm_max
 
 
 def _contact_hessian(ops, u, tips, curvature=True):
@@ -20,7 +20,7 @@ def _contact_hessian(ops, u, tips, curvature=True):
     return ops.contact.hessian(u, tips, curvature)
 
 
-def _tangent_lift(ops, u, up, it, factorize=None, tips=None):
+def tangent_lift(ops, u, up, it, factorize=None, tips=None):
     """u with its prescribed part moved to up's values and the interior moved by the linearized
     (tangent at u, with the tips at ``tips``) response to that boundary change."""
     Z = ops.red.Z
@@ -35,15 +35,15 @@ def _tangent_lift(ops, u, up, it, factorize=None, tips=None):
         if Hc is not None:
             Kd = Kd + Hc @ delta
         rhs = -(ops.red.ZT @ Kd)
-        s = _sym_splu(Kr, ops.factor_cache, factorize).solve(rhs)
+        s = sym_splu(Kr, ops.factor_cache, factorize).solve(rhs)
     except RuntimeError as exc:
-        raise _diverged(f"singular tangent in the boundary lift ({exc})", it, -1) from None
+        raise diverged_error(f"singular tangent in the boundary lift ({exc})", it, -1) from None
     cand = up + Z @ (zu + s)
     # keep elements valid: halve the interior part until no element inverts
     for _ in range(20):
         if ops.law.model == "linear-elastic":
             return cand
-        J, _ = _det_cof(ops.grad(cand) + np.eye(ops.d))
+        J, _ = det_cof(ops.grad(cand) + np.eye(ops.d))
         if np.all(J > 0):
             return cand
         s = 0.5 * s
@@ -51,7 +51,7 @@ def _tangent_lift(ops, u, up, it, factorize=None, tips=None):
     return cand
 
 
-def _energy(ops, u, fext, inertia, tips=None):
+def total_energy(ops, u, fext, inertia, tips=None):
     e, J = ops.energy(u, fext, tips)
     if inertia is not None:
         mdt, ut = inertia
@@ -59,7 +59,7 @@ def _energy(ops, u, fext, inertia, tips=None):
     return e, J
 
 
-def _residual(ops, u, fext, inertia, tips=None):
+def energy_gradient(ops, u, fext, inertia, tips=None):
     """Gradient (mN) of the total energy at u: internal forces minus f_ext, plus the tips'
     contact forces (``tips``: their ends at the contact points) and inertia."""
     r = ops.residual(u, fext, tips)
@@ -69,7 +69,7 @@ def _residual(ops, u, fext, inertia, tips=None):
     return r
 
 
-def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback, factorize=None,
+def newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback, factorize=None,
             tips=None):
     """Newton on the same P1 energy (exact tangent, backtracking on the energy, J > 0), with
     the rigid tips' contact where ``tips`` gives their ends. With contact, the iteration matrix
@@ -80,37 +80,37 @@ def _newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback, fac
     k = 0
     exact = tips is None or ops.contact is None
     for k in range(1, max_iter + 1):
-        r = _residual(ops, u, fext, inertia, tips)
+        r = energy_gradient(ops, u, fext, inertia, tips)
         rr = ops.red.ZT @ r
         Kr, _ = ops.reduced_tangent(u, None if inertia is None else inertia[0],
                                     _contact_hessian(ops, u, tips, exact))
         try:
-            dq = -_sym_splu(Kr, ops.factor_cache, factorize).solve(rr)
+            dq = -sym_splu(Kr, ops.factor_cache, factorize).solve(rr)
         except RuntimeError as exc:
-            raise _diverged(f"singular tangent in the Newton polish ({exc})", it0 + k, -1) from None
+            raise diverged_error(f"singular tangent in the Newton polish ({exc})", it0 + k, -1) from None
         du = Z @ dq
-        e0, _ = _energy(ops, u, fext, inertia, tips)
+        e0, _ = total_energy(ops, u, fext, inertia, tips)
         r0 = float(np.linalg.norm(rr))
         alpha = 1.0
         for _ in range(40):
-            e1, J1 = _energy(ops, u + alpha * du, fext, inertia, tips)
+            e1, J1 = total_energy(ops, u + alpha * du, fext, inertia, tips)
             if J1 is None or np.all(J1 > 0):
                 # merit: energy decrease, or (tangent indefinite) free residual decrease
                 if e1 <= e0 + 1e-4 * alpha * float(rr @ dq) + 1e-12 * abs(e0):
                     break
                 r1 = float(np.linalg.norm(
-                    ops.red.ZT @ _residual(ops, u + alpha * du, fext, inertia, tips)))
+                    ops.red.ZT @ energy_gradient(ops, u + alpha * du, fext, inertia, tips)))
                 if r1 < (1.0 - 1e-4 * alpha) * r0:
                     break
             alpha *= 0.5
         else:
             H = ops.grad(u + du)
-            _check_J(ops, H, it0 + k, "the Newton polish")
-            raise _diverged("Newton polish line search found no energy decrease", it0 + k,
+            check_J(ops, H, it0 + k, "the Newton polish")
+            raise diverged_error("Newton polish line search found no energy decrease", it0 + k,
                             int(np.argmax(np.abs(rr))) // d)
         u = u + alpha * du
         exact = alpha == 1.0
-        step = _vertex_norm_max(alpha * du, d)
+        step = vertex_norm_max(alpha * du, d)
         hist["max_step_mm"].append(step)
         hist["newton_step_mm"].append(step)
         if callback is not None:

@@ -85,35 +85,13 @@ Modules: ``tensors`` (stiffness tensors, block-sparse helpers), ``surfaces`` (Pl
 TriSurface), ``point_types`` (PointTypes), ``iterations`` (PCG, descent, surface-sliding rounds,
 divergence checks), ``model`` (MassTensorModel, MTSolution), ``driver`` (Case-level ``solve``).
 """
-# ruff: noqa: F401  (the names of the former single module are re-exported from their modules)
 from __future__ import annotations
 
-import logging
-import time
-from dataclasses import dataclass, field
-
-import numpy as np
-import scipy.sparse as sp
-
-from tissue_reference.meshes.errors import CaseError, SolverDivergedError
-from tissue_reference.meshes.mesh import deformation_state
-from tissue_reference.meshes.results import SolveResult
-
-from .driver import (
-    _MODELS,
-    _axis_of,
-    _model_for,
-    _reactions,
-    case_point_types,
-    forget_factorizations,
-    require_modeled,
-    solve,
-)
-from .iterations import _State, log
+from .driver import case_point_types, forget_factorizations, require_modeled, solve
 from .model import METHODS, MassTensorModel, MTSolution
 from .point_types import PointTypes
-from .surfaces import Plane, TriSurface, _check_surface, _closest_on_segment, _closest_on_triangles
-from .tensors import _blockdiag, _bsr_from_blocks, _gradients, stiffness_tensors
+from .surfaces import Plane, TriSurface
+from .tensors import stiffness_tensors
 
 __all__ = [
     "METHODS",

@@ -13,7 +13,7 @@ from .model import MassTensorModel
 from .point_types import PointTypes
 
 
-def _axis_of(normal, tol=1e-12):
+def axis_of(normal, tol=1e-12):
     n = np.abs(normal)
     k = int(np.argmax(n))
     return k if np.all(np.delete(n, k) <= tol) else None
@@ -42,25 +42,25 @@ def case_point_types(case) -> PointTypes:
     return types
 
 
-_MODELS: dict = {}
+MODEL_CACHE: dict = {}
 
 
-def _model_for(case) -> MassTensorModel:
+def model_for(case) -> MassTensorModel:
     key = (id(case.mesh), case.material.mu, case.material.lmbda)
-    m = _MODELS.get(key)
+    m = MODEL_CACHE.get(key)
     same = m is not None and (m.points is case.mesh.points or np.array_equal(m.points, case.mesh.points)) \
         and (m.cells is case.mesh.cells or np.array_equal(m.cells, case.mesh.cells))
     if not same:
         m = MassTensorModel(case.mesh.points, case.mesh.cells, case.material)
-        _MODELS.clear()
-        _MODELS[key] = m
+        MODEL_CACHE.clear()
+        MODEL_CACHE[key] = m
     return m
 
 
 def forget_factorizations() -> None:
     """Drop the direct solve's kept factorizations (the tensors stay): the next solve of each
     pattern of point types factorizes again, as a first solve does."""
-    for m in _MODELS.values():
+    for m in MODEL_CACHE.values():
         m._factors.clear()
 
 
@@ -88,7 +88,7 @@ def solve(case, *, pushes=None, initial=None, method: str = "direct", stop_mm: f
     case.material.require_compressible("the Mass Tensor solver")
     require_modeled(case)
     case = case.with_pushes(pushes)   # idle patches held unless the Case frees them
-    model = _model_for(case)
+    model = model_for(case)
     types = case_point_types(case)
     n, d = case.mesh.n_vertices, case.mesh.gdim
     f = case.external_forces(1.0).reshape(n, d)
@@ -105,7 +105,7 @@ def solve(case, *, pushes=None, initial=None, method: str = "direct", stop_mm: f
     u = sol.u
     F = model.forces(u)
     r = F - f
-    reactions = _reactions(case, r)
+    reactions = region_reactions(case, r)
     wall = time.perf_counter() - t0
     return SolveResult(
         u=u, converged=sol.converged, iterations=sol.iterations, residual=sol.residual,
@@ -121,13 +121,13 @@ def solve(case, *, pushes=None, initial=None, method: str = "direct", stop_mm: f
                **deformation_state(case.mesh, u)})
 
 
-def _reactions(case, r):
+def region_reactions(case, r):
     """Region -> (d,) reaction (mN): r summed over the region's prescribed dofs / normals."""
     d = case.mesh.gdim
     c = case.constraints
     out = case.prescribed_reactions(r)
     oblique = [b for b in case.boundaries if b.type == "sliding"
-               and _axis_of(np.asarray(b.normal, float) / np.linalg.norm(b.normal)) is None]
+               and axis_of(np.asarray(b.normal, float) / np.linalg.norm(b.normal)) is None]
     taken = np.zeros((case.mesh.n_vertices, d), bool)
     taken.reshape(-1)[c.dofs] = True
     for b, (vs, nrm, _) in zip(oblique, c.sliding):

@@ -13,12 +13,12 @@ import scipy.sparse as sp
 from tissue_reference.meshes.errors import SolverDivergedError
 
 from ..spd import spd_splu
-from .tensors import _blockdiag
+from .tensors import blockdiag
 
 log = logging.getLogger("tissue.mass_tensor")
 
 
-class _State:
+class IterationState:
     """Iteration bookkeeping shared by the phases of one solve."""
 
     def __init__(self, model, f, stop_mm, max_iter, callback, step_scale, factorize=None):
@@ -47,7 +47,7 @@ class _State:
         Minv = np.linalg.inv(T + c * NN)
         return np.einsum("nab,nbc,ncd->nad", P, Minv, P)
 
-    def _planes(self, types, u):
+    def active_planes(self, types, u):
         """Refresh tangent planes of surface-sliding vertices at their closest surface point."""
         if not types.surface_of:
             return types, 0.0
@@ -73,16 +73,16 @@ class _State:
 
     def run(self, types, u, method):
         nonlinear = bool(types.surface_of)
-        lin, _ = self._planes(types, u)
+        lin, _ = self.active_planes(types, u)
         best, since = np.inf, 0
         while True:
             start = u.copy()
             it0 = self.it
-            u = self._linear(lin, u, method, refresh=types if (nonlinear and method == "descent")
+            u = self.solve_linear(lin, u, method, refresh=types if (nonlinear and method == "descent")
                              else None)
             if not nonlinear or method == "descent" or self.it >= self.max_iter:
                 return u
-            lin, _ = self._planes(types, u)
+            lin, _ = self.active_planes(types, u)
             move = float(np.max(np.linalg.norm(u - start, axis=1)))
             if move < self.stop or self.it == it0:
                 return u
@@ -101,8 +101,8 @@ class _State:
         """Projector P, preconditioner M and projected stiffness P K P as block-diagonal / CSR
         matrices acting on (n, d) arrays (fold: precompute P K P once for the phase)."""
         P = types.projector()
-        Pm = _blockdiag(P)
-        Mm = _blockdiag(self._prec(types, P, method))
+        Pm = blockdiag(P)
+        Mm = blockdiag(self._prec(types, P, method))
         shape = (self.model.n_vertices, self.model.gdim)
         KP = (Pm @ self.K @ Pm).tocsr() if fold else None
 
@@ -160,7 +160,7 @@ class _State:
         symmetric positive definite (the identity on the prescribed directions), factorized once
         per pattern of point types."""
         n, d = self.model.n_vertices, self.model.gdim
-        Pm = _blockdiag(types.projector())
+        Pm = blockdiag(types.projector())
         uc = types.prescribed_part()
         w = self._factor(types, Pm).solve(Pm @ (self.f - self.Kx(uc)).reshape(-1))
         new = uc + (Pm @ w).reshape(n, d)
@@ -175,7 +175,7 @@ class _State:
             self.callback(self.it, new)
         return new
 
-    def _linear(self, types, u, method, refresh=None):
+    def solve_linear(self, types, u, method, refresh=None):
         """Iterate on u = u_c + P w until the stopping rule (refresh: re-project surfaces each
         iteration, descent only); "direct": one exact solve."""
         if method == "direct":
@@ -224,7 +224,7 @@ class _State:
                     f"{smax_v[v]:g} mm in one iteration")
             self.steps.append(smax)
             if refresh is not None:
-                types, _ = self._planes(refresh, u)
+                types, _ = self.active_planes(refresh, u)
                 proj, applyM, Kproj = self._operators(types, method, fold=False)
                 r = proj(self.f - self.Kx(u))
             else:

@@ -10,9 +10,9 @@ import scipy.sparse as sp
 
 from tissue_reference.meshes.errors import CaseError
 
-from .iterations import _State
+from .iterations import IterationState
 from .point_types import PointTypes
-from .tensors import _bsr_from_blocks, stiffness_tensors
+from .tensors import bsr_from_blocks, stiffness_tensors
 
 METHODS = ("direct", "pcg", "descent")
 """How a solve reaches equilibrium: "direct" (one sparse factorization of the projected tensors
@@ -92,7 +92,7 @@ class MassTensorModel:
             rows = np.concatenate([np.arange(n), i, j])
             cols = np.concatenate([np.arange(n), j, i])
             data = np.concatenate([self.T_ii, self.T_ij, np.transpose(self.T_ij, (0, 2, 1))])
-            self._K = _bsr_from_blocks(rows, cols, data, n, d)
+            self._K = bsr_from_blocks(rows, cols, data, n, d)
         return self._K
 
     def energy(self, u) -> float:
@@ -129,7 +129,7 @@ class MassTensorModel:
         n, d = self.n_vertices, self.gdim
         f = np.zeros((n, d)) if f_ext is None else np.asarray(f_ext, float).reshape(n, d)
         u = np.zeros((n, d)) if initial is None else np.asarray(initial, float).reshape(n, d).copy()
-        state = _State(self, f, stop_mm, max_iter, callback, step_scale, factorize)
+        state = IterationState(self, f, stop_mm, max_iter, callback, step_scale, factorize)
         phases = []
         u = state.run(types, u, method)
         phases.append(state.it)

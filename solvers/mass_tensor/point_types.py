@@ -8,7 +8,7 @@ import numpy as np
 
 from tissue_reference.meshes.errors import CaseError
 
-from .surfaces import Plane, _check_surface
+from .surfaces import Plane, check_surface
 
 
 class PointTypes:
@@ -125,7 +125,7 @@ class PointTypes:
         pos = np.broadcast_to(np.asarray(positions, float), (len(v), self.d))
         self.displacement(v, pos - self.X[v], label="target")
         if then_slide is not None:
-            _check_surface(then_slide, self.d)
+            check_surface(then_slide, self.d)
             for vi in v.tolist():
                 self.then_slide[vi] = then_slide
         return self
@@ -133,7 +133,7 @@ class PointTypes:
     def sliding(self, verts, surface):
         """Sliding points on a Plane (linear: exact projection) or a TriSurface (projected to
         the closest surface point, tangent plane refreshed as the point moves)."""
-        _check_surface(surface, self.d)
+        check_surface(surface, self.d)
         v = self._ids(verts)
         if isinstance(surface, Plane):
             if self.X is None:

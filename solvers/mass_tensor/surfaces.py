@@ -69,20 +69,20 @@ class TriSurface:
         cand = cand.reshape(len(x), -1)
         a, b, c = (self._tri[cand, k] for k in range(3))          # (q, k, 3)
         p = x[:, None, :]
-        best = _closest_on_triangles(p, a, b, c)                  # (q, k, 3)
+        best = closest_on_triangles(p, a, b, c)                  # (q, k, 3)
         dist = np.linalg.norm(best - p, axis=2)
         k = np.argmin(dist, axis=1)
         rows = np.arange(len(x))
         return best[rows, k], self._normals[cand[rows, k]]
 
 
-def _closest_on_segment(p, a, b):
+def closest_on_segment(p, a, b):
     ab = b - a
     t = np.clip(np.sum((p - a) * ab, axis=-1) / np.maximum(np.sum(ab * ab, axis=-1), 1e-300), 0, 1)
     return a + t[..., None] * ab
 
 
-def _closest_on_triangles(p, a, b, c):
+def closest_on_triangles(p, a, b, c):
     """Exact closest point on triangles (a, b, c) to p (broadcast over leading axes)."""
     e0, e1 = b - a, c - a
     n = np.cross(e0, e1)
@@ -95,7 +95,7 @@ def _closest_on_triangles(p, a, b, c):
     v = (d11 * d20 - d01 * d21) / den
     t = (d00 * d21 - d01 * d20) / den
     inside = (v >= 0) & (t >= 0) & (v + t <= 1)
-    cands = [_closest_on_segment(p, a, b), _closest_on_segment(p, b, c), _closest_on_segment(p, c, a)]
+    cands = [closest_on_segment(p, a, b), closest_on_segment(p, b, c), closest_on_segment(p, c, a)]
     dists = np.stack([np.linalg.norm(s - p, axis=-1) for s in cands])
     k = np.argmin(dists, axis=0)
     edge = np.choose(k[..., None], cands)
@@ -103,7 +103,7 @@ def _closest_on_triangles(p, a, b, c):
 
 
 
-def _check_surface(s, d):
+def check_surface(s, d):
     if isinstance(s, Plane):
         if len(s.normal) != d:
             raise CaseError(f"Plane of dimension {len(s.normal)} used on a {d}D mesh")

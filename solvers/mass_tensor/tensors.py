@@ -8,7 +8,7 @@ import numpy as np
 import scipy.sparse as sp
 
 
-def _gradients(points: np.ndarray, cells: np.ndarray):
+def barycentric_gradients(points: np.ndarray, cells: np.ndarray):
     """Barycentric gradients (m, d+1, d) in 1/mm and cell measures (m,) in mm^d."""
     x = points[cells]
     D = x[:, 1:] - x[:, :1]                      # (m, d, d) rows = edge vectors from vertex 0
@@ -32,7 +32,7 @@ def stiffness_tensors(points, cells, mu: float, lmbda: float):
     points = np.asarray(points, float)
     cells = np.asarray(cells, np.int64)
     n, d = points.shape
-    g, vol = _gradients(points, cells)
+    g, vol = barycentric_gradients(points, cells)
     eye = np.eye(d)
 
     def block(a, b):
@@ -68,14 +68,14 @@ def stiffness_tensors(points, cells, mu: float, lmbda: float):
 
 
 
-def _bsr_from_blocks(rows, cols, data, n, d):
+def bsr_from_blocks(rows, cols, data, n, d):
     order = np.lexsort((cols, rows))
     rows, cols, data = rows[order], cols[order], data[order]
     indptr = np.r_[0, np.cumsum(np.bincount(rows, minlength=n))]
     return sp.bsr_matrix((data, cols, indptr), shape=(d * n, d * n)).tocsr()
 
 
-def _blockdiag(B):
+def blockdiag(B):
     """(n, d, d) blocks -> block-diagonal CSR matrix (n d, n d)."""
     n, d, _ = B.shape
     return sp.bsr_matrix((B, np.arange(n), np.arange(n + 1)), shape=(n * d, n * d)).tocsr()
