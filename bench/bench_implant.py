@@ -63,7 +63,7 @@ def main(argv=None) -> int:
           f"[< 3.5]; under the implant: {plan.muscle_thickness_error_mm():.2f} mm")
 
     try:
-        from tissue_reference.tissue.cmd_implant import reference_solve
+        from tissue_reference.tissue.implant_study import reference_solve
         t1 = time.perf_counter()
         ref = reference_solve(plan)
         tref = time.perf_counter() - t1

@@ -51,6 +51,10 @@ def patch_radius(mesh: MeshData, region: str) -> float:
     return 0.5 * float(pdist(x).max()) if len(x) > 1 else 0.0
 
 
+PUSHED_KEPT = 8
+"""Pushed Cases a Case keeps (``with_pushes``), the oldest forgotten first."""
+
+
 class CaseVariantsMixin:
     """The Cases derived from a Case (its actuators pushed or freed, another material or mesh)
     and the glued-patch warning."""
@@ -64,6 +68,15 @@ class CaseVariantsMixin:
         for every solver, the control Jacobians and the loop; ``with_free_actuators()`` first
         makes the idle patches free."""
         pushes = dict(pushes or {})
+        # the same pushes give the same (immutable) Case, validated once: a solve, its outputs
+        # and its checks each ask for it
+        memo = self.__dict__.setdefault("_pushed", {})
+        try:
+            key = tuple(sorted((str(n), float(v)) for n, v in pushes.items()))
+        except (TypeError, ValueError):
+            key = None                       # an unusable push: the checks below name it
+        if key is not None and key in memo:
+            return memo[key]
         acts = {name: self.actuator(name) for name in pushes}
         held = {a.name: a for a in self.actuators
                 if a.type == "patch" and a.name not in pushes and a.idle == "held"}
@@ -84,6 +97,10 @@ class CaseVariantsMixin:
         # the same mesh and probes: the probes are located once, on this case, for every pushed
         # one (a control loop or a verification run pushes one case many times)
         pushed.__dict__["probe_locations"] = self.probe_locations
+        if key is not None:
+            if len(memo) >= PUSHED_KEPT:
+                memo.pop(next(iter(memo)))
+            memo[key] = pushed
         return pushed
 
     def glued_unconverged(self) -> dict[str, str]:

@@ -135,6 +135,17 @@ def test_unknown_actuator_push_is_named():
         c.with_pushes({"A9": 1.0})
 
 
+def test_the_same_pushes_give_the_same_case_and_other_pushes_another():
+    c = load_case(ROOT / "meshes/cases/phantom.toml", size=14)
+    a = c.with_pushes({"A1": 2.0, "A2": 1.0})
+    assert c.with_pushes({"A2": 1, "A1": 2.0}) is a       # validated once, whatever the order
+    b = c.with_pushes({"A1": 2.5, "A2": 1.0})
+    assert b is not a and b.actuator("A1").push == 2.5 and a.actuator("A1").push == 2.0
+    disp = {bc.region: bc.value for bc in b.boundaries if bc.type == "displacement"}
+    assert disp[c.actuator("A1").region] == pytest.approx(
+        tuple(2.5 * np.asarray(c.actuator("A1").direction)))
+
+
 def test_diverging_load_step_keeps_last_converged_state(tmp_path):
     """A push that crushes the phantom fails after cut-backs; the CLI writes the last converged
     state and names the load fraction reached."""
