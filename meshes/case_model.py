@@ -20,7 +20,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .case_constraints import CaseConstraintsMixin, axis_of  # noqa: F401  (re-exported)
+from . import case_constraints, case_variants
 from .case_parts import (
     ACTUATOR_TYPES,
     BOUNDARY_TYPES,
@@ -36,7 +36,7 @@ from .case_parts import (
     VertexConstraints,
     vec,
 )
-from .case_variants import RIM_J_WARN, CaseVariantsMixin  # noqa: F401  (re-exported)
+from .case_variants import RIM_J_WARN  # noqa: F401  (re-exported)
 from .errors import CaseError, NotModeledError
 from .mesh import MeshData, cell_volumes, check_cells
 
@@ -97,7 +97,7 @@ def _closest_barycentric(verts: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class Case(CaseConstraintsMixin, CaseVariantsMixin):
+class Case:
     """One problem. ``mesh`` is a MeshData; the rest as in the module docstring."""
 
     mesh: MeshData
@@ -121,7 +121,7 @@ class Case(CaseConstraintsMixin, CaseVariantsMixin):
         check_cells(self.mesh, source=where)
         gdim = self.mesh.gdim
         for b in self.boundaries:
-            self._check_boundary(b, gdim, where)
+            case_constraints.check_boundary(self, b, gdim, where)
         names = set()
         for p in self.probes:
             if p.name in names:
@@ -157,7 +157,63 @@ class Case(CaseConstraintsMixin, CaseVariantsMixin):
             raise CaseError(f"{where}: reference tip_start must be one of {list(TIP_STARTS)}, "
                             f"got {self.reference_tip_start!r}")
         _ = self.constraints  # validates the prescriptions (raises on conflicts)
-        self._check_rigid_body(where)
+        case_constraints.check_rigid_body(self, where)
+
+    # ------------------------------------------------------------ constraints (case_constraints)
+    @cached_property
+    def constraints(self) -> VertexConstraints:
+        """Prescribed dofs at full load (``case_constraints.vertex_constraints``); CaseError when
+        two regions prescribe one dof differently."""
+        return case_constraints.vertex_constraints(self)
+
+    @cached_property
+    def reaction_owners(self):
+        """(regions, region index of each prescribed dof) (``case_constraints``)."""
+        return case_constraints.reaction_owners(self)
+
+    def rigid_body_modes(self) -> np.ndarray:
+        """(gdim*n, 6|3) node-major rigid-body modes (``case_constraints``)."""
+        return case_constraints.rigid_body_modes(self)
+
+    def free_dofs(self) -> np.ndarray:
+        """Node-major dofs no Dirichlet-type condition prescribes (``case_constraints``)."""
+        return case_constraints.free_dofs(self)
+
+    def dirichlet_regions(self) -> list[str]:
+        """Regions with a Dirichlet-type condition (``case_constraints``)."""
+        return case_constraints.dirichlet_regions(self)
+
+    def prescribed_reactions(self, r) -> dict:
+        """Region -> (gdim,) sum of ``r`` (mN) over the dofs it prescribes
+        (``case_constraints.prescribed_reactions``)."""
+        return case_constraints.prescribed_reactions(self, r)
+
+    # ------------------------------------------------------------ derived Cases (case_variants)
+    def with_pushes(self, pushes: dict | None) -> Case:
+        """This Case with its actuators pushed (mm; ``case_variants.with_pushes``)."""
+        return case_variants.with_pushes(self, pushes)
+
+    def with_free_actuators(self) -> Case:
+        """This Case with every patch actuator idle-free (``case_variants``)."""
+        return case_variants.with_free_actuators(self)
+
+    def with_material(self, **changes) -> Case:
+        """This Case with its material's fields changed (``case_variants``)."""
+        return case_variants.with_material(self, **changes)
+
+    def with_mesh(self, mesh: MeshData) -> Case:
+        """This Case on another mesh (``case_variants``)."""
+        return case_variants.with_mesh(self, mesh)
+
+    def glued_unconverged(self) -> dict[str, str]:
+        """Actuator -> why, for each glued patch pushed past where answers converge
+        (``case_variants.glued_unconverged``)."""
+        return case_variants.glued_unconverged(self)
+
+    def glued_patch_warnings(self, u, cell_J=None) -> list[str]:
+        """One line per pushed glued patch past its range or with crushed rim cells
+        (``case_variants.glued_patch_warnings``)."""
+        return case_variants.glued_patch_warnings(self, u, cell_J)
 
     def external_forces(self, scale: float = 1.0) -> np.ndarray:
         """Consistent P1 nodal forces (mN), node-major (n*gdim,), of tractions and gravity."""

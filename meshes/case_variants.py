@@ -1,4 +1,5 @@
-"""Cases derived from a Case, mixed into ``meshes.case.Case``.
+"""Cases derived from a Case: functions of a Case, which ``meshes.case_model.Case`` calls (its
+``with_pushes``, ``with_mesh``, ...).
 
 Units: pushes and displacements mm; J (volume ratio) dimensionless.
 
@@ -22,7 +23,9 @@ from .mesh import MeshData, cell_jacobians
 if TYPE_CHECKING:
     from .case_model import Case
 
-__all__ = ["GLUED_CONVERGED_RADII", "RIM_J_WARN", "CaseVariantsMixin", "patch_radius"]
+__all__ = ["GLUED_CONVERGED_RADII", "PUSHED_KEPT", "RIM_J_WARN", "glued_patch_warnings",
+           "glued_unconverged", "patch_radius", "with_free_actuators", "with_material",
+           "with_mesh", "with_pushes"]
 
 RIM_J_WARN = 0.2
 """Smallest volume ratio J at the rim of a pushed glued patch before the solvers warn."""
@@ -55,112 +58,113 @@ PUSHED_KEPT = 8
 """Pushed Cases a Case keeps (``with_pushes``), the oldest forgotten first."""
 
 
-class CaseVariantsMixin:
-    """The Cases derived from a Case (its actuators pushed or freed, another material or mesh)
-    and the glued-patch warning."""
+def with_pushes(case, pushes: dict | None) -> Case:
+    """A new Case where each named patch actuator's region is displaced rigidly by
+    ``push * direction`` (mm; pushes replace any condition already on that region), each
+    patch not named and ``idle = "held"`` is held where it is (at its current ``push``: 0
+    on a Case no push was applied to), and each actuator records its position ``push``
+    (mm; an indenter gets no condition: the reference solves its contact). One convention
+    for every solver, the control Jacobians and the loop; ``with_free_actuators()`` first
+    makes the idle patches free."""
+    pushes = dict(pushes or {})
+    # the same pushes give the same (immutable) Case, validated once: a solve, its outputs
+    # and its checks each ask for it
+    memo = case.__dict__.setdefault("_pushed", {})
+    try:
+        key = tuple(sorted((str(n), float(v)) for n, v in pushes.items()))
+    except (TypeError, ValueError):
+        key = None                       # an unusable push: the checks below name it
+    if key is not None and key in memo:
+        return memo[key]
+    acts = {name: case.actuator(name) for name in pushes}
+    held = {a.name: a for a in case.actuators
+            if a.type == "patch" and a.name not in pushes and a.idle == "held"}
+    if not pushes and not held:
+        return case
+    patches = {n: a for n, a in acts.items() if a.type == "patch"}
+    patches.update(held)
+    values = {n: float(pushes[n]) if n in pushes else float(a.push)
+              for n, a in patches.items()}
+    regions = {a.region for a in patches.values()}
+    kept = [b for b in case.boundaries if b.region not in regions]
+    added = [Boundary(a.region, "displacement",
+                      value=tuple((values[n] * np.asarray(a.direction)).tolist()))
+             for n, a in patches.items()]
+    actuators = tuple(replace(a, push=float(pushes[a.name])) if a.name in acts else a
+                      for a in case.actuators)
+    pushed = replace(case, boundaries=tuple(kept + added), actuators=actuators)
+    # the same mesh and probes: the probes are located once, on this case, for every pushed
+    # one (a control loop or a verification run pushes one case many times)
+    pushed.__dict__["probe_locations"] = case.probe_locations
+    if key is not None:
+        if len(memo) >= PUSHED_KEPT:
+            memo.pop(next(iter(memo)))
+        memo[key] = pushed
+    return pushed
 
-    def with_pushes(self, pushes: dict | None) -> Case:
-        """A new Case where each named patch actuator's region is displaced rigidly by
-        ``push * direction`` (mm; pushes replace any condition already on that region), each
-        patch not named and ``idle = "held"`` is held where it is (at its current ``push``: 0
-        on a Case no push was applied to), and each actuator records its position ``push``
-        (mm; an indenter gets no condition: the reference solves its contact). One convention
-        for every solver, the control Jacobians and the loop; ``with_free_actuators()`` first
-        makes the idle patches free."""
-        pushes = dict(pushes or {})
-        # the same pushes give the same (immutable) Case, validated once: a solve, its outputs
-        # and its checks each ask for it
-        memo = self.__dict__.setdefault("_pushed", {})
-        try:
-            key = tuple(sorted((str(n), float(v)) for n, v in pushes.items()))
-        except (TypeError, ValueError):
-            key = None                       # an unusable push: the checks below name it
-        if key is not None and key in memo:
-            return memo[key]
-        acts = {name: self.actuator(name) for name in pushes}
-        held = {a.name: a for a in self.actuators
-                if a.type == "patch" and a.name not in pushes and a.idle == "held"}
-        if not pushes and not held:
-            return self
-        patches = {n: a for n, a in acts.items() if a.type == "patch"}
-        patches.update(held)
-        values = {n: float(pushes[n]) if n in pushes else float(a.push)
-                  for n, a in patches.items()}
-        regions = {a.region for a in patches.values()}
-        kept = [b for b in self.boundaries if b.region not in regions]
-        added = [Boundary(a.region, "displacement",
-                          value=tuple((values[n] * np.asarray(a.direction)).tolist()))
-                 for n, a in patches.items()]
-        actuators = tuple(replace(a, push=float(pushes[a.name])) if a.name in acts else a
-                          for a in self.actuators)
-        pushed = replace(self, boundaries=tuple(kept + added), actuators=actuators)
-        # the same mesh and probes: the probes are located once, on this case, for every pushed
-        # one (a control loop or a verification run pushes one case many times)
-        pushed.__dict__["probe_locations"] = self.probe_locations
-        if key is not None:
-            if len(memo) >= PUSHED_KEPT:
-                memo.pop(next(iter(memo)))
-            memo[key] = pushed
-        return pushed
 
-    def glued_unconverged(self) -> dict[str, str]:
-        """Actuator name -> why, for each glued patch pushed deeper than GLUED_CONVERGED_RADII
-        of its radius (``patch_radius``), where no mesh-converged answer is known: decided by
-        the pushes alone, so a coarse mesh that hides the rim's singularity is flagged as a fine
-        one is. Empty for a linear-elastic material, whose answer scales with the push."""
-        if self.material.model == "linear-elastic":
-            return {}
-        out = {}
-        for a in self.actuators:
-            if a.type != "patch" or a.push == 0.0:
-                continue
-            r = patch_radius(self.mesh, a.region)
-            if r > 0 and abs(a.push) > GLUED_CONVERGED_RADII * r * (1.0 + 1e-9):
-                out[a.name] = (f"glued patch {a.name!r} pushed {a.push:g} mm, {abs(a.push) / r:.2f}"
-                               f" of its {r:.2g} mm radius: past {GLUED_CONVERGED_RADII:g} "
-                               f"radius no mesh-converged answer is known for a glued patch (its "
-                               f"rim is singular; refining the rim folds its cells), so no answer "
-                               f"here has an error bar; an indenter actuator (type = "
-                               f"\"indenter\", meshes/cases/phantom-indenter.toml) has no "
-                               f"singular rim")
-        return out
+def glued_unconverged(case) -> dict[str, str]:
+    """Actuator name -> why, for each glued patch pushed deeper than GLUED_CONVERGED_RADII
+    of its radius (``patch_radius``), where no mesh-converged answer is known: decided by
+    the pushes alone, so a coarse mesh that hides the rim's singularity is flagged as a fine
+    one is. Empty for a linear-elastic material, whose answer scales with the push."""
+    if case.material.model == "linear-elastic":
+        return {}
+    out = {}
+    for a in case.actuators:
+        if a.type != "patch" or a.push == 0.0:
+            continue
+        r = patch_radius(case.mesh, a.region)
+        if r > 0 and abs(a.push) > GLUED_CONVERGED_RADII * r * (1.0 + 1e-9):
+            out[a.name] = (f"glued patch {a.name!r} pushed {a.push:g} mm, {abs(a.push) / r:.2f}"
+                           f" of its {r:.2g} mm radius: past {GLUED_CONVERGED_RADII:g} "
+                           f"radius no mesh-converged answer is known for a glued patch (its "
+                           f"rim is singular; refining the rim folds its cells), so no answer "
+                           f"here has an error bar; an indenter actuator (type = "
+                           f"\"indenter\", meshes/cases/phantom-indenter.toml) has no "
+                           f"singular rim")
+    return out
 
-    def glued_patch_warnings(self, u, cell_J=None) -> list[str]:
-        """One line per pushed patch actuator past the range where its answer converges
-        (``glued_unconverged``) or whose cells (those touching its region) fall below
-        J = RIM_J_WARN in the displacement ``u`` ((n, gdim) mm); an indenter actuator has no
-        singular rim. ``cell_J``: each cell's smallest J of the field itself where it is not the
-        P1 interpolant of the vertex values (degree >= 2: a rim cell can fold between its
-        vertices; ``fem_reference.field_jacobian``), else J of the straight cells."""
-        pushed = [a for a in self.actuators if a.type == "patch" and a.push != 0.0]
-        if not pushed:
-            return []
-        deep = self.glued_unconverged()
-        J = cell_jacobians(self.mesh.points, self.mesh.cells, np.asarray(u, float)) \
-            if cell_J is None else np.asarray(cell_J, float)
-        out = []
-        for a in pushed:
-            verts = self.mesh.region_vertices(a.region)
-            mask = np.isin(self.mesh.cells, verts).any(axis=1)
-            jmin = float(np.min(J[mask])) if mask.any() else np.inf
-            crushed = (f"its rim cells are compressed to J = {jmin:.3g} (< {RIM_J_WARN})"
-                       if jmin < RIM_J_WARN else "")
-            if a.name in deep:
-                out.append(deep[a.name] + (f"; {crushed}" if crushed else ""))
-            elif crushed:
-                out.append(f"glued patch {a.name!r} (push {a.push:g} mm): {crushed}: beyond the "
-                           f"range in which a glued patch's answer converges under refinement; "
-                           f"an indenter actuator (type = \"indenter\") has no singular rim")
-        return out
 
-    def with_free_actuators(self) -> Case:
-        """The same Case with every patch actuator ``idle = "free"``: a patch a solve does not
-        push moves with the tissue."""
-        return replace(self, actuators=tuple(replace(a, idle="free") if a.type == "patch" else a
-                                             for a in self.actuators))
+def glued_patch_warnings(case, u, cell_J=None) -> list[str]:
+    """One line per pushed patch actuator past the range where its answer converges
+    (``glued_unconverged``) or whose cells (those touching its region) fall below
+    J = RIM_J_WARN in the displacement ``u`` ((n, gdim) mm); an indenter actuator has no
+    singular rim. ``cell_J``: each cell's smallest J of the field itself where it is not the
+    P1 interpolant of the vertex values (degree >= 2: a rim cell can fold between its
+    vertices; ``fem_reference.field_jacobian``), else J of the straight cells."""
+    pushed = [a for a in case.actuators if a.type == "patch" and a.push != 0.0]
+    if not pushed:
+        return []
+    deep = case.glued_unconverged()
+    J = cell_jacobians(case.mesh.points, case.mesh.cells, np.asarray(u, float)) \
+        if cell_J is None else np.asarray(cell_J, float)
+    out = []
+    for a in pushed:
+        verts = case.mesh.region_vertices(a.region)
+        mask = np.isin(case.mesh.cells, verts).any(axis=1)
+        jmin = float(np.min(J[mask])) if mask.any() else np.inf
+        crushed = (f"its rim cells are compressed to J = {jmin:.3g} (< {RIM_J_WARN})"
+                   if jmin < RIM_J_WARN else "")
+        if a.name in deep:
+            out.append(deep[a.name] + (f"; {crushed}" if crushed else ""))
+        elif crushed:
+            out.append(f"glued patch {a.name!r} (push {a.push:g} mm): {crushed}: beyond the "
+                       f"range in which a glued patch's answer converges under refinement; "
+                       f"an indenter actuator (type = \"indenter\") has no singular rim")
+    return out
 
-    def with_material(self, **changes) -> Case:
-        return replace(self, material=replace(self.material, **changes))
 
-    def with_mesh(self, mesh: MeshData) -> Case:
-        return replace(self, mesh=mesh)
+def with_free_actuators(case) -> Case:
+    """The same Case with every patch actuator ``idle = "free"``: a patch a solve does not
+    push moves with the tissue."""
+    return replace(case, actuators=tuple(replace(a, idle="free") if a.type == "patch" else a
+                                         for a in case.actuators))
+
+
+def with_material(case, **changes) -> Case:
+    return replace(case, material=replace(case.material, **changes))
+
+
+def with_mesh(case, mesh: MeshData) -> Case:
+    return replace(case, mesh=mesh)

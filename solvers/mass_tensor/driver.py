@@ -6,17 +6,12 @@ import time
 
 import numpy as np
 
+from tissue_reference.meshes.case_constraints import axis_of
 from tissue_reference.meshes.mesh import deformation_state
 from tissue_reference.meshes.results import SolveResult
 
 from .model import MassTensorModel
 from .point_types import PointTypes
-
-
-def axis_of(normal, tol=1e-12):
-    n = np.abs(normal)
-    k = int(np.argmax(n))
-    return k if np.all(np.delete(n, k) <= tol) else None
 
 
 def case_point_types(case) -> PointTypes:
