@@ -4,6 +4,8 @@ difference from the reference (mm) and the time ratio reference / solver (> 1: f
 
     python bench/bench_admm_accel.py                      # phantom sizes 10 and 5 (1.8k, 9.5k tets)
     python bench/bench_admm_accel.py --sizes 10 5 3 --push 5 --anderson 5
+    python bench/bench_admm_accel.py --rest-tangent     # cold solves with and without the kept
+                                                        # factorization of the tangent at rest
 
 Cold: every solve from rest (the reference's forms compiled beforehand, its solver kept);
 warm: a re-solve after +0.5 mm on every actuator, from the previous answer (the reference from
@@ -40,7 +42,12 @@ def main():
                          "patches' radius)")
     ap.add_argument("--tol", type=float, default=1e-5, help="ADMM stopping tolerance (mm)")
     ap.add_argument("--anderson", type=int, default=5, help="Anderson history (default 5)")
+    ap.add_argument("--rest-tangent", action="store_true",
+                    help="only the cold solves, best of 5, with the tangent at rest factorized "
+                         "once and kept (the default) and factorized at every lift")
     args = ap.parse_args()
+    if args.rest_tangent:
+        return rest_tangent(args)
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
     for size in args.sizes:
         case = load_case(args.case, size=size)
@@ -71,6 +78,37 @@ def main():
                       f"{r.extra['newton_iterations']:2d} Newton its, {t:7.3f} s, converged "
                       f"{r.converged}, max |u - u_ref| {np.abs(r.u - ref.u).max():.1e} mm, "
                       f"reference / solver x{tr / t:.2f}")
+
+
+def rest_tangent(args):
+    """Cold solves (best of 5) with the rest tangent's factorization kept and without."""
+    from tissue_reference.solvers.admm import polish
+
+    kept = polish.REST_TANGENT_KEPT_DOFS
+    print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs; cold solves, best of 5")
+    for size in args.sizes:
+        case = load_case(args.case, size=size)
+        acts = [a.name for a in case.actuators if a.name in ACTS]
+        p0 = dict.fromkeys(acts, args.push)
+        fr.solve(case, degree=1, pushes=dict.fromkeys(acts, 0.1))
+        t_ref = min(timed(lambda c=case, p=p0: fr.solve(c, degree=1, pushes=p))[1] for _ in range(5))
+        print(f"\n{args.case} size {size:g}: {case.mesh.n_cells} tets; reference P1 Newton "
+              f"{t_ref * 1e3:.1f} ms")
+        runs = (("plain ADMM", {"polish": False, "tol_mm": args.tol, "max_iter": 50000}),
+                (f"Anderson({args.anderson})", {"polish": False, "tol_mm": args.tol,
+                                                "max_iter": 50000, "anderson": args.anderson}),
+                ("ADMM + polish", {}))
+        for label, kw in runs:
+            out = []
+            for limit in (0, kept):
+                polish.REST_TANGENT_KEPT_DOFS = limit
+                admm.solve(case, pushes=dict.fromkeys(acts, 0.1), **kw)
+                out.append(min(timed(lambda kw=kw, c=case, p=p0: admm.solve(c, pushes=p, **kw))[1]
+                               for _ in range(5)))
+            polish.REST_TANGENT_KEPT_DOFS = kept
+            print(f"  {label:14s} factorized at every lift {out[0] * 1e3:7.1f} ms "
+                  f"(x{t_ref / out[0]:.2f}), kept {out[1] * 1e3:7.1f} ms (x{t_ref / out[1]:.2f}): "
+                  f"{out[0] / out[1]:.2f}x faster")
 
 
 if __name__ == "__main__":

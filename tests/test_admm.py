@@ -325,3 +325,28 @@ def test_anderson_finds_a_linear_maps_fixed_point_and_its_safeguard_holds():
     assert np.abs(x_fast - exact).max() < 1e-8 and np.abs(x - exact).max() < 1e-8
     assert k_fast < k_plain / 5 and len(kept) > 10
     assert all(b <= a for a, b in itertools.pairwise(kept))
+
+
+def test_a_lift_from_rest_reuses_the_rest_tangent_factorization_and_gives_the_same_answer(
+        small_box):
+    """Every cold solve's first load step lifts the interior with the tangent at rest, which is
+    the same matrix each time: the second cold solve factorizes it no more, and its answer is the
+    first's."""
+    case = _box_case(small_box)
+    calls = []
+
+    def counting(A, cache):   # a factorize hook that only counts: SuperLU does the work
+        calls.append(A.shape)
+
+    operators.OPERATOR_CACHE.clear()
+    first = admm.solve(case, lift=True, factorize=counting)
+    n_first = len(calls)
+    calls.clear()
+    second = admm.solve(case, lift=True, factorize=counting)
+    assert len(calls) == n_first - 1
+    np.testing.assert_array_equal(second.u, first.u)
+    calls.clear()
+    operators.OPERATOR_CACHE.clear()     # fresh operators: the rest tangent is factorized again
+    third = admm.solve(case, lift=True, factorize=counting)
+    assert len(calls) == n_first
+    np.testing.assert_array_equal(third.u, first.u)

@@ -175,6 +175,9 @@ class AdmmOperators:
         self._kpat = None  # reduced tangent's CSR pattern (built on first use)
         self._Dm = None  # gradient operator in mesh element order (built on first use)
         self.factor_cache = {}  # kept by ``factorize`` (e.g. a symbolic analysis)
+        # (factorize hook, element matrices, factorization) of the tangent at rest without
+        # contact: a lift from rest (every cold solve's first load step) needs no other
+        self.rest_tangent = None
         self.device_data = {}
         self._lu = None
         self.setup_s = time.perf_counter() - t0

@@ -11,6 +11,12 @@ from .loop import check_J, diverged_error
 from .mechanics import det_cof
 from .operators import vertex_norm_max
 
+REST_TANGENT_KEPT_DOFS = 60_000
+"""The tangent at rest (without contact) is factorized once and kept with the operators up to this
+many reduced unknowns (about 20k vertices; a lift from rest, every cold solve's first load step,
+then costs one back-substitution); above it each lift factorizes its own, so no large factor is
+held between solves."""
+
 
 def _contact_hessian(ops, u, tips, curvature=True):
     """The rigid tips' contact Hessian at u (N, N) with the tips' ends at ``tips`` (without
@@ -29,13 +35,21 @@ def tangent_lift(ops, u, up, it, factorize=None, tips=None):
     if not np.any(delta):
         return u
     Hc = _contact_hessian(ops, u, tips)
-    Kr, Ke = ops.reduced_tangent(u, extra=Hc)
+    at_rest = not np.any(u) and (Hc is None or not Hc.nnz) and ops.nq <= REST_TANGENT_KEPT_DOFS
     try:
+        kept = ops.rest_tangent if at_rest else None
+        if kept is not None and kept[0] is factorize:
+            _, Ke, factor = kept     # the same matrix at every lift from rest, factorized alike
+        else:
+            Kr, Ke = ops.reduced_tangent(u, extra=Hc)
+            factor = sym_splu(Kr, ops.factor_cache, factorize)
+            if at_rest:
+                ops.rest_tangent = (factorize, Ke, factor)
         Kd = ops.apply_elements(Ke, delta)
         if Hc is not None:
             Kd = Kd + Hc @ delta
         rhs = -(ops.red.ZT @ Kd)
-        s = sym_splu(Kr, ops.factor_cache, factorize).solve(rhs)
+        s = factor.solve(rhs)
     except RuntimeError as exc:
         raise diverged_error(f"singular tangent in the boundary lift ({exc})", it, -1) from None
     cand = up + Z @ (zu + s)
