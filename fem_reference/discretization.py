@@ -1,14 +1,18 @@
-"""The reference's discretization defaults: which formulation a material gets (displacement, or
-mixed u-p for nearly incompressible tissue), which displacement degree a solve that names none
-gets, and the quadrature degree per Lagrange degree. Plain functions of the Case, without
-dolfinx, so that what reads or reports a discretization need not build one."""
+"""The reference's discretization: which formulation a material gets (displacement, or mixed u-p
+for nearly incompressible tissue), which displacement degree a solve that names none gets, the
+quadrature degree per Lagrange degree, and ``Discretization``, a solve's options with every
+default resolved against its Case (the kept solvers' key). Without dolfinx, so that what reads
+or reports a discretization need not build one."""
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 from tissue_reference.meshes.case import Case, Material
 from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.tips import default_contact_rule, default_tip_start
 
-__all__ = ["DEFAULT_QUADRATURE", "FORMULATIONS", "MIXED_FROM_NU", "default_degree",
-           "resolve_formulation"]
+__all__ = ["DEFAULT_QUADRATURE", "FORMULATIONS", "MIXED_FROM_NU", "Discretization",
+           "default_degree", "resolve_formulation"]
 
 # Quadrature degree per Lagrange degree. P1: F is constant per cell, degree 1 integrates the
 # energy and the body-force term exactly. P2: F is linear; psi is not polynomial, degree 4 is
@@ -37,3 +41,43 @@ def default_degree(case: Case, formulation: str) -> int:
     if case.reference_degree is not None:
         return int(case.reference_degree)
     return 2 if formulation == "mixed" else 1
+
+
+@dataclass(frozen=True)
+class Discretization:
+    """What a reference solve is discretized with, each default resolved against its Case: the
+    displacement degree, the formulation ("displacement" or "mixed"), the quadrature degree,
+    curved cells (None: the solver decides from the mesh's geometry), the linear solver, the
+    contact rule and where indenters start, and the solver's other options as sorted (name,
+    value) pairs. Two solves with equal Discretizations of one Case are the same problem: the
+    kept solvers are keyed on it (``kept.solver_for``)."""
+
+    degree: int
+    formulation: str
+    quadrature_degree: int
+    curved: bool | None = None
+    linear_solver: str = "auto"
+    contact_rule: str | int = "nodal"
+    tip_start: str = "nodes"
+    options: tuple = ()
+
+    @classmethod
+    def of(cls, case: Case, degree: int | None = None, **options) -> Discretization:
+        """The discretization of a ``ReferenceSolver(case, degree=degree, **options)``."""
+        formulation = resolve_formulation(options.pop("formulation", "auto"), case.material)
+        if degree is None:
+            degree = default_degree(case, formulation)
+        rule = options.pop("contact_quadrature", None)
+        rule = default_contact_rule(case) if rule is None else rule
+        start = options.pop("tip_start", None) or default_tip_start(case, rule)
+        quadrature = options.pop("quadrature_degree", None) or DEFAULT_QUADRATURE.get(int(degree))
+        return cls(int(degree), formulation, quadrature, options.pop("curved", None),
+                   options.pop("linear_solver", "auto"), rule, start,
+                   tuple(sorted(options.items())))
+
+    def solver_options(self) -> dict:
+        """The ReferenceSolver keywords that build this discretization."""
+        return {"degree": self.degree, "formulation": self.formulation,
+                "quadrature_degree": self.quadrature_degree, "curved": self.curved,
+                "linear_solver": self.linear_solver, "contact_quadrature": self.contact_rule,
+                "tip_start": self.tip_start, **dict(self.options)}

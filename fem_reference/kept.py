@@ -22,7 +22,7 @@ import numpy as np
 from tissue_reference.meshes.case import Case
 
 from .contact import contact_key
-from .discretization import default_degree, resolve_formulation
+from .discretization import Discretization
 from .outputs import Tangent
 from .petsc_memory import release_petsc_garbage
 from .solver import ReferenceSolver
@@ -54,16 +54,15 @@ def _forget(key) -> None:
 
 def solver_for(case, degree: int | None, **kw):
     """A ReferenceSolver for ``case`` at ``degree`` with options ``kw``: a kept one when one was
-    built for the same mesh object, degree, material law, loads that enter the forms, contact
-    and options, else a new one (kept; beyond KEEP, the least recently used is forgotten)."""
-    kw["formulation"] = resolve_formulation(kw.get("formulation", "auto"), case.material)
-    if degree is None:
-        degree = default_degree(case, kw["formulation"])
-    key = (id(case.mesh), degree, case.material.model, case.material.volumetric, case.gravity,
+    built for the same mesh object, material law, loads that enter the forms, indenters and
+    discretization (``Discretization.of(case, degree, **kw)``: every default resolved, so that an
+    option left out and the same option given its default share a solver), else a new one
+    (kept; beyond KEEP, the least recently used is forgotten)."""
+    disc = Discretization.of(case, degree, **kw)
+    key = (id(case.mesh), case.material.model, case.material.volumetric, case.gravity,
            case.material.density,
            tuple((b.region, b.type, str(b.normal), str(b.value)) for b in case.boundaries
-                 if b.type in ("traction", "sliding")), tuple(sorted(kw.items())),
-           contact_key(case), case.reference_contact_quadrature, case.reference_tip_start)
+                 if b.type in ("traction", "sliding")), contact_key(case), disc)
     s = _CACHE.get(key)
     if s is not None and (s.__dict__.get("_closed") or s.case.mesh is not case.mesh):
         _forget(key)
@@ -72,7 +71,7 @@ def solver_for(case, degree: int | None, **kw):
         while len(_CACHE) >= KEEP:
             _forget(next(iter(_CACHE)))
         _release_forgotten()
-        s = ReferenceSolver(case, degree=degree, **kw)
+        s = ReferenceSolver(case, **disc.solver_options())
         _CACHE[key] = s
     _CACHE.move_to_end(key)
     s.case = case

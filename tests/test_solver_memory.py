@@ -9,6 +9,7 @@ from petsc4py import PETSc
 
 import tissue_reference.fem_reference as fr
 from tissue_reference.fem_reference import kept
+from tissue_reference.fem_reference.discretization import Discretization
 from tissue_reference.fem_reference.petsc_memory import release_petsc_garbage
 from tissue_reference.meshes.case import load_case
 
@@ -76,4 +77,18 @@ def test_beyond_keep_the_least_recently_used_solver_is_forgotten(case, monkeypat
     kept.solver_for(case, 1, quadrature_degree=3)                   # forgets ``two``
     assert kept.solver_for(case, 1, quadrature_degree=1) is one
     assert kept.solver_for(case, 1, quadrature_degree=2) is not two
+    kept.forget_solvers()
+
+
+def test_an_option_left_out_and_the_same_option_given_its_default_share_a_solver(case):
+    kept.forget_solvers()
+    s = kept.solver_for(case, None)                 # nu < 0.49: P1 displacement, 1-point rule
+    assert kept.solver_for(case, 1, formulation="displacement", quadrature_degree=1,
+                           linear_solver="auto", contact_quadrature=None) is s
+    assert s.degree == 1 and s.qdeg == 1 and s.formulation == "displacement"
+    assert kept.solver_for(case, 1, quadrature_degree=2) is not s
+    d = Discretization.of(case, None)
+    assert (d.degree, d.formulation, d.quadrature_degree, d.contact_rule) == \
+        (1, "displacement", 1, "nodal")
+    assert Discretization.of(case, 2) != d and hash(Discretization.of(case, 1)) == hash(d)
     kept.forget_solvers()
