@@ -34,7 +34,7 @@ def main():
         ref = fr.solve(case, degree=1, pushes=pushes)   # from rest, forms compiled
         t_ref = time.perf_counter() - t
         print(f"{name}: reference P1 {t_ref:7.2f} s, {ref.iterations} Newton iterations, "
-              f"force A1 {ref.extra['indenters']['A1']['force']:.4f} mN")
+              f"force A1 {ref.indenters['A1']['force']:.4f} mN")
         # the polish's tangents by CHOLMOD, as tissue solve and tissue verify run it
         runs = (("ADMM + polish", {"factorize": fr.cholmod_factor}),
                 ("plain ADMM", {"polish": False, "tol_mm": 1e-5,
@@ -48,7 +48,7 @@ def main():
             print(f"{name}: {label:13s} {dt:7.2f} s, {res.extra['admm_iterations']} ADMM + "
                   f"{res.extra['newton_iterations']} Newton iterations, converged "
                   f"{res.converged}, max |u - u_ref| {np.abs(res.u - ref.u).max():.2e} mm, "
-                  f"force A1 {res.extra['indenters']['A1']['force']:.4f} mN, "
+                  f"force A1 {res.indenters['A1']['force']:.4f} mN, "
                   f"reference / ADMM time x{t_ref / dt:.2f}")
 
 

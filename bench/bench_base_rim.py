@@ -64,9 +64,9 @@ def main():
     for push in args.pushes:
         t0 = time.perf_counter()
         prev = s.solve({"A1": push}, initial=prev)
-        force = 2.0 * prev.extra["indenters"]["A1"]["force"]   # the half phantom cuts A1 in two
+        force = 2.0 * prev.indenters["A1"]["force"]   # the half phantom cuts A1 in two
         e = study.get(push)
-        line = (f"push {push:g} mm: {prev.extra['discretization']['dofs']} dofs, force "
+        line = (f"push {push:g} mm: {prev.discretization['dofs']} dofs, force "
                 f"{force:.2f} mN, T1 {np.round(prev.probes['T1'], 4).tolist()} mm, "
                 f"{time.perf_counter() - t0:.0f} s")
         if e is not None and args.level in e["levels"]:

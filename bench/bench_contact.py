@@ -58,7 +58,7 @@ def hertz(sizes, betas):
         t0 = time.perf_counter()
         res = fr.solve(case, degree=2, pushes={"I": D}, contact_penalty=beta)
         wall = time.perf_counter() - t0
-        ind = res.extra["indenters"]["I"]
+        ind = res.indenters["I"]
         F = 4 * ind["force"]  # the quarter block
         print(f"{h:6.2f} {beta:7.0e} {mesh.n_cells:6d} {res.extra['n_dofs']:6d} {F:9.5f} "
               f"{100 * (F / f_hertz - 1):+8.2f} {ind['max_penetration']:9.2e} "
@@ -95,7 +95,7 @@ def phantom(size, pushes):
             rt = exc.last_converged
             reached = exc.load_fraction * push
         wt = time.perf_counter() - t0
-        ind = rt.extra["indenters"]["A1"]
+        ind = rt.indenters["A1"]
         note = "" if reached == push else "  (failed beyond)"
         print(f"{push:5.1f} {'tips':>8} {wt:7.2f} {rt.iterations:5d} {rt.load_steps:5d} "
               f"{rt.extra['factorizations']:5d} {ind['force']:11.1f} {reached:10.2f} "

@@ -64,7 +64,7 @@ def hertz(sizes, rules) -> list[dict]:
             t0 = time.perf_counter()
             s = fr.ReferenceSolver(case, degree=2, contact_quadrature=rule)
             res = s.solve({"I": d})
-            F = 4 * res.extra["indenters"]["I"]["force"]
+            F = 4 * res.indenters["I"]["force"]
             rows.append({"h_mm": h, "rule": rule, "force_mN": F,
                          "error": F / F_hertz - 1, "dofs": s.W.dofmap.index_map.size_global * s.W.dofmap.index_map_bs,
                          "seconds": time.perf_counter() - t0})
@@ -145,10 +145,10 @@ def depth(size, radius, depths, rules, eigen: bool) -> list[dict]:
                 res, ok = s.solve({"I": d * radius}, initial=prev), True
             except ConvergenceError as exc:
                 res, ok = exc.last_converged, False
-            ind = res.extra["indenters"]["I"]
+            ind = res.indenters["I"]
             row = {"rule": rule, "depth_R": d, "converged": ok,
                    "reached_R": ind["push"] / radius, "force_mN": 4 * ind["force"],
-                   "min_J": float(cell_min_J(s).min()), "valid": bool(res.extra["valid"]),
+                   "min_J": float(cell_min_J(s).min()), "valid": bool(res.valid),
                    "newton": int(res.iterations), "seconds": time.perf_counter() - t0}
             line = (f"  rule {rule!s:>5}, depth {d:g} R: converged {ok}, reached "
                     f"{row['reached_R']:.3f} R, force {row['force_mN']:.3f} mN, smallest J "

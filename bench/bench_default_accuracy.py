@@ -126,15 +126,15 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
             res, converged = s.solve({a: push for a in pushed}, initial=prev), True
         except ConvergenceError as exc:
             res, converged = exc.last_converged, False
-        ind = res.extra["indenters"]["A1"]
+        ind = res.indenters["A1"]
         rows.append({"push": push, "reached": float(ind["push"]),
-                     "degree": res.extra["discretization"]["degree"],
+                     "degree": res.discretization["degree"],
                      "rule": ind.get("quadrature"), "start": ind.get("started_on"),
                      "cells": whole["cells"],
-                     "dofs": dofs(res.extra["discretization"]),
+                     "dofs": dofs(res.discretization),
                      "converged": converged,
-                     "valid": bool(res.extra.get("valid", True)),
-                     "why": res.extra.get("invalid_reason"), "min_J": res.extra.get("min_J"),
+                     "valid": bool(res.valid is not False),
+                     "why": res.invalid_reason, "min_J": res.extra.get("min_J"),
                      "force": whole["cut"] * float(ind["force"]),
                      "probes": {n: np.asarray(v) for n, v in res.probes.items()},
                      "newton": res.iterations, "wall_s": time.perf_counter() - t0})

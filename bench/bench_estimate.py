@@ -57,7 +57,7 @@ def cost(case, answer, res, est, cold_s=None):
 
 
 def label(res) -> str:
-    d = res.extra["discretization"]
+    d = res.discretization
     p = f"P{d['degree']}" + (f"/P{d['pressure_degree']}" if d.get("pressure_degree") else "")
     return p + (" curved" if d.get("geometry_order") == 2 else " straight")
 
@@ -207,7 +207,7 @@ def bench_cost(size):
             continue
         t = time.perf_counter()
         fr.solve(case, pushes=push, degree=degree + 1,
-                 curved=est.enriched.extra["discretization"]["geometry_order"] == 2)
+                 curved=est.enriched.discretization["geometry_order"] == 2)
         cost(name + (" (*)" if degree >= 2 and not est.warm_start else ""), label(res), res, est,
              time.perf_counter() - t)
         gc.collect()

@@ -64,7 +64,7 @@ def run(case_path: Path, rims, degree: int, push: float, size: float | None,
             continue
         wall = time.perf_counter() - t0
         row = {"rim_mm": rim, "size_mm": h, "degree": degree, "cells": mesh.n_cells,
-               "dofs": res.extra["discretization"]["dofs"],
+               "dofs": res.discretization["dofs"],
                "probes": {n: [float(v) for v in res.probes[n]] for n in PROBES},
                "force_A1_mN": cut * float(-res.reactions["act_px"][0]),
                "min_J": res.extra.get("min_J"), "newton": res.iterations, "wall_s": wall,

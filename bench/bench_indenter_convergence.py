@@ -119,17 +119,17 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
                                      progress=progress), True
         except ConvergenceError as exc:
             res, converged = exc.last_converged, False
-        ind = res.extra["indenters"]["A1"]
+        ind = res.indenters["A1"]
         row = {"push": p, "reached": ind["push"], "converged": converged,
-               "valid": bool(res.extra.get("valid", True)),
-               "why": res.extra.get("invalid_reason"),
+               "valid": bool(res.valid is not False),
+               "why": res.invalid_reason,
                "min_J": res.extra.get("min_J"),   # how it was taken: res.extra["J_evaluated"]
                "surface_mm": ind["surface_penetration"], "nodal_mm": ind["max_penetration"],
                "force_mN": 2.0 * ind["force"],  # A1 is cut in half by the plane y = 0
                "area_mm2": 2.0 * ind["contact_area"],
                "probes": {n: [float(v) for v in res.probes[n]] for n in PROBES
                           if n in res.probes},
-               "dofs": res.extra["discretization"]["dofs"], "newton": res.iterations,
+               "dofs": res.discretization["dofs"], "newton": res.iterations,
                "wall_s": time.perf_counter() - t0}
         doc["pushes"].append(row)
         write_json(doc, out / f"{load}-level{k}.json")

@@ -112,20 +112,20 @@ def main():
                 res, done = exc.last_converged, False
             wall = time.perf_counter() - t0
             loads = res.history["iterate_load"]
-            reached = float(res.extra["indenters"]["A1"]["push"])
+            reached = float(res.indenters["A1"]["push"])
             rows[key].append({
                 "push": push, "reached": reached, "done": done, "newton": res.iterations,
                 "shifts": res.extra["tangent_shifts"], "steps": res.load_steps,
                 "cutbacks": sum(1 for a, b in itertools.pairwise(loads) if b < a),
                 "factor": s.timings.factorizations, "wall": wall,
-                "force": factor * res.extra["indenters"]["A1"]["force"], "T1": res.probes["T1"]})
+                "force": factor * res.indenters["A1"]["force"], "T1": res.probes["T1"]})
             print(f"  [{key} at {push:g} mm: {'reached' if done else 'stopped at'} {reached:.2f} "
                   f"mm, {res.iterations} Newton iterations, {wall:.0f} s]", flush=True)
             if not done:
                 break
             prev = res
     model = args.case or f"{args.model} phantom level {args.level}"
-    rule = res.extra["indenters"]["A1"]["quadrature"]
+    rule = res.indenters["A1"]["quadrature"]
     print(f"indenter {model}, P{res.degree}, contact rule {rule}, {case.mesh.n_cells} cells, "
           f"{res.extra['n_dofs']} unknowns, {'+'.join(pushed)} pushed")
     print(f"{'settings':>8} {'push':>5} {'newton':>6} {'shifts':>6} {'steps':>5} {'cutbacks':>8} "

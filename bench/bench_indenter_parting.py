@@ -43,7 +43,7 @@ def solve_level(k: int, keep, out: Path) -> None:
             break
         res = s.solve({a: p for a in names}, initial=prev)
         prev = res
-        force = 2.0 * res.extra["indenters"]["A1"]["force"]
+        force = 2.0 * res.indenters["A1"]["force"]
         print(f"level {k}: push {p:g} mm, force per tip {force:.2f} mN, "
               f"T1 {np.round(res.probes['T1'], 4).tolist()} mm", flush=True)
         if p in keep:

@@ -51,7 +51,7 @@ def row(size: float, pushes=(4.0, 3.5)) -> None:
     def err(res, p):
         return float(np.linalg.norm(res.u - refs[p].u, axis=1).max())
 
-    valid = all(r.extra.get("valid", True) for r in (*refs.values(), cold, warm, pcg))
+    valid = all(r.valid is not False for r in (*refs.values(), cold, warm, pcg))
 
     r0, r1 = ref_t
     print(f"{case.mesh.n_cells:8d} tets  reference {r0:7.3f} / {r1:7.3f} s  |  "

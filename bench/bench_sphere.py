@@ -43,7 +43,7 @@ def main():
                     t0 = time.perf_counter()
                     res, u, G = tm.solve_shell(size, nu, form, curved=curved)
                     wall = time.perf_counter() - t0
-                    d = res.extra["discretization"]
+                    d = res.discretization
                     print(f"{nu:7g} {form:>12} {'curved' if curved else 'straight':>9} "
                           f"{size:5g} {u / u_ref - 1:+10.2e} {G / G_ref - 1:+12.2e} "
                           f"{d['dofs']:8d} {wall:8.2f}", flush=True)

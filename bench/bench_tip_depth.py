@@ -61,7 +61,7 @@ def run(size: float, radius: float, depths, volumetric: str, rule="nodal") -> No
             res, ok = s.solve({"I": d}, initial=prev), True
         except ConvergenceError as exc:
             res, ok = exc.last_converged, False
-        ind = res.extra["indenters"]["I"]
+        ind = res.indenters["I"]
         J = cell_min_J(s)
         w = int(np.argmin(J))
         X = mesh.points[mesh.cells[w]].mean(axis=0)
@@ -69,7 +69,7 @@ def run(size: float, radius: float, depths, volumetric: str, rule="nodal") -> No
         xs = mesh.points[skin] + res.u[skin]
         hoop = (np.hypot(*xs[:, :2].T)[off_axis] / r0[off_axis]).min()
         print(f"depth {d:g} mm ({d / radius:.2f} R): converged {ok}, reached {ind['push']:.3f} mm, "
-              f"valid {res.extra['valid']}, force {4 * ind['force']:.3f} mN, smallest J "
+              f"valid {res.valid}, force {4 * ind['force']:.3f} mN, smallest J "
               f"{J.min():.3f} at r {math.hypot(X[0], X[1]):.2f} z {X[2]:.2f} -> r "
               f"{math.hypot(x[0], x[1]):.2f} z {x[2]:.2f} mm, {(J < 0.2).sum()} cells below "
               f"0.2, skin hoop stretch >= {hoop:.3f}, {res.iterations} Newton, "

@@ -47,17 +47,16 @@ def solve_checked(solve, case, pushes, initial, who: str, retries: list | None =
 
 def check_prescribed(case, pushes, r, who: str, *, rtol=1e-9):
     """Raise ConvergenceError unless solve result ``r`` is converged, valid (no inverted cells, no
-    runaway growth: ``extra["valid"]``) and meets the Case's prescriptions at ``pushes`` (actuator
+    runaway growth: ``valid``) and meets the Case's prescriptions at ``pushes`` (actuator
     patches at their pushes, fixed regions at 0): a solver that reports success with the previous
     step's boundary values, or with a folded mesh, is caught here, not differentiated or
     measured."""
     if not r.converged:
         raise ConvergenceError(f"{who} solve did not converge at pushes {pushes} "
                                f"(residual {r.residual:g})")
-    extra = getattr(r, "extra", None) or {}
-    if extra.get("valid", True) is False:
+    if getattr(r, "valid", None) is False:
         raise ConvergenceError(f"{who} state at pushes {pushes} is not valid: "
-                               f"{extra.get('invalid_reason')}")
+                               f"{r.invalid_reason}")
     c = case.with_pushes(pushes).constraints
     if len(c.dofs):
         u = np.asarray(r.u, float).reshape(-1)

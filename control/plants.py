@@ -200,7 +200,7 @@ def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="a
             raise CaseError(f"the state solve at pushes {st} did not converge")
         jac = dirichlet_jacobian(pushed, tangent_for(solver)(pushed, res.u), actuators=actuators)
     described = solver_description(solver, case, degree=degree, formulation=formulation)
-    disc = res.extra.get("discretization") or described["discretization"]
+    disc = res.discretization or described["discretization"]
     out = {"case": case.name, "source": case.source, "material": material_json(case.material),
            "actuators": list(jac.actuators), "targets": list(jac.targets),
            "rows": jac.rows, "J": jac.J.tolist(), "state_pushes": st, "solver": solver,
@@ -208,8 +208,8 @@ def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="a
            "degree": disc.get("degree", degree or 1),
            "formulation": disc.get("formulation", "displacement"),
            "discretization": disc, "solver_settings": described["settings"],
-           "state_valid": bool(res.extra.get("valid", True)),
-           "state_invalid_reason": res.extra.get("invalid_reason")}
+           "state_valid": bool(res.valid is not False),
+           "state_invalid_reason": res.invalid_reason}
     if fd_h and fd_h > 0:
         # degree 2 solves start cold: a warm start from vertex values (edge nodes interpolated)
         # is not the P2 state and can leave Newton's basin on coarse meshes

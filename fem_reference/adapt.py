@@ -226,7 +226,7 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
         try:
             if answer is None:
                 answer = level_answer(case, p, pushes, formulation, solver_options, start)
-            if p >= 2 and finite_strain and not answer.extra.get("valid", True):
+            if p >= 2 and finite_strain and answer.valid is False:
                 kept, kept_case = (last[0], last_case) if last is not None else (answer, case)
                 raise AccuracyNotReached(
                     _invalid_level(case, answer, level, p, accuracy, steps),
@@ -338,13 +338,12 @@ def _invalid_level(case, answer, level: int, degree: int, accuracy: float,
     """What AccuracyNotReached says of a level whose answer is not valid (inverted cells): the
     refinement went where the model has no regular solution (the rim of a glued patch pushed
     deep), and refining further would only chase it; the last valid answer is handed back."""
-    x = answer.extra
-    rims = [w for w in x.get("warnings", ()) if w.startswith("glued patch")]
+    rims = [w for w in answer.warnings if w.startswith("glued patch")]
     last = (f"{_last_answer(steps[-1], accuracy)}, handed back" if steps else
             "there is no earlier answer: this one is handed back, flagged invalid")
     return (f"{case.source or case.name}: accuracy {accuracy:.3g} not reached: the answer of "
             f"level {level} ({answer.n_cells:,} cells, degree {degree}) is not valid "
-            f"({x.get('invalid_reason')})" + "".join(f"; {w}" for w in rims)
+            f"({answer.invalid_reason})" + "".join(f"; {w}" for w in rims)
             + f"; refining further would chase that point; {last}")
 
 

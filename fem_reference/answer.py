@@ -31,7 +31,7 @@ def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None,
     estimate: add the estimated discretization error (``fem_reference.estimate``: one more solve
     at degree + 1) to ``extra``: probe_error_estimates (mm), reaction_error_estimates (mN), ...;
     "auto": only where that is cheap (``estimate.auto_estimate``; otherwise
-    ``extra["estimate_note"]`` says why there is none), as ``tissue solve`` does by default.
+    ``estimate_note`` says why there is none), as ``tissue solve`` does by default.
     A case file's measured accuracy for exactly this load and discretization
     (``[reference.measured]``, ``fem_reference.measured``) is in ``extra["measured_accuracy"]``.
     An answer that is not valid, past the loads where answers converge, or with an estimated

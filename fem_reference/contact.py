@@ -90,7 +90,7 @@ Under several tips the tissue crushed against them makes the tangent indefinite 
 in its factorization) and the corrections huge: such a correction is solved again without the
 curvature, then with a Levenberg-Marquardt shift (``NewtonSettings.descent_shift``).
 
-Each solve reports, per indenter, in ``SolveResult.extra["indenters"][name]``: ``push`` (mm),
+Each solve reports, per indenter, in ``SolveResult.indenters[name]``: ``push`` (mm),
 ``force`` (mN, the actuator force along its direction: the total force the tip exerts on the
 skin, which the supports balance), ``force_vector`` (mN, that force; the same sign convention as
 ``SolveResult.reactions``), ``contact_area`` (mm^2: the reference area lumped to the surface
@@ -230,7 +230,7 @@ class Contact:
             full_push = case.actuator(ind.name).push
             start_push = 0.0
             if isinstance(initial, SolveResult):
-                start_push = initial.extra.get("indenters", {}).get(ind.name, {}).get(
+                start_push = initial.indenters.get(ind.name, {}).get(
                     "push", ind.push_now())
             elif initial is not None:
                 start_push = ind.push_now()

@@ -164,10 +164,10 @@ def refinement_study(case: Case, *, levels: int = MIN_LEVELS, degree: int = 1, p
                 load_fraction=exc.load_fraction, last_converged=exc.last_converged) from exc
         finally:
             solver.close()   # the level's matrices and factor now, not at the process's end
-        if res.extra.get("valid", True) is False:  # a folded state is no point of a study
+        if res.valid is False:  # a folded state is no point of a study
             raise ConvergenceError(
                 f"level {k} of the study ({mesh.n_cells:,} cells, h {h[k]:.3g} mm): the answer is "
-                f"not valid: {res.extra.get('invalid_reason')}", last_converged=res)
+                f"not valid: {res.invalid_reason}", last_converged=res)
         wall = time.perf_counter() - t0
         u_scale = max(u_scale, float(np.abs(np.asarray(res.u)).max(initial=0.0)))
         for name, series in probes.items():

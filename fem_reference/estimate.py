@@ -53,8 +53,8 @@ separate degree-3 solve) and 10-40 for degree-1 answers (about one separate degr
 meshes of 1-3k tetrahedra (bench/bench_estimate.py).
 
     res = fr.solve(case, pushes={"A1": 5.0}, estimate=True)
-    res.extra["probe_error_estimates"]       # {"T1": 0.012, ...} mm
-    res.extra["reaction_error_estimates"]    # {"act_px": 0.8, ...} mN
+    res.probe_error_estimates       # {"T1": 0.012, ...} mm
+    res.reaction_error_estimates    # {"act_px": 0.8, ...} mN
 
 Units: mm, kPa, mN. Serial (a degree-2 answer hands its nodal state on in serial runs only).
 """
@@ -142,7 +142,7 @@ class ErrorEstimate:
             "reaction_error_vectors": {k: np.asarray(v, float).tolist()
                                        for k, v in self.reactions.items()},
             "estimate_method": self.method,
-            "estimate_discretization": self.enriched.extra.get("discretization"),
+            "estimate_discretization": self.enriched.discretization,
             "estimate_includes_geometry": self.includes_geometry,
             "estimate_warm_start": self.warm_start,
             "estimate_wall_time_s": self.wall_time_s,
@@ -165,7 +165,7 @@ def error_estimate(case: Case, result: SolveResult, *, pushes=None, progress: bo
         cheaper way out than the from-rest solve).
     solver_options: the ReferenceSolver options of the degree-p solve (formulation, curved,
         settings, sliding_penalty, body_force, linear_solver); the formulation defaults to the
-        one recorded in ``result.extra["discretization"]``; a quadrature_degree is not passed
+        one recorded in ``result.discretization``; a quadrature_degree is not passed
         on (the enriched degree has its own).
     Raises CaseError when the answer cannot be enriched (degree 3, not a reference answer of this
     mesh, a degree-2 answer without its nodal state) and ConvergenceError when the enriched
@@ -183,7 +183,7 @@ def error_estimate(case: Case, result: SolveResult, *, pushes=None, progress: bo
         raise CaseError(f"a degree-{p} answer cannot be estimated by p-enrichment: the richest "
                         f"reference degree is {MAX_DEGREE}; estimate a degree-{MAX_DEGREE - 1} "
                         f"answer (or refine the mesh)")
-    disc = result.extra.get("discretization") or {}
+    disc = result.discretization or {}
     options = dict(solver_options)
     options.pop("degree", None)
     options.pop("quadrature_degree", None)
@@ -227,7 +227,7 @@ def error_estimate(case: Case, result: SolveResult, *, pushes=None, progress: bo
               for k, v in result.probes.items() if k in res.probes}
     reactions = {k: np.asarray(res.reactions[k], float) - np.asarray(v, float)
                  for k, v in result.reactions.items() if k in res.reactions}
-    geo = (res.extra.get("discretization") or {}).get("geometry_order", 1)
+    geo = (res.discretization or {}).get("geometry_order", 1)
     wall = time.perf_counter() - t0
     ratio = wall / result.wall_time_s if result.wall_time_s > 0 else float("inf")
     return ErrorEstimate(ESTIMATE_METHOD, p, p + 1, probes, reactions, res,
@@ -258,7 +258,7 @@ seconds (the P2 estimate of the default P1 phantom, 28.5k unknowns, takes about 
 def auto_estimate(case: Case, result: SolveResult, *, pushes=None, progress: bool = False,
                   max_dofs: int | None = None, **solver_options) -> SolveResult:
     """``result`` with its estimated discretization error (``estimate``) where that is cheap,
-    else with ``extra["estimate_note"]`` saying why it has none: not a valid converged reference
+    else with ``estimate_note`` saying why it has none: not a valid converged reference
     answer, a degree-3 answer (nothing richer to compare with), a run under MPI, or an enriched
     solve of more than ``max_dofs`` (default AUTO_MAX_DOFS) unknowns. An enriched solve that
     does not converge leaves the answer as it is, with that note. ``estimate`` itself runs
@@ -271,7 +271,7 @@ def auto_estimate(case: Case, result: SolveResult, *, pushes=None, progress: boo
         except ConvergenceError as exc:
             note = f"the degree-{int(result.degree) + 1} solve of the estimate did not converge " \
                    f"({exc})"
-    return dataclasses.replace(result, extra={**result.extra, "estimate_note": note})
+    return dataclasses.replace(result, estimate_note=note)
 
 
 def _no_auto_estimate(case: Case, result: SolveResult, max_dofs: int, options: dict):
@@ -280,7 +280,7 @@ def _no_auto_estimate(case: Case, result: SolveResult, max_dofs: int, options: d
 
     if result.solver != "fem":
         return f"a {result.solver!r} answer: estimates are for reference answers"
-    if not result.converged or not result.extra.get("valid", True):
+    if not result.converged or result.valid is False:
         return "the answer is not a valid converged state"
     p = int(result.degree)
     if p + 1 > MAX_DEGREE:
@@ -289,7 +289,7 @@ def _no_auto_estimate(case: Case, result: SolveResult, max_dofs: int, options: d
     comm = options.get("comm", MPI.COMM_WORLD)
     if comm.size > 1:
         return "not estimated automatically under MPI (--estimate runs it)"
-    disc = result.extra.get("discretization") or {}
+    disc = result.discretization or {}
     n = predicted_dofs(entity_counts(case.mesh), case.mesh.gdim, p + 1,
                        disc.get("formulation", "displacement"))
     if n > max_dofs:

@@ -35,7 +35,7 @@ PUSH_TOL = 1e-9
 def _start(case: Case, result: SolveResult) -> str:
     """Where ``result``'s indenters started ("nodes" or "surface"); the case's without
     indenters."""
-    for report in (result.extra.get("indenters") or {}).values():
+    for report in (result.indenters or {}).values():
         return report.get("started_on", "nodes")
     return default_tip_start(case)
 
@@ -43,7 +43,7 @@ def _start(case: Case, result: SolveResult) -> str:
 def _rule(case: Case, result: SolveResult):
     """The contact rule of ``result`` ("nodal" or a Gauss degree); the case's without
     indenters."""
-    for report in (result.extra.get("indenters") or {}).values():
+    for report in (result.indenters or {}).values():
         return report.get("quadrature", "nodal")
     return default_contact_rule(case)
 
@@ -67,7 +67,7 @@ def _same_discretization(case: Case, result: SolveResult, row: dict) -> bool:
     """Whether ``row`` was measured on ``result``'s discretization: its unknowns, degree and
     contact rule and where its indenters started (a row's degree and rule default to the case's,
     its start to the case's or, where the case names none, to the one of the row's rule)."""
-    disc = result.extra.get("discretization") or {}
+    disc = result.discretization or {}
     degree = row.get("degree", default_degree(case, disc.get("formulation", "displacement")))
     rule = row.get("contact_quadrature", default_contact_rule(case))
     start = row.get("tip_start", default_tip_start(case, rule))
@@ -83,15 +83,14 @@ def with_measured_accuracy(case: Case, result: SolveResult, pushes=None) -> Solv
         return result
     row = measured_accuracy(case, result, pushes)
     if row is None:
-        extra = {"measured_note": unmatched_note(case, result)}
-    elif row["converged"]:
-        extra = {"measured_accuracy": row}
-    else:   # a warning like the solve's own: the CLI, the report and the JSON carry it
-        warn = f"no converged value is known at this load ({row['why']}): this answer has no " \
-               f"error bar"
-        extra = {"measured_accuracy": row,
-                 "warnings": [*(result.extra.get("warnings") or ()), warn]}
-    return dataclasses.replace(result, extra={**result.extra, **extra})
+        return dataclasses.replace(result, extra={**result.extra,
+                                                  "measured_note": unmatched_note(case, result)})
+    warnings = result.warnings
+    if not row["converged"]:   # a warning like the solve's own: the CLI, the report, the JSON
+        warnings += ((f"no converged value is known at this load ({row['why']}): this answer "
+                      f"has no error bar"),)
+    return dataclasses.replace(result, extra={**result.extra, "measured_accuracy": row},
+                               warnings=warnings)
 
 
 def unmatched_note(case: Case, result: SolveResult) -> str:
@@ -99,7 +98,7 @@ def unmatched_note(case: Case, result: SolveResult) -> str:
     discretization (unknowns, degree, contact rule) is not the one measured."""
     same = [r for r in case.reference_measured if _same_discretization(case, result, r)]
     rule = _rule(case, result)
-    disc = result.extra.get("discretization") or {}
+    disc = result.discretization or {}
     if not same:
         dofs = sorted({r["dofs"] for r in case.reference_measured})
         return f"not measured: the case's measurements are of {', '.join(map(str, dofs))} " \
@@ -110,7 +109,8 @@ def unmatched_note(case: Case, result: SolveResult) -> str:
 
 
 def accuracy_line(extra: dict) -> str | None:
-    """The accuracy an answer's ``extra`` states from the case's measurements: its row
+    """The accuracy an answer's entries (``SolveResult.entries()`` or its JSON form) state from
+    the case's measurements: its row
     (``describe``), or, where it carries no error estimate of its own, why no row describes it;
     None when neither applies."""
     if extra.get("measured_accuracy"):

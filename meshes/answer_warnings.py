@@ -32,9 +32,9 @@ def advice_for(reason) -> str:
 
 def relative_estimates(res) -> dict:
     """Probe -> its estimated error relative to its displacement; only the probes with an
-    estimate (``extra["probe_error_estimates"]``). A probe that did not move has 0 when its
+    estimate (``probe_error_estimates``). A probe that did not move has 0 when its
     estimate is 0 too (nothing moved: nothing is wrong), else inf."""
-    pe = res.extra.get("probe_error_estimates") or {}
+    pe = res.probe_error_estimates or {}
     out = {}
     for k, v in res.probes.items():
         if k in pe:
@@ -47,10 +47,11 @@ def answer_concerns(res) -> list[str]:
     """One line per fact about the SolveResult ``res`` that a caller must not miss."""
     extra = getattr(res, "extra", None) or {}
     out = []
-    if extra.get("valid", True) is False:
-        why, advice = extra.get("invalid_reason"), advice_for(extra.get("invalid_reason"))
+    if getattr(res, "valid", None) is False:
+        why = res.invalid_reason
+        advice = advice_for(why)
         out.append(f"the answer is not valid: {why}" + (f"; {advice}" if advice else ""))
-    out += [str(w) for w in extra.get("warnings") or ()]
+    out += [str(w) for w in getattr(res, "warnings", ()) or ()]
     why = extra.get("no_converged_value")
     if why:
         out += [f"no mesh-converged answer is known at this load: {w}" for w in

@@ -21,6 +21,13 @@ def material_json(material) -> dict:
     return out
 
 
+TYPED_EXTRAS = ("valid", "invalid_reason", "warnings", "discretization", "indenters",
+                "probe_error_estimates", "reaction_error_estimates", "estimate_note")
+"""The entries every caller reads, fields of SolveResult (and keys of its JSON form). A solver
+that reports them in ``extra`` (a plug-in solver, a result built with
+``dataclasses.replace(result, extra={**result.extra, ...})``) has them moved to the fields."""
+
+
 @dataclass(frozen=True)
 class SolveResult:
     """A solve of a Case.
@@ -29,6 +36,19 @@ class SolveResult:
     probes: probe name -> (gdim,) displacement (mm).  reactions: Dirichlet region -> (gdim,) force
     the support exerts on the body (mN).  strain_energy in uJ (= kPa mm^3 = mN mm).
     iterations: Newton iterations (fem) or the fast solver's own iterations.
+
+    What every caller reads is a field; the solver's own figures (timings, counters, states)
+    are ``extra``:
+    valid: whether the deformed mesh is a physical answer (no inverted cell, no runaway, no tip
+        through the skin); None when the solver checked nothing.  invalid_reason: why not (None
+        when valid).  warnings: what the caller should know about the answer (a glued patch
+        past its range, a load with no converged value, ...).  discretization: the reference's
+        discretization (degree, unknowns, formulation, contact rule, ...), None for another
+        solver.  indenters: per rigid tip its push, force, contact area and penetration
+        (``fem_reference.contact``); {} without tips.  probe_error_estimates (mm) and
+        reaction_error_estimates (mN): the norm of the estimated discretization error per
+        probe / Dirichlet region ({} when not estimated); estimate_note: why an answer has no
+        estimate (None when it has one or none was asked for).
     """
 
     u: np.ndarray
@@ -47,10 +67,54 @@ class SolveResult:
     n_cells: int = 0
     history: dict = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
+    valid: bool | None = None
+    invalid_reason: str | None = None
+    warnings: tuple = ()
+    discretization: dict | None = None
+    indenters: dict = field(default_factory=dict)
+    probe_error_estimates: dict = field(default_factory=dict)
+    reaction_error_estimates: dict = field(default_factory=dict)
+    estimate_note: str | None = None
+
+    def __post_init__(self):
+        given = {k: self.extra[k] for k in TYPED_EXTRAS if k in self.extra}
+        if given:
+            object.__setattr__(self, "extra", {k: v for k, v in self.extra.items()
+                                               if k not in given})
+            for k, v in given.items():
+                object.__setattr__(self, k, v)
+        if self.valid is not None:
+            object.__setattr__(self, "valid", bool(self.valid))
+        object.__setattr__(self, "warnings", tuple(str(w) for w in self.warnings or ()))
+        for k in ("indenters", "probe_error_estimates", "reaction_error_estimates"):
+            object.__setattr__(self, k, dict(getattr(self, k) or {}))
 
     @property
     def dimension(self) -> int:
         return int(self.u.shape[1])
+
+    def entries(self) -> dict:
+        """``extra`` and the typed fields together, keyed as the JSON form keys them."""
+        return {**self.extra, **self.typed_json()}
+
+    def typed_json(self) -> dict:
+        """The typed fields as the JSON form writes them: validity where checked, the warnings
+        always, the rest where the solver gave them."""
+        d = {}
+        if self.valid is not None:
+            d.update(valid=self.valid, invalid_reason=self.invalid_reason)
+        if self.discretization is not None:
+            d["discretization"] = self.discretization
+        if self.indenters:
+            d["indenters"] = self.indenters
+        d["warnings"] = list(self.warnings)
+        if self.probe_error_estimates:
+            d["probe_error_estimates"] = self.probe_error_estimates
+        if self.reaction_error_estimates:
+            d["reaction_error_estimates"] = self.reaction_error_estimates
+        if self.estimate_note is not None:
+            d["estimate_note"] = self.estimate_note
+        return d
 
     def to_json_dict(self, case=None) -> dict:
         pts = {}
@@ -75,7 +139,8 @@ class SolveResult:
             d["pushes_mm"] = {a.name: float(a.push) for a in case.actuators}
             d["actuators"] = {a.name: {"type": a.type, "idle": a.idle} for a in case.actuators}
         d.update({k: v for k, v in self.extra.items() if _jsonable(v)})
-        est = self.extra.get("probe_error_estimates") or {}
+        d.update({k: v for k, v in self.typed_json().items() if _jsonable(v)})
+        est = self.probe_error_estimates
         for k, e in est.items():
             if k in d["probes"]:
                 d["probes"][k]["error_estimate"] = float(e)

@@ -198,8 +198,8 @@ def test_a_glued_patch_that_crushes_its_rim_is_named():
     cells below J = 0.2; 2 mm pushes are named by neither check."""
     c = load_case(CASE)
     far = fr.solve(c, pushes={a: 15.0 for a in ("A1", "A2", "A3", "A4")})
-    lines = far.extra["warnings"]
+    lines = far.warnings
     assert sorted(w.split("'")[1] for w in lines) == ["A1", "A2", "A3", "A4"]
     assert any("'A3'" in w and "J = " in w for w in lines)
     near = fr.solve(c, pushes={"A1": 2.0})
-    assert near.extra["warnings"] == []
+    assert near.warnings == ()

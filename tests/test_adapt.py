@@ -28,7 +28,7 @@ def cook(size=8.0):
 def test_solve_to_accuracy_reaches_one_percent_on_cooks_membrane(capsys):
     ad = solve_to_accuracy(cook(), accuracy=0.01, refine="uniform")
     assert ad.reached
-    est = ad.result.extra["probe_error_estimates"]
+    est = ad.result.probe_error_estimates
     for name, q in ad.result.probes.items():
         assert est[name] <= 0.01 * np.linalg.norm(q)
     # the sequence: P1, then P2 on the same mesh, then P2 on refined meshes
@@ -63,7 +63,7 @@ def test_solve_to_accuracy_on_a_nonlinear_3d_block():
                 actuators=[Actuator("A1", "zmax", (1.0, 0.0, -1.0))], name="block")
     ad = solve_to_accuracy(case, {"A1": 1.0}, accuracy=0.02, progress=False)
     assert ad.reached and ad.steps[-1].level <= 1
-    assert ad.result.extra["probe_error_estimates"]["T"] <= 0.02 * np.linalg.norm(
+    assert ad.result.probe_error_estimates["T"] <= 0.02 * np.linalg.norm(
         ad.result.probes["T"])
 
 
@@ -178,8 +178,8 @@ def test_an_invalid_refined_answer_stops_the_loop_and_keeps_the_last_valid_one(m
     assert "glued patch 'A1'" in msg and "handed back" in msg
     kept = info.value.result
     assert not kept.reached and kept.steps[-1].level == 0
-    assert kept.result.extra.get("valid", True) and kept.case.mesh.n_cells == case.mesh.n_cells
-    assert "probe_error_estimates" in kept.result.extra   # the last valid answer's estimate
+    assert kept.result.valid is not False and kept.case.mesh.n_cells == case.mesh.n_cells
+    assert kept.result.probe_error_estimates   # the last valid answer's estimate
 
 
 @pytest.mark.slow
@@ -193,8 +193,8 @@ def test_the_shipped_phantom_reaches_one_percent_at_a_two_mm_push():
 
     path = Path(__file__).resolve().parents[1] / "meshes/cases/phantom.toml"
     ad = solve_to_accuracy(path, {"A1": 2.0}, accuracy=0.01, progress=False)
-    assert ad.reached and ad.result.extra["valid"] and ad.result.extra["min_J"] > 0
-    est = ad.result.extra["probe_error_estimates"]
+    assert ad.reached and ad.result.valid and ad.result.extra["min_J"] > 0
+    est = ad.result.probe_error_estimates
     for name, q in ad.result.probes.items():   # every target well above the floor here
         assert est[name] <= 0.01 * np.linalg.norm(q), name
     assert [(s.level, s.degree) for s in ad.steps][:2] == [(0, 1), (0, 2)]
@@ -232,4 +232,4 @@ def test_a_refined_glued_level_whose_estimate_fails_warm_stops_the_loop(monkeypa
     assert "the solves of level 1" in msg and "did not converge" in msg
     kept = info.value.result
     assert not kept.reached and kept.steps[-1].level == 0
-    assert "probe_error_estimates" in kept.result.extra
+    assert kept.result.probe_error_estimates

@@ -47,7 +47,7 @@ def tip_case(mesh, tip="sphere", contact=None, density=1e-6):
 
 
 def same_contact(res, ref, tol=SAME):
-    a, b = res.extra["indenters"]["I"], ref.extra["indenters"]["I"]
+    a, b = res.indenters["I"], ref.indenters["I"]
     assert np.abs(res.u - ref.u).max() < tol
     assert a["force"] == pytest.approx(b["force"], rel=1e-7)
     assert np.asarray(a["tip_start"]) == pytest.approx(np.asarray(b["tip_start"]), abs=1e-12)
@@ -67,10 +67,10 @@ def test_admm_with_polish_equals_the_p1_reference_with_contact(block, rule, tip,
     push = {"I": 1.0 if tip == "sphere" else 0.75}
     ref = fr.solve(case, degree=1, pushes=push, contact_quadrature=rule, settings=TIGHT)
     res = admm.solve(case, pushes=push, contact_quadrature=rule, device=device)
-    assert ref.converged and res.converged and res.extra["valid"]
-    assert res.extra["indenters"]["I"]["force"] > 0.5   # the tip presses
+    assert ref.converged and res.converged and res.valid
+    assert res.indenters["I"]["force"] > 0.5   # the tip presses
     same_contact(res, ref)
-    assert set(res.extra["indenters"]["I"]) >= set(ref.extra["indenters"]["I"]) - {
+    assert set(res.indenters["I"]) >= set(ref.indenters["I"]) - {
         "contact_width_mm"}
 
 
@@ -89,9 +89,9 @@ def test_a_retracting_tip_releases_the_skin_to_rest(block):
     the skin, which (no other load) returns to rest exactly, with no force and no contact."""
     case = tip_case(block)
     pressed = admm.solve(case, pushes={"I": 1.0})
-    assert pressed.extra["indenters"]["I"]["contact_area"] > 0
+    assert pressed.indenters["I"]["contact_area"] > 0
     back = admm.solve(case, pushes={"I": -0.5}, initial=pressed)
-    ind = back.extra["indenters"]["I"]
+    ind = back.indenters["I"]
     assert back.converged and back.load_steps >= 1
     assert np.abs(back.u).max() < 1e-9
     assert ind["push"] == -0.5 and ind["force"] == 0.0 and ind["contact_area"] == 0.0
@@ -114,7 +114,7 @@ def test_implicit_euler_with_a_tip_equals_the_reference_dynamics(block, start, p
     assert np.abs(res.u - ref.u[-1]).max() < SAME
     # the skin still moves: the dynamics matter here
     assert np.abs(res.extra["velocity"]).max() > 0.1
-    force = res.extra["indenters"]["I"]["force"]
+    force = res.indenters["I"]["force"]
     assert force == 0.0 if push < 0 else force > 0.5
 
 
@@ -165,7 +165,7 @@ def test_hertz_sphere_force_by_admm_approaches_hertz_as_the_cells_shrink():
                     actuators=[a])
         res = admm.solve(case, pushes={"I": d})
         assert res.converged
-        errors.append(4 * res.extra["indenters"]["I"]["force"] / hertz - 1)
+        errors.append(4 * res.indenters["I"]["force"] / hertz - 1)
     print("\nADMM P1 force against Hertz:", [f"{100 * e:+.2f} %" for e in errors])
     assert 0 < errors[2] < errors[1] < errors[0] < 0.15
     assert errors[2] < 0.10

@@ -43,7 +43,7 @@ def test_a_solve_past_the_converged_range_warns_and_a_small_push_does_not(case):
     with warnings.catch_warnings():
         warnings.simplefilter("error", TissueWarning)
         r = fr.solve(case, pushes={"A1": 2.0})
-    assert r.extra["valid"]
+    assert r.valid
 
 
 def test_an_invalid_answer_warns(case):
@@ -53,7 +53,7 @@ def test_an_invalid_answer_warns(case):
     with pytest.warns(TissueWarning) as caught:
         r = fr.solve(case.with_material(nu=0.4999), pushes={a: 15.0 for a in
                                                             ("A1", "A2", "A3", "A4")})
-    assert r.converged and r.extra["valid"] is False
+    assert r.converged and r.valid is False
     assert any(str(w.message).startswith("the answer is not valid: ") for w in caught)
 
 

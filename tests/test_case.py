@@ -200,9 +200,9 @@ def test_the_case_names_the_reference_degree_a_solve_gets_by_default(tmp_path):
     (tmp_path / "plain.toml").write_text(BOX_CASE.format(reference=""))
     p2, plain = load_case(tmp_path / "p2.toml"), load_case(tmp_path / "plain.toml")
     assert p2.reference_degree == 2 and plain.reference_degree is None
-    assert fr.solve(p2).extra["discretization"]["degree"] == 2
-    assert fr.solve(plain).extra["discretization"]["degree"] == 1
-    assert fr.solve(p2, degree=1).extra["discretization"]["degree"] == 1  # an explicit one wins
+    assert fr.solve(p2).discretization["degree"] == 2
+    assert fr.solve(plain).discretization["degree"] == 1
+    assert fr.solve(p2, degree=1).discretization["degree"] == 1  # an explicit one wins
 
 
 def test_a_bad_reference_degree_is_named(tmp_path):

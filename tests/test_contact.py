@@ -60,8 +60,8 @@ def sphere(R, **kw):
 
 def indent(case, push, **kw):
     res = fr.solve(case, pushes={"I": push}, **kw)
-    assert res.converged and res.extra["valid"]
-    return res, res.extra["indenters"]["I"]
+    assert res.converged and res.valid
+    return res, res.indenters["I"]
 
 
 def sneddon_rounded_punch(A, e, d):
@@ -215,13 +215,13 @@ def test_a_failed_push_keeps_the_last_converged_state_with_its_tip(block):
     with pytest.raises(ConvergenceError) as info:
         fr.solve(case, pushes={"I": 0.5}, settings=tight)
     last = info.value.last_converged
-    reached = last.extra["indenters"]["I"]["push"]
+    reached = last.indenters["I"]["push"]
     assert reached == pytest.approx(info.value.load_fraction * 0.5, abs=1e-12)
     assert 0.0 < reached < 0.5
     _, again = indent(case, reached)
     # the intermediate load step is converged to its looser tolerance (0.06 % measured); the
     # tip of the failed try, pushed 2.5x as far, would give several times the force
-    assert last.extra["indenters"]["I"]["force"] == pytest.approx(again["force"], rel=1e-2)
+    assert last.indenters["I"]["force"] == pytest.approx(again["force"], rel=1e-2)
 
 
 def test_newton_without_the_tips_curvature_reaches_the_same_answer(block):
@@ -240,14 +240,14 @@ def test_newton_without_the_tips_curvature_reaches_the_same_answer(block):
                     # the same answer converged a thousand times tighter
                     "tight": fr.NewtonSettings(rtol=1e-13, atol=1e-14, atol_mm=1e-13)}.items():
         res = fr.solve(case, pushes={"I": 1.5}, settings=st)
-        assert res.converged and res.extra["valid"]
+        assert res.converged and res.valid
         out[key] = res
     a = out.pop("tight")
     for key, b in out.items():
         # the final load step's residual, down by rtol = 1e-10, leaves the contact force (a
         # penalty stiffness times the skin's penetration) to about 1e-8 of itself
-        assert b.extra["indenters"]["I"]["force"] == pytest.approx(
-            a.extra["indenters"]["I"]["force"], rel=1e-7), key
+        assert b.indenters["I"]["force"] == pytest.approx(
+            a.indenters["I"]["force"], rel=1e-7), key
         assert np.abs(a.u - b.u).max() < 1e-8, key
     # each takes another path (28, 36, 49 and 47 Newton iterations measured)
     assert len({(r.iterations, r.load_steps) for r in out.values()}) == len(out), \
@@ -282,16 +282,16 @@ def test_the_shifted_tangent_and_the_fitted_step_lengths_reach_the_same_answer()
     exact = {"contact_curvature_below": math.inf, "tip_step": 0.1}
     a = fr.solve(case, pushes=pushes, degree=2, contact_quadrature="nodal",
                  settings=fr.NewtonSettings(descent_shift=0.0, **exact))
-    assert a.converged and a.extra["valid"]
+    assert a.converged and a.valid
     assert a.extra["tangent_shifts"] == 0
     for st in (fr.NewtonSettings(**exact), fr.NewtonSettings(interpolate=True, **exact)):
         b = fr.solve(case, pushes=pushes, degree=2, contact_quadrature="nodal", settings=st)
-        assert b.converged and b.extra["valid"]
+        assert b.converged and b.valid
         assert b.extra["tangent_shifts"] > 0
         assert b.iterations != a.iterations  # another path
         for name in pushes:
-            assert b.extra["indenters"][name]["force"] == pytest.approx(
-                a.extra["indenters"][name]["force"], rel=1e-7)
+            assert b.indenters[name]["force"] == pytest.approx(
+                a.indenters[name]["force"], rel=1e-7)
         assert np.abs(a.u - b.u).max() < 1e-7
     for bad in (-1.0, float("nan")):
         with pytest.raises(ValueError, match="descent_shift"):

@@ -61,8 +61,8 @@ def test_a_gauss_rule_on_cells_wider_than_the_contact_is_off_hertz_and_says_so()
         for rule in ("nodal", 2):
             res = fr.solve(case, pushes={"I": d}, degree=2, contact_quadrature=rule)
             assert res.converged
-            out[h, rule] = (4 * res.extra["indenters"]["I"]["force"] / F_hertz - 1,
-                            [w for w in res.extra["warnings"] if "indenter I" in w])
+            out[h, rule] = (4 * res.indenters["I"]["force"] / F_hertz - 1,
+                            [w for w in res.warnings if "indenter I" in w])
     assert abs(out[2.0, "nodal"][0]) < 0.02 and not out[2.0, "nodal"][1]
     assert out[2.0, 2][0] > 0.1
     assert len(out[2.0, 2][1]) == 1 and "Gauss contact rule over-constrains" in out[2.0, 2][1][0]
@@ -77,8 +77,8 @@ def test_a_gauss_contact_rule_gives_hertz_force_within_2_percent_and_reports_its
     forces = {}
     for rule in ("nodal", 2):
         res = fr.solve(case, pushes={"I": d}, degree=2, contact_quadrature=rule)
-        ind = res.extra["indenters"]["I"]
-        assert res.converged and res.extra["valid"] and ind["quadrature"] == rule
+        ind = res.indenters["I"]
+        assert res.converged and res.valid and ind["quadrature"] == rule
         forces[rule] = 4 * ind["force"]
     print(f"\nHertz {F_hertz:.5f} mN: nodal {forces['nodal']:.5f}, Gauss 2 {forces[2]:.5f}")
     assert abs(forces[2] / F_hertz - 1) < 0.02
@@ -95,10 +95,10 @@ def test_a_deep_push_with_a_gauss_rule_does_the_work_the_tissue_stores():
     forces, prev, deep = [0.0], None, []
     for d in depths[1:]:
         prev = s.solve({"I": float(d)}, initial=prev)
-        assert prev.converged and prev.extra["valid"]
-        forces.append(4 * prev.extra["indenters"]["I"]["force"])
+        assert prev.converged and prev.valid
+        forces.append(4 * prev.indenters["I"]["force"])
         deep.append(any("radii deep" in w and "no error bar" in w
-                        for w in prev.extra["warnings"]))
+                        for w in prev.warnings))
     # the answers past 2.5 radii say they have no error bar (2.75 and 3 R), those before do not
     assert deep == [d > 2.5 * R + 1e-9 for d in depths[1:]]
     stored = 4 * prev.strain_energy

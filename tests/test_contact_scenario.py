@@ -162,7 +162,7 @@ def _target_moved(case, pushes):
     import tissue_reference.fem_reference as fr
 
     res = fr.solve(case, pushes=pushes)
-    assert res.converged and res.extra["valid"]
+    assert res.converged and res.valid
     return res
 
 
@@ -188,7 +188,7 @@ def test_the_patch_model_steers_the_contact_plant_to_the_goal(block):
     r = _target_moved(loop.case, final)
     moved = r.probes["T1"] - _target_moved(loop.case, {"A1": 0.0, "A2": 0.0}).probes["T1"]
     assert np.hypot(moved[0] - GOAL[0], moved[1] - GOAL[1]) <= 0.05
-    assert min(t["force"] for t in r.extra["indenters"].values()) > 0
+    assert min(t["force"] for t in r.indenters.values()) > 0
 
 
 @pytest.mark.slow

@@ -39,11 +39,11 @@ def lonely_axis(mesh):
 def test_a_tip_between_coarse_nodes_gives_an_invalid_state():
     mesh = box(5.0)
     res = fr.solve(tip_case(mesh, lonely_axis(mesh)), pushes={"I": 0.1})
-    rep = res.extra["indenters"]["I"]
+    rep = res.indenters["I"]
     # the sphere's front sits R (1 - sqrt(1 - 0.81)) = 0.56 R below the node it touches
     assert rep["surface_penetration"] > 0.4 * R and rep["tip_through_surface"]
-    assert res.extra["valid"] is False
-    assert "passed between the nodes of its contact surface" in res.extra["invalid_reason"]
+    assert res.valid is False
+    assert "passed between the nodes of its contact surface" in res.invalid_reason
 
 
 def test_the_check_is_quiet_where_the_surface_resolves_the_tip():
@@ -51,8 +51,8 @@ def test_the_check_is_quiet_where_the_surface_resolves_the_tip():
     top = np.unique(mesh.facet_regions["zmax"])
     node = mesh.points[top][np.argmin(np.linalg.norm(mesh.points[top, :2] - 5.0, axis=1))]
     res = fr.solve(tip_case(mesh, node), pushes={"I": 0.3})
-    rep = res.extra["indenters"]["I"]
-    assert rep["force"] > 0 and not rep["tip_through_surface"] and res.extra["valid"]
+    rep = res.indenters["I"]
+    assert rep["force"] > 0 and not rep["tip_through_surface"] and res.valid
     assert rep["surface_penetration"] < 0.05 * R
 
 

@@ -58,6 +58,6 @@ def test_a_degree2_plant_warm_starts_from_its_own_full_state(case):
     plant(c, full_pushes(c, {"A1": 1.3}), other)
     assert seen[2] is other
     cold = plant_for("fem")(c, full_pushes(c, {"A1": 1.3}), None)
-    assert cold.extra["discretization"]["formulation"] == "mixed"
+    assert cold.discretization["formulation"] == "mixed"
     assert np.abs(r2.u - cold.u).max() < 1e-8 * max(1.0, np.abs(cold.u).max())
     assert np.abs(r2.u).max() > 0.1                  # a real push, not the rest state

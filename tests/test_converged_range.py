@@ -62,9 +62,9 @@ def test_a_coarse_mesh_that_hides_the_rim_still_says_there_is_no_error_bar(coars
     assert res.converged and res.extra["min_J"] > RIM_J_WARN
     why = res.extra["no_converged_value"]
     assert len(why) == 1 and "'A1'" in why[0]
-    assert any("no mesh-converged answer" in w for w in res.extra["warnings"])
+    assert any("no mesh-converged answer" in w for w in res.warnings)
     near = fr.solve(coarse, pushes={"A1": 2.0})
-    assert "no_converged_value" not in near.extra and near.extra["warnings"] == []
+    assert "no_converged_value" not in near.extra and near.warnings == ()
 
 
 def test_the_command_line_prints_a_difference_not_an_error_bar(tmp_path, capsys):
@@ -172,6 +172,6 @@ def test_the_rim_warning_reads_a_degree_2_fields_own_J(monkeypatch):
     r = fr.solve(c, pushes={"A1": 4.0}, degree=2)
     rim = np.isin(c.mesh.cells, c.mesh.region_vertices(c.actuator("A1").region)).any(axis=1)
     assert cell_jacobians(c.mesh.points, c.mesh.cells, r.u)[rim].min() > 0.55
-    lines = [w for w in r.extra["warnings"] if "'A1'" in w]
+    lines = [w for w in r.warnings if "'A1'" in w]
     assert len(lines) == 1 and "compressed to J = 0.4" in lines[0]
-    assert r.extra["valid"] is True
+    assert r.valid is True

@@ -63,10 +63,10 @@ def test_thick_sphere_estimate_effectivity_against_the_closed_form(nu):
     = 2e-4 relative, ~1e-4 mm here: under 10 % of every error measured."""
     case = sphere_case(5.0, nu)
     res = fr.solve(case)
-    assert res.extra["discretization"]["formulation"] == "mixed"
+    assert res.discretization["formulation"] == "mixed"
     est = error_estimate(case, res)
-    assert est.enriched.extra["discretization"]["degree"] == 3
-    assert est.enriched.extra["discretization"]["pressure_degree"] == 2
+    assert est.enriched.discretization["degree"] == 3
+    assert est.enriched.discretization["pressure_degree"] == 2
     assert not est.includes_geometry
     truth = {k: incompressible_displacement(x) for k, x in SPHERE_PROBES.items()}
     errors = {k: np.linalg.norm(truth[k] - res.probes[k]) for k in truth}
@@ -142,7 +142,7 @@ def test_phantom_estimate_effectivity_at_a_small_push():
     push = {"A1": 5.0}
     res = fr.solve(case, pushes=push, degree=1)
     est = error_estimate(case, res, pushes=push)
-    assert est.enriched.extra["discretization"]["geometry_order"] == 1
+    assert est.enriched.discretization["geometry_order"] == 1
     truth = fr.solve(case.with_mesh(refine_uniform(case.mesh)), pushes=push, degree=2).probes
     eff = effectivities(est, res, truth)
     assert all(LOW <= e <= HIGH for e in eff.values()), eff
@@ -160,16 +160,16 @@ def test_solve_with_estimate_adds_json_ready_entries(block):
     res = fr.solve(block, pushes={"A1": 1.0}, estimate=True)
     x = res.extra
     assert x["estimate_method"] == ESTIMATE_METHOD
-    assert set(x["probe_error_estimates"]) == {"T"}
-    assert set(x["reaction_error_estimates"]) == {"zmin", "zmax"}
-    assert x["probe_error_estimates"]["T"] > 0 and x["estimate_cost_ratio"] > 0
+    assert set(res.probe_error_estimates) == {"T"}
+    assert set(res.reaction_error_estimates) == {"zmin", "zmax"}
+    assert res.probe_error_estimates["T"] > 0 and x["estimate_cost_ratio"] > 0
     assert x["estimate_discretization"]["degree"] == 2
     d = json.loads(json.dumps(res.to_json_dict(block)))
-    assert d["probe_error_estimates"]["T"] == pytest.approx(x["probe_error_estimates"]["T"])
+    assert d["probe_error_estimates"]["T"] == pytest.approx(res.probe_error_estimates["T"])
     # the same as estimating a separate answer
     again = estimate(block, fr.solve(block, pushes={"A1": 1.0}), pushes={"A1": 1.0})
-    assert again.extra["probe_error_estimates"]["T"] == pytest.approx(
-        x["probe_error_estimates"]["T"], rel=1e-6)
+    assert again.probe_error_estimates["T"] == pytest.approx(
+        res.probe_error_estimates["T"], rel=1e-6)
 
 
 def test_estimate_refuses_what_it_cannot_enrich(block):
@@ -244,13 +244,13 @@ def test_auto_estimate_runs_up_to_its_size_limit_and_says_why_not_above(block):
     res = fr.solve(block, pushes=push)
     n = p2_unknowns(block.mesh)
     at = auto_estimate(block, res, pushes=push, max_dofs=n)
-    assert "estimate_note" not in at.extra
+    assert at.estimate_note is None
     assert at.extra["estimate_discretization"]["dofs"] == n
-    assert at.extra["probe_error_estimates"]["T"] == pytest.approx(
-        estimate(block, res, pushes=push).extra["probe_error_estimates"]["T"], rel=1e-6)
+    assert at.probe_error_estimates["T"] == pytest.approx(
+        estimate(block, res, pushes=push).probe_error_estimates["T"], rel=1e-6)
     above = auto_estimate(block, res, pushes=push, max_dofs=n - 1)
-    assert "probe_error_estimates" not in above.extra
-    assert f"{n:,} unknowns" in above.extra["estimate_note"]
+    assert not above.probe_error_estimates
+    assert f"{n:,} unknowns" in above.estimate_note
     assert np.array_equal(above.u, res.u)
 
 
@@ -262,17 +262,17 @@ def test_auto_estimate_names_what_it_cannot_estimate(block, monkeypatch):
 
     push = {"A1": 1.0}
     res3 = fr.solve(block, pushes=push, degree=3)
-    assert "richest" in auto_estimate(block, res3, pushes=push).extra["estimate_note"]
+    assert "richest" in auto_estimate(block, res3, pushes=push).estimate_note
     res = fr.solve(block, pushes=push)
     bad = dataclasses.replace(res, extra={**res.extra, "valid": False})
-    assert "not a valid" in auto_estimate(block, bad, pushes=push).extra["estimate_note"]
+    assert "not a valid" in auto_estimate(block, bad, pushes=push).estimate_note
 
     def diverges(*a, **k):
         raise ConvergenceError("stuck", load_fraction=0.5)
 
     monkeypatch.setattr(fe, "estimate", diverges)
     out = auto_estimate(block, res, pushes=push)
-    assert "did not converge" in out.extra["estimate_note"]
+    assert "did not converge" in out.estimate_note
     assert np.array_equal(out.u, res.u)
 
 

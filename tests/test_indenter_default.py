@@ -52,12 +52,12 @@ def test_the_indenter_default_is_within_2_percent_of_the_finest_level(rule, stud
     for push in pushes:
         res = solver.solve({a.name: push for a in case.actuators}, initial=prev)
         prev = res
-        assert res.extra.get("valid", True), res.extra.get("invalid_reason")
+        assert res.valid is not False, res.invalid_reason
         entry = next(e for e in data["pushes"] if e["push_mm"] == push)
         # the finest level stands for the converged answer: its levels contract here
         f = entry["force_mN"]
         assert abs(f[-1] - f[-2]) < abs(f[-2] - f[-3]) < abs(f[-3] - f[-4])
-        force = 2.0 * res.extra["indenters"]["A1"]["force"]
+        force = 2.0 * res.indenters["A1"]["force"]
         assert force == pytest.approx(f[-1], rel=0.02)
         for name, values in entry["probes_mm"].items():
             ref = np.asarray(values[-1])

@@ -32,7 +32,7 @@ def case():
 def test_indenter_jacobian_equals_central_differences_of_contact_solves(case):
     s = fr.ReferenceSolver(case, settings=NewtonSettings(rtol=1e-13, atol=1e-14))
     state = s.solve(STATE)
-    assert state.converged and state.extra["indenters"]["S"]["force"] > 0
+    assert state.converged and state.indenters["S"]["force"] > 0
     J = indenter_jacobian(s, case.with_pushes(STATE))
     d = 1e-3
     fd = []
@@ -92,7 +92,7 @@ def test_a_closed_loop_steers_a_target_with_indenters(case):
     setup, res = steer_t2(case)
     # the plant's final state is a valid contact answer with the tips pressing
     final = setup.plant(setup.case, dict(zip(res.actuators, res.pushes[-1])), None)
-    assert final.extra["valid"] and max(r["force"] for r in final.extra["indenters"].values()) > 0
+    assert final.valid and max(r["force"] for r in final.indenters.values()) > 0
 
 
 def test_mixing_indenters_and_patches_is_refused(case):

@@ -36,7 +36,7 @@ def coarse():
 
 def test_a_row_describes_exactly_its_discretization_and_load(coarse):
     case, res = coarse
-    n = res.extra["discretization"]["dofs"]
+    n = res.discretization["dofs"]
     assert n == 3 * case.mesh.n_vertices     # P1 displacement: three unknowns per vertex
     rows = (_row(n, {"A1": 2.0}, probes=0.2), _row(n + 3, {"A1": 1.0}, probes=0.3),
             _row(n, {"A1": 1.0}, degree=2, probes=0.4), _row(n, {"A1": 1.0, "A2": 1.0}),
@@ -64,7 +64,7 @@ def test_a_row_describes_exactly_its_discretization_and_load(coarse):
     assert p2.extra.get("measured_note") is None   # fr.solve on the case without rows
     note = with_measured_accuracy(with_rows, p2, {"A1": 1.0}).extra["measured_note"]
     assert note == f"not measured: the case's measurements are of {n}, {n + 3} unknowns, this " \
-                   f"answer has {p2.extra['discretization']['dofs']} (contact rule nodal)"
+                   f"answer has {p2.discretization['dofs']} (contact rule nodal)"
 
 
 def test_a_row_is_of_one_tip_start(coarse):
@@ -73,7 +73,7 @@ def test_a_row_is_of_one_tip_start(coarse):
     started on its curved facets, and a row that names that start does."""
     case, res = coarse
     case = dataclasses.replace(case, reference_tip_start="nodes")
-    n = res.extra["discretization"]["dofs"]
+    n = res.discretization["dofs"]
     started = {}
     for how in ("nodes", "surface"):
         extra = {**res.extra, "indenters": {"A1": {"quadrature": "nodal", "started_on": how}}}
@@ -101,7 +101,7 @@ def test_a_solve_that_overrides_the_rule_or_start_gets_the_row_of_what_it_solved
     """A row that names no contact rule or tip start was measured with the case file's; the
     command line's --contact-quadrature and --tip-start replace the case's, not the rows'."""
     _, res = coarse
-    n = res.extra["discretization"]["dofs"]
+    n = res.discretization["dofs"]
     measured = (("", 0.01, "the nodal rule, on the nodes"),
                 ("contact_quadrature = 2\n", 0.02, "a Gauss rule, on the surface"),
                 ('contact_quadrature = 2\ntip_start = "nodes"\n', 0.03,

@@ -52,5 +52,5 @@ def test_a_nearly_incompressible_solve_on_the_coarse_glued_phantom_is_valid(push
         warnings.simplefilter("ignore")
         r = fr.solve(case, pushes={"A1": push})
     assert r.converged
-    assert r.extra["valid"] is True, r.extra.get("invalid_reason")
+    assert r.valid is True, r.invalid_reason
     assert r.extra["min_J"] > 0.1

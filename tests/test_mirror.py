@@ -156,7 +156,7 @@ def test_the_shipped_indenter_phantom_gives_the_quarter_cases_answer_on_its_mesh
         out[name] = fr.ReferenceSolver(case, degree=2, contact_quadrature="nodal").solve(
             {a.name: 2.0 for a in case.actuators})
     w, q = out["phantom-indenter"], out["phantom-indenter-quarter"]
-    fw, fq = (r.extra["indenters"]["A1"]["force"] for r in (w, q))
+    fw, fq = (r.indenters["A1"]["force"] for r in (w, q))
     assert fw > 10.0                                             # mN: the tips press
     assert fw == pytest.approx(2.0 * fq, rel=1e-7)
     scale = np.linalg.norm(q.probes["T1"])

@@ -123,8 +123,8 @@ def test_mixed_uniaxial_patch_test_is_exact(cube, nu):
     np.testing.assert_allclose(res.reactions["xmax"][0], P11 * L * L, rtol=1e-8)
     J = stretch * lat * lat
     np.testing.assert_allclose(res.extra["pressure"], -mat.kappa * (J - 1), rtol=1e-7)
-    assert res.extra["discretization"]["formulation"] == "mixed"
-    assert res.extra["discretization"]["pressure_degree"] == 1
+    assert res.discretization["formulation"] == "mixed"
+    assert res.discretization["pressure_degree"] == 1
 
 
 def test_mixed_shear_patch_test_with_affine_boundary_is_exact(cube):
@@ -160,7 +160,7 @@ def test_nearly_incompressible_thick_sphere_matches_the_radial_ode():
     u_ref, P_ref = thick_sphere(mat.mu, mat.kappa)
     G_ref = -P_ref * A ** 2 * np.pi / 2  # virtual work of the inner support for delta u = e_R
     res, u_out, G = solve_shell(2.5, 0.4999, "mixed")
-    assert res.extra["discretization"]["geometry_order"] == 2
+    assert res.discretization["geometry_order"] == 2
     assert abs(u_out / u_ref - 1) < 1e-3 and abs(G / G_ref - 1) < 1e-3, (u_out, u_ref, G, G_ref)
     errs = []
     for size in (2.5, 1.5):
@@ -217,7 +217,7 @@ def test_incompressible_thick_sphere_matches_the_closed_form():
     u_ref, P_ref = incompressible_sphere(mat.mu)
     G_ref = -P_ref * A ** 2 * np.pi / 2
     res, u_out, G = solve_shell(2.5, 0.5, "mixed")
-    assert res.extra["discretization"]["formulation"] == "mixed"
+    assert res.discretization["formulation"] == "mixed"
     assert abs(u_out / u_ref - 1) < 1e-3 and abs(G / G_ref - 1) < 1e-3, (u_out, u_ref, G, G_ref)
 
 

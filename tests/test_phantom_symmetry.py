@@ -81,7 +81,7 @@ def test_the_half_phantom_answers_for_the_whole_under_a_symmetric_push():
                           ("phantom-indenter-half", "phantom-half")):
         case = load_case(CASES / f"{name}.toml", mesh=build(builder, 8.0, site_size=4.0))
         res = fr.ReferenceSolver(case, degree=2, contact_quadrature="nodal").solve({"A1": 1.5})
-        force = res.extra["indenters"]["A1"]["force"]
+        force = res.indenters["A1"]["force"]
         out[name] = (force * (2.0 if "half" in name else 1.0), res.probes)
     (f_whole, p_whole), (f_half, p_half) = out["phantom-indenter"], out["phantom-indenter-half"]
     assert f_half == pytest.approx(f_whole, rel=0.01)

@@ -41,7 +41,7 @@ def run(pushes):
     except ConvergenceError as exc:
         r = exc.last_converged
         verdict = {"converged": False, "load_fraction": exc.load_fraction}
-    return dict(verdict, valid=bool(r.extra.get("valid", True)), u=np.asarray(r.u).tolist(),
+    return dict(verdict, valid=bool(r.valid is not False), u=np.asarray(r.u).tolist(),
                 newton=list(r.history["newton_iterations"]),
                 trace=list(r.history["iterate_residual"]))
 

@@ -154,5 +154,5 @@ def test_with_a_gauss_rule_a_tip_started_on_the_nodes_presses_at_rest():
     force = {}
     for start in ("nodes", "surface"):
         res = fr.ReferenceSolver(block, contact_quadrature=2, tip_start=start).solve({"S": 0.0})
-        force[start] = res.extra["indenters"]["S"]["force"]
+        force[start] = res.indenters["S"]["force"]
     assert force["surface"] == 0.0 and force["nodes"] > 1e-3

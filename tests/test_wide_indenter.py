@@ -66,12 +66,12 @@ def test_the_wide_tip_default_is_within_2_percent_of_the_finest_level_where_it_c
     for push in PUSHES:
         res = solver.solve({a.name: push for a in case.actuators}, initial=prev)
         prev = res
-        assert res.extra.get("valid", True), res.extra.get("invalid_reason")
-        assert res.extra["indenters"]["A1"]["started_on"] == start
+        assert res.valid is not False, res.invalid_reason
+        assert res.indenters["A1"]["started_on"] == start
         if push not in contracting:
             continue                                # a load step on the way
         ref = next(e for e in study["pushes"] if e["push_mm"] == push)
-        force = 2.0 * res.extra["indenters"]["A1"]["force"]
+        force = 2.0 * res.indenters["A1"]["force"]
         assert force == pytest.approx(ref["force_mN"][-1], rel=0.02), push
         for name in ("T1", "T2", "T3"):
             u_ref = np.array(ref["probes_mm"][name][-1])

@@ -65,7 +65,7 @@ def trajectory_json(case, traj, args) -> dict:
               "gravity_mm_s2": list(map(float, case.gravity)) if case.gravity is not None
               else None})
     if args.solver == "fem":
-        disc = (traj.final.extra.get("discretization") if traj.final is not None else None)
+        disc = (traj.final.discretization if traj.final is not None else None)
         if disc is not None:
             d["discretization"] = disc
         d["solver_settings"] = solver_settings("fem", mass=args.mass,

@@ -107,7 +107,7 @@ def run(args) -> int:
               f"time={res.wall_time_s:.2f}s vertices={res.n_vertices} cells={res.n_cells}")
         if res.extra.get("model_note"):
             print(f"  model: {res.extra['model']} ({res.extra['model_note']})")
-        disc = res.extra.get("discretization")
+        disc = res.discretization
         if disc:
             p = f"/P{disc['pressure_degree']}" if disc.get("pressure_degree") is not None else ""
             print(f"  discretization: {disc['formulation']} P{disc['degree']}{p}, "
@@ -123,12 +123,12 @@ def run(args) -> int:
             print(f"tissue solve: warning: estimated discretization error up to {worst:.1%} of "
                   f"a probe's displacement (above {ESTIMATE_WARN:.0%}): raise --degree, or "
                   f"refine until it is within a tolerance (--accuracy 0.01)", file=sys.stderr)
-        for line in res.extra.get("warnings") or \
+        for line in res.warnings or \
                 case.with_pushes(pushes).glued_patch_warnings(res.u):
             print(f"tissue solve: warning: {line}", file=sys.stderr)
         status = report_validity("solve", res)
     else:
-        status = 0 if res.extra.get("valid", True) else 1
+        status = 0 if res.valid is not False else 1
     # an answer past the range where answers converge is no answer to trust: exit status 1
     # (its outputs are written and say so), whichever solver gave it
     return max(status, 1 if unconverged_load(case, pushes) else 0)
@@ -157,8 +157,8 @@ def print_answer(res):
     # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
     from tissue_reference.fem_reference.measured import accuracy_line
 
-    pe = res.extra.get("probe_error_estimates") or {}
-    re_ = res.extra.get("reaction_error_estimates") or {}
+    pe = res.probe_error_estimates or {}
+    re_ = res.reaction_error_estimates or {}
     rels = relative_estimates(res)
     bar = not res.extra.get("no_converged_value")   # an estimate is an error bar only then
     for k, v in res.probes.items():
@@ -179,17 +179,17 @@ def print_answer(res):
             line += f"  +- {re_[k]:.2g} mN" if bar else f"  (degree {int(res.degree) + 1} " \
                                                        f"differs by {re_[k]:.2g} mN)"
         print(line)
-    for k, ind in (res.extra.get("indenters") or {}).items():
+    for k, ind in (res.indenters or {}).items():
         print(f"  indenter {k}: push {ind['push']:.2f} mm, force {ind['force']:+.2f} mN, contact "
               f"area {ind['contact_area']:.1f} mm^2, skin inside the tip "
               f"{ind.get('surface_penetration', ind['max_penetration']):.3f} mm "
               f"(contact rule {ind.get('quadrature', 'nodal')})")
     if res.extra.get("min_J") is not None:
         print(f"  smallest J = det F: {res.extra['min_J']:.3f}")
-    if res.extra.get("estimate_note"):
-        print(f"  error estimate: none: {res.extra['estimate_note']}")
+    if res.estimate_note:
+        print(f"  error estimate: none: {res.estimate_note}")
 
-    if line := accuracy_line(res.extra):
+    if line := accuracy_line(res.entries()):
         print(f"  accuracy: {line}")
     if pe:
         ed = res.extra.get("estimate_discretization") or {}

@@ -338,11 +338,10 @@ def with_factorization(solver: str, options: dict) -> dict:
 
 def report_validity(command: str, res, what: str = "the answer") -> int:
     """0 for a valid final state; else print the reason (one line) and return 1."""
-    extra = getattr(res, "extra", {}) or {}
-    if extra.get("valid", True):
+    if getattr(res, "valid", None) is not False:
         return 0
-    advice = advice_for(extra.get("invalid_reason"))
-    print(f"tissue {command}: error: {what} is not valid: {extra.get('invalid_reason')} "
+    advice = advice_for(res.invalid_reason)
+    print(f"tissue {command}: error: {what} is not valid: {res.invalid_reason} "
           f"(outputs written, marked valid = false)" + (f"; {advice}" if advice else ""),
           file=sys.stderr)
     return 1

@@ -48,7 +48,7 @@ def _accuracy(res) -> tuple[dict | None, str]:
     from tissue_reference.fem_reference.measured import accuracy_line
 
     row = res.extra.get("measured_accuracy")
-    line = accuracy_line(res.extra) or "none: this discretization was not measured"
+    line = accuracy_line(res.entries()) or "none: this discretization was not measured"
     if row and row.get("converged", True):
         return {"force": row.get("force"), "probes": row["probes"], "against": row["against"]}, line
     return None, line
@@ -69,7 +69,7 @@ def reference_series(case, out: Path, pushes_mm=PUSHES_MM, *, degree=None,
         res = fr.solve(case, pushes=load, initial=prev, degree=degree, progress=progress)
         prev = res
         accuracy, line = _accuracy(res)
-        indenters = res.extra.get("indenters") or {}
+        indenters = res.indenters or {}
         forces = {name: MIRRORED * indenters[name]["force"] for name in tips if name in indenters}
         stem = f"tips_{push:g}mm"
         # the fields and the JSON as `tissue solve` writes them (solve.schema.json)
@@ -83,7 +83,7 @@ def reference_series(case, out: Path, pushes_mm=PUSHES_MM, *, degree=None,
                      "probes_mm": {k: np.asarray(v).tolist() for k, v in res.probes.items()},
                      "tip_forces_mN": forces, "strain_energy_uJ": res.strain_energy,
                      "accuracy": accuracy, "accuracy_line": line,
-                     "warnings": list(res.extra.get("warnings") or [])})
+                     "warnings": list(res.warnings or [])})
         t1 = float(np.linalg.norm(res.probes["T1"]))
         bar = (f" (force within {accuracy['force']:.2%}, targets within "
                f"{accuracy['probes']:.2%} of the converged answers, measured)" if accuracy
@@ -94,7 +94,7 @@ def reference_series(case, out: Path, pushes_mm=PUSHES_MM, *, degree=None,
         for w in rows[-1]["warnings"]:
             _say(f"warning: {w}")
     _plot_series(rows, tips[0], out / "fem" / "tips_vs_push.png")
-    disc = (prev.extra.get("discretization") or {}) if prev is not None else {}
+    disc = (prev.discretization or {}) if prev is not None else {}
     return {"case": case.name, "n_vertices": case.mesh.n_vertices, "n_cells": case.mesh.n_cells,
             "degree": prev.degree if prev is not None else degree, "dofs": disc.get("dofs"),
             "series": rows, "views": views}

@@ -185,7 +185,7 @@ def _run_one(solver, problem):
 
         res = solve(case, **problem.reference)
         return _value(problem, res.probes), res.iterations, res.converged, res.wall_time_s, \
-            res.extra.get("discretization")
+            res.discretization
 
     if isinstance(solver, str) and solver in FAST_SOLVERS:
         key, opts, _ = FAST_SOLVERS[solver]

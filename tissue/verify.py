@@ -249,16 +249,16 @@ def verify(case, pushes=None, solvers=DEFAULT_SOLVERS, out_dir=None, *, json_fil
 
 
 def _with_estimate(entry, res_ref):
-    if "probe_error_estimates" in res_ref.extra:
+    if res_ref.probe_error_estimates:
         entry["discretization_error_estimate_mm"] = {
-            k: float(v) for k, v in res_ref.extra["probe_error_estimates"].items()}
+            k: float(v) for k, v in res_ref.probe_error_estimates.items()}
         if res_ref.extra.get("no_converged_value"):   # then the estimate is no error bar
             entry["no_converged_value"] = list(res_ref.extra["no_converged_value"])
     return entry
 
 
 def _disc(res_ref) -> dict:
-    d = res_ref.extra.get("discretization") or {}
+    d = res_ref.discretization or {}
     return {k: d.get(k) for k in ("formulation", "degree", "pressure_degree", "geometry_order",
                                   "dofs")}
 
@@ -317,7 +317,7 @@ def _score_builtin(name, case, pushes, opts, refs, out):
         "reference_newton_iterations": int(res_ref.iterations),
         "load_steps": int(res.load_steps),
         "options": {k: v for k, v in kw.items() if isinstance(v, (int, float, str, bool))},
-        **{k: res.extra[k] for k in VALIDITY_KEYS if k in res.extra},
+        **{k: v for k, v in res.entries().items() if k in VALIDITY_KEYS},
     })
     if model != case.material.model:
         entry["note"] = (f"a {model} model: scored against the {model} reference of the same E "

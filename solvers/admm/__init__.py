@@ -67,7 +67,7 @@ Case as the reference takes them), as consensus blocks beside the elements: the 
 keeps its scalar structure, the z-step of a block is closed-form, the polish adds the contact's
 exact Hessian (without the tips' curvature until a full Newton step is taken). A load step moves
 no tip by more than ``tip_step`` of its radius, and one whose polish does not converge is cut
-back. Each solve reports its tips in ``extra["indenters"]`` as the reference does.
+back. Each solve reports its tips in ``SolveResult.indenters`` as the reference does.
 
 Boundary conditions (``constraints``): prescribed dofs (fixed, displacement, affine,
 axis-aligned sliding) are eliminated; oblique sliding u.n = g by a per-vertex change of basis

@@ -72,7 +72,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         start, each by default the case's own as the reference takes it
         (``meshes.tips.default_contact_rule`` and ``default_tip_start``; beta
         ``meshes.tips.DEFAULT_CONTACT_PENALTY``): the same discrete energy as the P1 reference.
-        Each tip is reported in ``extra["indenters"]`` as the reference reports it.
+        Each tip is reported in ``SolveResult.indenters`` as the reference reports it.
     Raises SolverDivergedError (iteration and element named) on NaN, inverted elements or
     residual growth.
     """
@@ -178,7 +178,7 @@ def _start_pushes(cset, initial, pushes=None) -> np.ndarray:
     out = np.zeros(len(cset.tips))
     if isinstance(initial, SolveResult):
         pushes = {n: r.get("push", 0.0) for n, r in
-                  (initial.extra.get("indenters") or {}).items()}
+                  (initial.indenters or {}).items()}
     if initial is not None and pushes:
         for i, t in enumerate(cset.tips):
             out[i] = float(pushes.get(t.name, 0.0))
