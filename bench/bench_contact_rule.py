@@ -81,7 +81,7 @@ def smallest_eigenvalues(solver, n: int = 3) -> list[tuple[float, str]]:
     import numpy as np
     from slepc4py import SLEPc
 
-    solver.assemble_tangent([e[0] for e in solver.dirichlet_bcs(solver.case, 1.0)], False)
+    solver.newton.assemble_tangent([e[0] for e in solver.boundary.dirichlet_bcs(solver.case, 1.0)], False)
     A = solver.A
     eps = SLEPc.EPS().create(solver.comm)
     eps.setOperators(A)
@@ -119,7 +119,7 @@ def past_stop(solver, depth_R: float, radius: float) -> list[tuple[float, str]]:
     settings = solver.settings
     solver.settings = replace(settings, max_iterations=8)
     try:
-        solver._newton([e[0] for e in solver.dirichlet_bcs(solver.case, 1.0)], False, "past the stop")
+        solver.newton.iterate(solver.settings, [e[0] for e in solver.boundary.dirichlet_bcs(solver.case, 1.0)], False, "past the stop")
     finally:
         solver.settings = settings
     return smallest_eigenvalues(solver)

@@ -1,6 +1,6 @@
 """What a reference solve's fresh start costs and what it buys, in one run: a kept solver's
 solve now factorizes its own first tangent instead of starting Newton from the factorization
-the previous solve left (``ReferenceSolver._fresh_linear_state``).
+the previous solve left (``LinearSolver.fresh``).
 
 1. Cost: a control plant's sequence of warm re-solves (A1 from 0.5 to ``--to`` mm in 0.5 mm
    steps, each warm-started from the last answer) on the phantom at ``--size``, timed with the
@@ -23,6 +23,7 @@ import numpy as np
 
 import tissue_reference.fem_reference as fr
 from tissue_reference.fem_reference.kept import forget_solvers
+from tissue_reference.fem_reference.linalg import LinearSolver
 from tissue_reference.fem_reference.solver import ReferenceSolver
 from tissue_reference.meshes.case import load_case
 from tissue_reference.meshes.errors import ConvergenceError, TissueWarning
@@ -35,12 +36,12 @@ CASE = ROOT / "meshes" / "cases" / "phantom.toml"
 def carried_over():
     """The behaviour before the fresh start: a solve starts from whatever factorization and
     factor package its kept solver holds."""
-    saved = ReferenceSolver._fresh_linear_state
-    ReferenceSolver._fresh_linear_state = lambda self: None
+    saved = LinearSolver.fresh
+    LinearSolver.fresh = lambda self: None
     try:
         yield
     finally:
-        ReferenceSolver._fresh_linear_state = saved
+        LinearSolver.fresh = saved
 
 
 def warm_sequence(case, to_mm: float):

@@ -56,7 +56,7 @@ def solver_description(name: str, case, *, degree: int | None = None,
             default_degree,
             resolve_formulation,
         )
-        from tissue_reference.fem_reference.newton import settings_json
+        from tissue_reference.fem_reference.newton_settings import settings_json
 
         form = resolve_formulation(formulation, case.material)
         p = degree if degree is not None else default_degree(case, form)

@@ -1,6 +1,6 @@
 """Dirichlet conditions of a Case on the reference's function space: fixed, displacement,
 affine, axis-aligned sliding, and per-vertex overrides, each as one DirichletBC per displacement
-component (values in mm). Mixed into ReferenceSolver."""
+component (values in mm); the ReferenceSolver owns one (``Boundary``)."""
 from __future__ import annotations
 
 import dolfinx
@@ -11,9 +11,22 @@ from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.errors import CaseError
 
 
-class BoundaryMixin:
-    """Builds the DirichletBCs of a Case on the displacement part ``self.Wu`` of the unknown's space
-    (needs self.dm, self.gdim, self._oblique)."""
+class Boundary:
+    """The DirichletBCs of a Case on the displacement part ``Wu`` of the unknown's space, and the
+    nodes of its facet regions. V: the (collapsed) displacement space; dm: the DolfinxMesh;
+    oblique: the sliding regions held by a penalty instead (no DirichletBC); degree: the
+    displacement's; node_vertex: the Case vertex of each displacement node (-1 for edge
+    nodes), of the Case mesh's n_vertices; n_unknowns: the local size of the unknown's array; umap: the unknown's dof of each
+    displacement dof. The collapsed component spaces and region nodes are cached."""
+
+    def __init__(self, *, Wu, V, dm, gdim: int, oblique, degree: int, node_vertex,
+                 n_vertices: int, n_unknowns: int, umap):
+        self.Wu, self.V, self.dm, self.gdim = Wu, V, dm, gdim
+        self.oblique = tuple(oblique)
+        self.degree, self.node_vertex, self.n_vertices = degree, node_vertex, n_vertices
+        self.n_unknowns, self.umap = n_unknowns, umap
+        self._subs = {}
+        self._region_dofs = {}
 
     def dirichlet_bcs(self, case: Case, scale: float, override=None):
         """Dirichlet conditions of ``case`` at load ``scale`` (topological on facet regions), as
@@ -22,7 +35,7 @@ class BoundaryMixin:
         tdim = mesh.topology.dim
         bcs = []
         for b in case.boundaries:
-            if b.type in ("traction",) or b.region in self._oblique:
+            if b.type in ("traction",) or b.region in self.oblique:
                 continue
             facets = self._facets(b.region)
             if b.type == "fixed":
@@ -54,8 +67,6 @@ class BoundaryMixin:
 
     def _sub(self, c):
         """(collapsed component space, parent dof of each collapsed dof), cached."""
-        if not hasattr(self, "_subs"):
-            self._subs = {}
         if c not in self._subs:
             Vc, cmap = self.Wu.sub(c).collapse()
             self._subs[c] = (Vc, np.asarray(cmap, np.int64))
@@ -78,7 +89,7 @@ class BoundaryMixin:
             raise CaseError("dirichlet_override is supported for degree 1 only")
         dofs = np.asarray(dofs, np.int64)
         values = np.asarray(values, float)
-        vert_to_node = -np.ones(self.case.mesh.n_vertices, np.int64)
+        vert_to_node = -np.ones(self.n_vertices, np.int64)
         has = self.node_vertex >= 0
         vert_to_node[self.node_vertex[has]] = np.flatnonzero(has)
         node = vert_to_node[dofs // self.gdim]
@@ -89,9 +100,9 @@ class BoundaryMixin:
             if not np.any(sel):
                 continue
             _, cmap = self._sub(c)
-            inv = np.full(len(self.x.x.array), -1, np.int64)
+            inv = np.full(self.n_unknowns, -1, np.int64)
             inv[cmap] = np.arange(len(cmap))
-            parent = self._umap[node[sel] * self.gdim + c]
+            parent = self.umap[node[sel] * self.gdim + c]
             pair = [parent.astype(np.int32), inv[parent].astype(np.int32)]
             out.append(self._component_bc(c, pair, values=values[sel]))
         return out
@@ -110,4 +121,3 @@ class BoundaryMixin:
                 self.V, self.dm.mesh.topology.dim - 1, self._facets(region))
         return self._region_dofs[region]
 
-    # ------------------------------------------------------------------ Newton

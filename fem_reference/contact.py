@@ -251,7 +251,7 @@ class Contact:
     @property
     def energy_search(self) -> bool:
         """Whether Newton's line search tests the total energy (indenters, displacement
-        formulation): the slope and the interpolated step lengths of ``_newton`` then apply."""
+        formulation): the slope and the interpolated step lengths of ``Newton.iterate`` then apply."""
         return self._total is not None
 
     def accepts(self, r_new: float, r_old: float, forced: bool) -> bool:
@@ -263,14 +263,14 @@ class Contact:
         second order, which the stiff penalty turns into a large residual, so the residual norm
         would refuse steps that the energy takes. Without indenters every correction is taken.
         ``accepted_energy`` is then the taken state's energy and ``trial_energy`` the one just
-        tried. The total includes the solver's ``extra_terms`` energy where they have one (the
+        tried. The total includes the solver's ``Newton.extra_terms`` energy where they have one (the
         inertia of an implicit-Euler step)."""
         if not self.indenters:
             return True
         if self._total is None:
             return forced or r_new < r_old
         energy = self.comm.allreduce(dolfinx.fem.assemble_scalar(self._total), op=MPI.SUM)
-        extra = self.solver.extra_terms   # e.g. the inertia of a dynamics time step
+        extra = self.solver.newton.extra_terms   # e.g. the inertia of a dynamics time step
         if extra is not None and hasattr(extra, "energy"):
             energy += extra.energy()
         self.trial_energy = energy

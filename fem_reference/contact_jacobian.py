@@ -26,6 +26,7 @@ from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.errors import CaseError
 
 from .mumps import set_mumps_workspace, solve_mumps
+from .outputs import probe_values
 
 __all__ = ["indenter_jacobian"]
 
@@ -44,8 +45,8 @@ def indenter_jacobian(solver, case: Case, *, actuators=None, targets=None,
         raise CaseError(f"{missing} are not indenters of this solver; indenters: {list(by_name)}")
     probes = [p.name for p in case.probes] if targets is None else list(targets)
     x0 = solver.x.x.array.copy()
-    bcs = [e[0] for e in solver.dirichlet_bcs(case, 1.0, None)]
-    solver.assemble_tangent(bcs)
+    bcs = [e[0] for e in solver.boundary.dirichlet_bcs(case, 1.0, None)]
+    solver.newton.assemble_tangent(bcs)
 
     def lu(percent=None):
         k = PETSc.KSP().create(solver.comm)
@@ -68,7 +69,7 @@ def indenter_jacobian(solver, case: Case, *, actuators=None, targets=None,
             sides = []
             for sign in (1.0, -1.0):
                 ind.q.value = q0 + sign * step * ind.d
-                solver.assemble_residual(bcs)
+                solver.newton.assemble_residual(bcs)
                 sides.append(solver.b.copy())
             ind.q.value = q0
             # K du = -(R(q + h d) - R(q - h d)) / (2 h)
@@ -82,8 +83,8 @@ def indenter_jacobian(solver, case: Case, *, actuators=None, targets=None,
             owned = du.getArray(readonly=True)
             solver.x.x.array[:len(owned)] = owned
             solver.x.x.scatter_forward()
-            solver._sync_fields()
-            values = solver._probes(case, solver._vertex_field())
+            solver.state.sync()
+            values = probe_values(solver, case, solver.state.vertex_field())
             cols.append(np.concatenate([np.asarray(values[p], float) for p in probes]))
             solver.x.x.array[:] = x0   # back to the state for the next indenter
             solver.x.x.scatter_forward()
@@ -92,8 +93,8 @@ def indenter_jacobian(solver, case: Case, *, actuators=None, targets=None,
     finally:
         solver.x.x.array[:] = x0
         solver.x.x.scatter_forward()
-        solver._sync_fields()
-        solver.assemble_residual(bcs)
+        solver.state.sync()
+        solver.newton.assemble_residual(bcs)
         ksp.destroy()
         rhs.destroy()
         du.destroy()

@@ -19,7 +19,7 @@ The mass M (kg):
 - ``mass="consistent"`` (any degree, mixed formulation too): int density u . v dx at quadrature
   degree 2 * degree; the pressure of the mixed formulation carries no mass.
 The inertia enters the reference's own Newton (``ReferenceSolver.solve`` per time step: PETSc
-line search, exact tangent, converged reason checked) through ``NewtonMixin.extra_terms``: after
+line search, exact tangent, converged reason checked) through ``Newton.extra_terms``: after
 assembly M (u - u_tilde) / dt^2 is added to the residual and M / dt^2 to the tangent (the
 Dirichlet rows and columns excluded).
 
@@ -53,6 +53,7 @@ from tissue_reference.meshes.results import DynamicsResult
 
 from .discretization import default_degree, resolve_formulation
 from .kept import solver_for
+from .outputs import solve_result
 
 __all__ = ["MASS_KINDS", "DynamicsResult", "simulate"]
 
@@ -61,7 +62,7 @@ MASS_KINDS = ("lumped", "consistent")
 
 class _Inertia:
     """M (u - u_tilde) / dt^2 for the residual and M / dt^2 for the tangent of ``solver``'s
-    Newton (``NewtonMixin.extra_terms``); M in kg, dt in s, contributions in mN and mN/mm."""
+    Newton (``Newton.extra_terms``); M in kg, dt in s, contributions in mN and mN/mm."""
 
     def __init__(self, solver, case: Case, dt: float, kind: str):
         self.solver, self.kind = solver, kind
@@ -174,10 +175,10 @@ def _vertex_dofs(solver, values) -> np.ndarray:
     solver.set_state(np.asarray(values, float))
     out = solver.x.x.array.copy()
     if solver.Q is not None:
-        out[solver._pmap] = 0.0
+        out[solver.state.pmap] = 0.0
     solver.x.x.array[:] = saved
     solver.x.x.scatter_forward()
-    solver._sync_fields()
+    solver.state.sync()
     return out
 
 
@@ -248,17 +249,17 @@ def simulate(case: Case, *, dt: float, steps: int, pushes=None, initial=None,
         if initial is not None:
             solver.set_state(initial)
         prescribed = np.zeros(len(solver.x.x.array), bool)
-        for _, g, parent, coll in solver.dirichlet_bcs(case0, 1.0):
+        for _, g, parent, coll in solver.boundary.dirichlet_bcs(case0, 1.0):
             solver.x.x.array[parent] = g.x.array[coll]
             prescribed[parent] = True
         solver.x.x.scatter_forward()
-        solver._sync_fields()
-        solver._x_from_fields()
+        solver.state.sync()
+        solver.state.x_from_fields()
         x = solver.x.x.array.copy()
         v = np.zeros_like(x) if initial_velocity is None else _vertex_dofs(solver,
                                                                            initial_velocity)
         v[prescribed] = 0.0
-        state = solver._result(case0, True, 0, 0.0, 0.0, 0, {}, 0.0)
+        state = solve_result(solver, case0, True, 0, 0.0, 0.0, 0, {}, 0.0)
         us = [state.u]
         vel = [np.zeros((n, d)) if initial_velocity is None else
                np.where(_prescribed_vertices(solver, case0), 0.0, initial_velocity)]
@@ -266,7 +267,7 @@ def simulate(case: Case, *, dt: float, steps: int, pushes=None, initial=None,
         kin, strain = [inertia.kinetic(v)], [state.strain_energy]
         conv, its = [], []
         total_mass = _total_mass(solver, inertia.rho)
-        solver.extra_terms = inertia
+        solver.newton.extra_terms = inertia
 
         def partial(final):
             return DynamicsResult(
@@ -311,7 +312,7 @@ def simulate(case: Case, *, dt: float, steps: int, pushes=None, initial=None,
                       f"{kin[-1]:.3e} uJ", file=sys.stderr, flush=True)
         return partial(state)
     finally:
-        solver.extra_terms = None
+        solver.newton.extra_terms = None
         inertia.destroy()
 
 

@@ -72,7 +72,7 @@ from tissue_reference.meshes.results import SolveResult
 
 from .dof_counts import entity_counts, predicted_dofs
 from .kept import solver_for
-from .newton import NewtonSettings
+from .newton_settings import NewtonSettings
 from .transfer import match_points, warm_newton
 
 __all__ = ["AUTO_MAX_DOFS", "ESTIMATE_METHOD", "ESTIMATE_RTOL", "MAX_DEGREE", "ErrorEstimate",

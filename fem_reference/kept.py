@@ -23,7 +23,7 @@ from tissue_reference.meshes.case import Case
 
 from .contact import contact_key
 from .discretization import Discretization
-from .outputs import Tangent
+from .outputs_tangent import Tangent
 from .petsc_memory import release_petsc_garbage
 from .solver import ReferenceSolver
 

@@ -1,8 +1,8 @@
 """Linear algebra of the reference's Newton: the factorizing KSPs (CHOLMOD in serial, MUMPS
 LDL^T for indefinite tangents, saddle-point systems and MPI), the lagged-factor GMRES, the
 CG + GAMG iterative mode and the fieldsplit (Schur complement) FGMRES of the mixed formulation
-(``saddle``). Mixed into ReferenceSolver; units are those of the assembled tangent (mN/mm) and
-residual (mN)."""
+(``saddle``), as one object the ReferenceSolver owns (``LinearSolver``); units are those of
+the assembled tangent (mN/mm) and residual (mN)."""
 from __future__ import annotations
 
 import functools
@@ -12,10 +12,12 @@ import sys
 
 import dolfinx
 import dolfinx.fem
+from dolfinx.la import orthonormalize
 from petsc4py import PETSc
 
 from .mumps import grown_mumps_workspace, mumps_failure, set_mumps_workspace, solve_mumps
-from .saddle import SaddleSolveMixin
+from .newton_settings import NewtonSettings, Timings
+from .saddle import FieldSplit
 
 log = logging.getLogger("tissue.fem")
 
@@ -66,19 +68,52 @@ class quiet_c_output:
         return False
 
 
+class LinearSolver:
+    """Newton's linear solves of the reference: ``solve(eta)`` sets du = -A^-1 b for the
+    assembled tangent ``A`` and residual ``b`` (PETSc Mat and Vec) into ``du`` (a dolfinx
+    Function). mode: "direct" (a factorization of every tangent), "lagged" (GMRES on the current
+    tangent preconditioned by the factorization of an earlier one, refactorized when GMRES
+    needs more than ``lag_max_its`` iterations, ``NewtonSettings.lag_max_its``), "iterative" (CG + GAMG with the
+    rigid-body modes of ``V`` as near null space, MUMPS as the fallback) or "fieldsplit" (the
+    mixed formulation's ``FieldSplit``, MUMPS as the fallback). ``package``: "cholmod" or
+    "mumps", the factorization of "direct" and "lagged" (CHOLMOD falls back on MUMPS for a
+    tangent that is not positive definite). ``timings`` (``Timings``) counts factorizations,
+    Krylov iterations and preconditioner builds; the owner replaces it per solve."""
 
-
-class LinearSolveMixin(SaddleSolveMixin):
-    """The ReferenceSolver's linear solves (needs self.A, self.b, self.du, self.comm, ...)."""
-
-    negative_pivots = None  # the inertia of the last factorized tangent (``krylov_solve``)
-    mumps_workspace = None  # MUMPS's ICNTL(14) (percent), None: its default
-    _factor_broken = False  # the factor's last factorization failed: it needs a new one
+    def __init__(self, A, b, du, *, mode: str, comm,
+                 lag_max_its: int = NewtonSettings.lag_max_its, V=None, package: str = "mumps",
+                 fieldsplit: FieldSplit | None = None, timings: Timings | None = None):
+        self.A, self.b, self.du, self.mode, self.comm = A, b, du, mode, comm
+        self.lag_max_its = int(lag_max_its)
+        self.V = V
+        self.timings = timings if timings is not None else Timings()
+        self.negative_pivots = None  # the inertia of the last factorized tangent
+        self.mumps_workspace = None  # MUMPS's ICNTL(14) (percent), None: its default
+        self.fieldsplit = fieldsplit
+        self._factor_broken = False  # the factor's last factorization failed: it needs a new one
+        if mode == "iterative":
+            # CG + smoothed-aggregation AMG with the rigid-body modes as near null space;
+            # tight tolerance so Newton keeps its quadratic convergence; MUMPS as the fallback
+            self.ksp = PETSc.KSP().create(comm)
+            self.ksp.setOperators(A)
+            self.ksp.setType("cg")
+            self.ksp.setTolerances(rtol=1e-10, atol=1e-14, max_it=2000)
+            self.ksp.getPC().setType("gamg")
+            A.setNearNullSpace(self._rigid_body_nullspace())
+            self.factor_package = "mumps"
+            self.direct_ksp = self._factor_ksp("mumps")
+            self.refactor = True
+        elif mode == "fieldsplit":
+            self._use_fallback_factor()
+        else:
+            self.use_factor(package)
+        self.first_factor_package = self.factor_package
 
     def _rigid_body_nullspace(self):
-        x = self.V.tabulate_dof_coordinates()[:, :self.gdim]
+        gdim = int(self.V.dofmap.index_map_bs)
+        x = self.V.tabulate_dof_coordinates()[:, :gdim]
         n_own = self.V.dofmap.index_map.size_local
-        d = self.gdim
+        d = gdim
         # keep the Functions alive: their vectors share the Functions' memory
         self._ns_funcs = [dolfinx.fem.Function(self.V) for _ in range(6 if d == 3 else 3)]
         vecs = [f.vector for f in self._ns_funcs]
@@ -94,11 +129,8 @@ class LinearSolveMixin(SaddleSolveMixin):
             arrs[2][:, 0], arrs[2][:, 1] = -xo[:, 1], xo[:, 0]
         for v in vecs:
             v.assemble()
-        from dolfinx.la import orthonormalize
-
         orthonormalize(vecs)
         return PETSc.NullSpace().create(vectors=vecs, comm=self.comm)
-
 
     def _factor_ksp(self, pkg: str):
         """KSP whose preconditioner is a Cholesky factorization by ``pkg`` ("mumps" or
@@ -107,11 +139,11 @@ class LinearSolveMixin(SaddleSolveMixin):
         k.setOperators(self.A)
         k.getPC().setType("cholesky")
         k.getPC().setFactorSolverType(pkg)
-        if self.linear_solver == "lagged":
+        if self.mode == "lagged":
             # right preconditioning: GMRES then tests the true residual of the current tangent
             k.setType("gmres")
             k.setPCSide(PETSc.PC.Side.RIGHT)
-            m = max(30, self.settings.lag_max_its + 1)
+            m = max(30, self.lag_max_its + 1)
             k.setGMRESRestart(m)
             k.setTolerances(rtol=1e-10, atol=1e-300, max_it=m)
         else:
@@ -124,21 +156,27 @@ class LinearSolveMixin(SaddleSolveMixin):
         set_mumps_workspace(k, percent)
         return k
 
-    def _fresh_linear_state(self):
-        """Forget what earlier solves left in the linear solvers, so that a solve's Newton path,
-        and so its answer and verdict, depend on its inputs alone, not on what this (kept)
-        solver solved before: the first tangent of the solve is factorized afresh (a lagged
-        factorization or fieldsplit preconditioner comes only from this solve's own iterations),
-        and a CHOLMOD solver that an earlier indefinite tangent switched to MUMPS is CHOLMOD
-        again (the inertia that MUMPS reports steers Newton's descent test; CHOLMOD reports
-        none). What stays is what cannot change an answer: compiled forms, allocated matrices,
-        the symbolic analysis of the fixed pattern and a grown MUMPS workspace."""
-        if self.linear_solver in ("direct", "lagged") and \
-                self.factor_package != self._first_factor_package:
-            self.use_factor(self._first_factor_package)
+    def _use_fallback_factor(self):
+        """The fieldsplit mode's fallback: MUMPS LDL^T of A itself (refactorized whenever A
+        changed)."""
+        self.use_factor("mumps")
+        self.ksp.setOperators(self.A, self.A)
+        set_mumps_workspace(self.ksp, self.mumps_workspace)
+
+    def fresh(self):
+        """Forget what earlier solves left, so that a solve's Newton path, and so its answer
+        and verdict, depend on its inputs alone, not on what this (kept) solver solved before:
+        the first tangent of the solve is factorized afresh (a lagged factorization or
+        fieldsplit preconditioner comes only from this solve's own iterations), and a CHOLMOD
+        solver that an earlier indefinite tangent switched to MUMPS is CHOLMOD again (the
+        inertia that MUMPS reports steers Newton's descent test; CHOLMOD reports none). What
+        stays is what cannot change an answer: allocated matrices, the symbolic analysis of the
+        fixed pattern and a grown MUMPS workspace."""
+        if self.mode in ("direct", "lagged") and self.factor_package != self.first_factor_package:
+            self.use_factor(self.first_factor_package)
         self.refactor = True
-        if self.linear_solver == "fieldsplit":
-            self._fresh_its = None
+        if self.fieldsplit is not None:
+            self.fieldsplit.forget()
 
     def use_factor(self, pkg: str):
         """(Re)build the factorizing KSP with ``pkg``; P is made at the next refresh."""
@@ -199,17 +237,17 @@ class LinearSolveMixin(SaddleSolveMixin):
         self.refactor = False
         self.timings.factorizations += 1
 
-    def krylov_solve(self, eta):
+    def factor_solve(self, eta):
         """One solve of the current factorizing KSP; a CHOLMOD failure (tangent not positive
         definite) switches to MUMPS and solves again. ``negative_pivots``: the inertia of the
         tangent when it was factorized for this solve, else None."""
         if self._factor_broken:
             self.use_factor(self.factor_package)
-        refresh = self.linear_solver == "direct" or self.refactor
+        refresh = self.mode == "direct" or self.refactor
         if refresh:
             self._refresh_factor()
         self.negative_pivots = None
-        if self.linear_solver == "lagged":
+        if self.mode == "lagged":
             self.ksp.setTolerances(rtol=eta)
         try:
             if self.factor_package == "cholmod":
@@ -222,10 +260,10 @@ class LinearSolveMixin(SaddleSolveMixin):
                 raise
             log.info("tangent not positive definite for CHOLMOD: switching to MUMPS LDL^T")
             self.use_factor("mumps")
-            self.krylov_solve(eta)
+            self.factor_solve(eta)
             return
         if self._after_mumps_failure(self.ksp):
-            self.krylov_solve(eta)
+            self.factor_solve(eta)
             return
         if refresh:
             self.negative_pivots = self._inertia()
@@ -240,15 +278,29 @@ class LinearSolveMixin(SaddleSolveMixin):
         except PETSc.Error:
             return None
 
-    def linear_solve(self, eta: float) -> bool:
+    def _fieldsplit_solve(self, eta) -> tuple[int, object]:
+        """The fieldsplit solve, or where it does not converge the MUMPS fallback's; returns
+        (Krylov iterations, the KSP whose answer stands)."""
+        its, built, ok = self.fieldsplit.solve(self.b, self.du.vector, eta)
+        self.timings.preconditioner_builds += built
+        if ok:
+            return its, self.fieldsplit.ksp
+        while True:
+            if self._factor_broken:
+                self._use_fallback_factor()
+            self.ksp.solve(self.b, self.du.vector)
+            self.timings.factorizations += 1
+            if not self._after_mumps_failure(self.ksp):
+                return its, self.ksp
+
+    def solve(self, eta: float) -> bool:
         """du = -A^-1 b at relative tolerance ``eta`` (Krylov modes); False when it fails."""
-        lagged = self.linear_solver == "lagged"
+        lagged = self.mode == "lagged"
         self.b.scale(-1.0)
         try:
-            if self.linear_solver == "fieldsplit":
-                its = self._saddle_solve(eta)
-                ksp = self.saddle_ksp if self.saddle_ksp.getConvergedReason() > 0 else self.ksp
-            elif self.linear_solver == "iterative":
+            if self.mode == "fieldsplit":
+                its, ksp = self._fieldsplit_solve(eta)
+            elif self.mode == "iterative":
                 ksp = self.ksp
                 ksp.solve(self.b, self.du.vector)
                 its = ksp.getIterationNumber()
@@ -257,27 +309,26 @@ class LinearSolveMixin(SaddleSolveMixin):
                                                         self.du.vector, self._fallback_factor)
                     self.timings.factorizations += 1
             else:
-                self.krylov_solve(eta)
+                self.factor_solve(eta)
                 ksp = self.ksp
                 its = ksp.getIterationNumber()
                 if ksp.getConvergedReason() < 0 and lagged:
                     # the old factor is too far from this tangent: refactorize and solve again
                     self.refactor = True
-                    self.krylov_solve(eta)
+                    self.factor_solve(eta)
                     ksp = self.ksp
                     its += ksp.getIterationNumber()
         except PETSc.Error as exc:  # MUMPS on NaN entries (error 76) and the like
             log.debug("linear solve failed: %s", exc)
             self.refactor = True
             # the factor may be left half set up: the next solve builds a new one
-            self._factor_broken = self.linear_solver in ("direct", "lagged")
+            self._factor_broken = self.mode in ("direct", "lagged")
             return False
         finally:
             self.b.scale(-1.0)
-        if self.linear_solver != "direct":
+        if self.mode != "direct":
             self.timings.krylov_iterations += its
-            if lagged and its > self.settings.lag_max_its:
+            if lagged and its > self.lag_max_its:
                 self.refactor = True
         self.du.x.scatter_forward()
         return ksp.getConvergedReason() > 0
-

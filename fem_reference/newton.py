@@ -1,8 +1,8 @@
-"""Newton iterations and load stepping of the reference: residual-first Newton with a line
-search against inverted elements (with indenters, on the total energy, and a Levenberg-Marquardt
-shift of an indefinite tangent), secant predictor, automatic cut-back; the converged reason is
-checked every load step and a failure raises ConvergenceError carrying the last converged state.
-Units: mm, mN. Mixed into ReferenceSolver."""
+"""Newton's iterations at a fixed load on the reference's unknown (``Newton``): residual first,
+the tangent only when another correction is needed, a line search against inverted elements
+(with indenters, on the total energy, and a Levenberg-Marquardt shift of an indefinite
+tangent); and the assembly of the residual and tangent they iterate on. The load stepping
+around them is ``ReferenceSolver.solve``. Units: mm, mN."""
 from __future__ import annotations
 
 import math
@@ -16,13 +16,9 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from tissue_reference.meshes.case import Case
-from tissue_reference.meshes.errors import CaseError, ConvergenceError
-from tissue_reference.meshes.results import SolveResult
+from .newton_settings import NewtonSettings, Timings
 
-from .newton_settings import NewtonSettings, Timings, settings_json
-
-__all__ = ["NewtonMixin", "NewtonSettings", "settings_json"]
+__all__ = ["CONTRACTION", "Newton"]
 
 
 CONTRACTION = 0.5
@@ -31,20 +27,33 @@ fraction of the residual makes the rest of the load step's iterations use the ex
 (``NewtonSettings.contact_curvature_below``)."""
 
 
-class NewtonMixin:
-    """Load stepping and Newton on the solver's unknown (needs the forms, bcs and linear solves).
+class Newton:
+    """Newton on the unknown ``x`` (a dolfinx Function; corrections in ``du``) of the residual
+    form ``R_form`` and its tangent ``K_form`` (``K_halved_form``: without the tips' curvature,
+    or None), assembled into ``b`` and ``A``; ``linear`` (``linalg.LinearSolver``) solves for
+    the corrections, ``contact`` (``contact.Contact``) is the line search with indenters.
 
     Scale: the Dirichlet rows of the residual and of the tangent carry the stiffness E h_min
-    (mN/mm) instead of 1, so every row of the residual is a force (mN) proportional to E and the
-    relative tolerance means the same for every E; the absolute one is ``atol`` E h_min^2."""
+    (mN/mm, E the material's Constant, h_min the shortest cell edge) instead of 1, so every row
+    of the residual is a force (mN) proportional to E and the relative tolerance means the same
+    for every E; the absolute one is ``atol`` E h_min^2. ``umap``: the unknown's dof of each
+    displacement dof (the corrections' size is measured on the displacement). ``timings``: the
+    owner's per-solve counters."""
 
-    # terms added to the residual and tangent after assembly (e.g. the inertia of implicit-Euler
-    # dynamics, ``dynamics``): an object with add_residual(b, bcs) and add_tangent(A, bcs)
-    extra_terms = None
+    def __init__(self, *, x, du, A, b, R_form, K_form, K_halved_form, E, h_min: float, linear,
+                 contact, umap, comm, timings: Timings):
+        self.x, self.du, self.A, self.b = x, du, A, b
+        self.R_form, self.K_form, self.K_halved_form = R_form, K_form, K_halved_form
+        self.E, self.h_min, self.linear, self.contact = E, float(h_min), linear, contact
+        self.umap, self.comm, self.timings = umap, comm, timings
+        # terms added to the residual and tangent after assembly (e.g. the inertia of
+        # implicit-Euler dynamics, ``dynamics``): an object with add_residual(b, bcs) and
+        # add_tangent(A, bcs), and, for the energy line search, energy()
+        self.extra_terms = None
 
-    def _bc_stiffness(self) -> float:
+    def bc_stiffness(self) -> float:
         """E h_min (mN/mm): the diagonal of the Dirichlet rows."""
-        return float(self.E.value) * float(self.dm.h_min)
+        return float(self.E.value) * self.h_min
 
     def assemble_residual(self, bcs) -> float:
         """b = R(u) with the Dirichlet rows set to E h_min (u - g) (lifting included); returns
@@ -58,7 +67,7 @@ class NewtonMixin:
         b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         if self.extra_terms is not None:
             self.extra_terms.add_residual(b, bcs)
-        dolfinx.fem.petsc.set_bc(b, bcs, self.x.vector, -self._bc_stiffness())
+        dolfinx.fem.petsc.set_bc(b, bcs, self.x.vector, -self.bc_stiffness())
         self.timings.assemble += time.perf_counter() - t0
         return b.norm()
 
@@ -69,7 +78,7 @@ class NewtonMixin:
         self.A.zeroEntries()
         form = self.K_halved_form if drop and self.K_halved_form is not None else self.K_form
         dolfinx.fem.petsc.assemble_matrix(self.A, form, bcs=bcs,
-                                          diagonal=self._bc_stiffness())
+                                          diagonal=self.bc_stiffness())
         self.A.assemble()
         if self.extra_terms is not None:
             self.extra_terms.add_tangent(self.A, bcs)
@@ -83,9 +92,9 @@ class NewtonMixin:
         d.abs()
         d.scale(mu)
         self.A.setDiagonal(d, addv=PETSc.InsertMode.ADD_VALUES)
-        self.refactor = True
+        self.linear.refactor = True
 
-    def _correction(self, bcs, eta, drop, shift, test):
+    def _correction(self, s: NewtonSettings, bcs, eta, drop, shift, test):
         """Newton's correction du from the tangent (without the tips' curvature if ``drop``,
         shifted by ``shift`` |diag K| if > 0). ``test``: the energy's slope along du is computed
         and, with ``settings.descent_shift``, a correction that does not descend or whose
@@ -93,19 +102,18 @@ class NewtonMixin:
         curvature, then with the shift growing tenfold from descent_shift, four times at most
         (the last one is taken whatever it gives: the line search still guards the energy).
         Returns (ok, slope (uJ; None untested), drop, shift): the tangent used."""
-        s = self.settings
         while True:
             self.assemble_tangent(bcs, drop)
             if shift > 0:
                 self._shift_tangent(shift)
                 self.timings.shifts += 1
             t0 = time.perf_counter()
-            ok = self.linear_solve(eta)
+            ok = self.linear.solve(eta)
             self.timings.solve += time.perf_counter() - t0
             if not (ok and test):
                 return ok, None, drop, shift
             slope = self.b.dot(self.du.vector)  # b is the residual: the energy's gradient
-            if (slope < 0 and not self.negative_pivots) or s.descent_shift == 0 or \
+            if (slope < 0 and not self.linear.negative_pivots) or s.descent_shift == 0 or \
                     shift >= 999.0 * s.descent_shift:
                 return True, slope, drop, shift
             if not drop and self.K_halved_form is not None and \
@@ -114,18 +122,19 @@ class NewtonMixin:
             else:
                 shift = max(10.0 * shift, s.descent_shift)
 
-    def _newton(self, bcs, progress, label, rtol=None, atol_mm=None, trace=None):
-        """Newton iterations at fixed load; returns (converged, iterations, residual).
+    def iterate(self, s: NewtonSettings, bcs, progress, label, rtol=None, atol_mm=None,
+                trace=None):
+        """Newton iterations at fixed load with the settings ``s``; returns (converged,
+        iterations, residual).
 
         Residual first, tangent only when another correction is needed. A correction that
         inverts an element (non-finite residual) is halved up to ``settings.line_search`` times.
         ``trace`` (a list) gets the residual norm of every iterate.
         """
-        s = self.settings
         rtol = s.rtol if rtol is None else rtol
         atol_mm = s.atol_mm if atol_mm is None else atol_mm
         u, du = self.x, self.du
-        atol = s.atol * self._bc_stiffness() * float(self.dm.h_min)   # mN
+        atol = s.atol * self.bc_stiffness() * self.h_min   # mN
         r0 = rprev = None
         halved = False  # the last correction was halved
         exact = False   # the curvature-free matrix stalled: the exact tangent from here on
@@ -151,12 +160,13 @@ class NewtonMixin:
                 (halved and s.contact_curvature_after_halving == "drop")
                 or (not exact and rnorm > s.contact_curvature_below * r0))
             # the first correction of a load step also moves the Dirichlet values: not tested
-            ok, slope, drop, shift = self._correction(bcs, eta, drop, shift, energy and it > 1)
+            ok, slope, drop, shift = self._correction(s, bcs, eta, drop, shift,
+                                                      energy and it > 1)
             if not ok:
                 return False, it, rnorm
             # the largest displacement correction (mm; the pressure's, in kPa, is not compared)
             step = self.comm.allreduce(
-                float(np.abs(du.x.array[self._umap]).max(initial=0.0)), op=MPI.MAX)
+                float(np.abs(du.x.array[self.umap]).max(initial=0.0)), op=MPI.MAX)
             if not math.isfinite(step):
                 return False, it, float("nan")
             u_old = u.x.array.copy()
@@ -195,137 +205,3 @@ class NewtonMixin:
                 if step <= atol_mm and it > 1:
                     return True, it, rnorm
         return False, s.max_iterations, rnorm
-
-    def _max_prescribed(self, case, override):
-        m = np.abs(case.constraints.values).max(initial=0.0)
-        for b in case.boundaries:
-            if b.type == "sliding":
-                m = max(m, abs(float(b.value or 0.0)))
-        if override is not None:
-            m = max(m, np.abs(np.asarray(override[1], float)).max(initial=0.0))
-        return m
-
-    def solve(self, pushes=None, *, case: Case | None = None, initial=None, dirichlet_override=None,
-              progress: bool = False, cases_first=None) -> SolveResult:
-        """Solve ``case`` (default: the one given at construction) with ``pushes`` applied.
-
-        pushes: actuator name -> push (mm) along its direction.
-        initial: warm start: (n_vertices, gdim) in the Case numbering (at degree 2 the edge
-            nodes start at the mean of their end vertices), the full (n_nodes, gdim) degree-2
-            nodal state in Tangent node order, or a previous SolveResult of a reference solve on
-            this mesh (degree 2: its full nodal state); the load path starts from the case's
-            prescribed values at fraction 0 scaled from there.
-        dirichlet_override: (dofs, values): extra per-vertex prescriptions (node-major Case dofs,
-            mm at full load), degree 1.
-        Raises ConvergenceError (with ``last_converged`` SolveResult and the load fraction reached)
-        when a load step still fails after the cut-backs.
-        """
-        t_start = time.perf_counter()
-        self.timings = Timings(setup=self.timings.setup)  # per-solve counters
-        self._fresh_linear_state()   # nothing of an earlier solve steers this one
-        case = (case or self.case).with_pushes(pushes or {})
-        if case.mesh is not self.case.mesh:
-            raise CaseError("ReferenceSolver.solve: the case mesh differs from the solver's mesh")
-        if (case.material.model, case.material.volumetric) != \
-                (self.case.material.model, self.case.material.volumetric):
-            raise CaseError(f"ReferenceSolver.solve: the case's material law "
-                            f"({case.material.model}, volumetric {case.material.volumetric!r}) "
-                            f"differs from the solver's ({self.case.material.model}, volumetric "
-                            f"{self.case.material.volumetric!r}): build a solver for it")
-        self.E.value = case.material.E
-        self.nu.value = case.material.nu
-        self.inv_kappa.value = 3.0 * (1.0 - 2.0 * case.material.nu) / case.material.E
-        s = self.settings
-        warm = initial is not None
-        if warm:
-            self.set_state(initial)
-        else:
-            self.x.x.array[:] = 0.0
-        # Dirichlet data at full load; each load step sets g = start + lam (full - start), where
-        # start is the state's own boundary values (0 when cold), so a warm start ramps from
-        # where it is to the new prescriptions.
-        entries = self.dirichlet_bcs(case, 1.0, dirichlet_override)
-        bcs = [e[0] for e in entries]
-        ramps = []
-        span = 0.0
-        for _, gfun, parent, coll in entries:
-            garr = gfun.x.array
-            full = garr.copy()
-            start = np.zeros_like(full)
-            if warm:
-                start[coll] = self.x.x.array[parent]
-            ramps.append((garr, start, full))
-            span = max(span, np.abs(full[coll] - start[coll]).max(initial=0.0))
-        span = max(span, self.contact.ramps(case, ramps, initial))  # indenters' tips
-        span = self.comm.allreduce(span, op=MPI.MAX)
-        inc = 1.0 if span <= s.max_step_mm else s.max_step_mm / span
-        lam = 0.0
-        steps = iters = 0
-        last_good = self.x.x.array.copy()
-        residual = 0.0
-        # per load step reached; and per Newton iterate (failed steps too) its residual norm
-        # and the load fraction it was tried at
-        history = {"load_fraction": [], "newton_iterations": [], "residual": [],
-                   "iterate_residual": [], "iterate_load": []}
-        prev_good, prev_lam = None, 0.0
-        predict = s.predictor == "secant"
-        while lam < 1.0 - 1e-14:
-            trial = min(1.0, lam + inc)
-            for garr, start, full in ramps:
-                garr[:] = start + trial * (full - start)
-            self.load.value = 1.0 if warm else trial
-            if predict and prev_good is not None and lam > prev_lam:
-                # linear extrapolation of the load path (secant predictor)
-                self.x.x.array[:] += (trial - lam) / (lam - prev_lam) * (last_good - prev_good)
-                self.x.x.scatter_forward()
-            final = trial >= 1.0 - 1e-14
-            tol = {} if final else {"rtol": s.intermediate_rtol, "atol_mm": s.intermediate_atol_mm}
-            trace = history["iterate_residual"]
-            ok, it, res = self._newton(bcs, progress, f"load {trial:6.3f}", trace=trace, **tol)
-            iters += it
-            if not ok and predict and prev_good is not None:
-                # retry the same step from the last converged state, without the predictor
-                self.x.x.array[:] = last_good
-                self.x.x.scatter_forward()
-                ok, it, res = self._newton(bcs, progress, f"load {trial:6.3f}", trace=trace,
-                                           **tol)
-                iters += it
-            history["iterate_load"] += [trial] * (len(trace) - len(history["iterate_load"]))
-            if ok:
-                prev_good, prev_lam = last_good.copy(), lam
-                lam = trial
-                steps += 1
-                residual = res
-                last_good[:] = self.x.x.array
-                history["load_fraction"].append(lam)
-                history["newton_iterations"].append(it)
-                history["residual"].append(res)
-                if progress and self.comm.rank == 0:
-                    print(f"tissue fem: load fraction {lam:.4f} converged in {it} Newton "
-                          f"iterations (|R| {res:.2e})", file=sys.stderr, flush=True)
-                if it <= 5:
-                    inc *= s.grow
-            else:
-                self.x.x.array[:] = last_good
-                self.x.x.scatter_forward()
-                inc /= 2.0
-                if progress and self.comm.rank == 0:
-                    print(f"tissue fem: load fraction {trial:.4f} failed, cutting the step to "
-                          f"{inc:.4f}", file=sys.stderr, flush=True)
-                if inc < s.min_fraction:
-                    # the last converged state with its own prescriptions: the Dirichlet values
-                    # and the indenters' tips back where that state was solved
-                    for garr, start, full in ramps:
-                        garr[:] = start + lam * (full - start)
-                    self.load.value = 1.0 if warm else lam
-                    wall = time.perf_counter() - t_start
-                    last = self._result(case, False, iters, residual, wall, steps, history, lam)
-                    raise ConvergenceError(
-                        f"{case.source or case.name}: Newton did not converge beyond load fraction "
-                        f"{lam:.4f} (tried {trial:.4f}) after cut-backs down to {inc * 2:.2e}"
-                        f"{self.contact.failure_hint()}",
-                        load_fraction=lam, last_converged=last)
-        wall = time.perf_counter() - t_start
-        return self._result(case, True, iters, residual, wall, max(steps, 1), history, 1.0)
-
-    # ------------------------------------------------------------------ state I/O

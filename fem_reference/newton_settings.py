@@ -123,3 +123,9 @@ class Timings:
     krylov_iterations: int = 0
     preconditioner_builds: int = 0
     shifts: int = 0
+
+    def reset(self):
+        """Zero the counters of a new solve; the setup time stays."""
+        for name, value in vars(type(self)()).items():
+            if name != "setup":
+                setattr(self, name, value)

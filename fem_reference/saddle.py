@@ -18,7 +18,7 @@ iteration's tangent (the AMG hierarchy's Galerkin products are most of its cost)
 for the next ones while FGMRES, which always multiplies by the current tangent, needs at most
 LAG_GROWTH times the iterations it took when fresh (and at least LAG_MIN_ITS); past that, or
 when a lagged solve does not converge, it is rebuilt on the current tangent.
-Mixed into ReferenceSolver through LinearSolveMixin; units: mm, kPa, mN."""
+Owned by the reference's ``linalg.LinearSolver``; units: mm, kPa, mN."""
 from __future__ import annotations
 
 import logging
@@ -28,9 +28,8 @@ import dolfinx.fem
 import dolfinx.fem.petsc
 import numpy as np
 import ufl
+from dolfinx.la import orthonormalize
 from petsc4py import PETSc
-
-from .mumps import set_mumps_workspace
 
 log = logging.getLogger("tissue.fem")
 
@@ -64,9 +63,42 @@ LAG = True
 comparisons: bench/bench_mixed.py --lag)."""
 
 
-class SaddleSolveMixin:
-    """The "fieldsplit" linear solver of the mixed formulation (needs self.A, self.b, self.du,
-    self.W, self.V, self._umap, self._pmap, self.E, self.nu, self.inv_kappa, self.comm)."""
+class FieldSplit:
+    """The "fieldsplit" linear solve of the mixed formulation's tangent ``A`` (module docstring):
+    ``solve(b, x, eta)``. W, V: the mixed space and its collapsed displacement space; umap,
+    pmap: the W dof of each V / Q dof; E, nu, inv_kappa: the material's Constants (the Schur
+    preconditioner is reassembled when they change); dm: the DolfinxMesh."""
+
+    def __init__(self, A, *, W, V, umap, pmap, E, nu, inv_kappa, dm, comm):
+        self.A, self.W, self.V, self.umap, self.pmap = A, W, V, umap, pmap
+        self.E, self.nu, self.inv_kappa, self.dm, self.comm = E, nu, inv_kappa, dm, comm
+        self.gdim = int(V.dofmap.index_map_bs)
+        self.is_u, self.is_p, ns = self._split_sets()
+        # fieldsplit sets a near null space composed with a split's IS on that split's matrix
+        self.is_u.compose("nearnullspace", ns)
+        self._null_space = ns
+        opts = PETSc.Options()
+        for k, v in SADDLE_OPTIONS.items():
+            if not opts.hasName(SADDLE_PREFIX + k):
+                opts[SADDLE_PREFIX + k] = v
+        k = PETSc.KSP().create(comm)
+        k.setOptionsPrefix(SADDLE_PREFIX)
+        k.setOperators(A)
+        pc = k.getPC()
+        pc.setType("fieldsplit")
+        pc.setFieldSplitType(PETSc.PC.CompositeType.SCHUR)
+        pc.setFieldSplitIS(("u", self.is_u), ("p", self.is_p))
+        k.setPCSide(PETSc.PC.Side.RIGHT)
+        k.setFromOptions()
+        self.ksp = k
+        self._mp_form = None
+        self._sp_key = None
+        self._Sp = None
+        self.fresh_its = None  # iterations of the last solve with a freshly built preconditioner
+
+    def forget(self):
+        """Build the preconditioner afresh at the next solve."""
+        self.fresh_its = None
 
     def _split_sets(self):
         """Index sets (global W dofs, ascending) of the displacement (block size gdim: the
@@ -75,7 +107,7 @@ class SaddleSolveMixin:
         imap = self.W.dofmap.index_map
         n_own, first = imap.size_local, imap.local_range[0]
         d = self.gdim
-        umap = self._umap.reshape(-1, d)
+        umap = self.umap.reshape(-1, d)
         own = umap[:, 0] < n_own
         order = np.argsort(umap[own, 0], kind="stable")
         nodes = umap[own][order]  # (owned nodes, d) W dofs, ascending
@@ -84,7 +116,7 @@ class SaddleSolveMixin:
         is_u = PETSc.IS().createGeneral((nodes.ravel() + first).astype(PETSc.IntType),
                                         comm=self.comm)
         is_u.setBlockSize(d)
-        p = np.sort(self._pmap[self._pmap < n_own])
+        p = np.sort(self.pmap[self.pmap < n_own])
         is_p = PETSc.IS().createGeneral((p + first).astype(PETSc.IntType), comm=self.comm)
         # rigid-body modes at the owned displacement nodes, in is_u's order
         xv = self.V.tabulate_dof_coordinates()[:, :d]
@@ -104,8 +136,6 @@ class SaddleSolveMixin:
             v = PETSc.Vec().createMPI((m * d, PETSc.DECIDE), bsize=d, comm=self.comm)
             v.array[:] = mode.ravel()
             vecs.append(v)
-        from dolfinx.la import orthonormalize
-
         orthonormalize(vecs)
         return is_u, is_p, PETSc.NullSpace().create(vectors=vecs, comm=self.comm)
 
@@ -113,9 +143,9 @@ class SaddleSolveMixin:
         """-(1/mu + 1/kappa) M_p on the pressure set (kPa^-1 mm^3), reassembled when E or nu
         changed since the last one."""
         key = (float(self.E.value), float(self.nu.value), float(self.inv_kappa.value))
-        if getattr(self, "_sp_key", None) == key:
+        if self._sp_key == key:
             return self._Sp
-        if getattr(self, "_mp_form", None) is None:
+        if self._mp_form is None:
             _, p = ufl.TrialFunctions(self.W)
             _, q = ufl.TestFunctions(self.W)
             mu = self.E / (2 * (1 + self.nu))
@@ -123,77 +153,41 @@ class SaddleSolveMixin:
             self._mp_form = dolfinx.fem.form(-(1 / mu + self.inv_kappa) * p * q * dx)
         Mw = dolfinx.fem.petsc.assemble_matrix(self._mp_form)
         Mw.assemble()
-        Sp = Mw.createSubMatrix(self._is_p, self._is_p)
+        Sp = Mw.createSubMatrix(self.is_p, self.is_p)
         Mw.destroy()
         Sp.setOption(PETSc.Mat.Option.SYMMETRIC, True)
         self._Sp, self._sp_key = Sp, key
-        self._fresh_its = None  # a new Schur block: the lagged preconditioner is rebuilt
-        self.saddle_ksp.getPC().setFieldSplitSchurPreType(PETSc.PC.SchurPreType.USER, Sp)
+        self.fresh_its = None  # a new Schur block: the lagged preconditioner is rebuilt
+        self.ksp.getPC().setFieldSplitSchurPreType(PETSc.PC.SchurPreType.USER, Sp)
         return Sp
 
-    def _use_fieldsplit(self):
-        """Build the fieldsplit KSP on self.A (and the MUMPS KSP it falls back on)."""
-        self._is_u, self._is_p, ns = self._split_sets()
-        # fieldsplit sets a near null space composed with a split's IS on that split's matrix
-        self._is_u.compose("nearnullspace", ns)
-        self._saddle_ns = ns
-        opts = PETSc.Options()
-        for k, v in SADDLE_OPTIONS.items():
-            if not opts.hasName(SADDLE_PREFIX + k):
-                opts[SADDLE_PREFIX + k] = v
-        k = PETSc.KSP().create(self.comm)
-        k.setOptionsPrefix(SADDLE_PREFIX)
-        k.setOperators(self.A)
-        pc = k.getPC()
-        pc.setType("fieldsplit")
-        pc.setFieldSplitType(PETSc.PC.CompositeType.SCHUR)
-        pc.setFieldSplitIS(("u", self._is_u), ("p", self._is_p))
-        k.setPCSide(PETSc.PC.Side.RIGHT)
-        k.setFromOptions()
-        self.saddle_ksp = k
-        self._sp_key = None
-        self._fresh_its = None  # iterations of the last solve with a freshly built preconditioner
-        self._use_fallback_factor()
-
-    def _use_fallback_factor(self):
-        """The fallback: MUMPS LDL^T of A itself (refactorized whenever A changed)."""
-        self.use_factor("mumps")
-        self.ksp.setOperators(self.A, self.A)
-        set_mumps_workspace(self.ksp, self.mumps_workspace)
-
-    def _saddle_solve(self, eta: float) -> int:
-        """du = A^-1 b (b: the negated residual) by fieldsplit FGMRES at relative tolerance
-        ``eta``, the preconditioner lagged (module docstring); a solve that does not converge
-        with a fresh preconditioner is redone by the MUMPS fallback (self.ksp). Returns the
-        Krylov iterations."""
+    def solve(self, b, x, eta: float) -> tuple[int, int, bool]:
+        """x = A^-1 b by fieldsplit FGMRES at relative tolerance ``eta``, the preconditioner
+        lagged (module docstring). Returns (Krylov iterations, preconditioners built,
+        converged); a solve that does not converge with a fresh preconditioner is left to the
+        caller's factorization."""
         self._schur_preconditioner()
-        k = self.saddle_ksp
+        k = self.ksp
         k.setTolerances(rtol=eta, atol=1e-300)
-        total = 0
+        total = built = 0
         while True:
-            fresh = self._fresh_its is None or not LAG
+            fresh = self.fresh_its is None or not LAG
             k.getPC().setReusePreconditioner(not fresh)
-            k.solve(self.b, self.du.vector)
+            k.solve(b, x)
             its = k.getIterationNumber()
             total += its
             if k.getConvergedReason() > 0:
                 if fresh:
-                    self.timings.preconditioner_builds += 1
-                    self._fresh_its = its
-                elif its > max(LAG_GROWTH * self._fresh_its, LAG_MIN_ITS):
-                    self._fresh_its = None  # too far from this tangent: rebuild next time
-                return total
+                    built += 1
+                    self.fresh_its = its
+                elif its > max(LAG_GROWTH * self.fresh_its, LAG_MIN_ITS):
+                    self.fresh_its = None  # too far from this tangent: rebuild next time
+                return total, built, True
             if fresh:
                 break
             log.debug("lagged fieldsplit preconditioner: no convergence in %d iterations, "
                       "rebuilding it on the current tangent", its)
-            self._fresh_its = None
+            self.fresh_its = None
         log.info("fieldsplit FGMRES did not converge (reason %d after %d iterations): "
                  "solving with the MUMPS factorization", k.getConvergedReason(), its)
-        while True:
-            if self._factor_broken:
-                self._use_fallback_factor()
-            self.ksp.solve(self.b, self.du.vector)
-            self.timings.factorizations += 1
-            if not self._after_mumps_failure(self.ksp):
-                return total
+        return total, built, False

@@ -9,16 +9,23 @@ numbering and identical on all ranks.
     res = ref.solve(pushes={"A1": 15.0})      # SolveResult
     tan = ref.tangent(res)                    # exact tangent K as scipy CSR
 
-The concerns live in their own modules, mixed into ReferenceSolver: ``forms`` (energies),
-``boundary`` (Dirichlet conditions), ``newton`` (Newton and load stepping; its settings in
-``newton_settings``), ``linalg`` (factorizations and Krylov solves), ``outputs`` (states,
-probes, reactions, tangent export); its defaults (degree, formulation, quadrature) are
-``discretization``'s. ``kept`` keeps solvers for reuse and ``answer`` composes the one-call
-``solve``; ``petsc_memory`` frees a solver's PETSc memory (``close``).
+This module holds the solver's forms, spaces and load stepping (``ReferenceSolver.solve``).
+The solver owns one object per concern, each in a module of its own: ``state``
+(``outputs_state.NodalState``: the fields' numbering, states in and out), ``boundary``
+(``boundary.Boundary``: Dirichlet conditions), ``contact`` (``contact.Contact``: rigid tips),
+``linear`` (``linalg.LinearSolver``: factorizations and Krylov solves; the mixed
+formulation's fieldsplit in ``saddle``) and ``newton`` (``newton.Newton``: iterations at a fixed
+load and the assembly they iterate on; settings in ``newton_settings``). What it hands out is
+``outputs`` (the SolveResult, probes, reactions, discretization) and ``outputs_tangent`` (the
+exact tangent and internal forces), functions of a solver. The energies are ``forms``; the
+defaults (degree, formulation, quadrature) ``discretization``'s. ``kept`` keeps solvers for
+reuse and ``answer`` composes the one-call ``solve``; ``petsc_memory`` frees a solver's PETSc
+memory (``close``).
 """
 from __future__ import annotations
 
 import logging
+import sys
 import time
 
 import dolfinx
@@ -30,10 +37,11 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from tissue_reference.meshes.case import Case, Material
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.meshes.results import SolveResult
 from tissue_reference.meshes.tips import default_contact_rule, default_tip_start
 
-from .boundary import BoundaryMixin
+from .boundary import Boundary
 from .contact import DEFAULT_CONTACT_PENALTY, Contact
 from .discretization import (
     DEFAULT_QUADRATURE,
@@ -44,11 +52,15 @@ from .discretization import (
 )
 from .dolfinx_mesh import DolfinxMesh, to_dolfinx
 from .forms import mixed_energy_density, strain_energy_density
-from .linalg import FIELDSPLIT_ABOVE_DOFS, LAGGED_ABOVE_DOFS, LinearSolveMixin, has_cholmod
+from .linalg import FIELDSPLIT_ABOVE_DOFS, LAGGED_ABOVE_DOFS, LinearSolver, has_cholmod
 from .logs import install_log_filters
-from .newton import NewtonMixin, NewtonSettings, Timings
-from .outputs import OutputsMixin, Tangent
+from .newton import Newton
+from .newton_settings import NewtonSettings, Timings
+from .outputs import discretization, solve_result
+from .outputs_state import NodalState
+from .outputs_tangent import Tangent, internal_forces, tangent
 from .petsc_memory import release_petsc_garbage
+from .saddle import FieldSplit
 
 __all__ = [
     "DEFAULT_QUADRATURE",
@@ -63,7 +75,7 @@ __all__ = [
 log = logging.getLogger("tissue.fem")
 install_log_filters()
 
-class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin):
+class ReferenceSolver:
     """Neo-Hookean / linear-elastic reference on one Case mesh; build once, solve many times.
 
     Args:
@@ -141,12 +153,16 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
         mesh = self.dm.mesh
         self.gdim = case.mesh.gdim
         self._spaces(mesh, degree)
-        self._node_map()
         # material and loads as Constants: a changed E or load scale needs no recompilation
         self.E = dolfinx.fem.Constant(mesh, PETSc.ScalarType(case.material.E))
         self.nu = dolfinx.fem.Constant(mesh, PETSc.ScalarType(case.material.nu))
         self.inv_kappa = dolfinx.fem.Constant(mesh, PETSc.ScalarType(_inv_kappa(case.material)))
         self.load = dolfinx.fem.Constant(mesh, PETSc.ScalarType(1.0))
+        # the fields' numbering: dolfinx's nodes <-> the Case's vertices, states in and out
+        self.state = NodalState(V=self.V, Q=self.Q, x=self.x, u=self.u, p=self.p, umap=self._umap,
+                                pmap=getattr(self, "_pmap", None), dm=self.dm,
+                                n_vertices=case.mesh.n_vertices, degree=degree, comm=comm,
+                                material=case.material, inv_kappa=self.inv_kappa, qdeg=self.qdeg)
         E, nu = self.E, self.nu
         mu = E / (2 * (1 + nu))
         u = self.u_ufl
@@ -176,18 +192,24 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
                 self.tractions[b.region] = t
                 external = external + ufl.inner(t, u) * ds(self.dm.region_tags[b.region])
         penalty = 0
-        self._oblique = []
+        oblique = []   # sliding regions whose normal is not an axis: held by a penalty
         for b in case.boundaries:
             if b.type == "sliding":
                 n = np.asarray(b.normal, float)
                 n = n / np.linalg.norm(n)
                 if np.count_nonzero(np.abs(n) > 1e-12) > 1:
-                    self._oblique.append(b.region)
+                    oblique.append(b.region)
                     nn = ufl.as_vector(n.tolist())
                     gval = dolfinx.fem.Constant(mesh, PETSc.ScalarType(float(b.value or 0.0)))
                     beta = sliding_penalty * case.material.E / self.dm.h_min
                     penalty = penalty + beta / 2 * (ufl.dot(u, nn) - self.load * gval) ** 2 * \
                         ds(self.dm.region_tags[b.region])
+        # the Dirichlet conditions and the nodes of each facet region (``boundary``)
+        self.boundary = Boundary(Wu=self.Wu, V=self.V, dm=self.dm, gdim=self.gdim,
+                                 oblique=oblique, degree=degree,
+                                 node_vertex=self.state.node_vertex,
+                                 n_vertices=case.mesh.n_vertices,
+                                 n_unknowns=len(self.x.x.array), umap=self._umap)
         if contact_quadrature is None:
             contact_quadrature = default_contact_rule(case)
         self.contact = Contact(self, case, penalty=contact_penalty,  # rigid indenters
@@ -239,31 +261,29 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
         self.b = dolfinx.fem.petsc.create_vector(self.R_form)
         # The tangent is symmetric (Dirichlet rows and columns are both zeroed).
         self.A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
-        self.refactor = True
-        if linear_solver == "iterative":
-            # CG + smoothed-aggregation AMG with the rigid-body modes as near null space;
-            # tight tolerance so Newton keeps its quadratic convergence; MUMPS as the fallback
-            self.ksp = PETSc.KSP().create(comm)
-            self.ksp.setOperators(self.A)
-            self.ksp.setType("cg")
-            self.ksp.setTolerances(rtol=1e-10, atol=1e-14, max_it=2000)
-            self.ksp.getPC().setType("gamg")
-            self.A.setNearNullSpace(self._rigid_body_nullspace())
-            self.direct_ksp = self._factor_ksp("mumps")
-        elif linear_solver == "fieldsplit":
+        fieldsplit = None
+        if linear_solver == "fieldsplit":
             # FGMRES + Schur-complement fieldsplit (``saddle``), MUMPS as the fallback
-            self._use_fieldsplit()
-        else:
-            # serial "lagged": CHOLMOD's supernodal LL^T (METIS ordering) factorizes ~1.6x and
-            # solves ~3x faster than MUMPS here; a tangent that is not positive definite switches
-            # the solver to MUMPS LDL^T, which "direct" (exact solves of indefinite tangents),
-            # the mixed formulation's saddle-point tangent and MPI runs always use.
-            pkg = "cholmod" if linear_solver == "lagged" and comm.size == 1 and has_cholmod() \
-                and self.formulation == "displacement" else "mumps"
-            self.use_factor(pkg)
-            self._first_factor_package = pkg
-        self._region_dofs = {}
-        self.timings = Timings(setup=time.perf_counter() - t0)
+            fieldsplit = FieldSplit(self.A, W=self.W, V=self.V, umap=self._umap, pmap=self._pmap,
+                                    E=self.E, nu=self.nu, inv_kappa=self.inv_kappa, dm=self.dm,
+                                    comm=comm)
+        # serial "lagged": CHOLMOD's supernodal LL^T (METIS ordering) factorizes ~1.6x and
+        # solves ~3x faster than MUMPS here; a tangent that is not positive definite switches
+        # the solver to MUMPS LDL^T, which "direct" (exact solves of indefinite tangents),
+        # the mixed formulation's saddle-point tangent and MPI runs always use.
+        pkg = "cholmod" if linear_solver == "lagged" and comm.size == 1 and has_cholmod() \
+            and self.formulation == "displacement" else "mumps"
+        # Newton's linear solves (``linalg``): the factorizations, Krylov solves and their state
+        self.timings = Timings()   # per-solve counters, shared with the parts below
+        self.linear = LinearSolver(self.A, self.b, self.du, mode=linear_solver, comm=comm,
+                                   lag_max_its=self.settings.lag_max_its, V=self.V, package=pkg,
+                                   fieldsplit=fieldsplit, timings=self.timings)
+        # Newton's iterations at a fixed load and the assembly they iterate on (``newton``)
+        self.newton = Newton(x=self.x, du=self.du, A=self.A, b=self.b, R_form=self.R_form,
+                             K_form=self.K_form, K_halved_form=self.K_halved_form, E=self.E,
+                             h_min=float(self.dm.h_min), linear=self.linear, contact=self.contact,
+                             umap=self._umap, comm=comm, timings=self.timings)
+        self.timings.setup = time.perf_counter() - t0
 
     def close(self) -> None:
         """Free the solver's matrices, vectors and factorizations now; it cannot solve again.
@@ -289,12 +309,161 @@ class ReferenceSolver(BoundaryMixin, LinearSolveMixin, NewtonMixin, OutputsMixin
                                f"build a new one")
         raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
+    def solve(self, pushes=None, *, case: Case | None = None, initial=None, dirichlet_override=None,
+              progress: bool = False, cases_first=None) -> SolveResult:
+        """Solve ``case`` (default: the one given at construction) with ``pushes`` applied.
+
+        pushes: actuator name -> push (mm) along its direction.
+        initial: warm start: (n_vertices, gdim) in the Case numbering (at degree 2 the edge
+            nodes start at the mean of their end vertices), the full (n_nodes, gdim) degree-2
+            nodal state in Tangent node order, or a previous SolveResult of a reference solve on
+            this mesh (degree 2: its full nodal state); the load path starts from the case's
+            prescribed values at fraction 0 scaled from there.
+        dirichlet_override: (dofs, values): extra per-vertex prescriptions (node-major Case dofs,
+            mm at full load), degree 1.
+        Raises ConvergenceError (with ``last_converged`` SolveResult and the load fraction reached)
+        when a load step still fails after the cut-backs.
+        """
+        t_start = time.perf_counter()
+        self.timings.reset()   # per-solve counters
+        self.linear.fresh()   # nothing of an earlier solve steers this one
+        case = (case or self.case).with_pushes(pushes or {})
+        if case.mesh is not self.case.mesh:
+            raise CaseError("ReferenceSolver.solve: the case mesh differs from the solver's mesh")
+        if (case.material.model, case.material.volumetric) != \
+                (self.case.material.model, self.case.material.volumetric):
+            raise CaseError(f"ReferenceSolver.solve: the case's material law "
+                            f"({case.material.model}, volumetric {case.material.volumetric!r}) "
+                            f"differs from the solver's ({self.case.material.model}, volumetric "
+                            f"{self.case.material.volumetric!r}): build a solver for it")
+        self.E.value = case.material.E
+        self.nu.value = case.material.nu
+        self.inv_kappa.value = 3.0 * (1.0 - 2.0 * case.material.nu) / case.material.E
+        s = self.settings
+        warm = initial is not None
+        if warm:
+            self.state.set_state(initial)
+        else:
+            self.x.x.array[:] = 0.0
+        # Dirichlet data at full load; each load step sets g = start + lam (full - start), where
+        # start is the state's own boundary values (0 when cold), so a warm start ramps from
+        # where it is to the new prescriptions.
+        entries = self.boundary.dirichlet_bcs(case, 1.0, dirichlet_override)
+        bcs = [e[0] for e in entries]
+        ramps = []
+        span = 0.0
+        for _, gfun, parent, coll in entries:
+            garr = gfun.x.array
+            full = garr.copy()
+            start = np.zeros_like(full)
+            if warm:
+                start[coll] = self.x.x.array[parent]
+            ramps.append((garr, start, full))
+            span = max(span, np.abs(full[coll] - start[coll]).max(initial=0.0))
+        span = max(span, self.contact.ramps(case, ramps, initial))  # indenters' tips
+        span = self.comm.allreduce(span, op=MPI.MAX)
+        inc = 1.0 if span <= s.max_step_mm else s.max_step_mm / span
+        lam = 0.0
+        steps = iters = 0
+        last_good = self.x.x.array.copy()
+        residual = 0.0
+        # per load step reached; and per Newton iterate (failed steps too) its residual norm
+        # and the load fraction it was tried at
+        history = {"load_fraction": [], "newton_iterations": [], "residual": [],
+                   "iterate_residual": [], "iterate_load": []}
+        prev_good, prev_lam = None, 0.0
+        predict = s.predictor == "secant"
+        while lam < 1.0 - 1e-14:
+            trial = min(1.0, lam + inc)
+            for garr, start, full in ramps:
+                garr[:] = start + trial * (full - start)
+            self.load.value = 1.0 if warm else trial
+            if predict and prev_good is not None and lam > prev_lam:
+                # linear extrapolation of the load path (secant predictor)
+                self.x.x.array[:] += (trial - lam) / (lam - prev_lam) * (last_good - prev_good)
+                self.x.x.scatter_forward()
+            final = trial >= 1.0 - 1e-14
+            tol = {} if final else {"rtol": s.intermediate_rtol, "atol_mm": s.intermediate_atol_mm}
+            trace = history["iterate_residual"]
+            ok, it, res = self.newton.iterate(s, bcs, progress, f"load {trial:6.3f}", trace=trace, **tol)
+            iters += it
+            if not ok and predict and prev_good is not None:
+                # retry the same step from the last converged state, without the predictor
+                self.x.x.array[:] = last_good
+                self.x.x.scatter_forward()
+                ok, it, res = self.newton.iterate(s, bcs, progress, f"load {trial:6.3f}",
+                                                  trace=trace, **tol)
+                iters += it
+            history["iterate_load"] += [trial] * (len(trace) - len(history["iterate_load"]))
+            if ok:
+                prev_good, prev_lam = last_good.copy(), lam
+                lam = trial
+                steps += 1
+                residual = res
+                last_good[:] = self.x.x.array
+                history["load_fraction"].append(lam)
+                history["newton_iterations"].append(it)
+                history["residual"].append(res)
+                if progress and self.comm.rank == 0:
+                    print(f"tissue fem: load fraction {lam:.4f} converged in {it} Newton "
+                          f"iterations (|R| {res:.2e})", file=sys.stderr, flush=True)
+                if it <= 5:
+                    inc *= s.grow
+            else:
+                self.x.x.array[:] = last_good
+                self.x.x.scatter_forward()
+                inc /= 2.0
+                if progress and self.comm.rank == 0:
+                    print(f"tissue fem: load fraction {trial:.4f} failed, cutting the step to "
+                          f"{inc:.4f}", file=sys.stderr, flush=True)
+                if inc < s.min_fraction:
+                    # the last converged state with its own prescriptions: the Dirichlet values
+                    # and the indenters' tips back where that state was solved
+                    for garr, start, full in ramps:
+                        garr[:] = start + lam * (full - start)
+                    self.load.value = 1.0 if warm else lam
+                    wall = time.perf_counter() - t_start
+                    last = solve_result(self, case, False, iters, residual, wall, steps,
+                                        history, lam)
+                    raise ConvergenceError(
+                        f"{case.source or case.name}: Newton did not converge beyond load fraction "
+                        f"{lam:.4f} (tried {trial:.4f}) after cut-backs down to {inc * 2:.2e}"
+                        f"{self.contact.failure_hint()}",
+                        load_fraction=lam, last_converged=last)
+        wall = time.perf_counter() - t_start
+        return solve_result(self, case, True, iters, residual, wall, max(steps, 1), history, 1.0)
+
+    def set_state(self, initial, *, exact: bool = False):
+        """Load a displacement state into the solver's fields (``NodalState.set_state``)."""
+        self.state.set_state(initial, exact=exact)
+
+    def node_points(self):
+        """(n_nodes, gdim) reference coordinates (mm) of the displacement nodes in the Tangent
+        node order (Case vertices first, then the degree-2 edge nodes); serial."""
+        return self.state.node_points()
+
+    def gather_nodes(self, local_array):
+        """(n_global_nodes, gdim) array of a nodal field (owned values), on every rank."""
+        return self.state.gather_nodes(local_array)
+
+    def tangent(self, u=None, *, pushes=None) -> Tangent:
+        """Exact tangent K at state ``u`` (default: the current one): ``outputs_tangent``."""
+        return tangent(self, u, pushes=pushes)
+
+    def internal_forces(self, u=None):
+        """Node-major f_int - f_ext (mN) at state ``u``: ``outputs_tangent``."""
+        return internal_forces(self, u)
+
+    def discretization(self) -> dict:
+        """What the reference solved: formulation, degrees, geometry order, cells and dofs."""
+        return discretization(self)
+
     def _spaces(self, mesh, degree):
         """The unknown ``x`` on the space ``W`` and the displacement ``u`` on ``V``.
 
         Displacement formulation: W = V (vector Lagrange of ``degree``) and x is u. Mixed: W is
         Taylor-Hood (vector P2 x P1); u and the pressure p are collapsed copies of x's parts,
-        refreshed after every solve (``_sync_fields``); ``_umap`` / ``_pmap`` give the W dof of
+        refreshed after every solve (``NodalState.sync``); ``_umap`` / ``_pmap`` give the W dof of
         each V / Q dof."""
         cell = mesh.ufl_cell()
         if self.formulation == "mixed":

@@ -305,16 +305,16 @@ def test_the_factorization_reports_the_tangents_negative_pivots(block, package):
     refuses the indefinite one and hands it to MUMPS LDL^T, which counts them."""
     case = quarter_case(block, sphere(2.0), model="neo-hookean")
     s = fr.ReferenceSolver(case, degree=1, linear_solver="direct")
-    s.use_factor(package)
-    bcs = [e[0] for e in s.dirichlet_bcs(case, 1.0, None)]
-    s.assemble_residual(bcs)
-    s.assemble_tangent(bcs)
-    assert s.linear_solve(1e-8)
-    assert s.negative_pivots == 0
-    s.assemble_tangent(bcs)
+    s.linear.use_factor(package)
+    bcs = [e[0] for e in s.boundary.dirichlet_bcs(case, 1.0, None)]
+    s.newton.assemble_residual(bcs)
+    s.newton.assemble_tangent(bcs)
+    assert s.linear.solve(1e-8)
+    assert s.linear.negative_pivots == 0
+    s.newton.assemble_tangent(bcs)
     s.A.scale(-1.0)
-    s.refactor = True
-    assert s.linear_solve(1e-8)
-    assert s.factor_package == "mumps"
+    s.linear.refactor = True
+    assert s.linear.solve(1e-8)
+    assert s.linear.factor_package == "mumps"
     # the Dirichlet rows (E h on the diagonal) turn negative too: every row is
-    assert s.negative_pivots == s.A.getSize()[0]
+    assert s.linear.negative_pivots == s.A.getSize()[0]

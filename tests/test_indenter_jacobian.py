@@ -9,7 +9,7 @@ import pytest
 import tissue_reference.fem_reference as fr
 from tissue_reference.control.plants import build_loop, jacobian_at
 from tissue_reference.fem_reference.contact_jacobian import indenter_jacobian
-from tissue_reference.fem_reference.newton import NewtonSettings
+from tissue_reference.fem_reference.newton_settings import NewtonSettings
 from tissue_reference.meshes.builders import box
 from tissue_reference.meshes.case import Actuator, Boundary, Case, Material, Probe
 from tissue_reference.meshes.errors import CaseError

@@ -17,7 +17,7 @@ import scipy.sparse as sp
 from petsc4py import PETSc
 
 import tissue_reference.fem_reference as fr
-from tissue_reference.fem_reference.linalg import LinearSolveMixin
+from tissue_reference.fem_reference.linalg import LinearSolver
 from tissue_reference.fem_reference.mumps import mumps_failure, set_mumps_workspace, solve_mumps
 from tissue_reference.meshes.case import load_case
 
@@ -32,28 +32,24 @@ def _zero_diagonal_matrix(m=1000, density=0.001):
     return sp.bmat([[None, C], [C.T, None]]).tocsr()
 
 
-class _BareSolve(LinearSolveMixin):
-    """Just what the factorizing solve reads: the matrix, right-hand side and unknown."""
-
-    def __init__(self, M, workspace):
-        self.comm = PETSc.COMM_SELF
-        self.A = PETSc.Mat().createAIJ(M.shape, comm=self.comm, csr=(
-            M.indptr.astype(PETSc.IntType), M.indices.astype(PETSc.IntType), M.data))
-        self.A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
-        self.b, x = self.A.createVecLeft(), self.A.createVecRight()
-        self.du = SimpleNamespace(vector=x)
-        self.linear_solver = "direct"
-        self.timings = SimpleNamespace(factorizations=0)
-        self.mumps_workspace = workspace
-        self.use_factor("mumps")
+def _bare_solve(M, workspace):
+    """A direct MUMPS LinearSolver of the matrix M alone, its workspace ICNTL(14) = workspace."""
+    A = PETSc.Mat().createAIJ(M.shape, comm=PETSc.COMM_SELF, csr=(
+        M.indptr.astype(PETSc.IntType), M.indices.astype(PETSc.IntType), M.data))
+    A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+    b, x = A.createVecLeft(), A.createVecRight()
+    s = LinearSolver(A, b, SimpleNamespace(vector=x), mode="direct", comm=PETSc.COMM_SELF)
+    s.mumps_workspace = workspace
+    s.use_factor("mumps")
+    return s
 
 
 def test_workspace_too_small_is_grown_and_the_solve_repeated():
     M = _zero_diagonal_matrix()
     rhs = np.random.default_rng(0).standard_normal(M.shape[0])
-    s = _BareSolve(M, workspace=0)
+    s = _bare_solve(M, workspace=0)
     s.b.array[:] = rhs
-    s.krylov_solve(1e-8)
+    s.factor_solve(1e-8)
     # the first factorization failed for want of workspace and a grown one solved the system
     assert s.mumps_workspace > 0
     assert s.timings.factorizations >= 2
@@ -122,12 +118,12 @@ def test_a_singular_tangent_does_not_break_later_solves():
     pushes = {"A1": 4.0, "A3": 2.0}
     expected = fr.ReferenceSolver(case, degree=1, linear_solver="direct").solve(pushes).probes
     s = fr.ReferenceSolver(case, degree=1, linear_solver="direct")
-    assert s.factor_package == "mumps"
+    assert s.linear.factor_package == "mumps"
     assert s.solve({"A1": 1.0}).converged  # an assembled tangent, factorized
     s.A.scale(0.0)  # the same pattern, all zero: MUMPS's factorization fails (singular)
     s.b.set(1.0)
-    assert not s.linear_solve(1e-3)
-    assert s.ksp.getPC().getFactorMatrix().getMumpsInfog(1) < 0
+    assert not s.linear.solve(1e-3)
+    assert s.linear.ksp.getPC().getFactorMatrix().getMumpsInfog(1) < 0
     r = s.solve(pushes)
     assert r.converged
     for name, u in expected.items():

@@ -209,16 +209,16 @@ def test_lagged_solver_switches_to_mumps_when_the_tangent_is_not_positive_defini
 
     case = load_case("meshes/cases/phantom.toml", size=16).with_pushes({"A1": 3.0})
     s = fr.ReferenceSolver(case, linear_solver="lagged")
-    if s.factor_package != "cholmod":
+    if s.linear.factor_package != "cholmod":
         pytest.skip("this PETSc has no CHOLMOD")
-    bcs = [e[0] for e in s.dirichlet_bcs(case, 1.0)]
-    s.assemble_residual(bcs)
-    s.assemble_tangent(bcs)
+    bcs = [e[0] for e in s.boundary.dirichlet_bcs(case, 1.0)]
+    s.newton.assemble_residual(bcs)
+    s.newton.assemble_tangent(bcs)
     s.A.scale(-1.0)  # negative definite: what CHOLMOD must refuse
-    assert s.linear_solve(1e-12)
-    assert s.factor_package == "mumps"
+    assert s.linear.solve(1e-12)
+    assert s.linear.factor_package == "mumps"
     r = s.b.duplicate()
     s.A.mult(s.du.vector, r)
     r.axpy(1.0, s.b)  # A du = -b
     assert r.norm() <= 1e-9 * s.b.norm()
-    assert isinstance(s.P, PETSc.Mat) and s.P.getType() == "seqsbaij"
+    assert isinstance(s.linear.P, PETSc.Mat) and s.linear.P.getType() == "seqsbaij"

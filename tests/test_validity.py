@@ -137,7 +137,7 @@ def test_a_degree_2_field_folded_between_its_vertices_is_reported_inverted():
     case = Case(m, Material("neo-hookean", E=6.0, nu=0.45), **BOX_CASE)
     s = ReferenceSolver(case, degree=2)
     c = 0.5
-    nodes = np.zeros((len(s.node_vertex), 3))
+    nodes = np.zeros((len(s.state.node_vertex), 3))
     nodes[m.n_vertices:, 0] = c
     s.set_state(nodes, exact=True)
     P = m.points[m.cells]                                    # (cells, 4, 3)

@@ -43,7 +43,7 @@ def run(args) -> int:
         run_study,
         study_to_json,
     )
-    from tissue_reference.fem_reference.newton import settings_json
+    from tissue_reference.fem_reference.newton_settings import settings_json
     from tissue_reference.fem_reference.solver import resolve_formulation
 
     check_outputs(args, files=("json",), dirs=("out",))

@@ -59,12 +59,12 @@ _NOT_SETTINGS = {"case", "pushes", "initial", "callback", "progress", "factorize
 
 def solver_settings(name: str, **given) -> dict:
     """The settings a solve by ``name`` ran with, JSON-ready: for the reference its Newton and
-    load-stepping controls (``fem_reference.newton.NewtonSettings``, which the command line
+    load-stepping controls (``fem_reference.newton_settings.NewtonSettings``, which the command line
     leaves at their defaults), for a fast solver the defaults of its ``solve`` keywords (null:
     the solver picks the value itself); ``given`` (what the command chose) goes over them."""
     if name == "fem":
         # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-        from tissue_reference.fem_reference.newton import settings_json
+        from tissue_reference.fem_reference.newton_settings import settings_json
 
         return {**settings_json(), **given}
     solve = admm.solve if name == "admm" else mass_tensor.solve

@@ -167,7 +167,7 @@ def _options(solver, problem) -> dict:
     plugin."""
     if solver == "fem":
         # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-        from tissue_reference.fem_reference.newton import settings_json
+        from tissue_reference.fem_reference.newton_settings import settings_json
 
         return {**problem.reference, **settings_json()}
 

@@ -126,7 +126,7 @@ class _References:
         if self.user is not None:
             return None
         # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-        from tissue_reference.fem_reference.newton import settings_json
+        from tissue_reference.fem_reference.newton_settings import settings_json
 
         return {"degree": degree, "formulation": formulation, **settings_json()}
 
