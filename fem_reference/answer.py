@@ -29,9 +29,10 @@ def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None,
     pushes: actuator name -> push (mm); initial: warm start (n_vertices, gdim) mm;
     dirichlet_override: (node-major Case dofs, values in mm) added to the Case's prescriptions.
     estimate: add the estimated discretization error (``fem_reference.estimate``: one more solve
-    at degree + 1) to ``extra``: probe_error_estimates (mm), reaction_error_estimates (mN), ...;
-    "auto": only where that is cheap (``estimate.auto_estimate``; otherwise
-    ``estimate_note`` says why there is none), as ``tissue solve`` does by default.
+    at degree + 1): the fields probe_error_estimates (mm) and reaction_error_estimates (mN),
+    the method and its cost in ``extra``; "auto": only where that is cheap
+    (``estimate.auto_estimate``; otherwise the field ``estimate_note`` says why there is none),
+    as ``tissue solve`` does by default.
     A case file's measured accuracy for exactly this load and discretization
     (``[reference.measured]``, ``fem_reference.measured``) is in ``extra["measured_accuracy"]``.
     An answer that is not valid, past the loads where answers converge, or with an estimated
@@ -47,8 +48,7 @@ def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None,
                   progress=progress)
     if dirichlet_override is None:   # another problem than the case's: no row describes it
         res = with_measured_accuracy(case, res, pushes)
-    if estimate == "auto":
-        res = auto_estimate(case, res, pushes=pushes, progress=progress, degree=degree, **kw)
-    elif estimate:
-        res = with_estimate(case, res, pushes=pushes, progress=progress, **kw)
+    if estimate:   # the estimate's degree is the answer's + 1, whatever degree asked for
+        add = auto_estimate if estimate == "auto" else with_estimate
+        res = add(case, res, pushes=pushes, progress=progress, **kw)
     return warn_about(res)

@@ -133,7 +133,8 @@ class ErrorEstimate:
         return {k: float(np.linalg.norm(v)) for k, v in self.reactions.items()}
 
     def extras(self) -> dict:
-        """The entries ``estimate`` adds to ``SolveResult.extra`` (all JSON-serializable)."""
+        """The entries ``estimate`` adds to a SolveResult (all JSON-serializable; the probe and
+        reaction estimates become its fields)."""
         return {
             "probe_error_estimates": self.probe_norms,
             "reaction_error_estimates": self.reaction_norms,
@@ -240,10 +241,11 @@ def estimate(case: Case, result: SolveResult, *, pushes=None, progress: bool = F
 
     result: a reference SolveResult of ``case`` with ``pushes`` (actuator name -> mm)
         (``fem_reference.solve(..., estimate=True)`` solves and estimates in one call).
-    Returns ``result`` with ``extra`` holding ``probe_error_estimates`` (probe -> mm, the norm of
-    the estimated error vector), ``reaction_error_estimates`` (region -> mN),
-    ``estimate_method`` ("p-enrichment"), ``estimate_cost_ratio`` (estimate wall time / solve
-    wall time), the error vectors and the enriched discretization (``ErrorEstimate.extras``).
+    Returns ``result`` with the fields ``probe_error_estimates`` (probe -> mm, the norm of the
+    estimated error vector) and ``reaction_error_estimates`` (region -> mN), and ``extra``
+    holding ``estimate_method`` ("p-enrichment"), ``estimate_cost_ratio`` (estimate wall time /
+    solve wall time), the error vectors and the enriched discretization
+    (``ErrorEstimate.extras``).
     """
     est = error_estimate(case, result, pushes=pushes, progress=progress, **solver_options)
     return dataclasses.replace(result, extra={**result.extra, **est.extras()})
