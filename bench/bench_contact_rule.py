@@ -81,7 +81,8 @@ def smallest_eigenvalues(solver, n: int = 3) -> list[tuple[float, str]]:
     import numpy as np
     from slepc4py import SLEPc
 
-    solver.newton.assemble_tangent([e[0] for e in solver.boundary.dirichlet_bcs(solver.case, 1.0)], False)
+    bcs = [e[0] for e in solver.boundary.dirichlet_bcs(solver.case, 1.0)]
+    solver.newton.assemble_tangent(bcs, False)
     A = solver.A
     eps = SLEPc.EPS().create(solver.comm)
     eps.setOperators(A)
@@ -116,12 +117,8 @@ def past_stop(solver, depth_R: float, radius: float) -> list[tuple[float, str]]:
 
     ind = solver.contact.indenters[0]
     ind.q.value = ind.q0 + depth_R * radius * ind.d
-    settings = solver.settings
-    solver.settings = replace(settings, max_iterations=8)
-    try:
-        solver.newton.iterate(solver.settings, [e[0] for e in solver.boundary.dirichlet_bcs(solver.case, 1.0)], False, "past the stop")
-    finally:
-        solver.settings = settings
+    bcs = [e[0] for e in solver.boundary.dirichlet_bcs(solver.case, 1.0)]
+    solver.newton.iterate(replace(solver.settings, max_iterations=8), bcs, False, "past the stop")
     return smallest_eigenvalues(solver)
 
 

@@ -16,8 +16,9 @@ class Boundary:
     nodes of its facet regions. V: the (collapsed) displacement space; dm: the DolfinxMesh;
     oblique: the sliding regions held by a penalty instead (no DirichletBC); degree: the
     displacement's; node_vertex: the Case vertex of each displacement node (-1 for edge
-    nodes), of the Case mesh's n_vertices; n_unknowns: the local size of the unknown's array; umap: the unknown's dof of each
-    displacement dof. The collapsed component spaces and region nodes are cached."""
+    nodes), of the Case mesh's n_vertices; n_unknowns: the local size of the unknown's array;
+    umap: the unknown's dof of each displacement dof. The collapsed component spaces and
+    region nodes are cached."""
 
     def __init__(self, *, Wu, V, dm, gdim: int, oblique, degree: int, node_vertex,
                  n_vertices: int, n_unknowns: int, umap):

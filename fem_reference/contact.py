@@ -251,7 +251,8 @@ class Contact:
     @property
     def energy_search(self) -> bool:
         """Whether Newton's line search tests the total energy (indenters, displacement
-        formulation): the slope and the interpolated step lengths of ``Newton.iterate`` then apply."""
+        formulation): the slope and the interpolated step lengths of ``Newton.iterate`` then
+        apply."""
         return self._total is not None
 
     def accepts(self, r_new: float, r_old: float, forced: bool) -> bool:
@@ -263,8 +264,8 @@ class Contact:
         second order, which the stiff penalty turns into a large residual, so the residual norm
         would refuse steps that the energy takes. Without indenters every correction is taken.
         ``accepted_energy`` is then the taken state's energy and ``trial_energy`` the one just
-        tried. The total includes the solver's ``Newton.extra_terms`` energy where they have one (the
-        inertia of an implicit-Euler step)."""
+        tried. The total includes the energy of the solver's ``Newton.extra_terms`` where they
+        have one (the inertia of an implicit-Euler step)."""
         if not self.indenters:
             return True
         if self._total is None:

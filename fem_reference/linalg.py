@@ -73,12 +73,14 @@ class LinearSolver:
     assembled tangent ``A`` and residual ``b`` (PETSc Mat and Vec) into ``du`` (a dolfinx
     Function). mode: "direct" (a factorization of every tangent), "lagged" (GMRES on the current
     tangent preconditioned by the factorization of an earlier one, refactorized when GMRES
-    needs more than ``lag_max_its`` iterations, ``NewtonSettings.lag_max_its``), "iterative" (CG + GAMG with the
-    rigid-body modes of ``V`` as near null space, MUMPS as the fallback) or "fieldsplit" (the
+    needs more than ``lag_max_its`` iterations, ``NewtonSettings.lag_max_its``), "iterative"
+    (CG + GAMG with the rigid-body modes of ``V`` as near null space, MUMPS as the fallback) or
+    "fieldsplit" (the
     mixed formulation's ``FieldSplit``, MUMPS as the fallback). ``package``: "cholmod" or
     "mumps", the factorization of "direct" and "lagged" (CHOLMOD falls back on MUMPS for a
     tangent that is not positive definite). ``timings`` (``Timings``) counts factorizations,
-    Krylov iterations and preconditioner builds; the owner replaces it per solve."""
+    Krylov iterations and preconditioner builds; an owner may share its own and reset it per
+    solve."""
 
     def __init__(self, A, b, du, *, mode: str, comm,
                  lag_max_its: int = NewtonSettings.lag_max_its, V=None, package: str = "mumps",
@@ -110,10 +112,9 @@ class LinearSolver:
         self.first_factor_package = self.factor_package
 
     def _rigid_body_nullspace(self):
-        gdim = int(self.V.dofmap.index_map_bs)
-        x = self.V.tabulate_dof_coordinates()[:, :gdim]
+        d = int(self.V.dofmap.index_map_bs)
+        x = self.V.tabulate_dof_coordinates()[:, :d]
         n_own = self.V.dofmap.index_map.size_local
-        d = gdim
         # keep the Functions alive: their vectors share the Functions' memory
         self._ns_funcs = [dolfinx.fem.Function(self.V) for _ in range(6 if d == 3 else 3)]
         vecs = [f.vector for f in self._ns_funcs]

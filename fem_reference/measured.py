@@ -35,7 +35,7 @@ PUSH_TOL = 1e-9
 def _start(case: Case, result: SolveResult) -> str:
     """Where ``result``'s indenters started ("nodes" or "surface"); the case's without
     indenters."""
-    for report in (result.indenters or {}).values():
+    for report in result.indenters.values():
         return report.get("started_on", "nodes")
     return default_tip_start(case)
 
@@ -43,7 +43,7 @@ def _start(case: Case, result: SolveResult) -> str:
 def _rule(case: Case, result: SolveResult):
     """The contact rule of ``result`` ("nodal" or a Gauss degree); the case's without
     indenters."""
-    for report in (result.indenters or {}).values():
+    for report in result.indenters.values():
         return report.get("quadrature", "nodal")
     return default_contact_rule(case)
 

@@ -98,6 +98,7 @@ def field_J(solver):
         return None
     return cell_min_J(solver)
 
+
 def solve_result(solver, case, converged, iters, residual, wall, steps, history,
                  lam) -> SolveResult:
     """The SolveResult of ``solver``'s current state as the answer for ``case``: ``converged``,
@@ -117,14 +118,14 @@ def solve_result(solver, case, converged, iters, residual, wall, steps, history,
         state["pressure"] = solver.state.pressure_vertex_field()
     contact = solver.contact.extra()
     cell_J = field_J(solver)
+    disc = discretization(solver)
     return SolveResult(
         u=u_v, converged=converged, iterations=iters, residual=float(residual),
         wall_time_s=wall, solver="fem", probes=probe_values(solver, case, u_v),
         reactions=reactions(solver, case), strain_energy=float(energy), load_steps=steps,
         degree=solver.degree, case_name=case.name, n_vertices=case.mesh.n_vertices,
-        n_cells=case.mesh.n_cells, history=history,
-        extra={"load_fraction": lam, "discretization": discretization(solver),
-               "n_dofs": discretization(solver)["dofs"],
+        n_cells=case.mesh.n_cells, history=history, discretization=disc,
+        extra={"load_fraction": lam, "n_dofs": disc["dofs"],
                "assemble_s": solver.timings.assemble, "linear_solve_s": solver.timings.solve,
                "linear_solver": solver.linear_solver,
                "factorizations": solver.timings.factorizations,

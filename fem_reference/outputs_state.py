@@ -150,7 +150,7 @@ class NodalState:
             node_u = initial.extra.get("node_u") if self.degree >= 2 else None
             pressure = initial.extra.get("pressure") if self.Q is not None else None
             if node_u is not None:
-                self.set_nodes(self.nodes_in_own_order(np.asarray(node_u, float),
+                self._set_nodes(self._nodes_in_own_order(np.asarray(node_u, float),
                                                          initial.extra.get("node_points")))
                 self.x_from_fields(pressure, exact=exact)
                 return
@@ -164,7 +164,7 @@ class NodalState:
             if self.degree >= 2 and u0.shape == (len(self.node_vertex), d) and u0.shape[0] != n:
                 if self.comm.size > 1:
                     raise CaseError("a full nodal state array is accepted in serial only")
-                self.set_nodes(u0)
+                self._set_nodes(u0)
                 self.x_from_fields(exact=exact)
                 return
         if u0.shape != (n, d):
@@ -183,11 +183,11 @@ class NodalState:
             vmask = self.node_vertex >= 0
             arr[vmask] = u0[self.node_vertex[vmask]]
         else:  # the P1 field of the vertex values, interpolated
-            self.from_p1(u0)
+            self._from_p1(u0)
         self.u.x.scatter_forward()
         self.x_from_fields(pressure, exact=exact)
 
-    def set_nodes(self, nodes):
+    def _set_nodes(self, nodes):
         """Set every node from a (n_nodes, gdim) array in the Tangent node order (serial)."""
         self.u.x.array.reshape(-1, self.gdim)[:] = nodes[self.out_permutation()[0]]
         self.u.x.scatter_forward()
@@ -200,7 +200,7 @@ class NodalState:
         pts[out_node] = self.V.tabulate_dof_coordinates()[:, :self.gdim]
         return pts
 
-    def nodes_in_own_order(self, node_u, node_points):
+    def _nodes_in_own_order(self, node_u, node_points):
         """A nodal state of some degree-2 reference solve on this mesh, reordered to this solver's
         node order by the node coordinates."""
         if self.comm.size > 1:
@@ -218,7 +218,7 @@ class NodalState:
             raise CaseError("nodal state: its node points are not this solver's degree-2 nodes")
         return node_u[idx]
 
-    def from_p1(self, u0):
+    def _from_p1(self, u0):
         """u = the P1 interpolant of vertex values u0 (n_vertices, gdim), in this degree."""
         if self._p1 is None:
             mesh = self.dm.mesh

@@ -338,7 +338,7 @@ class ReferenceSolver:
                             f"{self.case.material.volumetric!r}): build a solver for it")
         self.E.value = case.material.E
         self.nu.value = case.material.nu
-        self.inv_kappa.value = 3.0 * (1.0 - 2.0 * case.material.nu) / case.material.E
+        self.inv_kappa.value = _inv_kappa(case.material)
         s = self.settings
         warm = initial is not None
         if warm:
@@ -385,7 +385,8 @@ class ReferenceSolver:
             final = trial >= 1.0 - 1e-14
             tol = {} if final else {"rtol": s.intermediate_rtol, "atol_mm": s.intermediate_atol_mm}
             trace = history["iterate_residual"]
-            ok, it, res = self.newton.iterate(s, bcs, progress, f"load {trial:6.3f}", trace=trace, **tol)
+            ok, it, res = self.newton.iterate(s, bcs, progress, f"load {trial:6.3f}", trace=trace,
+                                              **tol)
             iters += it
             if not ok and predict and prev_good is not None:
                 # retry the same step from the last converged state, without the predictor

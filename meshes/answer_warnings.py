@@ -34,7 +34,7 @@ def relative_estimates(res) -> dict:
     """Probe -> its estimated error relative to its displacement; only the probes with an
     estimate (``probe_error_estimates``). A probe that did not move has 0 when its
     estimate is 0 too (nothing moved: nothing is wrong), else inf."""
-    pe = res.probe_error_estimates or {}
+    pe = res.probe_error_estimates
     out = {}
     for k, v in res.probes.items():
         if k in pe:

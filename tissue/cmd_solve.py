@@ -157,8 +157,8 @@ def print_answer(res):
     # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
     from tissue_reference.fem_reference.measured import accuracy_line
 
-    pe = res.probe_error_estimates or {}
-    re_ = res.reaction_error_estimates or {}
+    pe = res.probe_error_estimates
+    re_ = res.reaction_error_estimates
     rels = relative_estimates(res)
     bar = not res.extra.get("no_converged_value")   # an estimate is an error bar only then
     for k, v in res.probes.items():
@@ -179,7 +179,7 @@ def print_answer(res):
             line += f"  +- {re_[k]:.2g} mN" if bar else f"  (degree {int(res.degree) + 1} " \
                                                        f"differs by {re_[k]:.2g} mN)"
         print(line)
-    for k, ind in (res.indenters or {}).items():
+    for k, ind in res.indenters.items():
         print(f"  indenter {k}: push {ind['push']:.2f} mm, force {ind['force']:+.2f} mN, contact "
               f"area {ind['contact_area']:.1f} mm^2, skin inside the tip "
               f"{ind.get('surface_penetration', ind['max_penetration']):.3f} mm "

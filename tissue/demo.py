@@ -69,8 +69,8 @@ def reference_series(case, out: Path, pushes_mm=PUSHES_MM, *, degree=None,
         res = fr.solve(case, pushes=load, initial=prev, degree=degree, progress=progress)
         prev = res
         accuracy, line = _accuracy(res)
-        indenters = res.indenters or {}
-        forces = {name: MIRRORED * indenters[name]["force"] for name in tips if name in indenters}
+        forces = {name: MIRRORED * res.indenters[name]["force"] for name in tips
+                  if name in res.indenters}
         stem = f"tips_{push:g}mm"
         # the fields and the JSON as `tissue solve` writes them (solve.schema.json)
         write_outputs(case.with_pushes(load), res, out / "fem", out / "fem" / f"{stem}.json",
@@ -83,7 +83,7 @@ def reference_series(case, out: Path, pushes_mm=PUSHES_MM, *, degree=None,
                      "probes_mm": {k: np.asarray(v).tolist() for k, v in res.probes.items()},
                      "tip_forces_mN": forces, "strain_energy_uJ": res.strain_energy,
                      "accuracy": accuracy, "accuracy_line": line,
-                     "warnings": list(res.warnings or [])})
+                     "warnings": list(res.warnings)})
         t1 = float(np.linalg.norm(res.probes["T1"]))
         bar = (f" (force within {accuracy['force']:.2%}, targets within "
                f"{accuracy['probes']:.2%} of the converged answers, measured)" if accuracy

@@ -177,8 +177,7 @@ def _start_pushes(cset, initial, pushes=None) -> np.ndarray:
     else ``pushes`` (name -> mm), else 0."""
     out = np.zeros(len(cset.tips))
     if isinstance(initial, SolveResult):
-        pushes = {n: r.get("push", 0.0) for n, r in
-                  (initial.indenters or {}).items()}
+        pushes = {n: r.get("push", 0.0) for n, r in initial.indenters.items()}
     if initial is not None and pushes:
         for i, t in enumerate(cset.tips):
             out[i] = float(pushes.get(t.name, 0.0))
