@@ -14,18 +14,19 @@ from tissue_reference.meshes.results import SolveResult
 from tissue_reference.meshes.tips import through_surface_state
 
 from .backends import backend, require_device
+from .chord import chord
 from .dynamics import ImplicitEuler, implicit_euler
 from .loop import check_J, run_admm
 from .mechanics import as_u
 from .operators import particular, prepare, vertex_norm_max
-from .polish import energy_gradient, newton, tangent_lift
+from .polish import energy_gradient, newton, rest_factor, tangent_lift
 
 
 def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: int | None = None,
-          rho: float | None = None, polish: bool = True, polish_tol_mm: float | None = None,
+          rho: float | None = None, polish: bool | str = True, polish_tol_mm: float | None = None,
           polish_max_iter: int = 25, dynamics: ImplicitEuler | None = None, callback=None,
           load_steps: int | None = None, step_mm: float = 3.0,
-          intermediate_tol_mm: float = 1e-2, lift="auto", handoff_mm: float = 1e-2,
+          intermediate_tol_mm: float = 1e-2, lift="auto", handoff_mm: float | None = None,
           tip_step: float = 0.5,
           progress: bool = False, factorize=None, device: str = "cpu",
           contact_quadrature=None, contact_penalty: float | None = None,
@@ -45,8 +46,15 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         with it.
     polish: finish with Newton steps on the same P1 energy until the largest step is below
         ``polish_tol_mm`` (default tol_mm / 100). ADMM then only has to bring each step into
-        Newton's basin: it stops at max(tol, ``handoff_mm``) (mm) or after ``max_iter``
-        iterations, whichever comes first.
+        Newton's basin: it stops at max(tol, ``handoff_mm``) (mm; default 1e-2) or after
+        ``max_iter`` iterations, whichever comes first. "chord": finish with chord steps
+        instead, on the tangent at rest factorized once (kept with the operators) and mixed by
+        Anderson (``chord``), until the largest step is below ``polish_tol_mm`` (default
+        tol_mm: the steps converge linearly, so a step that small means an error about that
+        size, where one more Newton step would square it); ADMM hands over at ``handoff_mm``
+        (default 0.1 mm), and where the chord steps diverge the Newton polish takes over
+        from their best iterate (listed in ``extra["chord_fallbacks"]``). Quasi-static solves
+        without rigid tips only (others are refused by name).
     dynamics: ImplicitEuler(dt, steps) for dynamics; None for quasi-static equilibrium.
     load_steps: quasi-static increments (default: the prescribed change from the start state
         divided in steps of at most ``step_mm``, mm, that move no tip by more than ``tip_step``
@@ -86,8 +94,17 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         max_iter = 20 if polish else 20000
     if int(max_iter) < 1:
         raise CaseError(f"max_iter must be >= 1, got {max_iter!r}")
+    if polish not in (True, False, "chord"):
+        raise CaseError(f"polish must be True, False or 'chord', got {polish!r}")
+    use_chord = polish == "chord"
     if polish_tol_mm is None:
-        polish_tol_mm = tol_mm / 100.0
+        polish_tol_mm = tol_mm if use_chord else tol_mm / 100.0
+    if handoff_mm is None:
+        handoff_mm = 0.1 if use_chord else 1e-2
+    if use_chord and (case.indenters() or dynamics is not None):
+        raise CaseError(f"{case.source or case.name}: polish='chord' is for quasi-static solves "
+                        f"without rigid tips (its tangent at rest has no contact stiffness and "
+                        f"no inertia): use polish=True")
     dt = dynamics.dt if dynamics is not None else None
 
     contact = {k: v for k, v in (("rule", contact_quadrature), ("penalty", contact_penalty),
@@ -119,16 +136,36 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
                      max_iter=int(max_iter), callback=callback, it0=it0, progress=progress,
                      hist=hist, be=be, tips=tips_at(s), anderson=anderson)
 
+    rest = {}
+
+    def rest_pair():
+        """The tangent at rest and its factorization, once per solve (kept with ops when small)."""
+        if "pair" not in rest:
+            rest["pair"] = rest_factor(ops, factorize)
+        return rest["pair"]
+
+    fallbacks = []
+
     def newton_step(u_j, f, inertia, it0, tol=polish_tol_mm, s=1.0):
-        return newton(ops, u_j, f, inertia, tol_mm=tol, max_iter=polish_max_iter, it0=it0,
-                       hist=hist, callback=callback, factorize=factorize, tips=tips_at(s))
+        k = 0
+        if use_chord:
+            u_j, k, ok = chord(ops, u_j, f, rest_pair()[1], tol_mm=tol, max_iter=polish_max_iter,
+                               it0=it0, hist=hist, callback=callback)
+            if ok:
+                return u_j, k
+            fallbacks.append(f"load fraction {s:.4g}: chord steps did not converge in {k}; "
+                             f"Newton polish from their best iterate")
+        u_j, kn = newton(ops, u_j, f, inertia, tol_mm=tol, max_iter=polish_max_iter, it0=it0 + k,
+                         hist=hist, callback=callback, factorize=factorize, tips=tips_at(s))
+        return u_j, k + kn
 
     restarts = []
     extra = {}
     if dynamics is None:
         u, load_steps, admm_it, newton_it, converged, lifts = _load_steps(
             case, ops, u, up, fext, admm_step=admm_step, newton_step=newton_step,
-            polish=polish, polish_tol_mm=polish_tol_mm, load_steps=load_steps, step_mm=step_mm,
+            polish=bool(polish), polish_tol_mm=polish_tol_mm, load_steps=load_steps,
+            step_mm=step_mm,
             intermediate_tol_mm=intermediate_tol_mm, tol_mm=tol_mm, lift=lift,
             factorize=factorize, hist=hist, restarts=restarts,
             tip_travel=0.0 if cset is None else float(np.max(
@@ -156,6 +193,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
              "load_steps": int(load_steps) if dynamics is None else 0,
              "rho_kPa": ops.rho, "setup_s": ops.setup_s, "tol_mm": tol_mm,
              "polish_restarts": restarts, "lift_solves": lifts,
+             **({"polish": "chord", "chord_fallbacks": fallbacks} if use_chord else {}),
              **state, **extra, "device": device}
     if be.cg_iterations is not None:
         extra["xstep_cg_iterations"] = int(be.cg_iterations)
@@ -232,7 +270,7 @@ def _load_steps(case, ops, u, up, fext, *, admm_step, newton_step, polish, polis
                     # previous step's, which Newton would keep: it moves free dofs only)
                     restarts.append(f"load step {j}: {exc}")
                     u_start = tangent_lift(ops, u_start, up_j, admm_it + newton_it,
-                                            factorize, tips_at(s))
+                                           factorize, tips_at(s))
                     u, kn = newton_step(u_start, s * fext, None, admm_it + newton_it, ptol, s)
                 newton_it += kn
                 converged = hist["newton_step_mm"][-1] < ptol

@@ -26,25 +26,36 @@ def _contact_hessian(ops, u, tips, curvature=True):
     return ops.contact.hessian(u, tips, curvature)
 
 
+def rest_factor(ops, factorize=None):
+    """(element matrices Ke, factorization) of the reduced tangent at rest (without contact):
+    kept with the operators up to REST_TANGENT_KEPT_DOFS reduced unknowns, built anew above."""
+    kept = ops.rest_tangent
+    if kept is not None and kept[0] is factorize:
+        return kept[1], kept[2]   # the same matrix at every call, factorized alike
+    Kr, Ke = ops.reduced_tangent(np.zeros(ops.N))
+    factor = sym_splu(Kr, ops.factor_cache, factorize)
+    if ops.nq <= REST_TANGENT_KEPT_DOFS:
+        ops.rest_tangent = (factorize, Ke, factor)
+    return Ke, factor
+
+
 def tangent_lift(ops, u, up, it, factorize=None, tips=None):
     """u with its prescribed part moved to up's values and the interior moved by the linearized
-    (tangent at u, with the tips at ``tips``) response to that boundary change."""
+    (tangent at u, with the tips at ``tips``) response to that boundary change (from rest: by
+    the kept factorization, ``rest_factor``)."""
     Z = ops.red.Z
     zu = ops.red.ZT @ u
     delta = up - (u - Z @ zu)
     if not np.any(delta):
         return u
     Hc = _contact_hessian(ops, u, tips)
-    at_rest = not np.any(u) and (Hc is None or not Hc.nnz) and ops.nq <= REST_TANGENT_KEPT_DOFS
+    at_rest = not np.any(u) and (Hc is None or not Hc.nnz)
     try:
-        kept = ops.rest_tangent if at_rest else None
-        if kept is not None and kept[0] is factorize:
-            _, Ke, factor = kept     # the same matrix at every lift from rest, factorized alike
+        if at_rest:
+            Ke, factor = rest_factor(ops, factorize)
         else:
             Kr, Ke = ops.reduced_tangent(u, extra=Hc)
             factor = sym_splu(Kr, ops.factor_cache, factorize)
-            if at_rest:
-                ops.rest_tangent = (factorize, Ke, factor)
         Kd = ops.apply_elements(Ke, delta)
         if Hc is not None:
             Kd = Kd + Hc @ delta
