@@ -101,3 +101,23 @@ def test_chord_polish_is_refused_with_rigid_tips_and_in_dynamics():
         admm.solve(case, polish="chord", dynamics=admm.ImplicitEuler(dt=0.05, steps=2))
     with pytest.raises(CaseError, match="polish must be"):
         admm.solve(case, polish="newton")
+
+
+def test_the_kept_rest_factorization_survives_later_factorizations_of_the_same_pattern(
+        phantom12):
+    """CHOLMOD's hook refactorizes a cached factorization of the same sparsity pattern in place:
+    after a solve whose later lifts and Newton polish factorize other tangents, the kept
+    factorization still solves the tangent at rest."""
+    from tissue_reference.fem_reference import cholmod_factor
+    from tissue_reference.solvers.admm import operators
+
+    operators.OPERATOR_CACHE.clear()
+    res = admm.solve(phantom12, pushes={"A1": 5.0, "A2": 5.0}, factorize=cholmod_factor,
+                     load_steps=2, lift=True)
+    assert res.converged and res.extra["newton_iterations"] > 0
+    ops = operators.prepare(phantom12.with_pushes({"A1": 5.0, "A2": 5.0}))
+    kept = ops.rest_tangent
+    assert kept is not None and kept[0] is cholmod_factor
+    K0 = ops.reduced_tangent(np.zeros(ops.N))[0]
+    x = np.random.default_rng(0).normal(size=K0.shape[0])
+    assert np.abs(kept[2].solve(K0 @ x) - x).max() < 1e-8 * np.abs(x).max()

@@ -52,8 +52,10 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         Anderson (``chord``), until the largest step is below ``polish_tol_mm`` (default
         tol_mm: the steps converge linearly, so a step that small means an error about that
         size, where one more Newton step would square it); ADMM hands over at ``handoff_mm``
-        (default 0.1 mm), and where the chord steps diverge the Newton polish takes over
-        from their best iterate (listed in ``extra["chord_fallbacks"]``). Quasi-static solves
+        (default 0.1 mm), the whole change is tried in one load step first (the load steps
+        below where it fails: listed in ``extra["polish_restarts"]``), and where the chord
+        steps diverge the Newton polish takes over from their best iterate (listed in
+        ``extra["chord_fallbacks"]``). Quasi-static solves
         without rigid tips only (others are refused by name).
     dynamics: ImplicitEuler(dt, steps) for dynamics; None for quasi-static equilibrium.
     load_steps: quasi-static increments (default: the prescribed change from the start state
@@ -162,16 +164,32 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     restarts = []
     extra = {}
     if dynamics is None:
-        u, load_steps, admm_it, newton_it, converged, lifts = _load_steps(
-            case, ops, u, up, fext, admm_step=admm_step, newton_step=newton_step,
-            polish=bool(polish), polish_tol_mm=polish_tol_mm, load_steps=load_steps,
-            step_mm=step_mm,
-            intermediate_tol_mm=intermediate_tol_mm, tol_mm=tol_mm, lift=lift,
-            factorize=factorize, hist=hist, restarts=restarts,
-            tip_travel=0.0 if cset is None else float(np.max(
-                np.abs(push1 - push0) / np.array([t.shape.radius for t in cset.tips])
-                * step_mm / tip_step, initial=0.0)),
-            tips_at=tips_at)
+        def stepped(u0, steps, cut_back=True):
+            return _load_steps(
+                case, ops, u0, up, fext, admm_step=admm_step, newton_step=newton_step,
+                polish=bool(polish), polish_tol_mm=polish_tol_mm, load_steps=steps,
+                step_mm=step_mm, intermediate_tol_mm=intermediate_tol_mm, tol_mm=tol_mm,
+                lift=lift, factorize=factorize, hist=hist, restarts=restarts,
+                tip_travel=0.0 if cset is None else float(np.max(
+                    np.abs(push1 - push0) / np.array([t.shape.radius for t in cset.tips])
+                    * step_mm / tip_step, initial=0.0)),
+                tips_at=tips_at, cut_back=cut_back)
+
+        one = None
+        if use_chord and load_steps is None:
+            # the chord polish tries the whole change in one load step (its lift from rest is a
+            # back-substitution; a later step's lift would factorize), and takes the load
+            # steps of ``step_mm`` where that fails
+            try:
+                one = stepped(u, 1, cut_back=False)
+                if not one[4]:
+                    raise SolverDivergedError("not converged")
+            except SolverDivergedError as exc:
+                restarts.append(f"one load step: {exc}; load steps of {step_mm:g} mm")
+                one = None
+        u, load_steps, admm_it, newton_it, converged, lifts = one or stepped(u, load_steps)
+        if use_chord:   # every iteration, the failed one-step attempt's included
+            admm_it, newton_it = len(hist["primal"]), len(hist["newton_step_mm"])
     else:
         lifts = 0
         u, v, traj, admm_it, newton_it, converged = implicit_euler(
@@ -224,13 +242,14 @@ def _start_pushes(cset, initial, pushes=None) -> np.ndarray:
 
 def _load_steps(case, ops, u, up, fext, *, admm_step, newton_step, polish, polish_tol_mm,
                 load_steps, step_mm, intermediate_tol_mm, tol_mm, lift, factorize, hist,
-                restarts, tip_travel=0.0, tips_at=lambda s: None):
+                restarts, tip_travel=0.0, tips_at=lambda s: None, cut_back=True):
     """Quasi-static equilibrium: the prescribed change from the start state (and the tips'
     travel, ``tip_travel``: scaled so that step_mm is the most a step may move a tip) split in
     increments of at most step_mm (mm); each step is an
     ADMM solve warm-started from the previous one, then (``polish``) Newton, with the tips at
     ``tips_at(s)`` at load fraction s. A step whose polish does not converge is tried again
-    from the last converged state, half as long (down to MIN_LOAD_STEP of a step). Returns (u,
+    from the last converged state, half as long (down to MIN_LOAD_STEP of a step; without
+    ``cut_back`` the steps end there, unconverged). Returns (u,
     load steps taken, ADMM iterations, Newton iterations, converged, tangent lifts); polish
     restarts and cut-backs are appended to ``restarts``."""
     d = ops.d
@@ -277,6 +296,8 @@ def _load_steps(case, ops, u, up, fext, *, admm_step, newton_step, polish, polis
             except SolverDivergedError as exc:
                 restarts.append(f"load step {j}: {exc}")
                 converged = False
+            if not converged and not cut_back:
+                return u, taken, admm_it, newton_it, False, lifts
             if not converged and inc > MIN_LOAD_STEP / int(load_steps):
                 # cut back: the step again from the last converged state, half as long (a
                 # tip pressed too far at once leaves Newton's basin)

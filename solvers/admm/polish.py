@@ -33,7 +33,10 @@ def rest_factor(ops, factorize=None):
     if kept is not None and kept[0] is factorize:
         return kept[1], kept[2]   # the same matrix at every call, factorized alike
     Kr, Ke = ops.reduced_tangent(np.zeros(ops.N))
-    factor = sym_splu(Kr, ops.factor_cache, factorize)
+    # a cache of its own: a hook that refactorizes a cached factorization of the same pattern in
+    # place (``fem_reference.cholmod_factor``) would otherwise turn the kept factorization into
+    # that of the next tangent the lifts or the polish factorize
+    factor = sym_splu(Kr, {}, factorize)
     if ops.nq <= REST_TANGENT_KEPT_DOFS:
         ops.rest_tangent = (factorize, Ke, factor)
     return Ke, factor
