@@ -171,13 +171,15 @@ def test_hertz_sphere_force_by_admm_approaches_hertz_as_the_cells_shrink():
     assert errors[2] < 0.10
 
 
-def test_verify_scores_admm_on_tips_and_skips_the_mass_tensor_saying_why(block, tmp_path):
+def test_verify_scores_admm_on_tips_and_skips_the_mass_tensor_and_chord_saying_why(block, tmp_path):
     from tissue_reference.tissue.verify import verify
 
-    out = verify(tip_case(block), {"I": 1.0}, solvers=["admm", "mass-tensor"])
+    out = verify(tip_case(block), {"I": 1.0}, solvers=["admm", "mass-tensor", "admm-chord"])
     assert out["solvers"]["admm"]["max_vertex_error_mm"] < SAME
     assert "mass-tensor" not in out["solvers"]
     assert "does not model contact" in out["skipped"]["mass-tensor"]
+    assert "admm-chord" not in out["solvers"]
+    assert "no contact stiffness" in out["skipped"]["admm-chord"]
 
 
 # --------------------------------------------------------------------------- the contact Jacobian

@@ -25,7 +25,9 @@ from .verify import DEFAULT_SOLVERS, FAST_SOLVERS, invalid_runs, verify
 def _line(name, e):
     its = ""
     if "admm_iterations" in e:
-        its = f"its {e['iterations']} (ADMM {e['admm_iterations']} + Newton {e['newton_iterations']})"
+        chord = f" + chord {e['chord_iterations']}" if "chord_iterations" in e else ""
+        its = (f"its {e['iterations']} (ADMM {e['admm_iterations']}{chord} + Newton "
+               f"{e['newton_iterations']})")
     elif e.get("iterations") is not None:
         its = f"its {e['iterations']}"
     timing = (f"  {e['wall_time_s']:.3f} s  x{e['speedup_vs_reference']:.2f} vs reference"

@@ -8,7 +8,9 @@ Three kinds of candidate, each scored against the reference it should match:
   error, not the discretization's; ``estimate=True`` adds that discretization's own error
   beside it). ADMM is scored twice: ``admm`` (ADMM brought into Newton's basin, then the Newton
   polish) and ``admm-plain`` (ADMM alone, to its own stopping rule: what the ADMM iteration
-  itself achieves); ``admm-anderson`` (ADMM alone with Anderson acceleration) on request. The Mass Tensor Method is a linear model: on a Neo-Hookean case it is scored
+  itself achieves); ``admm-anderson`` (ADMM alone with Anderson acceleration) and
+  ``admm-chord`` (ADMM finished by chord steps on its kept tangent at rest: no rigid tips) on
+  request. The Mass Tensor Method is a linear model: on a Neo-Hookean case it is scored
   against the linear-elastic reference of the same E and nu and labelled ``model:
   linear-elastic`` (its distance to the Neo-Hookean truth is not what it claims to solve);
 - solvers that are not ours (``tissue.plugins``: a callable, ``"module:function"`` or an entry
@@ -58,6 +60,7 @@ FAST_SOLVERS = {
     "admm": ("admm", {}, None),
     "admm-plain": ("admm", {"polish": False}, None),
     "admm-anderson": ("admm", {"polish": False, "anderson": 5}, None),
+    "admm-chord": ("admm", {"polish": "chord"}, None),
     "mass-tensor": ("mass-tensor", {"method": "direct"}, "linear-elastic"),
     "mass-tensor-pcg": ("mass-tensor", {"method": "pcg", "stop_mm": 0.01}, "linear-elastic"),
     "mass-tensor-descent": ("mass-tensor", {"method": "descent", "stop_mm": 0.01},
@@ -268,6 +271,9 @@ def _score_builtin(name, case, pushes, opts, refs, out):
     try:
         solve = get_solver(key)
         solver_module(key).require_modeled(case)
+        if defaults.get("polish") == "chord" and case.indenters():
+            raise NotModeledError("the chord polish's tangent at rest has no contact stiffness "
+                                  "(rigid tips): use admm")
     except (ImportError, NotModeledError) as exc:   # no score, and the reason said
         why = f"{SOLVERS[key]} not importable ({exc})" if isinstance(exc, ImportError) else exc
         msg = f"{name}: {why}; skipped"

@@ -57,9 +57,9 @@ mm, tol 1e-5 mm): 2-5x fewer iterations, 1.2-1.7x less time cold.
 Chord polish (``solve(..., polish="chord")``, ``chord``): instead of Newton's factorizations,
 chord steps on the tangent at rest (factorized once and kept with the operators), Anderson-mixed,
 to a largest step of ``tol_mm``; the Newton polish takes over where they diverge. Quasi-static
-and without rigid tips. Measured (same bench, 1.7k-50k tets, 4 mm on all four): within 3e-5 mm of
-the reference, cold 3.9-6.9x faster than its Newton in one load step, 2.0-2.9x with the default
-load steps, warm 3.9-5.0x. Its steps count in ``extra["newton_iterations"]``.
+and without rigid tips. Measured (same bench, 1.7k-50k tets, 4 mm on all four): within 1e-4 mm
+of the reference, cold 4.3-6.5x faster than its Newton, warm 3.5-5.2x. Its steps are counted
+in ``extra["chord_iterations"]``.
 
 Large prescribed motions (e.g. 15 mm pushes) are applied in load steps of at most ``step_mm``;
 each step moves the boundary and carries the interior along (tangent or harmonic lift), runs

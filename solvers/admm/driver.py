@@ -147,12 +147,14 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         return rest["pair"]
 
     fallbacks = []
+    chord_steps = [0]
 
     def newton_step(u_j, f, inertia, it0, tol=polish_tol_mm, s=1.0):
         k = 0
         if use_chord:
             u_j, k, ok = chord(ops, u_j, f, rest_pair()[1], tol_mm=tol, max_iter=polish_max_iter,
                                it0=it0, hist=hist, callback=callback)
+            chord_steps[0] += k
             if ok:
                 return u_j, k
             fallbacks.append(f"load fraction {s:.4g}: chord steps did not converge in {k}; "
@@ -173,7 +175,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
                 tip_travel=0.0 if cset is None else float(np.max(
                     np.abs(push1 - push0) / np.array([t.shape.radius for t in cset.tips])
                     * step_mm / tip_step, initial=0.0)),
-                tips_at=tips_at, cut_back=cut_back)
+                tips_at=tips_at, cut_back=cut_back, rest=rest_pair if use_chord else None)
 
         one = None
         if use_chord and load_steps is None:
@@ -188,8 +190,10 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
                 restarts.append(f"one load step: {exc}; load steps of {step_mm:g} mm")
                 one = None
         u, load_steps, admm_it, newton_it, converged, lifts = one or stepped(u, load_steps)
-        if use_chord:   # every iteration, the failed one-step attempt's included
-            admm_it, newton_it = len(hist["primal"]), len(hist["newton_step_mm"])
+        if use_chord:   # every iteration, the failed one-step attempt's included; the chord
+            # steps apart from the Newton polish's
+            admm_it = len(hist["primal"])
+            newton_it = len(hist["newton_step_mm"]) - chord_steps[0]
     else:
         lifts = 0
         u, v, traj, admm_it, newton_it, converged = implicit_euler(
@@ -211,13 +215,15 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
              "load_steps": int(load_steps) if dynamics is None else 0,
              "rho_kPa": ops.rho, "setup_s": ops.setup_s, "tol_mm": tol_mm,
              "polish_restarts": restarts, "lift_solves": lifts,
-             **({"polish": "chord", "chord_fallbacks": fallbacks} if use_chord else {}),
+             **({"polish": "chord", "chord_iterations": chord_steps[0],
+                 "chord_fallbacks": fallbacks} if use_chord else {}),
              **state, **extra, "device": device}
     if be.cg_iterations is not None:
         extra["xstep_cg_iterations"] = int(be.cg_iterations)
     hist["admm_clock_s"] = [c - t0 for c in hist["admm_clock_s"]]
     u2 = u.reshape(n, d)
-    return SolveResult(u=u2, converged=bool(converged), iterations=int(admm_it + newton_it),
+    return SolveResult(u=u2, converged=bool(converged),
+                       iterations=int(admm_it + newton_it + chord_steps[0]),
                        residual=free_res, wall_time_s=time.perf_counter() - t0, solver="admm",
                        probes=case0.probe_values(u2), reactions=reactions,
                        strain_energy=float(ops.kin.V @ psi), case_name=case.name, n_vertices=n,
@@ -242,12 +248,13 @@ def _start_pushes(cset, initial, pushes=None) -> np.ndarray:
 
 def _load_steps(case, ops, u, up, fext, *, admm_step, newton_step, polish, polish_tol_mm,
                 load_steps, step_mm, intermediate_tol_mm, tol_mm, lift, factorize, hist,
-                restarts, tip_travel=0.0, tips_at=lambda s: None, cut_back=True):
+                restarts, tip_travel=0.0, tips_at=lambda s: None, cut_back=True, rest=None):
     """Quasi-static equilibrium: the prescribed change from the start state (and the tips'
     travel, ``tip_travel``: scaled so that step_mm is the most a step may move a tip) split in
     increments of at most step_mm (mm); each step is an
     ADMM solve warm-started from the previous one, then (``polish``) Newton, with the tips at
-    ``tips_at(s)`` at load fraction s. A step whose polish does not converge is tried again
+    ``tips_at(s)`` at load fraction s (a lift from rest by ``rest()``'s factorization, see
+    ``tangent_lift``). A step whose polish does not converge is tried again
     from the last converged state, half as long (down to MIN_LOAD_STEP of a step; without
     ``cut_back`` the steps end there, unconverged). Returns (u,
     load steps taken, ADMM iterations, Newton iterations, converged, tangent lifts); polish
@@ -272,7 +279,7 @@ def _load_steps(case, ops, u, up, fext, *, admm_step, newton_step, polish, polis
         tol_j = tol_mm if last else max(tol_mm, intermediate_tol_mm)
         up_j = uc + s * (up - uc)
         if lift is True or (lift == "auto" and jump * inc > 1.0):
-            u = tangent_lift(ops, u, up_j, admm_it + newton_it, factorize, tips_at(s))
+            u = tangent_lift(ops, u, up_j, admm_it + newton_it, factorize, tips_at(s), rest)
             lifts += 1
         u_start = u
         u, k, converged = admm_step(up_j, s * fext, u, admm_it + newton_it, tol_j, s)
@@ -289,7 +296,7 @@ def _load_steps(case, ops, u, up, fext, *, admm_step, newton_step, polish, polis
                     # previous step's, which Newton would keep: it moves free dofs only)
                     restarts.append(f"load step {j}: {exc}")
                     u_start = tangent_lift(ops, u_start, up_j, admm_it + newton_it,
-                                           factorize, tips_at(s))
+                                           factorize, tips_at(s), rest)
                     u, kn = newton_step(u_start, s * fext, None, admm_it + newton_it, ptol, s)
                 newton_it += kn
                 converged = hist["newton_step_mm"][-1] < ptol

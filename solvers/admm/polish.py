@@ -42,10 +42,10 @@ def rest_factor(ops, factorize=None):
     return Ke, factor
 
 
-def tangent_lift(ops, u, up, it, factorize=None, tips=None):
+def tangent_lift(ops, u, up, it, factorize=None, tips=None, rest=None):
     """u with its prescribed part moved to up's values and the interior moved by the linearized
-    (tangent at u, with the tips at ``tips``) response to that boundary change (from rest: by
-    the kept factorization, ``rest_factor``)."""
+    (tangent at u, with the tips at ``tips``) response to that boundary change. From rest it
+    takes the factorization of ``rest()`` (default: ``rest_factor``, kept when small)."""
     Z = ops.red.Z
     zu = ops.red.ZT @ u
     delta = up - (u - Z @ zu)
@@ -55,7 +55,7 @@ def tangent_lift(ops, u, up, it, factorize=None, tips=None):
     at_rest = not np.any(u) and (Hc is None or not Hc.nnz)
     try:
         if at_rest:
-            Ke, factor = rest_factor(ops, factorize)
+            Ke, factor = rest() if rest is not None else rest_factor(ops, factorize)
         else:
             Kr, Ke = ops.reduced_tangent(u, extra=Hc)
             factor = sym_splu(Kr, ops.factor_cache, factorize)
