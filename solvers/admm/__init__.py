@@ -58,7 +58,7 @@ Chord polish (``solve(..., polish="chord")``, ``chord``): instead of Newton's fa
 chord steps on the tangent at rest (factorized once and kept with the operators), Anderson-mixed,
 to a largest step of ``tol_mm``; the Newton polish takes over where they diverge. Quasi-static
 and without rigid tips. Measured (same bench, 1.7k-50k tets, 4 mm on all four): within 1e-4 mm
-of the reference, cold 4.3-6.5x faster than its Newton, warm 3.5-5.2x. Its steps are counted
+of the reference, cold 4.3-7.3x faster than its Newton, warm 3.5-5.3x. Its steps are counted
 in ``extra["chord_iterations"]``.
 
 Large prescribed motions (e.g. 15 mm pushes) are applied in load steps of at most ``step_mm``;
