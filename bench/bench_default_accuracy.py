@@ -7,7 +7,8 @@ rule; ``--case wide``: the same for meshes/cases/phantom-indenter-wide.toml (8 m
 its own study (``four_wide_surface`` / ``one_wide_surface``, to 15 mm, its tips started on the
 curved skin); ``--case control``:
 phantom-indenter-control.toml (the 5 mm tips on a coarser body, the contact scenario's plant of
-control loops). Earlier defaults (``--old p1``: P1 on 1.6 mm site cells; ``--old p2``: P2 on
+control loops); ``--case quarter``: phantom-indenter-quarter.toml (all four equal, on its own
+mesh: the demo's reference). Earlier defaults (``--old p1``: P1 on 1.6 mm site cells; ``--old p2``: P2 on
 the whole phantom's own gmsh mesh, 3.2 mm sites, 59k unknowns; ``--old paths``: the symmetric
 mesh with 2.26 mm paths, 93k unknowns) are solved in the same run, for the ratios. The converged
 answer is the finest level of a refinement study shipped in
@@ -30,8 +31,8 @@ displacements (mm) of each discretization, the relative difference of each to th
 (targets: |u - u_ref| / |u_ref|), Newton iterations, wall time, and the ratios new / old.
 
     .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--pushes 5 10 12.5]
-        [--contact-quadrature nodal|2] [--study gauss|nodal] [--old [p1|p2|paths|nodal]]
-        [--case indenter|wide|control] [--tip-start nodes|surface]
+        [--contact-quadrature nodal|2] [--study gauss|nodal] [--old [p1|p2|paths|nodal|quarter]]
+        [--case indenter|wide|control|half|quarter] [--tip-start nodes|surface]
         [--mesh SIZE SITE PATH [--builder phantom-symmetric]] [--rows] [--answers FILE]
 
 ``--rows`` prints the default's rows for its case file's ``[[reference.measured]]``.
@@ -59,14 +60,17 @@ OLD = {"p1": ("old P1", 1, "phantom", (6.0, 1.6, None)),
        "p2": ("old P2", None, "phantom", (6.0, 3.2, None)),
        "paths": ("old path", None, "phantom-symmetric",
                  (6.0 * 2 ** 0.5, 3.2 * 2 ** 0.5, 1.6 * 2 ** 0.5)),
-       "nodal": ("nodal", None, None, None, "nodal")}
+       "nodal": ("nodal", None, None, None, "nodal"),
+       "quarter": ("old quarter", None, "phantom-quarter", (6.0, 3.2, 1.6))}
 """The earlier defaults of the indenter phantom (``--old``): label, degree (None: the case's),
 builder and mesh (size, site_size, path_size; mm; None: the case's), and a contact rule where
 it differs. p1: P1 on 1.6 mm sites; p2 (until the symmetric mesh): P2 on the whole phantom's
 own gmsh mesh with 3.2 mm sites, 59k unknowns; paths (until the paths were refined as the
 quarter study's level 0): the symmetric mesh with 2.26 mm paths, the quarter study's level -1,
 93k unknowns; nodal (until the 5 mm tip cases named the Gauss rule): the case's mesh with the
-contact sampled at the skin's nodes, its tips started on them."""
+contact sampled at the skin's nodes, its tips started on them; quarter (``--case quarter``, until
+its bulk was meshed as the whole case's): the quarter case on 6 mm cells with 3.2 mm sites. A
+sixth entry, where given, holds ``NewtonSettings`` fields."""
 
 
 QUARTER = ROOT / "meshes" / "cases" / "phantom-indenter-quarter.toml"
@@ -78,7 +82,7 @@ unknowns."""
 
 def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indenter",
           mesh: tuple | None = None, builder: str = "phantom",
-          start: str | None = None) -> list[dict]:
+          start: str | None = None, settings: dict | None = None) -> list[dict]:
     """The case's default discretization (or ``degree``, or the case meshed by ``builder`` with
     ``mesh`` = (size, site_size, path_size) mm; tips started as ``start``, None: the case's)
     along one load path through ``pushes``: one row per push reached. All four pushed on the 5 mm
@@ -98,9 +102,10 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
     else:
         size, site_size, path_size = mesh
         case = case.with_mesh(build(builder, size, site_size=site_size, path_size=path_size))
-    # the half case: A1 is cut in half by its mirror plane y = 0 (the rows give the whole tip)
+    # the half and quarter cases: A1 is cut in half by the mirror plane y = 0 (the rows give
+    # the whole tip)
     whole = {"cells": case.mesh.n_cells, "counts": None,
-             "cut": 2.0 if case_name == "half" else 1.0}
+             "cut": 2.0 if case_name in ("half", "quarter") else 1.0}
     if load == "four" and builder == "phantom-symmetric" and case_name == "indenter":
         quarter = load_case(QUARTER)
         assert {a.radius for a in quarter.actuators} == {a.radius for a in case.actuators}
@@ -112,7 +117,8 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
         print(f"  [all four on the quarter of the symmetric mesh: {case.mesh.n_cells} of "
               f"{whole['cells']} cells]", flush=True)
     pushed = [a for a in LOADS[load] if a in {b.name for b in case.actuators}]
-    s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=rule, tip_start=start)
+    s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=rule, tip_start=start,
+                           settings=fr.NewtonSettings(**(settings or {})))
     rows, prev = [], None
 
     def dofs(d: dict) -> int:
@@ -184,7 +190,8 @@ def main():
     ap.add_argument("--case", choices=sorted(CASES), default="indenter",
                     help="phantom-indenter.toml (5 mm tips), phantom-indenter-wide.toml (8 mm), "
                          "phantom-indenter-control.toml (5 mm tips, a coarser body) or "
-                         "phantom-indenter-half.toml (its half, A1 alone)")
+                         "phantom-indenter-half.toml (its half, A1 alone) or "
+                         "phantom-indenter-quarter.toml (its quarter, all four)")
     ap.add_argument("--study", choices=["gauss", "nodal"], default="gauss",
                     help="the refinement study whose finest level is the converged answer "
                          "(the wide case has a Gauss-rule study only)")
@@ -207,15 +214,19 @@ def main():
                     help="also solve an earlier default for the ratios: p1 (the default "
                          "without a value: P1, 1.6 mm sites), p2 (P2, 3.2 mm sites, the "
                          "whole phantom's own mesh), paths (the symmetric mesh with 2.26 mm "
-                         "paths) or nodal (the case's mesh, the nodal contact rule)")
+                         "paths), nodal (the case's mesh, the nodal contact rule) or quarter "
+                         "(--case quarter on 6 mm cells, 3.2 mm sites)")
     args = ap.parse_args()
     if (args.case, args.study) not in STUDIES:
         ap.error(f"the {args.case} case has no {args.study} study")
     if args.case == "half" and args.loads != ["one"]:
         ap.error("the half case carries A1 alone (--loads one): all four are the quarter's")
+    if args.case == "quarter" and args.loads != ["four"]:
+        ap.error("the quarter case carries all four equally (--loads four)")
     # the case's own contact rule and tip start, for --rows (read from the file: no mesh to build)
     reference = tomllib.loads(CASES[args.case].read_text()).get("reference", {})
     case_rule, case_pin = reference.get("contact_quadrature"), reference.get("tip_start")
+    actuators = [a["name"] for a in tomllib.loads(CASES[args.case].read_text())["actuator"]]
     for load in args.loads:
         what = "A1 alone" if load == "one" else "all four"
         label = "default" if args.mesh is None else "mesh"
@@ -228,10 +239,11 @@ def main():
                                                 args.contact_quadrature, args.case, args.mesh,
                                                 args.builder, args.tip_start)))]
         if args.old:
-            old, degree, builder, mesh, *rule = OLD[args.old]
-            runs.append((old, solve(load, args.pushes, degree,
-                                    rule[0] if rule else args.contact_quadrature, args.case,
-                                    mesh, builder or "phantom", args.tip_start)))
+            old, degree, builder, mesh, *more = OLD[args.old]
+            rule = more[0] if more and more[0] is not None else args.contact_quadrature
+            runs.append((old, solve(load, args.pushes, degree, rule, args.case, mesh,
+                                    builder or "phantom", args.tip_start,
+                                    more[1] if len(more) > 1 else None)))
         started = runs[0][1][0]["start"]    # where the solver started the tips, every push
         for push in args.pushes:
             ref = finest(load, push, args.study, args.case, started)
@@ -281,7 +293,7 @@ def main():
                     f"{n} {np.round(v, 4).tolist()}" for n, v in r["probes"].items()))
             if args.rows and args.mesh is None and label in found:
                 print(measured_row(load, push, found[label], errs[label], ref, case_rule,
-                                   case_pin))
+                                   case_pin, actuators))
             if ref and len(errs) == 2:
                 old = runs[1][0]
                 worst = (max(errs[label].values()), max(errs[old].values()))

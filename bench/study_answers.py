@@ -18,9 +18,11 @@ ROOT = Path(__file__).resolve().parents[1]
 CASES = {"indenter": ROOT / "meshes" / "cases" / "phantom-indenter.toml",
          "wide": ROOT / "meshes" / "cases" / "phantom-indenter-wide.toml",
          "control": ROOT / "meshes" / "cases" / "phantom-indenter-control.toml",
-         "half": ROOT / "meshes" / "cases" / "phantom-indenter-half.toml"}
+         "half": ROOT / "meshes" / "cases" / "phantom-indenter-half.toml",
+         "quarter": ROOT / "meshes" / "cases" / "phantom-indenter-quarter.toml"}
 STUDIES = {("indenter", "gauss"): ("{load}_gauss", "{load}"), ("indenter", "nodal"): ("{load}",),
            ("half", "gauss"): ("{load}_gauss", "{load}"), ("half", "nodal"): ("{load}",),
+           ("quarter", "gauss"): ("{load}_gauss", "{load}"), ("quarter", "nodal"): ("{load}",),
            ("wide", "gauss"): ("{load}_wide",),
            ("control", "gauss"): ("{load}_gauss", "{load}"), ("control", "nodal"): ("{load}",)}
 """Per case and ``--study``: the studies in DATA searched for the push, in order (the tips started
@@ -124,16 +126,18 @@ def study_level(load: str, pushes, study: str, case_name: str, rule,
 
 
 def measured_row(load: str, push: float, r: dict, e: dict, ref: dict | None,
-                 case_rule, case_pin: str | None) -> str:
+                 case_rule, case_pin: str | None, actuators=None) -> str:
     """The ``[[reference.measured]]`` table (TOML) of the default's answer ``r`` with its
     differences ``e`` from the converged answer ``ref`` (or, without one, converged = false);
     its contact rule where it is not the case's (``case_rule``) and its tip start where a row
     would not take it by default: the case's ``[reference] tip_start`` (``case_pin``), else the
-    start of the row's rule (``fem_reference.measured`` reads rows so)."""
+    start of the row's rule (``fem_reference.measured`` reads rows so). ``actuators``: the
+    case's actuator names, where a mirror plane leaves it fewer than the whole phantom's."""
     from tissue_reference.meshes.case import tip_start_for
 
     lines = ["[[reference.measured]]",
-             "pushes = {" + ", ".join(f"{a} = {push:g}" for a in LOADS[load]) + "}",
+             "pushes = {" + ", ".join(f"{a} = {push:g}" for a in LOADS[load]
+                                      if actuators is None or a in actuators) + "}",
              f"dofs = {r['dofs']}"]
     if r["rule"] != (case_rule or "nodal"):
         lines.append(f"contact_quadrature = {json.dumps(r['rule'])}")

@@ -154,17 +154,11 @@ class FastModel:
         self.refactorizations += 1
         self._factor_ms += (time.perf_counter() - t0) * 1e3
 
-    def _valid(self, ops, u) -> bool:
-        if ops.law.model == "linear-elastic":
-            return True
-        F = ops.grad(u) + np.eye(ops.d)
-        return bool(np.all(np.linalg.det(F) > 0))
-
     def _full_solve(self, pushes):
         """A full ADMM solve (polish to 1e-7 mm) at ``pushes``: the start, and the fallback."""
         ops, up = self._setup(pushes)
         warm = None if self._q is None else up + ops.red.Z @ self._q
-        if warm is not None and not self._valid(ops, warm):
+        if warm is not None and not ops.valid(warm):
             warm = None   # the last state carried to these pushes folds cells: start cold
 
         start = None if self._s is None else dict(zip(self.acts, self._s.tolist()))
@@ -215,7 +209,7 @@ class FastModel:
                 return None
             q = q + dq
             if step < STATE_TOL_MM:
-                return q if self._valid(ops, up + Z @ q) else None
+                return q if ops.valid(up + Z @ q) else None
             if prev is not None and step > REFACTOR_RATE * prev and refactors < limit:
                 try:
                     self._factor(ops, up + Z @ q, tips)

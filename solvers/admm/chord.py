@@ -14,8 +14,8 @@ corrections: on the phantom, 4 mm on all four actuators, 6-10 steps from the res
 largest vertex step below 1e-4 mm (bench/bench_admm_accel.py). Each step costs a residual and one
 back-substitution, where a Newton step assembles and factorizes a tangent.
 
-Safeguard: an extrapolated iterate that inverts an element is replaced by the plain chord
-iterate and the history restarts; an iterate whose correction grew past ``GROWTH`` times the
+Safeguard: an extrapolated iterate that inverts an element, or whose correction is longer than
+the last one taken, is replaced by the plain chord iterate and the history restarts; an iterate whose correction grew past ``GROWTH`` times the
 smallest one so far, or a non-finite one, ends the polish unconverged: the caller finishes with
 the exact-tangent Newton polish from the best iterate (``driver``). Stops when the largest vertex
 correction is below ``tol_mm``. Quasi-static only and without rigid tips: the contact's penalty
@@ -25,35 +25,27 @@ from __future__ import annotations
 
 import numpy as np
 
-from .mechanics import det_cof
+from .loop import Anderson
 
 GROWTH = 10.0
 """A chord correction this many times larger than the smallest one so far ends the polish
 (diverging: the Newton polish takes over)."""
 
 
-def _valid(ops, u) -> bool:
-    if ops.law.model == "linear-elastic":
-        return True
-    J, _ = det_cof(ops.grad(u) + np.eye(ops.d))
-    return bool(np.all(J > 0))
-
-
 def chord(ops, u, fext, factor, *, tol_mm: float, max_iter: int, anderson: int = 5,
           it0: int = 0, hist=None, callback=None):
     """Chord steps with the factorization ``factor`` (its ``solve(b)``) of the reduced tangent
-    at rest, Anderson-mixed over ``anderson`` iterates, from u (mm, (N,)) with its prescribed
-    part as it is. Returns (u, iterations, converged): the last iterate, or the one with the
-    smallest correction if the steps diverged (module docstring)."""
+    at rest, Anderson-mixed over ``anderson`` iterates (``loop.Anderson``, whose own safeguard
+    drops an extrapolation whose correction grew), from u (mm, (N,)) with its prescribed part as
+    it is. Returns (u, iterations, converged): the last iterate, or the one with the smallest
+    correction if the steps diverged (module docstring)."""
     Z, ZT = ops.red.Z, ops.red.ZT
-    q = ZT @ u
-    ub = u - Z @ q
-    dF, dG = [], []
-    f_prev = g_prev = None
+    ub = u - Z @ (ZT @ u)
+    mix = Anderson(anderson)
+    mix.x = q = ZT @ u
     best_q, best_step = q, np.inf
     for k in range(1, int(max_iter) + 1):
-        r = ZT @ ops.residual(ub + Z @ q, fext)
-        f = -factor.solve(r)                 # the chord correction: G(q) - q
+        f = -factor.solve(ZT @ ops.residual(ub + Z @ q, fext))   # the chord correction
         g = q + f
         step = ops.step_norm(f)
         if hist is not None:
@@ -64,25 +56,10 @@ def chord(ops, u, fext, factor, *, tol_mm: float, max_iter: int, anderson: int =
             best_q, best_step = g, step
         if callback is not None:
             callback(it0 + k, (ub + Z @ g).reshape(-1, ops.d))
-        if step < tol_mm and _valid(ops, ub + Z @ g):
+        if step < tol_mm and ops.valid(ub + Z @ g):
             return ub + Z @ g, k, True
-        if f_prev is not None and anderson > 0:
-            dF.append(f - f_prev)
-            dG.append(g - g_prev)
-            if len(dF) > anderson:
-                dF.pop(0)
-                dG.pop(0)
-        f_prev, g_prev = f, g
-        q = g
-        if dF:
-            DF, DG = np.array(dF), np.array(dG)
-            gram = DF @ DF.T
-            gamma = np.linalg.solve(gram + (1e-10 * np.trace(gram) + 1e-300) * np.eye(len(gram)),
-                                    DF @ f)
-            q_acc = g - gamma @ DG
-            if _valid(ops, ub + Z @ q_acc):
-                q = q_acc
-            else:   # an extrapolation that inverts an element: the plain step, history restarts
-                dF.clear()
-                dG.clear()
+        nxt = mix.step(g)
+        if nxt is not None and mix.accelerated and not ops.valid(ub + Z @ nxt):
+            mix.refuse()   # an extrapolation that inverts an element: the plain step
+        q = mix.x
     return ub + Z @ best_q, int(max_iter), False

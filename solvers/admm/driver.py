@@ -4,6 +4,7 @@ then the Newton polish), or implicit-Euler dynamics (``dynamics``); the result w
 energy, deformation state and the iteration history."""
 from __future__ import annotations
 
+import functools
 import time
 
 import numpy as np
@@ -138,13 +139,10 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
                      max_iter=int(max_iter), callback=callback, it0=it0, progress=progress,
                      hist=hist, be=be, tips=tips_at(s), anderson=anderson)
 
-    rest = {}
-
+    @functools.cache
     def rest_pair():
         """The tangent at rest and its factorization, once per solve (kept with ops when small)."""
-        if "pair" not in rest:
-            rest["pair"] = rest_factor(ops, factorize)
-        return rest["pair"]
+        return rest_factor(ops, factorize)
 
     fallbacks = []
     chord_steps = [0]

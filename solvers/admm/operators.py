@@ -32,7 +32,7 @@ from .amg import AmgPcg
 from .constraints import constraint_reduction, vertex_rank
 from .contact import ContactSet
 from .factor import CoupledSolver, Direct
-from .mechanics import assemble, case_parts, element_K
+from .mechanics import assemble, case_parts, det_cof, element_K
 
 PCG_MIN = 4000  # free vertices from which the x-step is solved by AMG-preconditioned CG
 PCG_ITERS = 1  # least warm-started PCG iterations per ADMM x-step
@@ -268,6 +268,14 @@ class AdmmOperators:
         """H_e = grad u (m, d, d), mesh element order (as ``mechanics.displacement_gradient``,
         one sparse product)."""
         return (self._mesh_gradient()[0] @ u.reshape(-1)).reshape(self.m, self.d, self.d)
+
+    def valid(self, u) -> bool:
+        """Whether no cell of the displacement u (mm, (N,)) is inverted (det F > 0 in every
+        cell); always True for linear elasticity, whose energy has no such bound."""
+        if self.law.model == "linear-elastic":
+            return True
+        J, _ = det_cof(self.grad(u) + np.eye(self.d))
+        return bool(np.all(J > 0))
 
     def scatter(self, Pv):
         """Nodal forces sum_e Pv_e : grad N_a (node-major, (N,)) of Pv (m, d, d) (as
