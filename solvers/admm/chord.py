@@ -15,11 +15,12 @@ largest vertex step below 1e-4 mm (bench/bench_admm_accel.py). Each step costs a
 back-substitution, where a Newton step assembles and factorizes a tangent.
 
 Safeguard: an extrapolated iterate that inverts an element, or whose correction is longer than
-the last one taken, is replaced by the plain chord iterate and the history restarts; an iterate whose correction grew past ``GROWTH`` times the
-smallest one so far, or a non-finite one, ends the polish unconverged: the caller finishes with
-the exact-tangent Newton polish from the best iterate (``driver``). Stops when the largest vertex
-correction is below ``tol_mm``. Quasi-static only and without rigid tips: the contact's penalty
-stiffness is not in the rest tangent (those solves use the Newton polish). Units: mm, mN.
+the last one taken, is replaced by the plain chord iterate and the history restarts; an iterate
+whose correction grew past ``GROWTH`` times the smallest one so far, or a non-finite one, ends
+the polish unconverged: the caller finishes with the exact-tangent Newton polish from the best
+iterate (``driver``). Stops when the largest vertex correction is below ``tol_mm``.
+Quasi-static only and without rigid tips: the contact's penalty stiffness is not in the rest
+tangent (those solves use the Newton polish). Units: mm, mN.
 """
 from __future__ import annotations
 
