@@ -69,8 +69,7 @@ own gmsh mesh with 3.2 mm sites, 59k unknowns; paths (until the paths were refin
 quarter study's level 0): the symmetric mesh with 2.26 mm paths, the quarter study's level -1,
 93k unknowns; nodal (until the 5 mm tip cases named the Gauss rule): the case's mesh with the
 contact sampled at the skin's nodes, its tips started on them; quarter (``--case quarter``, until
-its bulk was meshed as the whole case's): the quarter case on 6 mm cells with 3.2 mm sites. A
-sixth entry, where given, holds ``NewtonSettings`` fields."""
+its bulk was meshed as the whole case's): the quarter case on 6 mm cells with 3.2 mm sites."""
 
 
 QUARTER = ROOT / "meshes" / "cases" / "phantom-indenter-quarter.toml"
@@ -82,7 +81,7 @@ unknowns."""
 
 def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indenter",
           mesh: tuple | None = None, builder: str = "phantom",
-          start: str | None = None, settings: dict | None = None) -> list[dict]:
+          start: str | None = None) -> list[dict]:
     """The case's default discretization (or ``degree``, or the case meshed by ``builder`` with
     ``mesh`` = (size, site_size, path_size) mm; tips started as ``start``, None: the case's)
     along one load path through ``pushes``: one row per push reached. All four pushed on the 5 mm
@@ -117,8 +116,7 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
         print(f"  [all four on the quarter of the symmetric mesh: {case.mesh.n_cells} of "
               f"{whole['cells']} cells]", flush=True)
     pushed = [a for a in LOADS[load] if a in {b.name for b in case.actuators}]
-    s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=rule, tip_start=start,
-                           settings=fr.NewtonSettings(**(settings or {})))
+    s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=rule, tip_start=start)
     rows, prev = [], None
 
     def dofs(d: dict) -> int:
@@ -224,9 +222,10 @@ def main():
     if args.case == "quarter" and args.loads != ["four"]:
         ap.error("the quarter case carries all four equally (--loads four)")
     # the case's own contact rule and tip start, for --rows (read from the file: no mesh to build)
-    reference = tomllib.loads(CASES[args.case].read_text()).get("reference", {})
+    spec = tomllib.loads(CASES[args.case].read_text())
+    reference = spec.get("reference", {})
     case_rule, case_pin = reference.get("contact_quadrature"), reference.get("tip_start")
-    actuators = [a["name"] for a in tomllib.loads(CASES[args.case].read_text())["actuator"]]
+    actuators = [a["name"] for a in spec["actuator"]]
     for load in args.loads:
         what = "A1 alone" if load == "one" else "all four"
         label = "default" if args.mesh is None else "mesh"
@@ -239,11 +238,10 @@ def main():
                                                 args.contact_quadrature, args.case, args.mesh,
                                                 args.builder, args.tip_start)))]
         if args.old:
-            old, degree, builder, mesh, *more = OLD[args.old]
-            rule = more[0] if more and more[0] is not None else args.contact_quadrature
-            runs.append((old, solve(load, args.pushes, degree, rule, args.case, mesh,
-                                    builder or "phantom", args.tip_start,
-                                    more[1] if len(more) > 1 else None)))
+            old, degree, builder, mesh, *rule = OLD[args.old]
+            runs.append((old, solve(load, args.pushes, degree,
+                                    rule[0] if rule else args.contact_quadrature, args.case,
+                                    mesh, builder or "phantom", args.tip_start)))
         started = runs[0][1][0]["start"]    # where the solver started the tips, every push
         for push in args.pushes:
             ref = finest(load, push, args.study, args.case, started)
