@@ -31,7 +31,8 @@ displacements (mm) of each discretization, the relative difference of each to th
 (targets: |u - u_ref| / |u_ref|), Newton iterations, wall time, and the ratios new / old.
 
     .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--pushes 5 10 12.5]
-        [--contact-quadrature nodal|2] [--study gauss|nodal] [--old [p1|p2|paths|nodal|quarter]]
+        [--contact-quadrature nodal|2] [--study gauss|nodal]
+        [--old [p1|p2|paths|nodal|quarter|newton]]
         [--case indenter|wide|control|half|quarter] [--tip-start nodes|surface]
         [--mesh SIZE SITE PATH [--builder phantom-symmetric]] [--rows] [--answers FILE]
 
@@ -61,7 +62,8 @@ OLD = {"p1": ("old P1", 1, "phantom", (6.0, 1.6, None)),
        "paths": ("old path", None, "phantom-symmetric",
                  (6.0 * 2 ** 0.5, 3.2 * 2 ** 0.5, 1.6 * 2 ** 0.5)),
        "nodal": ("nodal", None, None, None, "nodal"),
-       "quarter": ("old quarter", None, "phantom-quarter", (6.0, 3.2, 1.6))}
+       "quarter": ("old quarter", None, "phantom-quarter", (6.0, 3.2, 1.6)),
+       "newton": ("old Newton", None, None, None)}
 """The earlier defaults of the indenter phantom (``--old``): label, degree (None: the case's),
 builder and mesh (size, site_size, path_size; mm; None: the case's), and a contact rule where
 it differs. p1: P1 on 1.6 mm sites; p2 (until the symmetric mesh): P2 on the whole phantom's
@@ -69,7 +71,17 @@ own gmsh mesh with 3.2 mm sites, 59k unknowns; paths (until the paths were refin
 quarter study's level 0): the symmetric mesh with 2.26 mm paths, the quarter study's level -1,
 93k unknowns; nodal (until the 5 mm tip cases named the Gauss rule): the case's mesh with the
 contact sampled at the skin's nodes, its tips started on them; quarter (``--case quarter``, until
-its bulk was meshed as the whole case's): the quarter case on 6 mm cells with 3.2 mm sites."""
+its bulk was meshed as the whole case's): the quarter case on 6 mm cells with 3.2 mm sites;
+newton: the case's own discretization solved by Newton as it was before the tips' tangents were
+factorized at every iteration (``OLD_NEWTON``)."""
+
+
+OLD_NEWTON = {"linear_solver": "lagged", "intermediate_rtol": 1e-6}
+"""Newton before (``--old newton``): each factorization reused as the GMRES preconditioner of
+later tangents, the load steps before the last converged to 1e-6, and the residual lifted by
+the Dirichlet values at every assembly, also where they agree with the unknown's. Its line search
+tests a trial's energy before its residual, as Newton does now (that order changes no decision,
+only the cost of a refused trial)."""
 
 
 QUARTER = ROOT / "meshes" / "cases" / "phantom-indenter-quarter.toml"
@@ -81,12 +93,13 @@ unknowns."""
 
 def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indenter",
           mesh: tuple | None = None, builder: str = "phantom",
-          start: str | None = None) -> list[dict]:
+          start: str | None = None, old_newton: bool = False) -> list[dict]:
     """The case's default discretization (or ``degree``, or the case meshed by ``builder`` with
     ``mesh`` = (size, site_size, path_size) mm; tips started as ``start``, None: the case's)
     along one load path through ``pushes``: one row per push reached. All four pushed on the 5 mm
     tip case meshed as ``phantom-symmetric`` are solved on its quarter (``QUARTER``, same sizes,
-    same answer); the row then gives the whole case's cells and unknowns and A1's whole force."""
+    same answer); the row then gives the whole case's cells and unknowns and A1's whole force.
+    ``old_newton``: solved by Newton as it was before (``OLD_NEWTON``)."""
     import tissue_reference.fem_reference as fr
     from tissue_reference.fem_reference.dof_counts import entity_counts, predicted_dofs
     from tissue_reference.meshes.builders import build
@@ -116,7 +129,14 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
         print(f"  [all four on the quarter of the symmetric mesh: {case.mesh.n_cells} of "
               f"{whole['cells']} cells]", flush=True)
     pushed = [a for a in LOADS[load] if a in {b.name for b in case.actuators}]
-    s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=rule, tip_start=start)
+    options = {}
+    if old_newton:
+        options = {"linear_solver": OLD_NEWTON["linear_solver"], "settings": fr.NewtonSettings(
+            intermediate_rtol=OLD_NEWTON["intermediate_rtol"])}
+    s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=rule, tip_start=start,
+                           **options)
+    if old_newton:
+        s.newton.lifting_needed = lambda: True
     rows, prev = [], None
 
     def dofs(d: dict) -> int:
@@ -212,8 +232,10 @@ def main():
                     help="also solve an earlier default for the ratios: p1 (the default "
                          "without a value: P1, 1.6 mm sites), p2 (P2, 3.2 mm sites, the "
                          "whole phantom's own mesh), paths (the symmetric mesh with 2.26 mm "
-                         "paths), nodal (the case's mesh, the nodal contact rule) or quarter "
-                         "(--case quarter on 6 mm cells, 3.2 mm sites)")
+                         "paths), nodal (the case's mesh, the nodal contact rule), quarter "
+                         "(--case quarter on 6 mm cells, 3.2 mm sites) or newton (the case's "
+                         "discretization, Newton as before: lagged factorizations, load steps "
+                         "converged to 1e-6)")
     args = ap.parse_args()
     if (args.case, args.study) not in STUDIES:
         ap.error(f"the {args.case} case has no {args.study} study")
@@ -241,7 +263,8 @@ def main():
             old, degree, builder, mesh, *rule = OLD[args.old]
             runs.append((old, solve(load, args.pushes, degree,
                                     rule[0] if rule else args.contact_quadrature, args.case,
-                                    mesh, builder or "phantom", args.tip_start)))
+                                    mesh, builder or "phantom", args.tip_start,
+                                    old_newton=args.old == "newton")))
         started = runs[0][1][0]["start"]    # where the solver started the tips, every push
         for push in args.pushes:
             ref = finest(load, push, args.study, args.case, started)

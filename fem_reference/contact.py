@@ -255,7 +255,24 @@ class Contact:
         apply."""
         return self._total is not None
 
-    def accepts(self, r_new: float, r_old: float, forced: bool) -> bool:
+    def total_energy(self) -> float:
+        """The total energy (uJ) at the solver's current state, with that of the solver's
+        ``Newton.extra_terms`` where they have one; kept as ``trial_energy``. Energy line search
+        only (``energy_search``)."""
+        energy = self.comm.allreduce(dolfinx.fem.assemble_scalar(self._total), op=MPI.SUM)
+        extra = self.solver.newton.extra_terms   # e.g. the inertia of a dynamics time step
+        if extra is not None and hasattr(extra, "energy"):
+            energy += extra.energy()
+        self.trial_energy = energy
+        return energy
+
+    def lowers(self, energy: float) -> bool:
+        """Whether a trial of total energy ``energy`` (uJ) is not above the state last taken
+        (to 1e-12 of it): what ``accepts`` takes when the step is not forced."""
+        return energy <= self._energy + 1e-12 * abs(self._energy)
+
+    def accepts(self, r_new: float, r_old: float, forced: bool,
+                energy: float | None = None) -> bool:
         """Newton's line search with indenters: is the correction just tried (the solver's
         current state) taken, or shortened? Taken when it lowers the total energy (uJ; the
         residual norm r_new < r_old (mN) in the mixed formulation, a saddle point), or when
@@ -264,18 +281,14 @@ class Contact:
         second order, which the stiff penalty turns into a large residual, so the residual norm
         would refuse steps that the energy takes. Without indenters every correction is taken.
         ``accepted_energy`` is then the taken state's energy and ``trial_energy`` the one just
-        tried. The total includes the energy of the solver's ``Newton.extra_terms`` where they
-        have one (the inertia of an implicit-Euler step)."""
+        tried (``total_energy``; ``energy``: that of the current state, already computed)."""
         if not self.indenters:
             return True
         if self._total is None:
             return forced or r_new < r_old
-        energy = self.comm.allreduce(dolfinx.fem.assemble_scalar(self._total), op=MPI.SUM)
-        extra = self.solver.newton.extra_terms   # e.g. the inertia of a dynamics time step
-        if extra is not None and hasattr(extra, "energy"):
-            energy += extra.energy()
-        self.trial_energy = energy
-        if forced or energy <= self._energy + 1e-12 * abs(self._energy):
+        if energy is None:
+            energy = self.total_energy()
+        if forced or self.lowers(energy):
             self._energy = energy
             return True
         return False

@@ -182,7 +182,7 @@ def warm_newton(solver, max_iterations: int):
                                           max_iterations=max_iterations,
                                           line_search=max(settings.line_search, WARM_LINE_SEARCH))
     if not contact.indenters:
-        contact.accepts = lambda r_new, r_old, forced: forced or r_new < r_old
+        contact.accepts = lambda r_new, r_old, forced, energy=None: forced or r_new < r_old
     try:
         yield solver
     finally:
