@@ -10,6 +10,7 @@ largest vertex difference from the reference (mm) and the time ratio reference /
     python bench/bench_admm_accel.py --sizes 1.8 --only chord   # 185k tets: the chord row only
     python bench/bench_admm_accel.py --rest-tangent     # cold solves with and without the kept
                                                         # factorization of the tangent at rest
+                                                        # (with the chord polish: its memory)
 
 Cold: every solve from rest (the reference's forms compiled beforehand, its solver kept);
 warm: a re-solve after +0.5 mm on every actuator, from the previous answer (the reference from
@@ -113,8 +114,11 @@ def rest_tangent(args):
         runs = (("plain ADMM", {"polish": False, "tol_mm": args.tol, "max_iter": 50000}),
                 (f"Anderson({args.anderson})", {"polish": False, "tol_mm": args.tol,
                                                 "max_iter": 50000, "anderson": args.anderson}),
-                ("ADMM + polish", {}))
+                ("ADMM + polish", {}),
+                ("ADMM + chord", {"polish": "chord", "factorize": fr.cholmod_factor}))
         for label, kw in runs:
+            if args.only and label.split()[-1].lower() not in args.only:
+                continue
             out = []
             for limit in (0, kept):
                 polish.REST_TANGENT_KEPT_DOFS = limit
@@ -122,9 +126,35 @@ def rest_tangent(args):
                 out.append(min(timed(lambda kw=kw, c=case, p=p0: admm.solve(c, pushes=p, **kw))[1]
                                for _ in range(5)))
             polish.REST_TANGENT_KEPT_DOFS = kept
+            held = _kept_memory(case, acts) if "chord" in label else ""
             print(f"  {label:14s} factorized at every lift {out[0] * 1e3:7.1f} ms "
                   f"(x{t_ref / out[0]:.2f}), kept {out[1] * 1e3:7.1f} ms (x{t_ref / out[1]:.2f}): "
-                  f"{out[0] / out[1]:.2f}x faster")
+                  f"{out[0] / out[1]:.2f}x faster{held}")
+
+
+def _rss_mib() -> float:
+    """This process's resident memory (MiB) after returning freed memory to the system."""
+    import ctypes
+    import gc
+
+    gc.collect()
+    ctypes.CDLL("libc.so.6").malloc_trim(0)
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmRSS")) / 1024
+
+
+def _kept_memory(case, acts) -> str:
+    """The resident memory (MiB) the kept rest tangent holds: the operators' kept factorization
+    and element matrices dropped and rebuilt."""
+    from tissue_reference.solvers.admm import operators, polish
+
+    ops = operators.prepare(case.with_pushes(dict.fromkeys(acts, 0.1)))
+    if ops.rest_tangent is None:
+        return "; not kept"
+    ops.rest_tangent = None
+    without = _rss_mib()
+    polish.rest_factor(ops, fr.cholmod_factor)
+    return f"; the kept rest tangent holds {_rss_mib() - without:.0f} MiB ({ops.nq} unknowns)"
 
 
 if __name__ == "__main__":

@@ -10,11 +10,14 @@ from .factor import sym_splu
 from .loop import check_J, diverged_error
 from .operators import vertex_norm_max
 
-REST_TANGENT_KEPT_DOFS = 60_000
+REST_TANGENT_KEPT_DOFS = 100_000
 """The tangent at rest (without contact) is factorized once and kept with the operators up to this
-many reduced unknowns (about 20k vertices; a lift from rest, every cold solve's first load step,
-then costs one back-substitution); above it each lift factorizes its own, so no large factor is
-held between solves."""
+many reduced unknowns (about 33k vertices; a lift from rest, every cold solve's first load step,
+then costs one back-substitution, and the chord polish needs no factorization of its own);
+above it each lift factorizes its own, so no larger factor is held between solves. On the
+phantom at 185k tets (92k reduced unknowns) the kept factorization and element matrices hold
+about 1 GiB (965 MiB), and a cold chord-polished solve takes 3.0 s instead of 10.4 s
+(bench/bench_admm_accel.py --rest-tangent --sizes 1.8 --only chord, which prints the memory)."""
 
 
 def _contact_hessian(ops, u, tips, curvature=True):
