@@ -32,7 +32,7 @@ displacements (mm) of each discretization, the relative difference of each to th
 
     .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--pushes 5 10 12.5]
         [--contact-quadrature nodal|2] [--study gauss|nodal]
-        [--old [p1|p2|paths|nodal|quarter|newton]]
+        [--old [p1|p2|paths|nodal|quarter|newton|iterative]]
         [--case indenter|wide|control|half|quarter] [--tip-start nodes|surface]
         [--mesh SIZE SITE PATH [--builder phantom-symmetric]] [--rows] [--answers FILE]
 
@@ -63,8 +63,9 @@ OLD = {"p1": ("old P1", 1, "phantom", (6.0, 1.6, None)),
                  (6.0 * 2 ** 0.5, 3.2 * 2 ** 0.5, 1.6 * 2 ** 0.5)),
        "nodal": ("nodal", None, None, None, "nodal"),
        "quarter": ("old quarter", None, "phantom-quarter", (6.0, 3.2, 1.6)),
-       "newton": ("old Newton", None, None, None)}
-"""The earlier defaults of the indenter phantom (``--old``): label, degree (None: the case's),
+       "newton": ("old Newton", None, None, None),
+       "iterative": ("CG+GAMG", None, None, None)}
+"""The earlier defaults of the indenter phantom and an alternative (``--old``): label, degree (None: the case's),
 builder and mesh (size, site_size, path_size; mm; None: the case's), and a contact rule where
 it differs. p1: P1 on 1.6 mm sites; p2 (until the symmetric mesh): P2 on the whole phantom's
 own gmsh mesh with 3.2 mm sites, 59k unknowns; paths (until the paths were refined as the
@@ -73,7 +74,10 @@ quarter study's level 0): the symmetric mesh with 2.26 mm paths, the quarter stu
 contact sampled at the skin's nodes, its tips started on them; quarter (``--case quarter``, until
 its bulk was meshed as the whole case's): the quarter case on 6 mm cells with 3.2 mm sites;
 newton: the case's own discretization solved by Newton as it was before the tips' tangents were
-factorized at every iteration (``OLD_NEWTON``)."""
+factorized at every iteration (``OLD_NEWTON``); iterative (the route an iterative P2 solver would
+take): the case's own discretization with each tangent solved by CG preconditioned by smoothed
+aggregation AMG with the rigid-body modes as near null space (``linear_solver="iterative"``;
+MUMPS where CG does not converge)."""
 
 
 OLD_NEWTON = {"linear_solver": "lagged", "intermediate_rtol": 1e-6}
@@ -93,13 +97,15 @@ unknowns."""
 
 def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indenter",
           mesh: tuple | None = None, builder: str = "phantom",
-          start: str | None = None, old_newton: bool = False) -> list[dict]:
+          start: str | None = None, old_newton: bool = False,
+          linear_solver: str | None = None) -> list[dict]:
     """The case's default discretization (or ``degree``, or the case meshed by ``builder`` with
     ``mesh`` = (size, site_size, path_size) mm; tips started as ``start``, None: the case's)
     along one load path through ``pushes``: one row per push reached. All four pushed on the 5 mm
     tip case meshed as ``phantom-symmetric`` are solved on its quarter (``QUARTER``, same sizes,
     same answer); the row then gives the whole case's cells and unknowns and A1's whole force.
-    ``old_newton``: solved by Newton as it was before (``OLD_NEWTON``)."""
+    ``old_newton``: solved by Newton as it was before (``OLD_NEWTON``); ``linear_solver``: the
+    reference's linear solver (None: its default)."""
     import tissue_reference.fem_reference as fr
     from tissue_reference.fem_reference.dof_counts import entity_counts, predicted_dofs
     from tissue_reference.meshes.builders import build
@@ -133,6 +139,8 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
     if old_newton:
         options = {"linear_solver": OLD_NEWTON["linear_solver"], "settings": fr.NewtonSettings(
             intermediate_rtol=OLD_NEWTON["intermediate_rtol"])}
+    if linear_solver is not None:
+        options["linear_solver"] = linear_solver
     s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=rule, tip_start=start,
                            **options)
     if old_newton:
@@ -235,7 +243,8 @@ def main():
                          "paths), nodal (the case's mesh, the nodal contact rule), quarter "
                          "(--case quarter on 6 mm cells, 3.2 mm sites) or newton (the case's "
                          "discretization, Newton as before: lagged factorizations, load steps "
-                         "converged to 1e-6)")
+                         "converged to 1e-6) or iterative (the case's discretization, each "
+                         "tangent solved by CG + smoothed-aggregation AMG)")
     args = ap.parse_args()
     if (args.case, args.study) not in STUDIES:
         ap.error(f"the {args.case} case has no {args.study} study")
@@ -264,7 +273,9 @@ def main():
             runs.append((old, solve(load, args.pushes, degree,
                                     rule[0] if rule else args.contact_quadrature, args.case,
                                     mesh, builder or "phantom", args.tip_start,
-                                    old_newton=args.old == "newton")))
+                                    old_newton=args.old == "newton",
+                                    linear_solver="iterative" if args.old == "iterative"
+                                    else None)))
         started = runs[0][1][0]["start"]    # where the solver started the tips, every push
         for push in args.pushes:
             ref = finest(load, push, args.study, args.case, started)
