@@ -153,8 +153,12 @@ def _kept_memory(case, acts) -> str:
         return "; not kept"
     ops.rest_tangent = None
     without = _rss_mib()
-    polish.rest_factor(ops, fr.cholmod_factor)
-    return f"; the kept rest tangent holds {_rss_mib() - without:.0f} MiB ({ops.nq} unknowns)"
+    _, factor = polish.rest_factor(ops, fr.cholmod_factor)
+    held = _rss_mib() - without
+    ksp = getattr(factor, "ksp", None)     # CHOLMOD through PETSc: the factor's size
+    nz = "" if ksp is None else \
+        f", factor {ksp.getPC().getFactorMatrix().getInfo()['nz_used'] / 1e6:.1f}M nonzeros"
+    return f"; the kept rest tangent holds {held:.0f} MiB ({ops.nq} unknowns{nz})"
 
 
 if __name__ == "__main__":
