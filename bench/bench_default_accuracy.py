@@ -65,19 +65,19 @@ OLD = {"p1": ("old P1", 1, "phantom", (6.0, 1.6, None)),
        "quarter": ("old quarter", None, "phantom-quarter", (6.0, 3.2, 1.6)),
        "newton": ("old Newton", None, None, None),
        "iterative": ("CG+GAMG", None, None, None)}
-"""The earlier defaults of the indenter phantom and an alternative (``--old``): label, degree (None: the case's),
-builder and mesh (size, site_size, path_size; mm; None: the case's), and a contact rule where
-it differs. p1: P1 on 1.6 mm sites; p2 (until the symmetric mesh): P2 on the whole phantom's
-own gmsh mesh with 3.2 mm sites, 59k unknowns; paths (until the paths were refined as the
-quarter study's level 0): the symmetric mesh with 2.26 mm paths, the quarter study's level -1,
-93k unknowns; nodal (until the 5 mm tip cases named the Gauss rule): the case's mesh with the
-contact sampled at the skin's nodes, its tips started on them; quarter (``--case quarter``, until
-its bulk was meshed as the whole case's): the quarter case on 6 mm cells with 3.2 mm sites;
-newton: the case's own discretization solved by Newton as it was before the tips' tangents were
-factorized at every iteration (``OLD_NEWTON``); iterative (the route an iterative P2 solver would
-take): the case's own discretization with each tangent solved by CG preconditioned by smoothed
-aggregation AMG with the rigid-body modes as near null space (``linear_solver="iterative"``;
-MUMPS where CG does not converge)."""
+"""The earlier defaults of the indenter phantom and an alternative (``--old``): label, degree
+(None: the case's), builder and mesh (size, site_size, path_size; mm; None: the case's), and a
+contact rule where it differs. p1: P1 on 1.6 mm sites; p2 (until the symmetric mesh): P2 on the
+whole phantom's own gmsh mesh with 3.2 mm sites, 59k unknowns; paths (until the paths were
+refined as the quarter study's level 0): the symmetric mesh with 2.26 mm paths, the quarter
+study's level -1, 93k unknowns; nodal (until the 5 mm tip cases named the Gauss rule): the
+case's mesh with the contact sampled at the skin's nodes, its tips started on them; quarter
+(``--case quarter``, until its bulk was meshed as the whole case's): the quarter case on 6 mm
+cells with 3.2 mm sites; newton: the case's own discretization solved by Newton as it was before
+the tips' tangents were factorized at every iteration (``OLD_NEWTON``); iterative (the route an
+iterative P2 solver would take): the case's own discretization with each tangent solved by CG
+preconditioned by smoothed aggregation AMG with the rigid-body modes as near null space
+(``linear_solver="iterative"``; MUMPS where CG does not converge)."""
 
 
 OLD_NEWTON = {"linear_solver": "lagged", "intermediate_rtol": 1e-6}

@@ -239,12 +239,11 @@ class ReferenceSolver:
         self.W_form = dolfinx.fem.form(internal)
         n_dofs = self.W.dofmap.index_map.size_global * self.W.dofmap.index_map_bs
         if linear_solver == "auto":
-            linear_solver = "lagged" if n_dofs > LAGGED_ABOVE_DOFS else "direct"
-            if self.contact.indenters:
-                # the tips' contact set moves between Newton iterations: an earlier tangent's
-                # factor preconditions the next one poorly (GMRES runs to its restart and the
-                # tangent is factorized anyway), so each is factorized (MUMPS LDL^T)
-                linear_solver = "direct"
+            # with indenters the tips' contact set moves between Newton iterations: an earlier
+            # tangent's factor preconditions the next one poorly (GMRES runs to its restart and
+            # the tangent is factorized anyway), so each is factorized (MUMPS LDL^T)
+            lagged = n_dofs > LAGGED_ABOVE_DOFS and not self.contact.indenters
+            linear_solver = "lagged" if lagged else "direct"
             if self.formulation == "mixed" and n_dofs > FIELDSPLIT_ABOVE_DOFS:
                 linear_solver = "fieldsplit"
         if linear_solver not in ("direct", "lagged", "iterative", "fieldsplit"):

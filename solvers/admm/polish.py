@@ -16,8 +16,9 @@ many reduced unknowns (about 33k vertices; a lift from rest, every cold solve's 
 then costs one back-substitution, and the chord polish needs no factorization of its own);
 above it each lift factorizes its own, so no larger factor is held between solves. On the
 phantom at 185k tets (92k reduced unknowns) the kept factorization and element matrices hold
-about 1 GiB (965 MiB; the Cholesky factor has 71M nonzeros), and a cold chord-polished solve takes 3.0 s instead of 10.4 s
-(bench/bench_admm_accel.py --rest-tangent --sizes 1.8 --only chord, which prints the memory).
+about 1 GiB (965 MiB; the Cholesky factor has 71M nonzeros), and a cold chord-polished solve
+takes 3.0 s instead of 10.4 s (bench/bench_admm_accel.py --rest-tangent --sizes 1.8 --only
+chord, which prints the memory).
 Each operator set ``operators.prepare`` caches (those of the last 4 meshes) keeps its own;
 ``operators.OPERATOR_CACHE.clear()`` frees them."""
 
