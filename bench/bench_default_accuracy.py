@@ -32,7 +32,7 @@ displacements (mm) of each discretization, the relative difference of each to th
 
     .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--pushes 5 10 12.5]
         [--contact-quadrature nodal|2] [--study gauss|nodal]
-        [--old [p1|p2|paths|nodal|quarter|newton|iterative]]
+        [--old [p1|p2|paths|nodal|quarter|newton|iterative|kernels]]
         [--case indenter|wide|control|half|quarter] [--tip-start nodes|surface]
         [--mesh SIZE SITE PATH [--builder phantom-symmetric]] [--rows] [--answers FILE]
 
@@ -64,7 +64,8 @@ OLD = {"p1": ("old P1", 1, "phantom", (6.0, 1.6, None)),
        "nodal": ("nodal", None, None, None, "nodal"),
        "quarter": ("old quarter", None, "phantom-quarter", (6.0, 3.2, 1.6)),
        "newton": ("old Newton", None, None, None),
-       "iterative": ("CG+GAMG", None, None, None)}
+       "iterative": ("CG+GAMG", None, None, None),
+       "kernels": ("O2 kernels", None, None, None)}
 """The earlier defaults of the indenter phantom and an alternative (``--old``): label, degree
 (None: the case's), builder and mesh (size, site_size, path_size; mm; None: the case's), and a
 contact rule where it differs. p1: P1 on 1.6 mm sites; p2 (until the symmetric mesh): P2 on the
@@ -77,7 +78,9 @@ cells with 3.2 mm sites; newton: the case's own discretization solved by Newton 
 the tips' tangents were factorized at every iteration (``OLD_NEWTON``); iterative (the route an
 iterative P2 solver would take): the case's own discretization with each tangent solved by CG
 preconditioned by smoothed aggregation AMG with the rigid-body modes as near null space
-(``linear_solver="iterative"``; MUMPS where CG does not converge)."""
+(``linear_solver="iterative"``; MUMPS where CG does not converge); kernels: the case's own
+discretization with its forms compiled as dolfinx compiles them by default (-O2, without the
+reference's ``fem_reference.jit.JIT_PARAMS``)."""
 
 
 OLD_NEWTON = {"linear_solver": "lagged", "intermediate_rtol": 1e-6}
@@ -98,14 +101,28 @@ unknowns."""
 def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indenter",
           mesh: tuple | None = None, builder: str = "phantom",
           start: str | None = None, old_newton: bool = False,
-          linear_solver: str | None = None) -> list[dict]:
+          linear_solver: str | None = None, jit_params: dict | None = None) -> list[dict]:
     """The case's default discretization (or ``degree``, or the case meshed by ``builder`` with
     ``mesh`` = (size, site_size, path_size) mm; tips started as ``start``, None: the case's)
     along one load path through ``pushes``: one row per push reached. All four pushed on the 5 mm
     tip case meshed as ``phantom-symmetric`` are solved on its quarter (``QUARTER``, same sizes,
     same answer); the row then gives the whole case's cells and unknowns and A1's whole force.
     ``old_newton``: solved by Newton as it was before (``OLD_NEWTON``); ``linear_solver``: the
-    reference's linear solver (None: its default)."""
+    reference's linear solver (None: its default); ``jit_params``: the forms' JIT parameters
+    while this runs (None: the reference's ``JIT_PARAMS``)."""
+    from tissue_reference.fem_reference import jit
+
+    kept = jit.JIT_PARAMS
+    jit.JIT_PARAMS = kept if jit_params is None else jit_params
+    try:
+        return _solve(load, pushes, degree, rule, case_name, mesh, builder, start, old_newton,
+                      linear_solver)
+    finally:
+        jit.JIT_PARAMS = kept
+
+
+def _solve(load, pushes, degree, rule, case_name, mesh, builder, start, old_newton,
+           linear_solver) -> list[dict]:
     import tissue_reference.fem_reference as fr
     from tissue_reference.fem_reference.dof_counts import entity_counts, predicted_dofs
     from tissue_reference.meshes.builders import build
@@ -244,7 +261,9 @@ def main():
                          "(--case quarter on 6 mm cells, 3.2 mm sites) or newton (the case's "
                          "discretization, Newton as before: lagged factorizations, load steps "
                          "converged to 1e-6) or iterative (the case's discretization, each "
-                         "tangent solved by CG + smoothed-aggregation AMG)")
+                         "tangent solved by CG + smoothed-aggregation AMG) or kernels (the "
+                         "case's discretization, its forms compiled with dolfinx's default "
+                         "flags)")
     args = ap.parse_args()
     if (args.case, args.study) not in STUDIES:
         ap.error(f"the {args.case} case has no {args.study} study")
@@ -275,7 +294,8 @@ def main():
                                     mesh, builder or "phantom", args.tip_start,
                                     old_newton=args.old == "newton",
                                     linear_solver="iterative" if args.old == "iterative"
-                                    else None)))
+                                    else None,
+                                    jit_params={} if args.old == "kernels" else None)))
         started = runs[0][1][0]["start"]    # where the solver started the tips, every push
         for push in args.pushes:
             ref = finest(load, push, args.study, args.case, started)

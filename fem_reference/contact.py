@@ -128,6 +128,7 @@ from .contact_indenter import (  # noqa: F401  (re-exported)
     Indenter,
     facet_sample_points,
 )
+from .jit import compile_form
 
 __all__ = ["DEFAULT_CONTACT_PENALTY", "Contact", "TipShape", "contact_key", "nodal_rule"]
 
@@ -246,7 +247,7 @@ class Contact:
         """Compile the solver's total energy (UFL, uJ) for ``accepts`` (with indenters, in the
         displacement formulation, whose answer minimizes it)."""
         if self.indenters and self.solver.formulation == "displacement":
-            self._total = dolfinx.fem.form(total)
+            self._total = compile_form(total)
 
     @property
     def energy_search(self) -> bool:

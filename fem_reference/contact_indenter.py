@@ -37,6 +37,7 @@ from tissue_reference.meshes.tips import (
 )
 
 from .contact_geometry import gap_ufl
+from .jit import compile_form
 
 __all__ = ["SLIP_FRACTION", "START_SAMPLES", "SURFACE_SAMPLES"]
 
@@ -180,7 +181,7 @@ class Indenter:
         touching = ufl.conditional(ufl.lt(g, 0.0), 1.0, 0.0)
         report = -ufl.dot(ufl.diff(pi, y), self._e) + self._w_area * touching + \
             touching * (self._w_moments[0] * rho2 + self._w_moments[1] * h_cell)
-        self._report_form = dolfinx.fem.form(report * ds(self.tags))
+        self._report_form = compile_form(report * ds(self.tags))
 
     def tangent_without_curvature(self, v, w):
         """k phi''(pen) (n . w) (n . v) over the contact surface (UFL bilinear form): the normal

@@ -52,6 +52,7 @@ from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.results import DynamicsResult
 
 from .discretization import default_degree, resolve_formulation
+from .jit import compile_form
 from .kept import solver_for
 from .outputs import solve_result
 
@@ -77,14 +78,14 @@ class _Inertia:
             dx = ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": 1})
             ones = ufl.as_vector([1.0] * solver.gdim)
             self.m = dolfinx.fem.petsc.assemble_vector(
-                dolfinx.fem.form(self.rho * ufl.inner(ones, v) * dx))
+                compile_form(self.rho * ufl.inner(ones, v) * dx))
             self.m.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
             self.M = self.M_bc = None
         else:
             dx = ufl.Measure("dx", domain=mesh,
                              metadata={"quadrature_degree": 2 * solver.degree})
             T = self.rho / 2 * ufl.inner(solver.u_ufl, solver.u_ufl) * dx
-            self.M_form = dolfinx.fem.form(ufl.derivative(ufl.derivative(T, solver.x, v),
+            self.M_form = compile_form(ufl.derivative(ufl.derivative(T, solver.x, v),
                                                           solver.x, ufl.TrialFunction(solver.W)))
             self.M = dolfinx.fem.petsc.assemble_matrix(self.M_form)
             self.M.assemble()
@@ -327,4 +328,4 @@ def _total_mass(solver, rho) -> float:
     """int density dx (kg)."""
     dx = ufl.Measure("dx", domain=solver.dm.mesh)
     return solver.comm.allreduce(
-        dolfinx.fem.assemble_scalar(dolfinx.fem.form(rho * dx)), op=MPI.SUM)
+        dolfinx.fem.assemble_scalar(compile_form(rho * dx)), op=MPI.SUM)

@@ -14,6 +14,7 @@ import itertools
 
 import numpy as np
 
+from .jit import JIT_PARAMS
 from .transfer import dolfinx_cells
 
 __all__ = ["LATTICE_ORDER", "cell_min_J", "lattice_points"]
@@ -41,7 +42,7 @@ def cell_min_J(solver) -> np.ndarray:
     tdim = mesh.topology.dim
     u = solver.u
     F = ufl.Identity(len(u)) + ufl.grad(u)
-    expr = dolfinx.fem.Expression(ufl.det(F), lattice_points(tdim))
+    expr = dolfinx.fem.Expression(ufl.det(F), lattice_points(tdim), jit_params=JIT_PARAMS)
     cells = dolfinx_cells(solver)
     vals = expr.eval(np.arange(mesh.topology.index_map(tdim).size_local, dtype=np.int32))
     return np.asarray(vals).reshape(len(cells), -1).min(axis=1)[cells]

@@ -32,6 +32,7 @@ from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import SolveResult
 
+from .jit import compile_form
 from .transfer import dolfinx_cells, field
 
 __all__ = ["INDICATOR", "energy_indicators"]
@@ -67,7 +68,7 @@ def energy_indicators(case: Case, answer: SolveResult, estimate) -> np.ndarray:
     v = ufl.TestFunction(W0)
     dx = ufl.Measure("dx", domain=mesh,
                      metadata={"quadrature_degree": max(2 * (solver.degree - 1), 2)})
-    form = dolfinx.fem.form((2 * mu * ufl.inner(eps, eps) + lmbda * ufl.tr(eps) ** 2) * v * dx)
+    form = compile_form((2 * mu * ufl.inner(eps, eps) + lmbda * ufl.tr(eps) ** 2) * v * dx)
     vec = dolfinx.fem.petsc.assemble_vector(form)
     eta2 = vec.array[W0.dofmap.list.array.reshape(-1)]          # per dolfinx cell
     vec.destroy()

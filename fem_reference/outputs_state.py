@@ -21,6 +21,7 @@ from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import SolveResult
 
 from .forms import mixed_energy_density
+from .jit import compile_form
 
 __all__ = ["NodalState"]
 
@@ -104,14 +105,14 @@ class NodalState:
             q, pt = ufl.TestFunction(self.Q), ufl.TrialFunction(self.Q)
             _, vol = mixed_energy_density(self.u, 0.0, self.material.model, 1.0, 0.0,
                                           self.material.volumetric)
-            M = dolfinx.fem.petsc.assemble_matrix(dolfinx.fem.form(pt * q * dx))
+            M = dolfinx.fem.petsc.assemble_matrix(compile_form(pt * q * dx))
             M.assemble()
             ksp = PETSc.KSP().create(self.comm)
             ksp.setOperators(M)
             ksp.setType("preonly")
             ksp.getPC().setType("lu")
             ksp.getPC().setFactorSolverType("mumps")
-            self._pproj = (dolfinx.fem.form(-vol * q * dx), ksp, M)
+            self._pproj = (compile_form(-vol * q * dx), ksp, M)
         L, ksp, _ = self._pproj
         rhs = dolfinx.fem.petsc.assemble_vector(L)
         rhs.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)

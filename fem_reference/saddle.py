@@ -31,6 +31,8 @@ import ufl
 from dolfinx.la import orthonormalize
 from petsc4py import PETSc
 
+from .jit import compile_form
+
 log = logging.getLogger("tissue.fem")
 
 # PETSc options of the fieldsplit KSP (prefix SADDLE_PREFIX); an entry already in PETSc's options
@@ -150,7 +152,7 @@ class FieldSplit:
             _, q = ufl.TestFunctions(self.W)
             mu = self.E / (2 * (1 + self.nu))
             dx = ufl.Measure("dx", domain=self.dm.mesh, metadata={"quadrature_degree": 2})
-            self._mp_form = dolfinx.fem.form(-(1 / mu + self.inv_kappa) * p * q * dx)
+            self._mp_form = compile_form(-(1 / mu + self.inv_kappa) * p * q * dx)
         Mw = dolfinx.fem.petsc.assemble_matrix(self._mp_form)
         Mw.assemble()
         Sp = Mw.createSubMatrix(self.is_p, self.is_p)

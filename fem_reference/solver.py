@@ -52,6 +52,7 @@ from .discretization import (
 )
 from .dolfinx_mesh import DolfinxMesh, to_dolfinx
 from .forms import mixed_energy_density, strain_energy_density
+from .jit import compile_form
 from .linalg import FIELDSPLIT_ABOVE_DOFS, LAGGED_ABOVE_DOFS, LinearSolver, has_cholmod
 from .logs import install_log_filters
 from .newton import Newton
@@ -225,18 +226,18 @@ class ReferenceSolver:
         self.R_ufl = ufl.derivative(total, self.x, v)
         self.R_int_ufl = ufl.derivative(internal - self.load * external, self.x, v)
         self.K_ufl = ufl.derivative(self.R_ufl, self.x, w)
-        self.R_form = dolfinx.fem.form(self.R_ufl)
-        self.R_int_form = dolfinx.fem.form(self.R_int_ufl)
-        self.K_form = dolfinx.fem.form(self.K_ufl)
+        self.R_form = compile_form(self.R_ufl)
+        self.R_int_form = compile_form(self.R_int_ufl)
+        self.K_form = compile_form(self.K_ufl)
         # with indenters: Newton's matrix without the tips' curvature, far from the answer
         # and after a halved correction (fem_reference.contact)
         self.K_halved_form = None
         soft = self.contact.tangent_without_curvature(v, w)
         if soft is not None:
-            self.K_halved_form = dolfinx.fem.form(
+            self.K_halved_form = compile_form(
                 self.K_ufl - ufl.derivative(ufl.derivative(self.contact.normal_energy, self.x, v),
                                             self.x, w) + soft)
-        self.W_form = dolfinx.fem.form(internal)
+        self.W_form = compile_form(internal)
         n_dofs = self.W.dofmap.index_map.size_global * self.W.dofmap.index_map_bs
         if linear_solver == "auto":
             # with indenters the tips' contact set moves between Newton iterations: an earlier
