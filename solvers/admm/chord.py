@@ -46,7 +46,13 @@ def chord(ops, u, fext, factor, *, tol_mm: float, max_iter: int, anderson: int =
     mix.x = q = ZT @ u
     best_q, best_step = q, np.inf
     for k in range(1, int(max_iter) + 1):
-        f = -factor.solve(ZT @ ops.residual(ub + Z @ q, fext))   # the chord correction
+        r = ops.residual_if_valid(ub + Z @ q, fext)
+        if r is None:
+            if mix.accelerated:
+                mix.refuse()   # an extrapolation that inverts an element: the plain step
+                q = mix.x
+            r = ops.residual(ub + Z @ q, fext)
+        f = -factor.solve(ZT @ r)   # the chord correction
         g = q + f
         step = ops.step_norm(f)
         if hist is not None:
@@ -59,8 +65,6 @@ def chord(ops, u, fext, factor, *, tol_mm: float, max_iter: int, anderson: int =
             callback(it0 + k, (ub + Z @ g).reshape(-1, ops.d))
         if step < tol_mm and ops.valid(ub + Z @ g):
             return ub + Z @ g, k, True
-        nxt = mix.step(g)
-        if nxt is not None and mix.accelerated and not ops.valid(ub + Z @ nxt):
-            mix.refuse()   # an extrapolation that inverts an element: the plain step
+        mix.step(g)   # an extrapolation is tested with the next residual
         q = mix.x
     return ub + Z @ best_q, int(max_iter), False

@@ -32,7 +32,7 @@ from .amg import AmgPcg
 from .constraints import constraint_reduction, vertex_rank
 from .contact import ContactSet
 from .factor import CoupledSolver, Direct
-from .mechanics import assemble, case_parts, det_cof, element_K
+from .mechanics import assemble, case_parts, det_closed_form, element_K
 
 PCG_MIN = 4000  # free vertices from which the x-step is solved by AMG-preconditioned CG
 PCG_ITERS = 1  # least warm-started PCG iterations per ADMM x-step
@@ -274,8 +274,7 @@ class AdmmOperators:
         cell); always True for linear elasticity, whose energy has no such bound."""
         if self.law.model == "linear-elastic":
             return True
-        J, _ = det_cof(self.grad(u) + np.eye(self.d))
-        return bool(np.all(J > 0))
+        return bool(np.all(det_closed_form(self.grad(u) + np.eye(self.d)) > 0))
 
     def scatter(self, Pv):
         """Nodal forces sum_e Pv_e : grad N_a (node-major, (N,)) of Pv (m, d, d) (as
@@ -307,6 +306,14 @@ class AdmmOperators:
         if tips is not None and self.contact is not None:
             r = r + self.contact.gradient(u, tips)
         return r
+
+    def residual_if_valid(self, u, fext):
+        """``residual(u, fext)`` (no tips), or None where a cell of u is inverted (det F <= 0,
+        the test of ``valid``): one gradient serves both."""
+        P, J = self.law.stress(self.grad(u))
+        if J is not None and not np.all(J > 0):
+            return None
+        return self.scatter(self.kin.V[:, None, None] * P) - fext
 
     def residuals(self, U, fext) -> np.ndarray:
         """``residual`` of each column of U ((N, k) mm) at once, (N, k) mN: one sparse product
