@@ -371,6 +371,77 @@ void admm_iteration(int model, int d, long m, double mu, double kappa, double rh
 int admm_block_size(void) { return BLK; }
 
 /* ------------------------------------------------------------------------------------------ */
+/* The P1 internal forces, the gradient of the elastic energy: f[dofs[e, d a + i]] +=
+ * V_e sum_J P_e[i][J] G_e[a][J] over the elements e (in the operators' element order: dofs
+ * (m, (d+1) d) node-major dof ids, G (m, d+1, d), V (m)), with F = I + sum_a u_a (x) G_a and P
+ * the first Piola stress of mechanics.Law.stress: Neo-Hookean (model 1, seed eq. 14)
+ * P = mu J^(-2/3) (F - I1/3 F^-T) + kappa J (J - 1) F^-T, or linear elasticity (model 0)
+ * P = 2 mu eps + lambda tr(eps) I. f is accumulated (the caller sets it). Returns the smallest
+ * det F over the elements (NaN when one is not a number; 1 for linear elasticity): a value
+ * <= 0 is an inverted element, whose (finite, meaningless) forces the caller discards. */
+static inline __attribute__((always_inline)) double p1_forces_d(
+    const int d, int model, long m, double mu, double kappa, double lmbda, const int *dofs,
+    const double *G, const double *V, const double *u, double *f)
+{
+    const int nv = d + 1, nd = (d + 1) * d;
+    double jmin = model == 0 ? 1.0 : INFINITY;
+    int nan = 0;
+    for (long e = 0; e < m; ++e) {
+        const int *de = dofs + e * nd;
+        const double *Ge = G + e * nv * d;
+        double F[MAXD * MAXD], P[MAXD * MAXD];
+        for (int q = 0; q < d * d; ++q)
+            F[q] = 0.0;
+        for (int a = 0; a < nv; ++a)
+            for (int i = 0; i < d; ++i) {
+                const double ua = u[de[d * a + i]];
+                for (int j = 0; j < d; ++j)
+                    F[d * i + j] += ua * Ge[d * a + j];
+            }
+        if (model == 0) {
+            double tr = 0.0;
+            for (int i = 0; i < d; ++i)
+                tr += F[d * i + i];
+            for (int i = 0; i < d; ++i)
+                for (int j = 0; j < d; ++j)
+                    P[d * i + j] = mu * (F[d * i + j] + F[d * j + i]);
+            for (int i = 0; i < d; ++i)
+                P[d * i + i] += lmbda * tr;
+        } else {
+            double cof[MAXD * MAXD], J, I1;
+            for (int i = 0; i < d; ++i)
+                F[d * i + i] += 1.0;
+            parts(d, F, cof, &J, &I1);
+            if (J != J)
+                nan = 1;
+            else if (J < jmin)
+                jmin = J;
+            const double a = mu * pow_m23(fabs(J));
+            const double b = kappa * (J - 1.0) - a * I1 / (3.0 * J);
+            for (int q = 0; q < d * d; ++q)
+                P[q] = a * F[q] + b * cof[q];
+        }
+        for (int a = 0; a < nv; ++a)
+            for (int i = 0; i < d; ++i) {
+                double s = 0.0;
+                for (int j = 0; j < d; ++j)
+                    s += P[d * i + j] * Ge[d * a + j];
+                f[de[d * a + i]] += V[e] * s;
+            }
+    }
+    return nan ? NAN : jmin;
+}
+
+double p1_forces(int model, int d, long m, double mu, double kappa, double lmbda,
+                 const int *dofs, const double *G, const double *V, const double *u, double *f)
+{
+    /* d a compile-time constant in each branch: the small loops unroll */
+    if (d == 3)
+        return p1_forces_d(3, model, m, mu, kappa, lmbda, dofs, G, V, u, f);
+    return p1_forces_d(2, model, m, mu, kappa, lmbda, dofs, G, V, u, f);
+}
+
+/* ------------------------------------------------------------------------------------------ */
 /* The large-mesh x-step: conjugate gradients with a smoothed-aggregation AMG V-cycle on the
  * scalar x-step matrix, k right-hand sides at once (row-major (n, k) arrays: the matrix entries
  * are read once for all k columns). The hierarchy (A, P, R, Jacobi weights per level and the

@@ -30,6 +30,8 @@ void admm_iteration(int model, int d, long m, double mu, double kappa, double rh
                     const double *G, const double *wv, const double *h2, const double *u,
                     double *F, double *lam, double *r, double *dsq, double *f);
 int admm_block_size(void);
+double p1_forces(int model, int d, long m, double mu, double kappa, double lmbda,
+                 const int *dofs, const double *G, const double *V, const double *u, double *f);
 typedef struct {
     long n;
     const int *Ap, *Ai;

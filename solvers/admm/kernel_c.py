@@ -1,7 +1,8 @@
 """The element pass of an ADMM iteration in the compiled kernel (``admm_kernel.c``, built on first
 use by ``solvers.ckernel``): gather of D u, z-step, dual update, residuals and the scatter of
 the next x-step data, in one pass over the element arrays. This is the default (``device="cpu"``)
-element pass; ``kernel_array`` holds the same arithmetic on numpy/CuPy arrays."""
+element pass; ``kernel_array`` holds the same arithmetic on numpy/CuPy arrays. And the P1
+internal forces (``KernelForces``) the polishes evaluate at every step."""
 from __future__ import annotations
 
 import numpy as np
@@ -136,3 +137,33 @@ class KernelElements:
         else:
             self._data = ops.red.ZT @ self.f.reshape(-1, d)[self.rank].reshape(-1)
         return self.r, self.dsq
+
+
+class KernelForces:
+    """The P1 internal forces at a displacement (the elastic energy's gradient, mN, node-major)
+    in one compiled pass (``p1_forces`` of admm_kernel.c): the gather of u, the stress of
+    ``mechanics.Law.stress`` per element and the scatter, without the numpy path's (m, d, d)
+    arrays and sparse products; and the smallest det F, for the validity test."""
+
+    def __init__(self, ops):
+        self.ffi, self.lib = ckernel.load()
+        kin, law = ops.kin, ops.law
+        self.dofs = np.ascontiguousarray(kin.dofs, dtype=np.int32)
+        self.G = np.ascontiguousarray(kin.G, dtype=float)
+        self.V = np.ascontiguousarray(kin.V, dtype=float)
+        self.model = (0 if law.model == "linear-elastic" else 1, ops.d, ops.m,
+                      float(law.mu), float(law.kappa), float(law.lmbda))
+        cast = self.ffi.cast
+        self._fixed = (cast("int *", self.dofs.ctypes.data), cast("double *", self.G.ctypes.data),
+                       cast("double *", self.V.ctypes.data))
+
+    def add(self, u, out) -> float:
+        """out += the internal forces at u (mm, (N,)); returns the smallest det F (1 for linear
+        elasticity; NaN where u is not finite)."""
+        u = np.ascontiguousarray(u, dtype=float)
+        if not (out.flags.c_contiguous and out.dtype == np.float64):
+            raise TypeError("KernelForces.add: out must be a C-contiguous float64 array")
+        cast = self.ffi.cast
+        return float(self.lib.p1_forces(*self.model, *self._fixed,
+                                        cast("double *", u.ctypes.data),
+                                        cast("double *", out.ctypes.data)))

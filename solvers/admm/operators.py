@@ -32,6 +32,7 @@ from .amg import AmgPcg
 from .constraints import constraint_reduction, vertex_rank
 from .contact import ContactSet
 from .factor import CoupledSolver, Direct
+from .kernel_c import KernelForces, use_kernel
 from .mechanics import assemble, case_parts, det_closed_form, element_K
 
 PCG_MIN = 4000  # free vertices from which the x-step is solved by AMG-preconditioned CG
@@ -174,6 +175,7 @@ class AdmmOperators:
         self.nq = Z.shape[1]
         self._kpat = None  # reduced tangent's CSR pattern (built on first use)
         self._Dm = None  # gradient operator in mesh element order (built on first use)
+        self._kernel_forces = None  # the compiled internal forces (False: none; first use)
         self.factor_cache = {}  # kept by ``factorize`` (e.g. a symbolic analysis)
         # (factorize hook, element matrices, factorization) of the tangent at rest without
         # contact: a lift from rest (every cold solve's first load step) needs no other
@@ -296,24 +298,35 @@ class AdmmOperators:
             e += self.contact.energy(u, tips)
         return e, J
 
+    def _forces(self, u, fext):
+        """(internal minus external nodal forces at u, whether no cell of u is inverted): the
+        compiled pass (``kernel_c.KernelForces``) where the kernel is built, else numpy's
+        stress and two sparse products (the same arithmetic)."""
+        if self._kernel_forces is None:
+            self._kernel_forces = KernelForces(self) if use_kernel() else False
+        if self._kernel_forces:
+            r = np.zeros(self.N)
+            r -= fext
+            return r, self._kernel_forces.add(u, r) > 0
+        P, J = self.law.stress(self.grad(u))
+        r = self.scatter(self.kin.V[:, None, None] * P) - fext
+        return r, J is None or bool(np.all(J > 0))
+
     def residual(self, u, fext, tips=None) -> np.ndarray:
         """Internal minus external nodal forces (mN, full node-major) at displacement u (mm),
         plus the rigid tips' contact forces where ``tips`` gives their ends
         (``contact.ContactSet.origins``): the gradient of the P1 energy, zero on the free dofs
         at equilibrium."""
-        P, _ = self.law.stress(self.grad(u))
-        r = self.scatter(self.kin.V[:, None, None] * P) - fext
+        r, _ = self._forces(u, fext)
         if tips is not None and self.contact is not None:
             r = r + self.contact.gradient(u, tips)
         return r
 
     def residual_if_valid(self, u, fext):
         """``residual(u, fext)`` (no tips), or None where a cell of u is inverted (det F <= 0,
-        the test of ``valid``): one gradient serves both."""
-        P, J = self.law.stress(self.grad(u))
-        if J is not None and not np.all(J > 0):
-            return None
-        return self.scatter(self.kin.V[:, None, None] * P) - fext
+        the test of ``valid``): one pass serves both."""
+        r, ok = self._forces(u, fext)
+        return r if ok else None
 
     def residuals(self, U, fext) -> np.ndarray:
         """``residual`` of each column of U ((N, k) mm) at once, (N, k) mN: one sparse product
