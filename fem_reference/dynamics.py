@@ -86,7 +86,7 @@ class _Inertia:
                              metadata={"quadrature_degree": 2 * solver.degree})
             T = self.rho / 2 * ufl.inner(solver.u_ufl, solver.u_ufl) * dx
             self.M_form = compile_form(ufl.derivative(ufl.derivative(T, solver.x, v),
-                                                          solver.x, ufl.TrialFunction(solver.W)))
+                                                      solver.x, ufl.TrialFunction(solver.W)))
             self.M = dolfinx.fem.petsc.assemble_matrix(self.M_form)
             self.M.assemble()
             self.M_bc = None  # the tangent's copy without Dirichlet rows and columns

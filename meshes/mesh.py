@@ -99,7 +99,7 @@ def cell_volumes(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
     """Signed volumes (mm^3) of tetrahedra, or signed areas (mm^2) of triangles."""
     x = points[cells]
     d = x[:, 1:] - x[:, :1]
-    if cells.shape[1] == 4:   # (d0 x d1) . d2 / 6, written out: 5x faster than np.linalg.det
+    if cells.shape[1] == 4:   # (d0 x d1) . d2 / 6 written out: cheaper than np.linalg.det
         a, b, c = d[:, 0], d[:, 1], d[:, 2]
         return ((a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]) * c[:, 0]
                 + (a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]) * c[:, 1]
