@@ -14,7 +14,7 @@ import itertools
 
 import numpy as np
 
-from .jit import JIT_PARAMS
+from .jit import compile_expression
 from .transfer import dolfinx_cells
 
 __all__ = ["LATTICE_ORDER", "cell_min_J", "lattice_points"]
@@ -35,14 +35,13 @@ def lattice_points(tdim: int, order: int = LATTICE_ORDER) -> np.ndarray:
 def cell_min_J(solver) -> np.ndarray:
     """Per cell of ``solver.case.mesh`` (its order): the smallest J = det(I + grad u) of the
     solver's current displacement field over ``lattice_points``. Dimensionless."""
-    import dolfinx
     import ufl
 
     mesh = solver.dm.mesh
     tdim = mesh.topology.dim
     u = solver.u
     F = ufl.Identity(len(u)) + ufl.grad(u)
-    expr = dolfinx.fem.Expression(ufl.det(F), lattice_points(tdim), jit_params=JIT_PARAMS)
+    expr = compile_expression(ufl.det(F), lattice_points(tdim))
     cells = dolfinx_cells(solver)
     vals = expr.eval(np.arange(mesh.topology.index_map(tdim).size_local, dtype=np.int32))
     return np.asarray(vals).reshape(len(cells), -1).min(axis=1)[cells]

@@ -1,5 +1,6 @@
-"""How the reference compiles its forms: every UFL form goes through ``compile_form``, which
-passes the C compiler's flags (``JIT_PARAMS``) to dolfinx's just-in-time compiler explicitly.
+"""How the reference compiles its forms: every UFL form goes through ``compile_form`` (and every
+expression evaluated at points through ``compile_expression``), which pass the C compiler's
+flags (``JIT_PARAMS``, read at each call) to dolfinx's just-in-time compiler explicitly.
 
 Two reasons to fix them here rather than take dolfinx's defaults:
 - speed: ``-fno-math-errno`` lets the compiler inline sqrt and skip errno bookkeeping around the
@@ -18,7 +19,7 @@ from __future__ import annotations
 
 import dolfinx.fem
 
-__all__ = ["JIT_PARAMS", "compile_form"]
+__all__ = ["JIT_PARAMS", "compile_expression", "compile_form"]
 
 JIT_PARAMS = {"cffi_extra_compile_args": ["-O2", "-g0", "-fno-math-errno", "-fno-trapping-math"]}
 """dolfinx's JIT parameters for every form of the reference (dolfinx.jit.ffcx_jit)."""
@@ -27,3 +28,8 @@ JIT_PARAMS = {"cffi_extra_compile_args": ["-O2", "-g0", "-fno-math-errno", "-fno
 def compile_form(form):
     """``dolfinx.fem.form(form)`` compiled with ``JIT_PARAMS``."""
     return dolfinx.fem.form(form, jit_params=JIT_PARAMS)
+
+
+def compile_expression(expr, points):
+    """``dolfinx.fem.Expression(expr, points)`` compiled with ``JIT_PARAMS``."""
+    return dolfinx.fem.Expression(expr, points, jit_params=JIT_PARAMS)

@@ -151,8 +151,9 @@ class KernelForces:
         self.dofs = np.ascontiguousarray(kin.dofs, dtype=np.int32)
         self.G = np.ascontiguousarray(kin.G, dtype=float)
         self.V = np.ascontiguousarray(kin.V, dtype=float)
-        self.model = (0 if law.model == "linear-elastic" else 1, ops.d, ops.m,
-                      float(law.mu), float(law.kappa), float(law.lmbda))
+        # p1_forces' leading arguments: model (0 linear, 1 Neo-Hookean), d, m, mu, kappa, lambda
+        self._scalars = (0 if law.model == "linear-elastic" else 1, ops.d, ops.m,
+                         float(law.mu), float(law.kappa), float(law.lmbda))
         cast = self.ffi.cast
         self._fixed = (cast("int *", self.dofs.ctypes.data), cast("double *", self.G.ctypes.data),
                        cast("double *", self.V.ctypes.data))
@@ -164,6 +165,6 @@ class KernelForces:
         if not (out.flags.c_contiguous and out.dtype == np.float64):
             raise TypeError("KernelForces.add: out must be a C-contiguous float64 array")
         cast = self.ffi.cast
-        return float(self.lib.p1_forces(*self.model, *self._fixed,
+        return float(self.lib.p1_forces(*self._scalars, *self._fixed,
                                         cast("double *", u.ctypes.data),
                                         cast("double *", out.ctypes.data)))
