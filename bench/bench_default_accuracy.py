@@ -32,7 +32,7 @@ displacements (mm) of each discretization, the relative difference of each to th
 
     .venv/bin/python bench/bench_default_accuracy.py [--loads one four] [--pushes 5 10 12.5]
         [--contact-quadrature nodal|2] [--study gauss|nodal]
-        [--old [p1|p2|paths|nodal|quarter|newton|iterative|kernels]]
+        [--old [p1|p2|paths|nodal|quarter|newton|iterative|kernels|stepping]]
         [--case indenter|wide|control|half|quarter] [--tip-start nodes|surface]
         [--mesh SIZE SITE PATH [--builder phantom-symmetric]] [--rows] [--answers FILE]
 
@@ -65,7 +65,8 @@ OLD = {"p1": ("old P1", 1, "phantom", (6.0, 1.6, None)),
        "quarter": ("old quarter", None, "phantom-quarter", (6.0, 3.2, 1.6)),
        "newton": ("old Newton", None, None, None),
        "iterative": ("CG+GAMG", None, None, None),
-       "kernels": ("O2 kernels", None, None, None)}
+       "kernels": ("O2 kernels", None, None, None),
+       "stepping": ("old steps", None, None, None)}
 """The earlier defaults of the indenter phantom and an alternative (``--old``): label, degree
 (None: the case's), builder and mesh (size, site_size, path_size; mm; None: the case's), and a
 contact rule where it differs. p1: P1 on 1.6 mm sites; p2 (until the symmetric mesh): P2 on the
@@ -80,15 +81,24 @@ iterative P2 solver would take): the case's own discretization with each tangent
 preconditioned by smoothed aggregation AMG with the rigid-body modes as near null space
 (``linear_solver="iterative"``; MUMPS where CG does not converge); kernels: the case's own
 discretization with its forms compiled as dolfinx compiles them by default (-O2, without the
-reference's ``fem_reference.jit.JIT_PARAMS``)."""
+reference's ``fem_reference.jit.JIT_PARAMS``); stepping: the case's own discretization with the
+tips' load steps as they were before the steps before the last ended after their predictor
+(``OLD_STEPPING``)."""
 
 
 OLD_NEWTON = {"linear_solver": "lagged", "intermediate_rtol": 1e-6}
+# (the tips' steps then as OLD_STEPPING, each converged to 1e-6 too)
 """Newton before (``--old newton``): each factorization reused as the GMRES preconditioner of
 later tangents, the load steps before the last converged to 1e-6, and the residual lifted by
 the Dirichlet values at every assembly, also where they agree with the unknown's. Its line search
 tests a trial's energy before its residual, as Newton does now (that order changes no decision,
 only the cost of a refused trial)."""
+
+
+OLD_STEPPING = {"tip_step": 0.2, "contact_intermediate_rtol": 1e-4, "contact_grow": 1.5}
+"""The tips' load stepping before (``--old stepping``): increments of 0.2 of a tip's radius,
+growing by 1.5 after a step that converged within 5 Newton iterations, each step before the last
+converged to 1e-4 of its first residual (``NewtonSettings``)."""
 
 
 QUARTER = ROOT / "meshes" / "cases" / "phantom-indenter-quarter.toml"
@@ -101,7 +111,8 @@ unknowns."""
 def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indenter",
           mesh: tuple | None = None, builder: str = "phantom",
           start: str | None = None, old_newton: bool = False,
-          linear_solver: str | None = None, jit_params: dict | None = None) -> list[dict]:
+          linear_solver: str | None = None, jit_params: dict | None = None,
+          settings: dict | None = None) -> list[dict]:
     """The case's default discretization (or ``degree``, or the case meshed by ``builder`` with
     ``mesh`` = (size, site_size, path_size) mm; tips started as ``start``, None: the case's)
     along one load path through ``pushes``: one row per push reached. All four pushed on the 5 mm
@@ -109,20 +120,21 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
     same answer); the row then gives the whole case's cells and unknowns and A1's whole force.
     ``old_newton``: solved by Newton as it was before (``OLD_NEWTON``); ``linear_solver``: the
     reference's linear solver (None: its default); ``jit_params``: the forms' JIT parameters
-    while this runs (None: the reference's ``JIT_PARAMS``)."""
+    while this runs (None: the reference's ``JIT_PARAMS``); ``settings``: NewtonSettings fields
+    that differ from the defaults."""
     from tissue_reference.fem_reference import jit
 
     kept = jit.JIT_PARAMS
     jit.JIT_PARAMS = kept if jit_params is None else jit_params
     try:
         return _solve(load, pushes, degree, rule, case_name, mesh, builder, start, old_newton,
-                      linear_solver)
+                      linear_solver, settings or {})
     finally:
         jit.JIT_PARAMS = kept
 
 
 def _solve(load, pushes, degree, rule, case_name, mesh, builder, start, old_newton,
-           linear_solver) -> list[dict]:
+           linear_solver, settings) -> list[dict]:
     import tissue_reference.fem_reference as fr
     from tissue_reference.fem_reference.dof_counts import entity_counts, predicted_dofs
     from tissue_reference.meshes.builders import build
@@ -152,10 +164,11 @@ def _solve(load, pushes, degree, rule, case_name, mesh, builder, start, old_newt
         print(f"  [all four on the quarter of the symmetric mesh: {case.mesh.n_cells} of "
               f"{whole['cells']} cells]", flush=True)
     pushed = [a for a in LOADS[load] if a in {b.name for b in case.actuators}]
-    options = {}
+    options = {"settings": fr.NewtonSettings(**settings)} if settings else {}
     if old_newton:
+        rtol = OLD_NEWTON["intermediate_rtol"]
         options = {"linear_solver": OLD_NEWTON["linear_solver"], "settings": fr.NewtonSettings(
-            intermediate_rtol=OLD_NEWTON["intermediate_rtol"])}
+            **{**OLD_STEPPING, "intermediate_rtol": rtol, "contact_intermediate_rtol": rtol})}
     if linear_solver is not None:
         options["linear_solver"] = linear_solver
     s = fr.ReferenceSolver(case, degree=degree, contact_quadrature=rule, tip_start=start,
@@ -263,7 +276,8 @@ def main():
                          "converged to 1e-6) or iterative (the case's discretization, each "
                          "tangent solved by CG + smoothed-aggregation AMG) or kernels (the "
                          "case's discretization, its forms compiled with dolfinx's default "
-                         "flags)")
+                         "flags) or stepping (the case's discretization, the tips' load steps "
+                         "as before: 0.2 of their radius, growing, each converged to 1e-4)")
     args = ap.parse_args()
     if (args.case, args.study) not in STUDIES:
         ap.error(f"the {args.case} case has no {args.study} study")
@@ -295,7 +309,8 @@ def main():
                                     old_newton=args.old == "newton",
                                     linear_solver="iterative" if args.old == "iterative"
                                     else None,
-                                    jit_params={} if args.old == "kernels" else None)))
+                                    jit_params={} if args.old == "kernels" else None,
+                                    settings=OLD_STEPPING if args.old == "stepping" else None)))
         started = runs[0][1][0]["start"]    # where the solver started the tips, every push
         for push in args.pushes:
             ref = finest(load, push, args.study, args.case, started)

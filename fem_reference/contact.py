@@ -78,8 +78,12 @@ the penetration falls tenfold per decade). ``max_penetration`` is reported with 
 Newton. The tangent is UFL's exact derivative. Contact makes Newton's corrections unreliable
 far from the answer (nodes entering and leaving contact, nodes sliding along a curved tip), so
 with indenters (displacement formulation) a correction must lower the total energy, else it is
-halved (``accepts``), and the load stepping's first increments move a tip by at most
-``NewtonSettings.tip_step`` of its radius (``ramps``); failed steps are cut back as usual.
+halved (``accepts``), and each load increment moves a tip by at most
+``NewtonSettings.tip_step`` of its radius (``ramps``); failed steps are cut back as usual. The
+steps before the last end once their residual has fallen 100-fold
+(``NewtonSettings.contact_intermediate_rtol``), mostly after their first correction, the
+tangent's predictor of the tips' increment: the corrections after it are cut short while the
+contact set moves, and only the last step's state is the answer.
 Newton's matrix leaves the tips' curvature term out of the penalty's Hessian
 (``tangent_without_curvature``, positive semi-definite) while the residual is far above its
 converged size (``NewtonSettings.contact_curvature_below``) and after a halved correction; the
@@ -236,8 +240,8 @@ class Contact:
             elif initial is not None:
                 start_push = ind.push_now()
             ramps.append((ind.q.value, ind.q0 + start_push * ind.d, ind.q0 + full_push * ind.d))
-            # the load stepping's first increments move a tip by at most settings.tip_step of
-            # its radius (each increment changes the contact set a little)
+            # each load increment moves a tip by at most settings.tip_step of its radius (each
+            # then changes the contact set a little)
             limit = self.solver.settings.tip_step * ind.shape.radius
             span = max(span, abs(full_push - start_push)
                        * max(1.0, self.solver.settings.max_step_mm / limit))

@@ -24,7 +24,8 @@ __all__ = ["CONTRACTION", "Newton"]
 CONTRACTION = 0.5
 """With indenters, a whole Newton step without the tips' curvature that leaves more than this
 fraction of the residual makes the rest of the load step's iterations use the exact tangent
-(``NewtonSettings.contact_curvature_below``)."""
+(``NewtonSettings.contact_curvature_below``). Any solve: past ``NewtonSettings.max_iterations``
+Newton goes on while each whole step leaves at most this fraction of the residual."""
 
 
 class Newton:
@@ -145,6 +146,8 @@ class Newton:
 
         Residual first, tangent only when another correction is needed. A correction that
         inverts an element (non-finite residual) is halved up to ``settings.line_search`` times.
+        Past ``settings.max_iterations`` only converging corrections go on (``CONTRACTION``),
+        up to twice as many.
         ``trace`` (a list) gets the residual norm of every iterate. ``dirichlet_values``: the
         values of ``bcs`` as (value array, dofs of x, dofs of the value array) per condition,
         so that the residual skips a lifting that adds zero (``lifting_needed``); None: always
@@ -167,8 +170,9 @@ class Newton:
         energy = self.contact.energy_search  # the line search tests the energy (indenters)
         shift = 0.0  # Levenberg-Marquardt shift of the tangent (relative to its diagonal)
         floor = 0.5 ** s.line_search  # the shortest step, taken regardless
+        converging = False  # the last correction was taken whole and halved the residual
         rnorm = self.assemble_residual(bcs)
-        for it in range(1, s.max_iterations + 1):
+        for it in range(1, 2 * s.max_iterations + 1):
             if trace is not None:
                 trace.append(rnorm)
             if not math.isfinite(rnorm):
@@ -177,6 +181,8 @@ class Newton:
                 r0 = max(rnorm, 1e-300)
             elif rnorm <= atol or rnorm <= rtol * r0:
                 return True, it - 1, rnorm
+            if it > s.max_iterations and not converging:
+                return False, it - 1, rnorm
             # forcing term of the inexact (Krylov) solves: no more accuracy than Newton can use
             eta = 1e-3 if rprev is None else \
                 min(1e-3, max((rnorm / rprev) ** 2, 0.1 * rtol * r0 / rnorm, 1e-12))
@@ -232,10 +238,11 @@ class Newton:
             if drop and alpha == 1.0 and it > 1 and rnew > CONTRACTION * rnorm:
                 exact = True   # a whole step that did not halve the residual: the tips'
                 # curvature carries the tangent here (a contact pressed hard)
+            converging = alpha == 1.0 and rnew <= CONTRACTION * rnorm
             rprev, rnorm = rnorm, rnew
             halved = alpha < 1.0
             if alpha == 1.0:
                 shift = 0.0  # the exact tangent again: Newton's quadratic convergence
                 if step <= atol_mm and it > 1:
                     return True, it, rnorm
-        return False, s.max_iterations, rnorm
+        return False, 2 * s.max_iterations, rnorm

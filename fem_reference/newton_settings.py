@@ -22,7 +22,14 @@ class NewtonSettings:
         answer within 1e-9; 1e-3 took 56 instead of 33 from 10 to 12.5 mm
         (bench/bench_default_accuracy.py --case quarter --old newton: 1e-6 with the lagged
         factorization);
+    max_iterations: Newton iterations per load step before it counts as failed and is cut
+        back; past them Newton goes on while each correction is taken whole and at least halves
+        the residual (``newton.CONTRACTION``: converging), up to twice as many. A step one or
+        two corrections from converging is not thrown away (a tip pushed from 10 to 12.5 mm
+        took 25 iterations to a residual of 1.7e-4 mN, then 27 more after the cut-back);
     max_step_mm: largest prescribed-displacement increment of the first try;
+    grow: factor of the next load increment after a step that converged within 5 iterations
+        (with indenters ``contact_grow``);
     line_search: halvings of a Newton correction allowed when it inverts an element (non-finite
         residual: after the last one the step counts as failed) or, with indenters, raises the
         total energy (the last halving is taken regardless). 8: on the indenter half phantom
@@ -46,9 +53,24 @@ class NewtonSettings:
         curvature carries the tangent and the matrix without it converges slowly: a whole step
         that leaves more than half the residual (``newton.CONTRACTION``) makes the rest of the
         load step exact (without that, all four tips stalled near 14 mm).
-    tip_step: with indenters, the load stepping's first increments move a tip by at most this
-        fraction of its radius (later ones grow after steps that converge within 5
-        iterations; failed ones are cut back).
+    tip_step: with indenters, each load increment moves a tip by at most this fraction of its
+        radius (failed ones are cut back);
+    contact_intermediate_rtol: with indenters, the residual reduction of the load steps before
+        the last, instead of ``intermediate_rtol``. A step's first correction, the tangent's
+        predictor of the tips' increment, takes the residual of their fresh penetration down
+        200-fold (the quarter indenter phantom, all four tips: 1.1e4 to 35-70 mN); the
+        corrections after it are mostly cut to 1/256-1/16 by the energy line search while the
+        contact set moves, 6-9 Newton iterations a step at 1e-4. At 1e-2 a step before the last
+        ends after its predictor and only the last converges, so the increments are kept small
+        (``tip_step`` 0.1: the predictors' error accumulates) and do not grow (``contact_grow``
+        1: every such step is quick; growing by 1.5 took 79 and 135 instead of 27 and 29
+        iterations at 10 and 15 mm).
+        The answer is the same: the last step converges to ``rtol`` (forces equal to 1e-9).
+        That quarter phantom pushed along 5 / 10 / 12.5 / 15 mm: 19 / 27 / 27 / 29 Newton
+        iterations against 33 / 49 / 33 / 37 with 1e-4 and ``tip_step`` 0.2
+        (bench/bench_default_accuracy.py --case quarter --old stepping);
+    contact_grow: with indenters, the factor of the next load increment after a step that
+        converged within 5 iterations (``grow`` without them);
     descent_shift: with indenters, a Newton correction that is not a descent direction of the
         total energy, or whose tangent's factorization has negative pivots (tissue crushed
         against a tip: the corrections are huge), is solved again, first without the tips'
@@ -79,13 +101,16 @@ class NewtonSettings:
     predictor: str = "none"
     contact_curvature_after_halving: str = "drop"
     contact_curvature_below: float = 1e-4
-    tip_step: float = 0.2
+    tip_step: float = 0.1
+    contact_intermediate_rtol: float = 1e-2
+    contact_grow: float = 1.0
     descent_shift: float = 1e-2
     interpolate: bool = False
 
     def __post_init__(self):
         for name in ("rtol", "atol", "atol_mm", "intermediate_rtol", "intermediate_atol_mm",
-                     "max_step_mm", "min_fraction", "tip_step"):
+                     "max_step_mm", "min_fraction", "tip_step", "contact_intermediate_rtol",
+                     "grow", "contact_grow"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
                 raise ValueError(f"NewtonSettings.{name} must be a positive number, got {v!r}")

@@ -27,6 +27,7 @@ from __future__ import annotations
 import logging
 import sys
 import time
+from dataclasses import replace
 
 import dolfinx
 import dolfinx.fem
@@ -379,6 +380,7 @@ class ReferenceSolver:
                    "iterate_residual": [], "iterate_load": []}
         prev_good, prev_lam = None, 0.0
         predict = s.predictor == "secant"
+        indenters = bool(self.contact.indenters)
         while lam < 1.0 - 1e-14:
             trial = min(1.0, lam + inc)
             for garr, start, full in ramps:
@@ -389,7 +391,8 @@ class ReferenceSolver:
                 self.x.x.array[:] += (trial - lam) / (lam - prev_lam) * (last_good - prev_good)
                 self.x.x.scatter_forward()
             final = trial >= 1.0 - 1e-14
-            tol = {} if final else {"rtol": s.intermediate_rtol, "atol_mm": s.intermediate_atol_mm}
+            tol = {} if final else {"rtol": s.contact_intermediate_rtol if indenters
+                                    else s.intermediate_rtol, "atol_mm": s.intermediate_atol_mm}
             trace = history["iterate_residual"]
             ok, it, res = self.newton.iterate(s, bcs, progress, f"load {trial:6.3f}", trace=trace,
                                               dirichlet_values=values, **tol)
@@ -415,7 +418,7 @@ class ReferenceSolver:
                     print(f"tissue fem: load fraction {lam:.4f} converged in {it} Newton "
                           f"iterations (|R| {res:.2e})", file=sys.stderr, flush=True)
                 if it <= 5:
-                    inc *= s.grow
+                    inc *= s.contact_grow if indenters else s.grow
             else:
                 self.x.x.array[:] = last_good
                 self.x.x.scatter_forward()
@@ -449,10 +452,13 @@ class ReferenceSolver:
                          history: dict) -> int:
         """Newton from the last converged state (at load fraction ``lam``, its prescriptions
         set) to the final load step's tolerances, as a failed solve's answer; its residual goes
-        to ``history``. A state that does not converge further stays as it was. Returns the
-        Newton iterations."""
+        to ``history``. That state may have ended after its tips' predictor
+        (``NewtonSettings.contact_intermediate_rtol``), far from converged, so it is given at
+        least the default ``max_iterations`` whatever ``s`` asks for. A state that does not
+        converge further stays as it was. Returns the Newton iterations."""
         x0 = self.x.x.array.copy()
         trace = history["iterate_residual"]
+        s = replace(s, max_iterations=max(s.max_iterations, NewtonSettings.max_iterations))
         ok, it, res = self.newton.iterate(s, bcs, progress, f"load {lam:6.3f}", trace=trace,
                                           dirichlet_values=values)
         history["iterate_load"] += [lam] * (len(trace) - len(history["iterate_load"]))
