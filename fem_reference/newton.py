@@ -147,7 +147,9 @@ class Newton:
         Residual first, tangent only when another correction is needed. A correction that
         inverts an element (non-finite residual) is halved up to ``settings.line_search`` times.
         Past ``settings.max_iterations`` only converging corrections go on (``CONTRACTION``),
-        up to twice as many.
+        up to twice as many. With the energy line search, a correction after the first that is
+        no longer than ``atol_mm`` (of an unshifted tangent) ends the iterations converged,
+        before the search.
         ``trace`` (a list) gets the residual norm of every iterate. ``dirichlet_values``: the
         values of ``bcs`` as (value array, dofs of x, dofs of the value array) per condition,
         so that the residual skips a lifting that adds zero (``lifting_needed``); None: always
@@ -201,6 +203,14 @@ class Newton:
                 float(np.abs(du.x.array[self.umap]).max(initial=0.0)), op=MPI.MAX)
             if not math.isfinite(step):
                 return False, it, float("nan")
+            if energy and it > 1 and step <= atol_mm and shift == 0.0:
+                # converged whatever the energy line search would make of a correction this
+                # short: at round-off the energy cannot tell the trial from the state, and would
+                # cut it forever (a tip that has left the skin at rest: |R| ~ 1e-11, |du| ~
+                # 1e-16 mm). The energy search runs on the displacement formulation only, whose
+                # correction is all displacement (a mixed one's pressure is not in ``step``); a
+                # shifted tangent's correction is damped, no measure of the distance left.
+                return True, it, rnorm
             u_old = u.x.array.copy()
             e_old = self.contact.accepted_energy if energy else None
             alpha = 1.0
