@@ -87,9 +87,9 @@ tips' load steps as they were before the steps before the last ended after their
 
 
 OLD_NEWTON = {"linear_solver": "lagged", "intermediate_rtol": 1e-6}
-# (the tips' steps then as OLD_STEPPING, each converged to 1e-6 too)
 """Newton before (``--old newton``): each factorization reused as the GMRES preconditioner of
-later tangents, the load steps before the last converged to 1e-6, and the residual lifted by
+later tangents, the load steps before the last converged to 1e-6 (the tips' steps otherwise as
+``OLD_STEPPING``), and the residual lifted by
 the Dirichlet values at every assembly, also where they agree with the unknown's. Its line search
 tests a trial's energy before its residual, as Newton does now (that order changes no decision,
 only the cost of a refused trial)."""

@@ -380,7 +380,10 @@ class ReferenceSolver:
                    "iterate_residual": [], "iterate_load": []}
         prev_good, prev_lam = None, 0.0
         predict = s.predictor == "secant"
-        indenters = bool(self.contact.indenters)
+        # with indenters the steps before the last end after the tips' predictor and do not
+        # grow (NewtonSettings.contact_intermediate_rtol)
+        step_rtol, grow = (s.contact_intermediate_rtol, s.contact_grow) \
+            if self.contact.indenters else (s.intermediate_rtol, s.grow)
         while lam < 1.0 - 1e-14:
             trial = min(1.0, lam + inc)
             for garr, start, full in ramps:
@@ -391,8 +394,7 @@ class ReferenceSolver:
                 self.x.x.array[:] += (trial - lam) / (lam - prev_lam) * (last_good - prev_good)
                 self.x.x.scatter_forward()
             final = trial >= 1.0 - 1e-14
-            tol = {} if final else {"rtol": s.contact_intermediate_rtol if indenters
-                                    else s.intermediate_rtol, "atol_mm": s.intermediate_atol_mm}
+            tol = {} if final else {"rtol": step_rtol, "atol_mm": s.intermediate_atol_mm}
             trace = history["iterate_residual"]
             ok, it, res = self.newton.iterate(s, bcs, progress, f"load {trial:6.3f}", trace=trace,
                                               dirichlet_values=values, **tol)
@@ -418,7 +420,7 @@ class ReferenceSolver:
                     print(f"tissue fem: load fraction {lam:.4f} converged in {it} Newton "
                           f"iterations (|R| {res:.2e})", file=sys.stderr, flush=True)
                 if it <= 5:
-                    inc *= s.contact_grow if indenters else s.grow
+                    inc *= grow
             else:
                 self.x.x.array[:] = last_good
                 self.x.x.scatter_forward()
