@@ -35,7 +35,7 @@ from .loop import LinearizedModel, run_closed_loop
 
 __all__ = ["ADMM_CONTROL_OPTIONS", "FD_FLOOR", "MODEL_UPDATES", "PRESS_WIDTHS", "LoopSetup",
            "actuator_kind", "admm_indenter_sensitivity", "build_loop", "indenter_sensitivity",
-           "jacobian_at", "material_json", "plant_for", "pressing", "reference_state", "solver_description", "tangent_for"]
+           "jacobian_at", "matching_case", "material_json", "plant_for", "pressing", "reference_state", "solver_description", "tangent_for"]
 
 FD_FLOOR = 1e-7
 """Smallest central-difference step, relative to the body's diameter: the solves agree to about
@@ -260,6 +260,31 @@ P1 energy, Jacobian by refinement; the same state and Jacobian within 1e-6 mm an
 "solve" (a full ADMM solve with polish and an assembled tangent every step)."""
 
 
+def matching_case(base, other, base_role: str, other_role: str, hint: str = ""):
+    """``other`` as a case of ``base``'s body for a loop: the same actuator names (returned in
+    ``base``'s order) pushing along the same directions, the same probes. CaseError naming both
+    cases (``base_role`` / ``other_role``: what each is to the loop, e.g. "case" and "model")
+    and the first difference otherwise; ``hint`` ends the message on differing names."""
+    from dataclasses import replace
+
+    b, o = base.source or base.name, other.source or other.name
+    bnames = [a.name for a in base.actuators]
+    onames = [a.name for a in other.actuators]
+    if set(bnames) != set(onames):
+        raise CaseError(f"the {other_role} {o} has actuators {onames}, the {base_role} {b} has "
+                        f"{bnames}{hint}")
+    for a in base.actuators:
+        d = other.actuator(a.name).direction
+        if not np.allclose(d, a.direction, atol=1e-9):
+            raise CaseError(f"actuator {a.name!r} pushes along {list(d)} in the {other_role} "
+                            f"{o} and along {list(a.direction)} in the {base_role} {b}")
+    bp = sorted(q.name for q in base.probes)
+    op = sorted(q.name for q in other.probes)
+    if bp != op:
+        raise CaseError(f"the {other_role} {o} has probes {op}, the {base_role} {b} has {bp}")
+    return replace(other, actuators=tuple(other.actuator(n) for n in bnames))
+
+
 def build_loop(case, *, plant: str = "fem", model: str | None = None,
                model_E_factor: float = 1.0, model_case=None, plant_case=None,
                scenario: str | None = None, model_update: str = "fast") -> LoopSetup:
@@ -268,7 +293,8 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
     ``model_case`` (default: ``case``; e.g. a coarser mesh of the same body) with E scaled by
     ``model_E_factor``. When model and plant coincide the model reuses the plant's solutions.
     ``scenario`` names the mismatch in the metadata. ``model_update``: MODEL_UPDATES (an ADMM
-    model on glued patches that is not the plant itself; other models always solve)."""
+    model on glued patches that is not the plant itself; other models always solve). A
+    ``model_case`` must be of ``case``'s body (``matching_case``)."""
     if not (np.isfinite(model_E_factor) and model_E_factor > 0):
         raise CaseError(f"model E factor must be > 0, got {model_E_factor}")
     E = case.material.E * model_E_factor
@@ -276,6 +302,8 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
         raise CaseError(f"model E factor {model_E_factor:g}: the model's E would be {E:g} kPa, "
                         f"outside the physical range [{E_RANGE_KPA[0]:g}, {E_RANGE_KPA[1]:g}] kPa")
     mname = model or plant
+    if model_case is not None and model_case is not case:
+        model_case = matching_case(case, model_case, "case", "model")
     mc = model_case if model_case is not None else case
     if mc.indenters() and len(mc.indenters()) != len(mc.actuators):
         raise CaseError(f"{mc.source or mc.name}: the model mixes indenters and glued patches; "
@@ -289,7 +317,7 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
         mcase = mcase.with_material(E=mcase.material.E * model_E_factor)
         msolve = plant_for(mname)
     meta = {"case": case.name, "source": case.source, "plant": plant, "model": mname,
-            "scenario": scenario,
+            "scenario": scenario, "model_case": mcase.name, "model_source": mcase.source,
             "plant_cells": pcase.mesh.n_cells, "model_cells": mcase.mesh.n_cells,
             "plant_material": material_json(pcase.material),
             "plant_gravity_mm_s2": list(pcase.gravity) if pcase.gravity is not None else None,

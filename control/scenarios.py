@@ -12,7 +12,7 @@ import numpy as np
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 
 from .loop import solve_checked
-from .plants import LoopSetup, build_loop
+from .plants import LoopSetup, build_loop, matching_case
 
 __all__ = ["GRAVITY_MM_S2", "PLANT_NU", "SCENARIOS", "check_contact_plant",
            "indenter_plant_case", "patch_radius", "scenario_loop", "skin_region"]
@@ -112,40 +112,28 @@ def indenter_plant_case(case, *, radius=None, skin=None):
 def check_contact_plant(model_case, plant_case):
     """``plant_case`` as the contact scenario's plant of ``model_case``: every actuator an
     indenter, the same actuator names (returned in the model's order) and directions, the same
-    probes. CaseError naming the fault otherwise."""
-    from dataclasses import replace
-
-    m, p = _where(model_case), _where(plant_case)
-    mnames = [a.name for a in model_case.actuators]
-    pnames = [a.name for a in plant_case.actuators]
-    if set(mnames) != set(pnames):
-        raise CaseError(f"the contact plant {p} has actuators {pnames}, the model {m} has "
-                        f"{mnames}: the plant must replace each of the model's actuators by an "
-                        f"indenter of the same name")
-    patches = [a.name for a in plant_case.actuators if a.type != "indenter"]
+    probes (``matching_case``). CaseError naming the fault otherwise."""
+    plant = matching_case(model_case, plant_case, "model", "contact plant",
+                          hint=": the plant must replace each of the model's actuators by an "
+                               "indenter of the same name")
+    patches = [a.name for a in plant.actuators if a.type != "indenter"]
     if patches:
-        raise CaseError(f"the contact plant {p}: actuators {patches} are not indenters "
-                        f"(type = \"indenter\")")
-    for a in model_case.actuators:
-        d = plant_case.actuator(a.name).direction
-        if not np.allclose(d, a.direction, atol=1e-9):
-            raise CaseError(f"actuator {a.name!r} pushes along {list(d)} in the contact plant "
-                            f"{p} and along {list(a.direction)} in the model {m}")
-    mp = sorted(q.name for q in model_case.probes)
-    pp = sorted(q.name for q in plant_case.probes)
-    if mp != pp:
-        raise CaseError(f"the contact plant {p} has probes {pp}, the model {m} has {mp}")
-    return replace(plant_case, actuators=tuple(plant_case.actuator(n) for n in mnames))
+        raise CaseError(f"the contact plant {_where(plant_case)}: actuators {patches} are not "
+                        f"indenters (type = \"indenter\")")
+    return plant
 
 
-def scenario_loop(case, name: str, *, model: str = "admm", coarse_case=None,
-                  plant_case=None, contact_rule=None, model_update: str = "fast") -> LoopSetup:
+def scenario_loop(case, name: str, *, model: str = "admm", model_case=None,
+                  model_E_factor: float = 1.0, plant_case=None, contact_rule=None,
+                  model_update: str = "fast") -> LoopSetup:
     """A mismatch scenario of ``SCENARIOS``: the plant is the reference on ``case`` changed as
-    the scenario says, the model the fast solver ``model`` on ``case`` (``coarse_case``, a coarser
-    mesh of the same body, for "mesh"). "contact": the plant is ``plant_case`` (a case of the
-    same body with indenters of the same names, e.g. meshed finer at the sites;
-    ``check_contact_plant``), by default ``indenter_plant_case(case)``; ``contact_rule`` ("nodal"
-    or a Gauss degree) replaces that plant's [reference] contact_quadrature."""
+    the scenario says, the model the fast solver ``model`` on ``model_case`` (a case of the same
+    body, e.g. meshed coarser; default ``case``; required for "mesh", whose mismatch it is) with
+    E scaled by ``model_E_factor``. "contact": the model has glued patches, the plant is
+    ``plant_case`` (a case of the same body with indenters of the same names, e.g. meshed finer
+    at the sites; ``check_contact_plant``), by default ``indenter_plant_case(case)``;
+    ``contact_rule`` ("nodal" or a Gauss degree) replaces that plant's [reference]
+    contact_quadrature."""
     if name not in SCENARIOS:
         raise CaseError(f"unknown mismatch scenario {name!r}; scenarios: {sorted(SCENARIOS)}")
     if (plant_case is not None or contact_rule is not None) and name != "contact":
@@ -153,28 +141,27 @@ def scenario_loop(case, name: str, *, model: str = "admm", coarse_case=None,
                         f"the contact scenario takes one (its indenter plant)")
     from dataclasses import replace
 
-    model_case = case
     if name == "gravity":
         plant_case = replace(case, gravity=GRAVITY_MM_S2)
     elif name == "nu":
         plant_case = case.with_material(nu=PLANT_NU)
     elif name == "mesh":
-        if coarse_case is None:
-            raise CaseError("the mesh scenario needs the coarse case (a coarser mesh of the body)")
-        model_case, plant_case = coarse_case, case
+        if model_case is None or model_case is case:
+            raise CaseError("the mesh scenario needs the model's case: the body meshed coarser")
+        plant_case = case
     elif name == "contact":
-        tips = [a.name for a in case.indenters()]
-        if tips:
-            raise CaseError(f"{_where(case)}: actuators {tips} are indenters; the contact "
-                            f"scenario's model is the glued-patch case")
+        for c in (case, model_case or case):
+            tips = [a.name for a in c.indenters()]
+            if tips:
+                raise CaseError(f"{_where(c)}: actuators {tips} are indenters; the contact "
+                                f"scenario's model is the glued-patch case")
         plant_case = (indenter_plant_case(case) if plant_case is None
                       else check_contact_plant(case, plant_case))
         if contact_rule is not None:
             plant_case = replace(plant_case, reference_contact_quadrature=contact_rule)
-    else:
-        plant_case = case
     loop = build_loop(case, plant="fem", model=model, model_case=model_case,
-                      plant_case=plant_case, scenario=name, model_update=model_update)
+                      model_E_factor=model_E_factor, plant_case=plant_case, scenario=name,
+                      model_update=model_update)
     loop.meta["scenario_description"] = SCENARIOS[name]
     if name == "contact":   # which plant: a case file, or derived from the model's (source null)
         loop.meta.update({"plant_case": plant_case.name, "plant_source": plant_case.source})

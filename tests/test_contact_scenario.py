@@ -25,11 +25,11 @@ SITES = {"pX": (10.0, 5.0, 5.5), "pY": (5.0, 10.0, 5.5)}
 GOAL = [-0.3, -0.2, np.nan]                     # T1 moved 0.3 mm along -x, 0.2 mm along -y
 
 
-def _block_mesh():
-    """A 10 mm block (box(1.25): 2.7k tets) standing on ``base`` (z = 0), with a disc patch of
-    about DISC_MM (the facets whose centroids lie within it) on the +x face (``pX``) and on the
-    +y face (``pY``), and every other boundary facet in ``skin``."""
-    m = box(1.25)
+def _block_mesh(h: float = 1.25):
+    """A 10 mm block (box(h); 1.25: 2.7k tets) standing on ``base`` (z = 0), with a disc patch
+    of about DISC_MM (the facets whose centroids lie within it) on the +x face (``pX``) and on
+    the +y face (``pY``), and every other boundary facet in ``skin``."""
+    m = box(h)
     fr, X = m.facet_regions, m.points
     regions = {"base": fr["zmin"]}
     rest = [fr["xmin"], fr["ymin"], fr["zmax"]]
@@ -42,11 +42,11 @@ def _block_mesh():
     return MeshData(m.points, m.cells, facet_regions=regions, cell_regions=m.cell_regions)
 
 
-def block_case():
-    """The glued-patch case on the block: A1 pushes the +x disc along -x, A2 the +y disc along
-    -y; targets T1 (the centre at z = 5.5 mm) and T2 (nearer both discs). Also the case of
-    bench/bench_contact_scenario.py."""
-    return Case(mesh=_block_mesh(), material=Material("neo-hookean", E=6.0, nu=0.3),
+def block_case(h: float = 1.25):
+    """The glued-patch case on the block (``_block_mesh(h)``): A1 pushes the +x disc along -x, A2
+    the +y disc along -y; targets T1 (the centre at z = 5.5 mm) and T2 (nearer both discs).
+    Also the case of bench/bench_contact_scenario.py."""
+    return Case(mesh=_block_mesh(h), material=Material("neo-hookean", E=6.0, nu=0.3),
                 name="discs", boundaries=(Boundary("base", "fixed"),),
                 actuators=(Actuator("A1", "pX", (-1.0, 0.0, 0.0)),
                            Actuator("A2", "pY", (0.0, -1.0, 0.0))),

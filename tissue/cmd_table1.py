@@ -17,7 +17,7 @@ from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import write_json
 
 from .common import add_case_args, case_from_args, check_outputs, contact_rule, integer
-from .loop_options import add_loop_args, loop_from_args
+from .loop_options import add_loop_args, loop_from_args, model_case_from_args
 
 
 def run_table1(args) -> int:
@@ -27,6 +27,9 @@ def run_table1(args) -> int:
         if value is not None and "contact" not in (args.scenarios or ()):
             raise CaseError(f"{flag}: only with --scenarios contact (it sets that scenario's "
                             f"plant)")
+    if args.scenarios and args.plant != "fem":
+        raise CaseError(f"--plant {args.plant}: the scenarios' plant is the reference (fem), "
+                        f"changed as each scenario says")
     case = case_from_args(args)
     targets = args.targets or [p.name for p in case.probes]
     for t in targets:
@@ -81,12 +84,15 @@ def _jobs(args, scenario=None) -> dict:
 
 
 def _scenario_loops(args, case, names) -> dict:
-    """The loop of each mismatch scenario in ``names`` (a plant that does not fit is refused
-    here, before any solve)."""
-    coarse = plant = None
-    if "mesh" in names:
+    """The loop of each mismatch scenario in ``names`` (a plant or model that does not fit is
+    refused here, before any solve). The model is --model-case / --model-size in every
+    scenario; the mesh scenario's, without them, is the body meshed at twice the size."""
+    model = model_case_from_args(args, case)
+    coarse = model
+    if "mesh" in names and coarse is None:
         h = args.size if args.size is not None else 6.0
         coarse = case_from_args(args, size=2.0 * h)
+    plant = None
     if args.contact_plant is not None and "contact" in names:   # meshed as its file says
         try:
             plant = case_from_args(argparse.Namespace(**{**vars(args), "case": args.contact_plant,
@@ -94,7 +100,9 @@ def _scenario_loops(args, case, names) -> dict:
         except CaseError as exc:   # CaseReadError stays one (its exit status)
             raise type(exc)(f"--contact-plant: {exc}") from None
     contact = {"plant_case": plant, "contact_rule": args.plant_contact_quadrature}
-    return {name: scenario_loop(case, name, model=args.model or "admm", coarse_case=coarse,
+    return {name: scenario_loop(case, name, model=args.model or "admm",
+                                model_case=coarse if name == "mesh" else model,
+                                model_E_factor=args.model_E_factor,
                                 model_update=args.model_update,
                                 **(contact if name == "contact" else {}))
             for name in dict.fromkeys(names)}
@@ -139,8 +147,9 @@ def add_parser(sub):
                    help="probes to steer (default: every probe of the case)")
     p.add_argument("--scenarios", nargs="+", choices=tuple(SCENARIOS), default=None,
                    help="run the table once per model-plant mismatch (plant: the reference; "
-                        "model: --model, default admm): gravity on the plant only, a nearly "
-                        "incompressible plant (nu 0.495, mixed), a model mesh twice as coarse, "
+                        "model: --model, default admm, on --model-case / --model-size, default "
+                        "the case): gravity on the plant only, a nearly incompressible plant (nu "
+                        "0.495, mixed), a model mesh coarser (default: twice the size), "
                         "a plant pressed by rigid spherical indenters (frictionless contact) "
                         "where the model has glued patches")
     p.add_argument("--contact-plant", metavar="CASE.toml", default=None,

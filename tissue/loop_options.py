@@ -2,9 +2,11 @@
 share: the plant, the model and their mismatch, the MPC's weights and limits, the task."""
 from __future__ import annotations
 
+import argparse
+
 from tissue_reference.control.loop import LoopSettings
 from tissue_reference.control.mpc import WEIGHTS, MPCSettings
-from tissue_reference.control.plants import MODEL_UPDATES, build_loop
+from tissue_reference.control.plants import MODEL_UPDATES, build_loop, matching_case
 from tissue_reference.meshes.converged_range import converged_push_limit
 from tissue_reference.meshes.errors import CaseError
 
@@ -30,8 +32,13 @@ def add_loop_args(p):
                         "and an assembled tangent every step)")
     p.add_argument("--model-E-factor", type=real("positive"), default=1.0,
                    help="the model's E = factor * the Case's E")
+    p.add_argument("--model-case", default=None, metavar="CASE.toml",
+                   help="the model's own case: the same body, actuators and probes meshed as its "
+                        "file says (e.g. phantom-indenter-control, the coarse model of a "
+                        "phantom-indenter plant); default: the case")
     p.add_argument("--model-size", type=real("positive", "mm"), default=None,
-                   help="the model's mesh size (mm; default: the plant's mesh)")
+                   help="the model's mesh size (mm; default: the plant's mesh, or the "
+                        "--model-case's own)")
     p.add_argument("--noise", type=real("nonneg", "mm"), default=0.0,
                    help="measurement noise std (mm)")
     p.add_argument("--seed", type=integer(0, 2 ** 32 - 1), default=0,
@@ -59,6 +66,21 @@ def add_loop_args(p):
                         "seed's tasks: 5)")
 
 
+def model_case_from_args(args, case):
+    """The model's case named by --model-case and --model-size (each refused, naming the file,
+    when it is not of ``case``'s body: ``matching_case``), or None for the case itself."""
+    if args.model_case is None and args.model_size is None:
+        return None
+    if args.model_case is None:
+        return case_from_args(args, size=args.model_size)
+    try:
+        mcase = case_from_args(argparse.Namespace(**{**vars(args), "case": args.model_case,
+                                                     "size": args.model_size}))
+        return matching_case(case, mcase, "case", "model")
+    except CaseError as exc:   # CaseReadError stays one (its exit status)
+        raise type(exc)(f"--model-case: {exc}") from None
+
+
 def loop_from_args(args, case):
     """The loop (plant, model, mismatch) and settings named by the command line."""
     check_prescribed(case)
@@ -66,7 +88,7 @@ def loop_from_args(args, case):
     if args.noise > diam:
         raise CaseError(f"--noise {args.noise:g}: expected a measurement noise <= the body's "
                         f"diameter ({diam:.4g} mm)")
-    mcase = case_from_args(args, size=args.model_size) if args.model_size is not None else None
+    mcase = model_case_from_args(args, case)
     try:
         loop = build_loop(case, plant=args.plant, model=args.model,
                           model_E_factor=args.model_E_factor, model_case=mcase,

@@ -91,7 +91,7 @@ def _open_loop_text(ol: dict) -> str:
 
 _META = ("case", "source", "plant", "model", "plant_cells", "model_cells", "plant_material",
          "model_material", "plant_gravity_mm_s2", "model_gravity_mm_s2", "mismatch", "scenario",
-         "size", "model_size")
+         "size", "model_case", "model_source", "model_size")
 
 
 def write_mpc_report(d: dict, out_dir, *, response_png: str | None = None) -> Path:
