@@ -103,11 +103,12 @@ def test_a_coarse_tip_model_steers_a_tip_plant_under_gravity_to_the_goal(tips):
 
 
 @pytest.mark.slow
-def test_table1_takes_the_model_case_in_its_scenarios(tmp_path, capsys):
-    """--model-case in a scenario run: recorded in the tables and used (the model's cells);
-    one of another body is refused before any solve, naming both files; --plant admm is
+def test_table1_takes_the_model_case_in_its_scenarios(tmp_path, capsys, monkeypatch):
+    """--model-case in a scenario run: read once, recorded in the tables and used (the model's
+    cells); one of another body is refused before any solve, naming both files; --plant admm is
     refused with scenarios (their plant is the reference)."""
     from tissue_reference.meshes.writers import write_mesh
+    from tissue_reference.tissue import loop_options
     from tissue_reference.tissue.cli import main
     from tissue_reference.tissue.output_schema import validate_file
 
@@ -133,9 +134,18 @@ def test_table1_takes_the_model_case_in_its_scenarios(tmp_path, capsys):
     assert main([str(a) for a in base + ["--plant", "admm", "--out", tmp_path / "y"]]) == 2
     assert "--plant admm: the scenarios' plant is the reference" in capsys.readouterr().err
     assert not (tmp_path / "x" / "gravity").exists() and not (tmp_path / "y" / "gravity").exists()
+    read = []
+    real_read = loop_options.case_from_args
+
+    def counted(args, **kw):
+        read.append(str(args.case))
+        return real_read(args, **kw)
+
+    monkeypatch.setattr(loop_options, "case_from_args", counted)
     out = tmp_path / "t"
     assert main([str(a) for a in base + ["--model-case", tmp_path / "coarse.toml",
                                          "--model-E-factor", "1.2", "--out", out]]) == 0
+    assert read == [str(tmp_path / "coarse.toml")]
     t = validate_file("table1", out / "gravity" / "table1.json")
     m = t["meta"]
     assert (m["model_case"], m["model_source"]) == ("coarse", str(tmp_path / "coarse.toml"))

@@ -3,7 +3,6 @@ or per model-plant mismatch scenario, optionally in worker processes (``--jobs``
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import functools
 import json
 import sys
@@ -12,12 +11,18 @@ from pathlib import Path
 from tissue_reference.control.scenarios import SCENARIOS, scenario_loop
 from tissue_reference.control.table1 import plot_scenarios, write_scenarios_page
 from tissue_reference.control.table1 import run_table1 as run_all
-from tissue_reference.meshes.converged_range import converged_push_limit
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import write_json
 
 from .common import add_case_args, case_from_args, check_outputs, contact_rule, integer
-from .loop_options import add_loop_args, loop_from_args, model_case_from_args
+from .loop_options import (
+    add_loop_args,
+    check_loop_args,
+    loop_from_args,
+    model_case_from_args,
+    settings_from_args,
+    travel_limit,
+)
 
 
 def run_table1(args) -> int:
@@ -34,9 +39,9 @@ def run_table1(args) -> int:
     targets = args.targets or [p.name for p in case.probes]
     for t in targets:
         case.probe(t)   # a missing target is named before any solve
-    loop, settings = loop_from_args(args, case)
     if args.scenarios:
-        return _run_scenarios(args, case, targets, settings, loop.meta)
+        return _run_scenarios(args, case, targets)
+    loop, settings = loop_from_args(args, case)
     summ = run_all(case, targets, loop, settings, args.out, meta=loop.meta,
                    progress=_progress(args), **_jobs(args))
     print(f"table1: {json.dumps(summ)}")
@@ -72,7 +77,7 @@ def table1_loop(argv: dict, scenario: str | None):
     case = case_from_args(args)
     if scenario is None:
         return loop_from_args(args, case)[0]
-    return _scenario_loops(args, case, [scenario])[scenario]
+    return _scenario_loops(args, case, model_case_from_args(args, case), [scenario])[scenario]
 
 
 def _jobs(args, scenario=None) -> dict:
@@ -83,11 +88,11 @@ def _jobs(args, scenario=None) -> dict:
             "factory_key": scenario}
 
 
-def _scenario_loops(args, case, names) -> dict:
+def _scenario_loops(args, case, model, names) -> dict:
     """The loop of each mismatch scenario in ``names`` (a plant or model that does not fit is
-    refused here, before any solve). The model is --model-case / --model-size in every
-    scenario; the mesh scenario's, without them, is the body meshed at twice the size."""
-    model = model_case_from_args(args, case)
+    refused here, before any solve). The model is ``model`` (--model-case / --model-size, None:
+    the case) in every scenario; the mesh scenario's, without it, is the body meshed at twice
+    the size."""
     coarse = model
     if "mesh" in names and coarse is None:
         h = args.size if args.size is not None else 6.0
@@ -108,21 +113,20 @@ def _scenario_loops(args, case, names) -> dict:
             for name in dict.fromkeys(names)}
 
 
-def _run_scenarios(args, case, targets, settings, base_meta) -> int:
+def _run_scenarios(args, case, targets) -> int:
     """The Table I analog once per mismatch scenario, each in ``--out``/NAME, with a combined
-    summary (table1_scenarios.json) and the ITAE plot."""
-
+    summary (table1_scenarios.json) and the ITAE plot. The model's case is read and checked
+    once for every scenario; with --max-travel auto each scenario's own plant and model set its
+    range (the summary's settings record the case's and the model's)."""
+    check_loop_args(args, case)
+    model = model_case_from_args(args, case)
+    record = settings_from_args(args, travel_limit(args, case, model))[1]   # checked: refusals first
     out = Path(args.out)
-    loops = _scenario_loops(args, case, args.scenarios)   # every one first: refusals before solves
+    loops = _scenario_loops(args, case, model, args.scenarios)   # every one first: refusals
     summaries, rows, metas = {}, {}, {}
     for name, loop in loops.items():
-        loop.meta["settings"] = base_meta.get("settings")
-        own = settings
-        if args.max_travel == "auto":   # each scenario's own plant and model set its range
-            limit = converged_push_limit(loop.case, loop.model_case)
-            own = dataclasses.replace(settings, mpc=dataclasses.replace(settings.mpc,
-                                                                       max_travel=limit))
-            loop.meta["settings"] = {**(base_meta.get("settings") or {}), "max_travel_mm": limit}
+        own, loop.meta["settings"] = settings_from_args(args, travel_limit(args, loop.case,
+                                                                           loop.model_case))
         metas[name] = loop.meta
         _progress(args)(f"== scenario {name}: {loop.meta['scenario_description']}")
         summaries[name] = run_all(loop.case, targets, loop, own, out / name,
@@ -130,9 +134,9 @@ def _run_scenarios(args, case, targets, settings, base_meta) -> int:
         rows[name] = json.loads((out / name / "table1.json").read_text())["rows"]
         write_json({"case": case.name, "source": case.source, "targets": list(targets),
                     "scenarios": summaries, "meta": metas,
-                    "settings": base_meta.get("settings")}, out / "table1_scenarios.json")
+                    "settings": record}, out / "table1_scenarios.json")
     plot_scenarios(rows, out / "table1_scenarios.png")
-    write_scenarios_page(out, summaries, metas, base_meta.get("settings"),
+    write_scenarios_page(out, summaries, metas, record,
                          plot="table1_scenarios.png")
     for name, s in summaries.items():
         print(f"table1 {name}: {json.dumps(s)}")

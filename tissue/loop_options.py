@@ -81,13 +81,41 @@ def model_case_from_args(args, case):
         raise type(exc)(f"--model-case: {exc}") from None
 
 
-def loop_from_args(args, case):
-    """The loop (plant, model, mismatch) and settings named by the command line."""
+def check_loop_args(args, case) -> None:
+    """What a closed loop on ``case`` needs of it and of the command line, before any mesh of a
+    model is read: prescribed actuators and a noise no larger than the body."""
     check_prescribed(case)
     diam = body_diameter(case)
     if args.noise > diam:
         raise CaseError(f"--noise {args.noise:g}: expected a measurement noise <= the body's "
                         f"diameter ({diam:.4g} mm)")
+
+
+def travel_limit(args, case, model_case) -> float | None:
+    """--max-travel resolved: "auto" is the deepest push at which the answers of ``case`` (the
+    plant) and ``model_case`` (None: the case itself) still converge."""
+    if args.max_travel == "auto":
+        return converged_push_limit(case, model_case or case)
+    return args.max_travel
+
+
+def settings_from_args(args, limit) -> tuple[LoopSettings, dict]:
+    """The loop's settings named by the command line with the push limit ``limit`` (mm, None:
+    none), and their record in a loop's metadata (``settings``)."""
+    settings = LoopSettings(steps=args.steps, dt_s=args.dt, noise_mm=args.noise, seed=args.seed,
+                            task_mm=args.task_mm,
+                            mpc=MPCSettings(horizon=args.horizon, q=args.q, r=args.r,
+                                            weights=args.weights,
+                                            max_travel=limit, solver=args.qp_solver))
+    return settings, {"steps": args.steps, "dt_s": args.dt, "horizon": args.horizon, "q": args.q,
+                      "r": args.r, "weights": args.weights, "max_travel_mm": limit,
+                      "noise_mm": args.noise, "seed": args.seed, "qp_solver": args.qp_solver,
+                      "task_mm": args.task_mm}
+
+
+def loop_from_args(args, case):
+    """The loop (plant, model, mismatch) and settings named by the command line."""
+    check_loop_args(args, case)
     mcase = model_case_from_args(args, case)
     try:
         loop = build_loop(case, plant=args.plant, model=args.model,
@@ -95,19 +123,6 @@ def loop_from_args(args, case):
                           model_update=args.model_update)
     except CaseError as exc:
         raise CaseError(f"--model-E-factor / --model: {exc}") from None
-    limit = args.max_travel
-    if limit == "auto":
-        limit = converged_push_limit(loop.case, loop.model_case)
-    settings = LoopSettings(steps=args.steps, dt_s=args.dt, noise_mm=args.noise, seed=args.seed,
-                            task_mm=args.task_mm,
-                            mpc=MPCSettings(horizon=args.horizon, q=args.q, r=args.r,
-                                            weights=args.weights,
-                                            max_travel=limit, solver=args.qp_solver))
-    loop.meta.update({"size": args.size, "model_size": args.model_size,
-                      "settings": {"steps": args.steps, "dt_s": args.dt,
-                                   "horizon": args.horizon, "q": args.q, "r": args.r,
-                                   "weights": args.weights,
-                                   "max_travel_mm": limit, "noise_mm": args.noise,
-                                   "seed": args.seed, "qp_solver": args.qp_solver,
-                                   "task_mm": args.task_mm}})
+    settings, record = settings_from_args(args, travel_limit(args, loop.case, loop.model_case))
+    loop.meta.update({"size": args.size, "model_size": args.model_size, "settings": record})
     return loop, settings
