@@ -28,8 +28,17 @@ def _pushes(k):
     return {"A1": 0.5 + 0.1 * k, "A2": max(0.0, 0.05 * (k - 4)), "A3": 0.07 * k, "A4": 0.0}
 
 
-def test_state_and_jacobian_match_full_solves_along_a_path(case):
-    m = FastModel(case, "T2")
+@pytest.mark.parametrize("factorize", [None, "cholmod"])
+def test_state_and_jacobian_match_full_solves_along_a_path(case, factorize):
+    """SuperLU (the default) and CHOLMOD through the ``factorize`` hook alike."""
+    hook = None
+    if factorize == "cholmod":
+        from tissue_reference.fem_reference import cholmod_factor
+        from tissue_reference.fem_reference.linalg import has_cholmod
+        if not has_cholmod():
+            pytest.skip("this PETSc has no CHOLMOD")
+        hook = cholmod_factor
+    m = FastModel(case, "T2", factorize=hook)
     admm = plant_for("admm")
     for k in range(12):
         p = _pushes(k)
@@ -46,6 +55,8 @@ def test_state_and_jacobian_match_full_solves_along_a_path(case):
             assert np.abs(J - fd).max() < 2e-3 * np.abs(fd).max()
     assert m.fallbacks == 0 and len(m.timings) == 12
     assert all(t["state"] >= 0 and t["jacobian"] >= 0 for t in m.timings)
+    # the hook's factorization is the one in use (SuperLU's has no ``ksp``)
+    assert hasattr(m._F, "ksp") == (hook is not None)
 
 
 def test_a_jump_it_cannot_follow_falls_back_to_a_full_solve(case):

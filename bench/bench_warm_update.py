@@ -1,0 +1,104 @@
+"""Warm re-solves after +0.5 mm on every actuator, per mesh size, in one run: the P1 reference's
+Newton from its own previous answer; ADMM + chord polish from the previous answer (chord steps
+on the kept tangent at rest); and the control model's state update (``control.fast_model``:
+the first-order predictor from the sensitivities at the previous state, then chord steps on the
+tangent factorized at that state, kept from the step before, as a control loop holds it for its
+Jacobian), its tangents factorized by SuperLU (its default) and by CHOLMOD (the ``factorize``
+hook). Each: time (best of ``--repeat``), iterations, the largest vertex distance from the
+reference's answer (mm) and the ratio reference time / its time. The control model's update
+holds a factorization it did not pay for in the call: its cost (the tangent at the previous
+state, assembled and factorized) is printed beside it, and the ratio with that cost counted.
+
+    .venv/bin/python bench/bench_warm_update.py                 # sizes 10 6 5 2.8
+    .venv/bin/python bench/bench_warm_update.py --sizes 10 --push 4
+
+The glued phantom (pushes within the patches' radius); one BLAS thread (OPENBLAS_NUM_THREADS=1
+unless set), as bench/bench_admm_accel.py.
+"""
+import argparse
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+import time
+
+import numpy as np
+
+import tissue_reference.fem_reference as fr
+from tissue_reference.control.fast_model import STATE_TOL_MM, FastModel
+from tissue_reference.meshes.case import load_case
+from tissue_reference.solvers import admm
+
+
+def timed(fun):
+    t = time.perf_counter()
+    res = fun()
+    return res, time.perf_counter() - t
+
+
+def best(fun, repeat):
+    """(result, the shortest time) of ``repeat`` calls."""
+    runs = [timed(fun) for _ in range(max(1, repeat))]
+    return runs[0][0], min(t for _, t in runs)
+
+
+def fast_update(case, target, p0, p1, factorize):
+    """(model after the update, state-update ms, factorization ms held from the step before,
+    chord refactorizations during the update) for one control model started at p0."""
+    model = FastModel(case, target, factorize=factorize)
+    model.jacobian(p0)                 # full ADMM solve, tangent factorized, sensitivities
+    held_ms = model.timings[-1]["factor"]
+    n0 = model.refactorizations
+    model.jacobian(p1)                 # the update: predictor + chord on the kept factorization
+    t = model.timings[-1]
+    return model, t["state"], held_ms, model.refactorizations - n0
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", type=float, nargs="+", default=[10.0, 6.0, 5.0, 2.8],
+                    help="phantom mesh sizes (mm)")
+    ap.add_argument("--push", type=float, default=4.0,
+                    help="every actuator's push before the +0.5 mm (default 4)")
+    ap.add_argument("--repeat", type=int, default=3, help="timings are the best of this many")
+    ap.add_argument("--target", default="T1", help="the control model's target probe")
+    args = ap.parse_args()
+    print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs; warm re-solves "
+          f"{args.push:g} -> {args.push + 0.5:g} mm on every actuator, best of {args.repeat}")
+    for size in args.sizes:
+        rows(size, args)
+
+
+def rows(size, args):
+    """The rows of one mesh size."""
+    case = load_case("phantom", size=size)
+    acts = [a.name for a in case.actuators]
+    p0 = dict.fromkeys(acts, args.push)
+    p1 = dict.fromkeys(acts, args.push + 0.5)
+    fr.solve(case, degree=1, pushes=dict.fromkeys(acts, 0.1))   # compile the forms
+    ref0 = fr.solve(case, degree=1, pushes=p0)
+    ref1, t_ref = best(lambda: fr.solve(case, degree=1, pushes=p1, initial=ref0), args.repeat)
+    print(f"\nphantom size {size:g}: {case.mesh.n_cells} tets; reference P1 Newton warm "
+          f"{t_ref * 1e3:8.1f} ms ({ref1.iterations} its)")
+
+    def err(u):
+        return float(np.abs(np.asarray(u).reshape(ref1.u.shape) - ref1.u).max())
+
+    kw = {"polish": "chord", "factorize": fr.cholmod_factor}
+    a0 = admm.solve(case, pushes=p0, **kw)
+    a1, t_ch = best(lambda: admm.solve(case, pushes=p1, initial=a0.u, **kw), args.repeat)
+    print(f"  ADMM + chord (rest tangent)    {t_ch * 1e3:8.1f} ms "
+          f"({a1.extra['admm_iterations']} ADMM + {a1.extra['chord_iterations']} chord its), "
+          f"{err(a1.u):.1e} mm, x{t_ref / t_ch:.1f}")
+    for label, factorize in (("SuperLU", None), ("CHOLMOD", fr.cholmod_factor)):
+        runs = [fast_update(case, args.target, p0, p1, factorize)
+                for _ in range(max(1, args.repeat))]
+        model, t_fm, _, refac = min(runs, key=lambda r: r[1])
+        t_fm /= 1e3
+        held_s = min(r[2] for r in runs) / 1e3
+        print(f"  control model update, {label:7s} {t_fm * 1e3:8.1f} ms (predictor + chord to "
+              f"{STATE_TOL_MM:g} mm, {refac} refactorizations), {err(model.u):.1e} mm, "
+              f"x{t_ref / t_fm:.1f}; the tangent it holds {held_s * 1e3:.1f} ms: with it "
+              f"x{t_ref / (t_fm + held_s):.1f}")
+
+if __name__ == "__main__":
+    main()
