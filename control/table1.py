@@ -4,7 +4,8 @@ steady-state error and retraction, written as JSON, Markdown and HTML (each file
 
 ``run_table1(case, targets, loop, settings, out)`` runs the scenarios (``loop`` from
 ``control.plants.build_loop``), writing the tables after every scenario so an interrupted run
-keeps what it finished. With ``jobs`` > 1 the scenarios run in that many worker processes, each
+keeps what it finished; a loop that runs long reports its step every ``STEP_LINE_S`` seconds
+(a plant solve on a fine mesh takes minutes, a loop up to half an hour). With ``jobs`` > 1 the scenarios run in that many worker processes, each
 building its own loop with ``loop_factory`` (the plant's solver state cannot cross processes);
 the rows are the serial run's, in the same order, within round-off: every loop runs with
 ``LOOP_BLAS_THREADS`` BLAS threads, and a reference solve does not depend on what its process
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import json
 import textwrap
+import time
 import warnings
 from html import escape as html_escape
 from pathlib import Path
@@ -28,7 +30,7 @@ from tissue_reference.meshes.html_page import Raw, image, kv_table, page, table,
 from tissue_reference.meshes.io import atomic_path, save_figure
 from tissue_reference.meshes.results import write_json
 
-__all__ = ["LOOP_BLAS_THREADS", "SSE_GOAL_MM", "plot_scenarios", "run_table1", "table1_row",
+__all__ = ["LOOP_BLAS_THREADS", "SSE_GOAL_MM", "STEP_LINE_S", "plot_scenarios", "run_table1", "table1_row",
            "table1_summary", "write_scenarios_page", "write_table1"]
 
 
@@ -39,6 +41,27 @@ changes the factorizations' round-off, and at a marginal load round-off can deci
 plant solve converges (the glued phantom at size 10, A1 = 80 mm: converged with one thread,
 given up at load fraction 0.997 with two). One count everywhere makes ``jobs`` change only
 the time a table takes, never a row beyond round-off."""
+
+
+STEP_LINE_S = 60.0
+"""A Table I loop passes on its closed- and open-loop step lines (``control.plant_step.
+step_line``, prefixed by target and task) at most once per this many seconds, the first after
+that long: loops of a second say nothing, loops of minutes say where they are."""
+
+
+class _StepLines:
+    """A loop's step lines, at most one per ``seconds`` (the first after ``seconds``), prefixed
+    by ``prefix`` and handed to ``emit``."""
+
+    def __init__(self, emit, prefix: str, seconds: float):
+        self.emit, self.prefix, self.seconds = emit, prefix, float(seconds)
+        self.last = time.monotonic()
+
+    def __call__(self, line: str) -> None:
+        now = time.monotonic()
+        if now - self.last >= self.seconds:
+            self.last = now
+            self.emit(f"{self.prefix}: {line}")
 
 
 def _fmt(v, spec):
@@ -154,13 +177,17 @@ def write_table1(out, meta, rows, n_expected):
     return summ
 
 
-def run_one(loop, t, task, settings, out, plots: bool = True) -> tuple[dict, str]:
+def run_one(loop, t, task, settings, out, plots: bool = True,
+            step_lines=None) -> tuple[dict, str]:
     """One scenario of Table I on ``loop``: (its row, its progress line); a time-response PNG
-    in ``out`` when it completes and ``plots``."""
-
+    in ``out`` when it completes and ``plots``. ``step_lines(line)``: where its step lines go,
+    one per ``STEP_LINE_S`` at most (None: nowhere)."""
+    steps = None if step_lines is None else _StepLines(step_lines, f"{t} task {task}",
+                                                       STEP_LINE_S)
     try:
         with threadpool_limits(limits=LOOP_BLAS_THREADS):
-            res = loop.run(t, task, settings)
+            res = loop.run(t, task, settings) if steps is None else \
+                loop.run(t, task, settings, progress=steps)
     except UnreachableGoalError as exc:
         return ({"target": t, "task": task, "status": "unreachable", "error": str(exc),
                  "closest_reachable_mm": np.asarray(exc.closest).tolist()},
@@ -184,8 +211,13 @@ def run_one(loop, t, task, settings, out, plots: bool = True) -> tuple[dict, str
 _WORKER = {}   # in a worker process: its loop factory, its key and the loop it built
 
 
-def _worker_init(factory, key, quiet):
-    _WORKER.update(factory=factory, key=key, loop=None)
+def _print_line(line: str) -> None:
+    print(line, flush=True)
+
+
+def _worker_init(factory, key, quiet, step_lines):
+    _WORKER.update(factory=factory, key=key, loop=None,
+                   step_lines=_print_line if step_lines else None)
     if quiet:   # the parent (the command line) prints its own lines instead
         warnings.simplefilter("ignore", TissueWarning)
 
@@ -194,7 +226,7 @@ def _worker_run(t, task, settings, out, plots):
     if _WORKER["loop"] is None:
         with threadpool_limits(limits=LOOP_BLAS_THREADS):   # one core per worker
             _WORKER["loop"] = _WORKER["factory"](_WORKER["key"])
-    return run_one(_WORKER["loop"], t, task, settings, out, plots)
+    return run_one(_WORKER["loop"], t, task, settings, out, plots, _WORKER["step_lines"])
 
 
 def _ignoring_warnings() -> bool:
@@ -204,9 +236,12 @@ def _ignoring_warnings() -> bool:
 
 
 def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
-               plots: bool = True, jobs: int = 1, loop_factory=None, factory_key=None) -> dict:
+               plots: bool = True, jobs: int = 1, loop_factory=None, factory_key=None,
+               step_lines: bool = True) -> dict:
     """Every target x task (1, 2, 3) on ``loop`` (``control.plants.LoopSetup``); returns the
-    summary. ``progress(line)`` gets one line per scenario as it ends; ``plots``: a
+    summary. ``progress(line)`` gets one line per scenario as it ends and, with
+    ``step_lines``, a long loop's step lines (``STEP_LINE_S``; a worker process prints its own
+    to stdout); ``plots``: a
     time-response PNG per scenario in ``out``. ``jobs`` > 1: that many worker processes, each
     running ``loop_factory(factory_key)`` once for its own loop (a picklable callable: a
     module-level function or a functools.partial of one); ``loop`` then serves nobody."""
@@ -223,7 +258,8 @@ def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
 
     if jobs <= 1 or n <= 1:
         for i, pair in enumerate(pairs):
-            finish(i, *run_one(loop, *pair, settings, out, plots))
+            finish(i, *run_one(loop, *pair, settings, out, plots,
+                               progress if step_lines else None))
         return summ
     if loop_factory is None:
         raise ValueError("run_table1: jobs > 1 needs a loop_factory")
@@ -231,7 +267,7 @@ def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     Path(out).mkdir(parents=True, exist_ok=True)
-    init = (loop_factory, factory_key, _ignoring_warnings())
+    init = (loop_factory, factory_key, _ignoring_warnings(), bool(step_lines))
     with ProcessPoolExecutor(max_workers=min(jobs, n),
                              mp_context=multiprocessing.get_context("spawn"),
                              initializer=_worker_init, initargs=init) as pool:

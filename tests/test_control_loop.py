@@ -272,6 +272,49 @@ def test_table1_files_and_summary(setup, tmp_path):
     assert "<th scope='row'>case</th><td>phantom</td>" in settings and "<pre>" not in html
 
 
+def test_table1_passes_on_a_long_loops_steps_at_most_once_a_minute(setup, tmp_path,
+                                                                   monkeypatch):
+    """The real loop on the linear plant, each plant solve taking 25 s of a fake clock: its
+    step lines reach ``progress`` prefixed by target and task, the first STEP_LINE_S after the
+    loop starts at the earliest, then at most one per STEP_LINE_S; with step_lines=False only
+    each scenario's own line."""
+    from tissue_reference.control import table1
+
+    case, K, plant = setup
+    clock = [0.0]
+    monkeypatch.setattr(table1.time, "monotonic", lambda: clock[0])
+    starts = {}
+
+    def slow(case_, pushes, initial=None):
+        clock[0] += 25.0
+        return plant(case_, pushes, initial)
+
+    class Loop:   # what run_table1 needs of control.plants.LoopSetup
+        def run(self, target, task, settings, progress=None):
+            starts[f"{target} task {task}"] = clock[0]
+            model = LinearizedModel(case, plant, linear_tangent(K), target)
+            return run_closed_loop(slow, case, model, target, task, settings=settings,
+                                   progress=progress)
+
+    lines = []
+    table1.run_table1(case, ["T1"], Loop(), LoopSettings(steps=12), tmp_path, plots=False,
+                      progress=lambda line: lines.append((clock[0], line)))
+    assert sum("itae closed" in line for _, line in lines) == 3
+    steps = [(t, line) for t, line in lines if "itae closed" not in line]
+    assert any("closed loop step" in line for _, line in steps)
+    assert any("open loop step" in line for _, line in steps)
+    for name, t0 in starts.items():
+        times = [t for t, line in steps if line.startswith(name + ": ")]
+        assert times, name
+        assert np.all(np.diff([t0, *times]) >= table1.STEP_LINE_S)
+    assert len(steps) == sum(len([1 for _, line in steps if line.startswith(n + ": ")])
+                             for n in starts)   # every step line names its loop
+    quiet = []
+    table1.run_table1(case, ["T1"], Loop(), LoopSettings(steps=12), tmp_path / "q",
+                      plots=False, progress=quiet.append, step_lines=False)
+    assert len(quiet) == 3 and all("itae closed" in line for line in quiet)
+
+
 class StaleBoundary:
     """A plant that reports success but returns the previous call's state from call ``n`` on (the
     failure mode of a solver whose restart keeps the old boundary values)."""

@@ -81,11 +81,11 @@ def table1_loop(argv: dict, scenario: str | None):
 
 
 def _jobs(args, scenario=None) -> dict:
-    """run_table1's keywords for ``--jobs``."""
+    """run_table1's keywords for ``--jobs`` and the long loops' step lines (not with -q)."""
     if args.jobs <= 1:
-        return {}
+        return {"step_lines": not args.quiet}
     return {"jobs": args.jobs, "loop_factory": functools.partial(table1_loop, vars(args)),
-            "factory_key": scenario}
+            "factory_key": scenario, "step_lines": not args.quiet}
 
 
 def _scenario_loops(args, case, model, names) -> dict:
