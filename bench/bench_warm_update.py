@@ -11,6 +11,7 @@ state, assembled and factorized) is printed beside it, and the ratio with that c
 
     .venv/bin/python bench/bench_warm_update.py                 # sizes 10 6 5 2.8
     .venv/bin/python bench/bench_warm_update.py --sizes 10 --push 4
+    .venv/bin/python bench/bench_warm_update.py --sizes 1.8 --factorizations cholmod --repeat 2
 
 The glued phantom (pushes within the patches' radius); one BLAS thread (OPENBLAS_NUM_THREADS=1
 unless set), as bench/bench_admm_accel.py.
@@ -19,26 +20,13 @@ import argparse
 import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-import time
-
 import numpy as np
+from bench_admm_accel import best  # (result, shortest time) of repeated calls (this folder)
 
 import tissue_reference.fem_reference as fr
 from tissue_reference.control.fast_model import STATE_TOL_MM, FastModel
 from tissue_reference.meshes.case import load_case
 from tissue_reference.solvers import admm
-
-
-def timed(fun):
-    t = time.perf_counter()
-    res = fun()
-    return res, time.perf_counter() - t
-
-
-def best(fun, repeat):
-    """(result, the shortest time) of ``repeat`` calls."""
-    runs = [timed(fun) for _ in range(max(1, repeat))]
-    return runs[0][0], min(t for _, t in runs)
 
 
 def fast_update(case, target, p0, p1, factorize):
@@ -61,6 +49,10 @@ def main():
                     help="every actuator's push before the +0.5 mm (default 4)")
     ap.add_argument("--repeat", type=int, default=3, help="timings are the best of this many")
     ap.add_argument("--target", default="T1", help="the control model's target probe")
+    ap.add_argument("--factorizations", nargs="+", choices=("superlu", "cholmod"),
+                    default=["superlu", "cholmod"],
+                    help="the control model's factorizations to time (SuperLU takes minutes "
+                         "and gigabytes from 50k tets on)")
     args = ap.parse_args()
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs; warm re-solves "
           f"{args.push:g} -> {args.push + 0.5:g} mm on every actuator, best of {args.repeat}")
@@ -90,6 +82,8 @@ def rows(size, args):
           f"({a1.extra['admm_iterations']} ADMM + {a1.extra['chord_iterations']} chord its), "
           f"{err(a1.u):.1e} mm, x{t_ref / t_ch:.1f}")
     for label, factorize in (("SuperLU", None), ("CHOLMOD", fr.cholmod_factor)):
+        if label.lower() not in args.factorizations:
+            continue
         runs = [fast_update(case, args.target, p0, p1, factorize)
                 for _ in range(max(1, args.repeat))]
         model, t_fm, _, refac = min(runs, key=lambda r: r[1])
