@@ -33,7 +33,8 @@ interpolation), mm of target per mm of push, the derivative of the model's state
 ``control.jacobian.dirichlet_jacobian`` computes it from the assembled tangent.
 
 The factorization is rebuilt at the current state when a chord iteration contracts by less than
-REFACTOR_RATE, or a refinement sweep by less than that. When the chord iterations still do not
+REFACTOR_RATE and, at that rate, would not converge with SPARE_ITERATIONS of its MAX_ITERATIONS to
+spare, and so is it when a refinement sweep does (to REFINE_TOL). When the chord iterations still do not
 converge, or a cell inverts, the state comes from a full ADMM solve (polish to 1e-7 mm; warm,
 then cold); sensitivities that do not converge after a refactorization raise ConvergenceError.
 Units: mm, mN.
@@ -81,6 +82,23 @@ MAX_REFACTORS = 3
 """With rigid tips, the chord iterations of one update refactorize at most this often (a tip's
 contact set changes as it moves)."""
 LINE_SEARCH = 20
+SPARE_ITERATIONS = 2
+"""A chord iteration (a refinement sweep) that contracts by less than REFACTOR_RATE refactorizes
+only when, at the rate of its last two steps, it would not reach STATE_TOL_MM (REFINE_TOL) with
+this many of its MAX_ITERATIONS to spare: a factorization costs as much as 36 to 80
+back-substitutions (the phantom at 1.7k and 9.6k tets, SuperLU and CHOLMOD), so a slow but
+steady iteration goes on with the factorization it has (on the phantom at 185k tets, +0.5 mm
+from 4 mm: 7 chord steps at rates 0.36, 0.10, 0.30, 0.13, 0.25, 0.16 where a refactorization
+took 5.9 s)."""
+
+
+def _late(k: int, step: float, prev: float, tol: float) -> bool:
+    """Whether iteration ``k`` (from 0), whose correction ``step`` follows ``prev``, would not
+    reach ``tol`` at their rate with SPARE_ITERATIONS of MAX_ITERATIONS to spare."""
+    rate = step / prev
+    if not rate < 1.0:
+        return True
+    return k + 1 + np.log(tol / step) / np.log(rate) > MAX_ITERATIONS - SPARE_ITERATIONS
 
 
 class FastModel:
@@ -88,10 +106,11 @@ class FastModel:
     ``target``, ``jacobian(pushes, u=None)``, ``solve_time_s``, ``retries``) on glued patches,
     updated by the chord Newton of the module docstring. ``timings`` (ms per call of
     ``jacobian``): "state" (the state update), "jacobian" (sensitivities and J), "factor".
-    ``factorize``: the tangents' factorization hook, as ``solvers.admm.solve`` takes it (e.g.
-    ``fem_reference.cholmod_factor``: on the phantom at 9.6k tets it factorizes the tangent in
-    about 60 ms against SuperLU's 200 ms, and back-substitutes in 0.7 ms against 2.5 ms); None:
-    SuperLU, and SuperLU wherever the hook declines (a tangent that is not positive definite)."""
+    ``factorize``: the factorization hook of its tangents and of its full ADMM solves' polish,
+    as ``solvers.admm.solve`` takes it (e.g. ``fem_reference.cholmod_factor``: on the phantom
+    at 9.6k tets it factorizes the tangent in about 60 ms against SuperLU's 200 ms, and
+    back-substitutes in 0.7 ms against 2.5 ms); None: SuperLU, and SuperLU wherever the hook
+    declines (a tangent that is not positive definite)."""
 
     def __init__(self, case, target: str, press_widths: float = 0.0, factorize=None):
         case.probe(target)
@@ -171,7 +190,7 @@ class FastModel:
         def solve(case, p, initial):
             return admm_solve(case, pushes=p, initial=initial,
                               initial_pushes=start if initial is not None else None,
-                              **ADMM_CONTROL_OPTIONS)
+                              factorize=self._factorize, **ADMM_CONTROL_OPTIONS)
 
         # a warm start that fails is retried cold, as the solve-based model does
         r = solve_checked(solve, self.case, pushes,
@@ -194,7 +213,7 @@ class FastModel:
         prev = None
         refactors = 0
         limit = 1 if tips is None else MAX_REFACTORS
-        for _ in range(MAX_ITERATIONS):
+        for k in range(MAX_ITERATIONS):
             u = up + Z @ q
             rr = ZT @ ops.residual(u, self._fext, tips)
             dq = -self._F.solve(rr)
@@ -215,7 +234,8 @@ class FastModel:
             q = q + dq
             if step < STATE_TOL_MM:
                 return q if ops.valid(up + Z @ q) else None
-            if prev is not None and step > REFACTOR_RATE * prev and refactors < limit:
+            if prev is not None and step > REFACTOR_RATE * prev and refactors < limit and \
+                    _late(k, step, prev, STATE_TOL_MM):
                 try:
                     self._factor(ops, up + Z @ q, tips)
                 except ConvergenceError:   # a singular tangent on the way: the full solve
@@ -255,13 +275,14 @@ class FastModel:
             X = self._X.copy()
         prev = None
         refactored = False
-        for _ in range(MAX_ITERATIONS):
+        for k in range(MAX_ITERATIONS):
             dX = -self._F.solve(ZT @ (KV(Z @ X + self._E) + C))
             X = X + dX
             change = float(np.abs(dX).max()) / max(float(np.abs(X).max()), 1e-300)
             if change < REFINE_TOL:
                 return X
-            if prev is not None and change > REFACTOR_RATE * prev and not refactored:
+            if prev is not None and change > REFACTOR_RATE * prev and not refactored and \
+                    _late(k, change, prev, REFINE_TOL):
                 self._factor(ops, u, tips)
                 refactored = True
             prev = change
