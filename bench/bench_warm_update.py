@@ -95,5 +95,6 @@ def rows(size, args):
               f"its Jacobian {tm['jacobian']:.1f} ms ({refac} refactorizations in the call, "
               f"{tm['factor']:.1f} ms)")
 
+
 if __name__ == "__main__":
     main()

@@ -32,9 +32,9 @@ is below REFINE_TOL of X; the Jacobian of a target is then J = P (Z X + E) (P: t
 interpolation), mm of target per mm of push, the derivative of the model's state exactly as
 ``control.jacobian.dirichlet_jacobian`` computes it from the assembled tangent.
 
-The factorization is rebuilt at the current state when a chord iteration contracts by less than
-REFACTOR_RATE and, at that rate, would not converge with SPARE_ITERATIONS of its MAX_ITERATIONS to
-spare, and so is it when a refinement sweep does (to REFINE_TOL). When the chord iterations still do not
+The factorization is rebuilt at the current state when a chord iteration (a refinement sweep)
+contracts by less than REFACTOR_RATE and, at that rate, would not reach STATE_TOL_MM (REFINE_TOL)
+with SPARE_ITERATIONS of its MAX_ITERATIONS to spare. When the chord iterations still do not
 converge, or a cell inverts, the state comes from a full ADMM solve (polish to 1e-7 mm; warm,
 then cold); sensitivities that do not converge after a refactorization raise ConvergenceError.
 Units: mm, mN.

@@ -82,10 +82,11 @@ def table1_loop(argv: dict, scenario: str | None):
 
 def _jobs(args, scenario=None) -> dict:
     """run_table1's keywords for ``--jobs`` and the long loops' step lines (not with -q)."""
+    lines = {"step_lines": not args.quiet}
     if args.jobs <= 1:
-        return {"step_lines": not args.quiet}
+        return lines
     return {"jobs": args.jobs, "loop_factory": functools.partial(table1_loop, vars(args)),
-            "factory_key": scenario, "step_lines": not args.quiet}
+            "factory_key": scenario, **lines}
 
 
 def _scenario_loops(args, case, model, names) -> dict:
