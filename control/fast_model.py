@@ -33,7 +33,7 @@ interpolation), mm of target per mm of push, the derivative of the model's state
 ``control.jacobian.dirichlet_jacobian`` computes it from the assembled tangent.
 
 The factorization is rebuilt at the current state when a chord iteration (a refinement sweep)
-contracts by less than REFACTOR_RATE and, at that rate, would not reach STATE_TOL_MM (REFINE_TOL)
+contracts by less than REFACTOR_RATE and, at that rate, would not reach its tolerance (REFINE_TOL)
 with SPARE_ITERATIONS of its MAX_ITERATIONS to spare. When the chord iterations still do not
 converge, or a cell inverts, the state comes from a full ADMM solve (polish to 1e-7 mm; warm,
 then cold); sensitivities that do not converge after a refactorization raise ConvergenceError.
@@ -104,16 +104,24 @@ def _late(k: int, step: float, prev: float, tol: float) -> bool:
 class FastModel:
     """The controller's model (``control.loop.LinearizedModel``'s interface: ``case``,
     ``target``, ``jacobian(pushes, u=None)``, ``solve_time_s``, ``retries``) on glued patches,
-    updated by the chord Newton of the module docstring. ``timings`` (ms per call of
-    ``jacobian``): "state" (the state update), "jacobian" (sensitivities and J), "factor".
+    updated by the chord Newton of the module docstring (``chord_iterations``: their count over
+    every update). ``timings`` (ms per call of ``jacobian``): "state" (the state update),
+    "jacobian" (sensitivities and J), "factor".
     ``factorize``: the factorization hook of its tangents and of its full ADMM solves' polish,
     as ``solvers.admm.solve`` takes it (e.g. ``fem_reference.cholmod_factor``: on the phantom
     at 9.6k tets it factorizes the tangent in about 60 ms against SuperLU's 200 ms, and
     back-substitutes in 0.7 ms against 2.5 ms); None: SuperLU, and SuperLU wherever the hook
-    declines (a tangent that is not positive definite)."""
+    declines (a tangent that is not positive definite). ``state_tol_mm``: the chord iterations
+    stop at a largest vertex step below this (default STATE_TOL_MM, where the state moves the
+    Jacobian by about 1e-6 relative; 1e-3 mm, the accuracy the fast solvers are held to
+    against the reference, takes about half the iterations)."""
 
-    def __init__(self, case, target: str, press_widths: float = 0.0, factorize=None):
+    def __init__(self, case, target: str, press_widths: float = 0.0, factorize=None,
+                 state_tol_mm: float = STATE_TOL_MM):
+        if not (isinstance(state_tol_mm, (int, float)) and 0 < state_tol_mm < 1):
+            raise CaseError(f"state_tol_mm must be in (0, 1) mm, got {state_tol_mm!r}")
         case.probe(target)
+        self.state_tol_mm = float(state_tol_mm)
         self.case, self.target = case, target
         self.press_widths = float(press_widths)
         self.sensitivity = None
@@ -123,6 +131,7 @@ class FastModel:
         self.timings: list[dict] = []
         self.refactorizations = 0
         self.fallbacks = 0
+        self.chord_iterations = 0   # chord iterations of every update so far
         self.acts = [a.name for a in case.actuators]
         self._ops = None
         self._q = None
@@ -214,6 +223,7 @@ class FastModel:
         refactors = 0
         limit = 1 if tips is None else MAX_REFACTORS
         for k in range(MAX_ITERATIONS):
+            self.chord_iterations += 1
             u = up + Z @ q
             rr = ZT @ ops.residual(u, self._fext, tips)
             dq = -self._F.solve(rr)
@@ -232,10 +242,10 @@ class FastModel:
             if not np.isfinite(step):
                 return None
             q = q + dq
-            if step < STATE_TOL_MM:
+            if step < self.state_tol_mm:
                 return q if ops.valid(up + Z @ q) else None
             if prev is not None and step > REFACTOR_RATE * prev and refactors < limit and \
-                    _late(k, step, prev, STATE_TOL_MM):
+                    _late(k, step, prev, self.state_tol_mm):
                 try:
                     self._factor(ops, up + Z @ q, tips)
                 except ConvergenceError:   # a singular tangent on the way: the full solve

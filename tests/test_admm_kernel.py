@@ -150,6 +150,12 @@ def test_polish_factorization_is_cholmod_while_definite_and_superlu_otherwise():
         assert f2 is f1  # same pattern: the same CHOLMOD matrix, refactorized
     ref2 = spla.spsolve(K2.tocsc(), b)
     assert np.abs(f2.solve(b) - ref2).max() <= 1e-9 * np.abs(ref2).max()
+    # several right-hand sides at once (CHOLMOD's multi-column solve), and one as a column
+    B = np.random.default_rng(6).standard_normal((K.shape[0], 3))
+    refB = spla.spsolve(K2.tocsc(), B)
+    assert f2.solve(B).shape == B.shape
+    assert np.abs(f2.solve(B) - refB).max() <= 1e-9 * np.abs(refB).max()
+    assert np.abs(f2.solve(B[:, 1:2])[:, 0] - refB[:, 1]).max() <= 1e-9 * np.abs(refB).max()
     # indefinite (shifted): SuperLU, still solved
     K3 = (K - sp.diags(np.full(K.shape[0], 0.5 * abs(K.diagonal()).min()))).tocsc()
     assert np.linalg.eigvalsh(K3.toarray()).min() < 0
