@@ -106,7 +106,7 @@ class PlanSettings:
     None (under the thickest tissue); width / projection (mm, optional); free_ring (mm, 0 or
     None for none; seed: 30); sliding: switch targets to sliding on the implant after reaching
     them; E (kPa), nu; stop_mm: Mass Tensor stopping rule (seed: 0.01 mm); method 'direct' |
-    'pcg' | 'descent' (``solvers.mass_tensor.METHODS``); tissue_size: tetrahedron edge (mm,
+    'amg' | 'pcg' | 'descent' (``solvers.mass_tensor.METHODS``); tissue_size: tetrahedron edge (mm,
     default the skin's mean edge)."""
 
     shape: str = "round"

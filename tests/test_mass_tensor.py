@@ -167,6 +167,35 @@ def test_converged_mass_tensor_equals_direct_linear_fem(cube, K_ref, method):
     assert len(steps) == res.iterations and steps[-1] < 1e-9 and min(steps[:-1]) >= 1e-9
 
 
+def test_the_distance_to_go_of_geometric_moves_is_their_remaining_sum():
+    """Moves s_k = s_0 r^k: the estimate after move k is the rest of the geometric series,
+    s_k r / (1 - r) = sum_{j>k} s_j; none before TAIL_RATES rates, none for growing moves."""
+    from tissue_reference.solvers.mass_tensor.iterations import TAIL_RATES, distance_to_go
+    for r in (0.2, 0.5, 0.9):
+        moves = [3.0 * r ** k for k in range(TAIL_RATES + 3)]
+        rest = 3.0 * r ** len(moves) / (1.0 - r)
+        assert distance_to_go(moves) == pytest.approx(rest, rel=1e-12)
+        assert distance_to_go(moves[:TAIL_RATES]) == np.inf
+    assert distance_to_go([1.0, 0.5, 0.25, 0.125, 0.2]) == np.inf
+    # the slowest of the last rates decides
+    assert distance_to_go([1.0, 0.1, 0.05, 0.005, 0.004]) == pytest.approx(0.004 * 0.8 / 0.2)
+
+
+@pytest.mark.parametrize("stop", [1e-2, 1e-4, 1e-6])
+def test_amg_stops_within_its_stop_of_the_direct_linear_fem(stop):
+    """method "amg" on a mesh with an AMG hierarchy: the answer within stop_mm of the
+    independently assembled stiffness's direct solve at every vertex."""
+    mesh = box(1.0, lengths=(10.0, 10.0, 10.0))
+    case = stretch_case(mesh)
+    c = case.constraints
+    ref = direct_solve(assemble_reference(mesh.points, mesh.cells, MAT.E, MAT.nu),
+                       mesh.n_vertices, 3, c.dofs, c.values)
+    res = mt.solve(case, method="amg", stop_mm=stop)
+    assert res.converged and res.extra["method"] == "amg"
+    assert np.linalg.norm(res.u - ref, axis=1).max() < stop
+    assert 5 < res.iterations < 60
+
+
 def test_pcg_needs_fewer_iterations_than_descent_for_the_same_stopping_rule(cube):
     case = stretch_case(cube)
     a = mt.solve(case, method="pcg", stop_mm=0.001)
@@ -311,7 +340,7 @@ def _slab_pushed_down(slab):
     return m, base, top, xmax, slab.points[top] + [0.0, 0.0, -0.5]
 
 
-@pytest.mark.parametrize("method", ["pcg", "descent"])
+@pytest.mark.parametrize("method", ["pcg", "amg", "descent"])
 def test_sliding_on_triangulated_plane_equals_sliding_on_plane(slab, method):
     m, base, top, xmax, push = _slab_pushed_down(slab)
     a = m.solve(m.point_types().target(top, push).sliding(base, mt.Plane((0, 0, 0), (0, 0, 1)))

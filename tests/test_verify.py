@@ -106,6 +106,14 @@ def test_loose_stopping_rule_gives_a_positive_error_below_the_pushes(small_case)
     assert e["speedup_vs_reference"] > 0
 
 
+def test_the_amg_mass_tensor_is_within_its_stop_of_the_linear_reference(small_case):
+    """mass-tensor-amg stops within an estimated 0.01 mm: the linear reference (dolfinx, the
+    same P1 discretization) agrees to that at every vertex."""
+    res = verify(small_case, PUSHES, solvers=("mass-tensor-amg",))
+    e = res["solvers"]["mass-tensor-amg"]
+    assert 0 < e["max_vertex_error_mm"] < 0.01
+
+
 def test_missing_fast_solver_module_is_skipped_with_a_message(small_case, monkeypatch, capsys):
     # importing it raises ImportError
     monkeypatch.setitem(sys.modules, "tissue_reference.solvers.admm", None)

@@ -62,6 +62,7 @@ FAST_SOLVERS = {
     "admm-anderson": ("admm", {"polish": False, "anderson": 5}, None),
     "admm-chord": ("admm", {"polish": "chord"}, None),
     "mass-tensor": ("mass-tensor", {"method": "direct"}, "linear-elastic"),
+    "mass-tensor-amg": ("mass-tensor", {"method": "amg", "stop_mm": 0.01}, "linear-elastic"),
     "mass-tensor-pcg": ("mass-tensor", {"method": "pcg", "stop_mm": 0.01}, "linear-elastic"),
     "mass-tensor-descent": ("mass-tensor", {"method": "descent", "stop_mm": 0.01},
                             "linear-elastic"),

@@ -72,7 +72,7 @@ class AmgPcg:
     coarse = 500
     smooth_levels = 1  # levels with a smoothed prolongator (below: plain aggregation)
 
-    def __init__(self, A, iters=1):
+    def __init__(self, A, iters=1, compiled=True):
         self.iters = iters
         self.count = [0, 0]  # PCG calls, PCG iterations (statistics)
         self.last_update = 0.0  # largest vertex update (mm) of the last PCG iteration
@@ -110,8 +110,9 @@ class AmgPcg:
         self.nnz = sum(M.nnz for M in mats)
         self.untracked_bytes = 12 * (self.lu.L.nnz + self.lu.U.nnz)  # coarsest-level SuperLU
         # the compiled iteration: a hierarchy with levels and a coarsest matrix small enough for
-        # its dense inverse
-        self._c = self._compiled(A) if (self.levels and A.shape[0] <= 2000
+        # its dense inverse (compiled=False: a hierarchy only preconditioned through
+        # ``amg_array``'s V-cycle, which needs neither)
+        self._c = self._compiled(A) if (compiled and self.levels and A.shape[0] <= 2000
                                         and use_kernel()) else None
 
     def _compiled(self, Ac):

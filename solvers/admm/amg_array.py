@@ -53,6 +53,11 @@ class ArrayAmgPcg:
                           for M in (lv[0], lv[2], lv[3])) \
             + (0 if self.Ainv is None else 8 * self.Ainv.size)
 
+    def vcycle(self, B):
+        """One V-cycle from zero on the columns of B (n, k): a symmetric positive definite
+        approximation of A^-1 B, the preconditioner of the PCG below and of other solvers'."""
+        return self._vcycle(B)
+
     def _vcycle(self, b, level=0):
         if level == len(self.levels):
             if self.Ainv is None:

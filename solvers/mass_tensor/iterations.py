@@ -1,7 +1,9 @@
-"""The iterations of one Mass Tensor solve: preconditioned conjugate gradients ("pcg") and the
-seed's steepest descent ("descent", exact line search or a fixed ``step_scale``) on P K P, the
-common stopping rule (largest per-vertex move of one iteration below ``stop_mm``), the rounds of
-surface sliding (solve on frozen tangent planes, project, refresh) and the divergence checks."""
+"""The iterations of one Mass Tensor solve: preconditioned conjugate gradients ("pcg", block
+Jacobi; "amg", an aggregation AMG V-cycle) and the seed's steepest descent ("descent", exact line
+search or a fixed ``step_scale``) on P K P, their stopping rules (the seed's: the largest
+per-vertex move of one iteration below ``stop_mm``; "amg": the distance still to go, estimated
+from the contraction of its moves, below ``stop_mm``), the rounds of surface sliding (solve on
+frozen tangent planes, project, refresh) and the divergence checks."""
 from __future__ import annotations
 
 import hashlib
@@ -12,10 +14,30 @@ import scipy.sparse as sp
 
 from tissue_reference.meshes.errors import SolverDivergedError
 
+from ..admm.amg import AmgPcg
+from ..admm.amg_array import ArrayAmgPcg
 from ..spd import spd_splu
 from .tensors import blockdiag
 
 log = logging.getLogger("tissue.mass_tensor")
+
+TAIL_RATES = 4
+"""The "amg" iteration estimates the distance still to go from its last move s and the largest
+contraction rho of its last TAIL_RATES moves as s rho / (1 - rho), the geometric series of the
+moves to come, and stops once that is below ``stop_mm``."""
+
+
+def distance_to_go(steps) -> float:
+    """The estimate of TAIL_RATES from a solve's largest per-vertex moves so far (mm); inf
+    until there are TAIL_RATES rates, or when the moves do not contract."""
+    if len(steps) <= TAIL_RATES:
+        return np.inf
+    last = np.asarray(steps[-TAIL_RATES - 1:], float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho = float(np.max(last[1:] / last[:-1]))
+    if not rho < 1.0:
+        return np.inf
+    return float(last[-1]) * rho / (1.0 - rho)
 
 
 class IterationState:
@@ -99,18 +121,27 @@ class IterationState:
 
     def _operators(self, types, method, fold):
         """Projector P, preconditioner M and projected stiffness P K P as block-diagonal / CSR
-        matrices acting on (n, d) arrays (fold: precompute P K P once for the phase)."""
+        matrices acting on (n, d) arrays (fold: precompute P K P once for the phase; "amg"
+        never does: at 185k tets the product costs as much as 10 of its iterations)."""
         P = types.projector()
         Pm = blockdiag(P)
-        Mm = blockdiag(self._prec(types, P, method))
         shape = (self.model.n_vertices, self.model.gdim)
+        fold = fold and method != "amg"
         KP = (Pm @ self.K @ Pm).tocsr() if fold else None
 
         def proj(x):
             return (Pm @ x.reshape(-1)).reshape(shape)
 
-        def applyM(x):
-            return (Mm @ x.reshape(-1)).reshape(shape)
+        if method == "amg":
+            vcycle = self._amg(types).vcycle
+
+            def applyM(x):
+                return proj(vcycle(proj(x)))
+        else:
+            Mm = blockdiag(self._prec(types, P, method))
+
+            def applyM(x):
+                return (Mm @ x.reshape(-1)).reshape(shape)
 
         def Kproj(x):   # x is in the free subspace: P K P x = P K x
             if KP is not None:
@@ -119,14 +150,57 @@ class IterationState:
 
         return proj, applyM, Kproj
 
-    # direct factorizations kept per model (one per pattern of point types)
+    # direct factorizations (AMG hierarchies) kept per model (one per pattern of point types)
     KEPT_FACTORS = 4
+
+    @staticmethod
+    def _pattern(types, kind):
+        return kind + hashlib.sha1(np.ascontiguousarray(types.N).tobytes()
+                                   + np.ascontiguousarray(types.m).tobytes()).hexdigest()
+
+    def _keep(self, types, key, made):
+        """``made`` kept in the model's store under ``key`` (not for a sliding round's tangent
+        planes, used once)."""
+        if types.surface_of:
+            return made
+        kept = self.model._factors
+        while len(kept) >= self.KEPT_FACTORS:
+            kept.pop(next(iter(kept)))
+        kept[key] = made
+        return made
+
+    def _amg(self, types):
+        """The "amg" preconditioner of ``types``' pattern, from the model's store or made now:
+        an aggregation AMG hierarchy (``solvers.admm.amg``) of the scalar matrix of the tensors'
+        traces / d (a scaled P1 Laplacian), one V-cycle per component. A vertex whose every
+        direction is prescribed is a Dirichlet row; one with some prescribed keeps its row with
+        the prescribed share of its diagonal added (the matrix stays definite without a fully
+        held vertex)."""
+        key = self._pattern(types, "amg")
+        if key in self.model._factors:
+            return self.model._factors[key]
+        m, d, n = self.model, self.model.gdim, self.model.n_vertices
+        dii = np.trace(m.T_ii, axis1=1, axis2=2) / d
+        dij = np.trace(m.T_ij, axis1=1, axis2=2) / d
+        held = types.m == d
+        i, j = m.edges[:, 0], m.edges[:, 1]
+        both = ~(held[i] | held[j])
+        free_scale = float(dii[~held].mean()) if np.any(~held) else 1.0
+        diag = np.where(held, free_scale, dii * (1.0 + types.m / d))
+        L = sp.csr_matrix((np.concatenate([diag, dij[both], dij[both]]),
+                           (np.concatenate([np.arange(n), i[both], j[both]]),
+                            np.concatenate([np.arange(n), j[both], i[both]]))), shape=(n, n))
+        try:
+            made = ArrayAmgPcg(AmgPcg(L, compiled=False), np)
+        except RuntimeError as exc:
+            self._diverged(f"the AMG preconditioner's coarsest matrix is singular ({exc})",
+                           np.full((n, d), np.nan))
+        return self._keep(types, key, made)
 
     def _factor(self, types, Pm):
         """The factorization of P K P + I - P for ``types``' pattern, from the model's store or
         made now."""
-        key = hashlib.sha1(np.ascontiguousarray(types.N).tobytes()
-                           + np.ascontiguousarray(types.m).tobytes()).hexdigest()
+        key = self._pattern(types, "")
         kept = self.model._factors
         if key in kept:
             return kept[key]
@@ -148,12 +222,7 @@ class IterationState:
                 bad[~(pivots[factor.perm_c] > 0)] = np.inf   # pivot perm_c[k] is dof k's
                 self._diverged("the stiffness is not positive definite (a non-positive pivot of "
                                "the projected tensors' factorization)", bad.reshape(n, d))
-        if types.surface_of:   # a sliding round's tangent planes: used once, not kept
-            return factor
-        while len(kept) >= self.KEPT_FACTORS:
-            kept.pop(next(iter(kept)))
-        kept[key] = factor
-        return factor
+        return self._keep(types, key, factor)
 
     def _direct(self, types, u):
         """One exact solve on u = u_c + P w: (P K P + I - P) w = P (f - K u_c), whose matrix is
@@ -178,6 +247,7 @@ class IterationState:
     def solve_linear(self, types, u, method, refresh=None):
         """Iterate on u = u_c + P w until the stopping rule (refresh: re-project surfaces each
         iteration, descent only); "direct": one exact solve."""
+        conjugate = method in ("pcg", "amg")
         if method == "direct":
             return self._direct(types, u)
         proj, applyM, Kproj = self._operators(types, method, fold=refresh is None)
@@ -188,13 +258,14 @@ class IterationState:
         rz = float(np.vdot(r, z))
         r0 = max(float(np.abs(r).max(initial=0.0)), 1e-300)
         self.residual = float(np.abs(r).max(initial=0.0))
+        first = len(self.steps)   # this solve's moves: "amg"'s stopping rule
         while self.it < self.max_iter:
             if rz <= 0.0:
                 if rz == 0.0:
                     break
                 self._diverged("non-positive preconditioned residual", r)
             self.it += 1
-            if method == "pcg":
+            if conjugate:
                 q = Kproj(p)
                 pq = float(np.vdot(p, q))
                 if not pq > 0.0:
@@ -235,11 +306,12 @@ class IterationState:
                 self._diverged(f"residual grew from {r0:g} to {rmax:g} mN", r)
             if self.callback is not None:
                 self.callback(self.it, u)
-            if smax < self.stop:
+            if smax == 0.0 or (distance_to_go(self.steps[first:]) if method == "amg"
+                               else smax) < self.stop:
                 break
             z = applyM(r)
             rz_new = float(np.vdot(r, z))
-            if method == "pcg":
+            if conjugate:
                 p = z + (rz_new / rz) * p
             rz = rz_new
         self.residual = float(np.abs(proj(self.f - self.Kx(u))).max(initial=0.0))

@@ -14,10 +14,13 @@ from .iterations import IterationState
 from .point_types import PointTypes
 from .tensors import bsr_from_blocks, stiffness_tensors
 
-METHODS = ("direct", "pcg", "descent")
+METHODS = ("direct", "amg", "pcg", "descent")
 """How a solve reaches equilibrium: "direct" (one sparse factorization of the projected tensors
 per phase or sliding round: the answer the iterations tend to, without their stopping error),
-"pcg" and "descent" (iterations stopped by the rule on the largest per-vertex move)."""
+"amg" (conjugate gradients preconditioned by an AMG V-cycle, stopped when the distance still to
+go, estimated from the contraction of its moves, is below ``stop_mm``: work and memory O(n),
+for large meshes), "pcg" and "descent" (iterations stopped by the seed's rule on the largest
+per-vertex move)."""
 
 
 @dataclass(frozen=True)

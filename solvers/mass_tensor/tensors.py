@@ -13,11 +13,17 @@ def barycentric_gradients(points: np.ndarray, cells: np.ndarray):
     x = points[cells]
     D = x[:, 1:] - x[:, :1]                      # (m, d, d) rows = edge vectors from vertex 0
     d = points.shape[1]
-    det = np.linalg.det(D)
-    vol = np.abs(det) / (6.0 if d == 3 else 2.0)
-    inv = np.linalg.inv(D)                       # grad lambda_k (k>=1) = column k-1 of inv
     g = np.empty((len(cells), d + 1, d))
-    g[:, 1:] = np.transpose(inv, (0, 2, 1))
+    if d == 3:   # grad lambda_k = (e_{k+1} x e_{k+2}) / det, the cofactors of D
+        cof = np.stack([np.cross(D[:, 1], D[:, 2]), np.cross(D[:, 2], D[:, 0]),
+                        np.cross(D[:, 0], D[:, 1])], axis=1)
+        det = np.einsum("mi,mi->m", D[:, 0], cof[:, 0])
+        g[:, 1:] = cof / det[:, None, None]
+        vol = np.abs(det) / 6.0
+    else:
+        det = np.linalg.det(D)
+        vol = np.abs(det) / 2.0
+        g[:, 1:] = np.transpose(np.linalg.inv(D), (0, 2, 1))   # column k-1 of D^-1
     g[:, 0] = -g[:, 1:].sum(axis=1)
     return g, vol
 
@@ -28,48 +34,53 @@ def stiffness_tensors(points, cells, mu: float, lmbda: float):
     points (n, d) mm, cells (m, d+1), mu and lmbda in kPa. Returns ``(T_ii, edges, T_ij)``:
     T_ii (n, d, d) and T_ij (e, d, d) in mN/mm, edges (e, 2) with edges[:, 0] < edges[:, 1];
     the block of row j, column i is T_ij^T.
+
+    Every cell's block is linear in the outer product of its vertices' gradients,
+    K^c_ab = lambda O + mu O^T + mu tr(O) I with O = V_c g_a g_b^T, so the products O are
+    summed per vertex and per edge first and the tensors formed once per vertex and edge.
     """
     points = np.asarray(points, float)
     cells = np.asarray(cells, np.int64)
     n, d = points.shape
     g, vol = barycentric_gradients(points, cells)
-    eye = np.eye(d)
-
-    def block(a, b):
-        ga, gb = g[:, a], g[:, b]
-        k = (lmbda * ga[:, :, None] * gb[:, None, :] + mu * gb[:, :, None] * ga[:, None, :]
-             + mu * np.einsum("mk,mk->m", ga, gb)[:, None, None] * eye)
-        return k * vol[:, None, None]
-
-    T_ii = np.zeros((n, d * d))
-    for a in range(d + 1):
-        kaa = block(a, a).reshape(-1, d * d)
-        for c in range(d * d):
-            T_ii[:, c] += np.bincount(cells[:, a], kaa[:, c], minlength=n)
-    ii, jj, blocks = [], [], []
-    for a in range(d + 1):
-        for b in range(a + 1, d + 1):
-            kab = block(a, b)
-            i, j = cells[:, a], cells[:, b]
-            swap = i > j
-            kab[swap] = np.transpose(kab[swap], (0, 2, 1))
-            ii.append(np.where(swap, j, i))
-            jj.append(np.where(swap, i, j))
-            blocks.append(kab.reshape(-1, d * d))
-    ii, jj = np.concatenate(ii), np.concatenate(jj)
-    blocks = np.concatenate(blocks)
-    key = ii * n + jj
-    uniq, inv = np.unique(key, return_inverse=True)
-    T_ij = np.empty((len(uniq), d * d))
+    gs = g * np.sqrt(vol)[:, None, None]                      # sqrt(V_c) grad lambda_a
+    outer = (gs[:, :, :, None] * gs[:, :, None, :]).reshape(-1, d * d)
+    flat = cells.reshape(-1)
+    S = np.empty((n, d * d))
     for c in range(d * d):
-        T_ij[:, c] = np.bincount(inv, blocks[:, c], minlength=len(uniq))
+        S[:, c] = np.bincount(flat, outer[:, c], minlength=n)
+    T_ii = _tensors(S.reshape(n, d, d), mu, lmbda)
+    A, B = np.triu_indices(d + 1, 1)
+    i, j = cells[:, A].reshape(-1), cells[:, B].reshape(-1)
+    uniq, inv = np.unique(np.minimum(i, j) * n + np.maximum(i, j), return_inverse=True)
+    e = len(uniq)
+    # a cell's pair (a, b) with i > j is edge (j, i): its product sums into the second half of
+    # the bins and enters transposed
+    slot = inv + e * (i > j)
+    ga, gb = gs[:, A].reshape(-1, d), gs[:, B].reshape(-1, d)
+    S = np.empty((2 * e, d, d))
+    for a in range(d):
+        for b in range(d):
+            S[:, a, b] = np.bincount(slot, ga[:, a] * gb[:, b], minlength=2 * e)
+    S = S[:e] + np.transpose(S[e:], (0, 2, 1))
     edges = np.stack([uniq // n, uniq % n], axis=1)
-    return T_ii.reshape(n, d, d), edges, T_ij.reshape(-1, d, d)
+    return T_ii, edges, _tensors(S, mu, lmbda)
 
+
+def _tensors(S, mu, lmbda):
+    """lambda S + mu S^T + mu tr(S) I of summed outer products S (k, d, d)."""
+    d = S.shape[1]
+    T = lmbda * S
+    T += mu * np.ascontiguousarray(np.transpose(S, (0, 2, 1)))
+    tr = mu * np.trace(S, axis1=1, axis2=2)
+    for c in range(d):
+        T[:, c, c] += tr
+    return T
 
 
 def bsr_from_blocks(rows, cols, data, n, d):
-    order = np.lexsort((cols, rows))
+    """(k, d, d) blocks at distinct (rows, cols) -> CSR matrix (n d, n d)."""
+    order = np.argsort(np.asarray(rows, np.int64) * n + cols)
     rows, cols, data = rows[order], cols[order], data[order]
     indptr = np.r_[0, np.cumsum(np.bincount(rows, minlength=n))]
     return sp.bsr_matrix((data, cols, indptr), shape=(d * n, d * n)).tocsr()
