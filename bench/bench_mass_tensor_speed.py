@@ -10,7 +10,8 @@ factorization, a back-substitution); the AMG-preconditioned conjugate gradients 
 stopped when the distance still to go, estimated from the contraction of its moves, is below
 0.01 mm) cold (tensors and AMG hierarchy built in the call) and warm (the hierarchy kept); PCG
 stopped by the seed's 0.01 mm rule. Each with its largest vertex distance from the reference
-(mm) and the ratio reference time / its time.
+(mm) and the ratio reference time / its time; and the memory the model keeps for its solves
+(the direct solve's factor, the AMG hierarchy).
 
     .venv/bin/python bench/bench_mass_tensor_speed.py [--sizes 10 6 2.8 1.8]
 """
@@ -36,6 +37,23 @@ def _timed(f):
     return r, time.perf_counter() - t0
 
 
+def kept_mib() -> float:
+    """MiB the cached Mass Tensor model keeps for its solves: CHOLMOD's (SuperLU's) factor
+    entries, or the AMG hierarchy's matrices and its coarsest level's factor; 12 bytes per
+    entry (value and index)."""
+    total = 0
+    for model in driver.MODEL_CACHE.values():
+        for kept in model._factors.values():
+            if hasattr(kept, "ksp"):   # CHOLMOD through PETSc
+                total += 12 * kept.ksp.getPC().getFactorMatrix().getInfo()["nz_used"]
+            elif hasattr(kept, "levels"):   # AMG: amg_array's V-cycle over the hierarchy
+                lu = kept._coarse_lu
+                total += kept.nbytes + 12 * (lu.L.nnz + lu.U.nnz)
+            else:   # SuperLU
+                total += 12 * (kept.L.nnz + kept.U.nnz)
+    return total / 2 ** 20
+
+
 def row(size: float, pushes=(4.0, 3.5)) -> None:
     case = load_case("phantom", size=size).with_material(model="linear-elastic")
     ref_t, refs = [], {}
@@ -48,6 +66,7 @@ def row(size: float, pushes=(4.0, 3.5)) -> None:
                                            factorize=cholmod_factor))
     warm, t_warm = _timed(lambda: mt.solve(case, pushes={"A1": pushes[1]},
                                            factorize=cholmod_factor))
+    direct_mib = kept_mib()
     pcg, t_pcg = _timed(lambda: mt.solve(case, pushes={"A1": pushes[1]}, method="pcg",
                                          stop_mm=0.01))
     driver.MODEL_CACHE.clear()
@@ -55,6 +74,7 @@ def row(size: float, pushes=(4.0, 3.5)) -> None:
                                            stop_mm=0.01))
     amg1, t_amg1 = _timed(lambda: mt.solve(case, pushes={"A1": pushes[1]}, method="amg",
                                            stop_mm=0.01))
+    amg_mib = kept_mib()
 
     def err(res, p):
         return float(np.linalg.norm(res.u - refs[p].u, axis=1).max())
@@ -69,7 +89,8 @@ def row(size: float, pushes=(4.0, 3.5)) -> None:
           f"({err(pcg, pushes[1]):.1e} mm)  |  amg to 0.01 mm cold {amg0.iterations:3d} its "
           f"{t_amg0:7.3f} s x{r0 / t_amg0:5.1f} ({err(amg0, pushes[0]):.1e} mm)  warm "
           f"{amg1.iterations:3d} its {t_amg1:7.3f} s x{r1 / t_amg1:5.1f} "
-          f"({err(amg1, pushes[1]):.1e} mm){'' if valid else '  (an answer is not valid)'}",
+          f"({err(amg1, pushes[1]):.1e} mm)  |  kept: factor {direct_mib:.1f} MiB, AMG "
+          f"{amg_mib:.1f} MiB{'' if valid else '  (an answer is not valid)'}",
           flush=True)
 
 

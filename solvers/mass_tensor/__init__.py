@@ -53,8 +53,8 @@ Solves (all on the same tensors):
   s rho / (1 - rho) (``iterations.distance_to_go``), is below ``stop_mm``: on the glued phantom
   at 0.01 mm it ended 1.3e-3 to 7.3e-3 mm from the exact answer in 13-22 iterations from 1.7k
   to 185k tets. Work and memory are O(n): at 185k tets a first solve (tensors included) took
-  1.05 s against the direct solve's 7.2 s and the linear reference's 5.9 s
-  (bench/bench_mass_tensor_speed.py).
+  1.04 s against the direct solve's 7.4 s and the linear reference's 5.4 s, and kept 27 MiB
+  for the next solve against the factor's 806 MiB (bench/bench_mass_tensor_speed.py).
 
 The seed's iterations (both stop when the largest displacement of any vertex in one iteration is
 below ``stop_mm``, seed value 0.01 mm):

@@ -53,8 +53,8 @@ def model_for(case) -> MassTensorModel:
 
 
 def forget_factorizations() -> None:
-    """Drop the direct solve's kept factorizations (the tensors stay): the next solve of each
-    pattern of point types factorizes again, as a first solve does."""
+    """Drop the direct solve's kept factorizations and the AMG hierarchies (the tensors stay):
+    the next solve of each pattern of point types makes them again, as a first solve does."""
     for m in MODEL_CACHE.values():
         m._factors.clear()
 

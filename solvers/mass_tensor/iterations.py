@@ -135,8 +135,8 @@ class IterationState:
         if method == "amg":
             vcycle = self._amg(types).vcycle
 
-            def applyM(x):
-                return proj(vcycle(proj(x)))
+            def applyM(x):   # x, a residual, is in the free subspace already
+                return proj(vcycle(x))
         else:
             Mm = blockdiag(self._prec(types, P, method))
 
@@ -155,6 +155,8 @@ class IterationState:
 
     @staticmethod
     def _pattern(types, kind):
+        """The store's key of ``kind`` for the pattern of point types (which directions are
+        prescribed where)."""
         return kind + hashlib.sha1(np.ascontiguousarray(types.N).tobytes()
                                    + np.ascontiguousarray(types.m).tobytes()).hexdigest()
 
