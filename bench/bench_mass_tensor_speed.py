@@ -46,9 +46,8 @@ def kept_mib() -> float:
         for kept in model._factors.values():
             if hasattr(kept, "ksp"):   # CHOLMOD through PETSc
                 total += 12 * kept.ksp.getPC().getFactorMatrix().getInfo()["nz_used"]
-            elif hasattr(kept, "levels"):   # AMG: amg_array's V-cycle over the hierarchy
-                lu = kept._coarse_lu
-                total += kept.nbytes + 12 * (lu.L.nnz + lu.U.nnz)
+            elif hasattr(kept, "vcycle"):   # the AMG hierarchy and its coarsest factor
+                total += kept.nbytes
             else:   # SuperLU
                 total += 12 * (kept.L.nnz + kept.U.nnz)
     return total / 2 ** 20

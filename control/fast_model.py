@@ -84,7 +84,7 @@ contact set changes as it moves)."""
 LINE_SEARCH = 20
 SPARE_ITERATIONS = 2
 """A chord iteration (a refinement sweep) that contracts by less than REFACTOR_RATE refactorizes
-only when, at the rate of its last two steps, it would not reach STATE_TOL_MM (REFINE_TOL) with
+only when, at the rate of its last two steps, it would not reach its state_tol_mm (REFINE_TOL) with
 this many of its MAX_ITERATIONS to spare: a factorization costs as much as 36 to 80
 back-substitutions (the phantom at 1.7k and 9.6k tets, SuperLU and CHOLMOD), so a slow but
 steady iteration goes on with the factorization it has (on the phantom at 185k tets, +0.5 mm

@@ -82,13 +82,21 @@ class PetscFactor:
             return self.solve(rhs[:, 0])[:, None]
         if k == 0:
             return np.empty((n, 0))
-        B = PETSc.Mat().createDense((n, k), array=np.array(rhs, order="F"), comm=PETSc.COMM_SELF)
-        X = PETSc.Mat().createDense((n, k), comm=PETSc.COMM_SELF)
-        X.setUp()
-        self.ksp.setUp()
+        B = X = None
         try:
-            self.ksp.getPC().getFactorMatrix().matSolve(B, X)
-            return np.array(X.getDenseArray(), copy=True)
+            B = PETSc.Mat().createDense((n, k), array=np.array(rhs, order="F"),
+                                        comm=PETSc.COMM_SELF)
+            X = PETSc.Mat().createDense((n, k), comm=PETSc.COMM_SELF)
+            X.setUp()
+            pc = self.ksp.getPC()
+            pc.setUp()   # refactorizes when the matrix's values changed (KSP's setUp does not)
+            pc.getFactorMatrix().matSolve(B, X)
+            out = np.array(X.getDenseArray(), copy=True)
         finally:
-            B.destroy()
-            X.destroy()
+            for M in (B, X):
+                if M is not None:
+                    M.destroy()
+        if not np.all(np.isfinite(out)):
+            raise RuntimeError("CHOLMOD solve failed (a non-finite solution: the factorization "
+                               "failed)")
+        return out

@@ -196,6 +196,29 @@ def test_amg_stops_within_its_stop_of_the_direct_linear_fem(stop):
     assert 5 < res.iterations < 60
 
 
+def test_amg_in_2d_and_its_kept_hierarchy():
+    """Plane strain: within stop_mm of the independent assembly's direct solve; the hierarchy
+    is kept for the next solve of the same point types (another push) and dropped by
+    ``forget_factorizations``."""
+    from tissue_reference.solvers.mass_tensor import driver
+    mesh = rectangle(0.25)
+    case = Case(mesh=mesh, material=MAT, boundaries=[
+        Boundary("xmin", "fixed"), Boundary("xmax", "displacement", value=(1.5, 0.5))])
+    c = case.constraints
+    ref = direct_solve(assemble_reference(mesh.points, mesh.cells, MAT.E, MAT.nu),
+                       mesh.n_vertices, 2, c.dofs, c.values)
+    driver.MODEL_CACHE.clear()
+    res = mt.solve(case, method="amg", stop_mm=1e-5)
+    assert np.linalg.norm(res.u - ref, axis=1).max() < 1e-5
+    (model,) = driver.MODEL_CACHE.values()
+    (kept,) = model._factors.values()
+    assert kept.amg is not None and len(kept.amg.levels) >= 1   # a multilevel V-cycle
+    mt.solve(case, method="amg", stop_mm=1e-5)
+    assert list(model._factors.values()) == [kept]
+    mt.forget_factorizations()
+    assert not model._factors
+
+
 def test_pcg_needs_fewer_iterations_than_descent_for_the_same_stopping_rule(cube):
     case = stretch_case(cube)
     a = mt.solve(case, method="pcg", stop_mm=0.001)
@@ -407,6 +430,13 @@ def test_indefinite_stiffness_raises_diverged(cube):
         cube.region_vertices("xmax"), (1.0, 0.0, 0.0))
     with pytest.raises(SolverDivergedError, match="iteration"):
         m.solve(pts, method="pcg", stop_mm=1e-12, max_iter=10000)
+
+
+def test_a_cell_of_zero_volume_is_rejected_naming_it():
+    points = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0]], float)
+    cells = np.array([[0, 1, 2, 3], [0, 1, 4, 2]])        # the second is flat (z = 0)
+    with pytest.raises(CaseError, match=r"zero volume \(cell 1, vertices \[0, 1, 4, 2\]\)"):
+        mt.MassTensorModel(points, cells, MAT)
 
 
 def test_bad_options_rejected(cube):

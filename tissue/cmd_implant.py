@@ -59,8 +59,8 @@ def add_parser(sub) -> None:
     p.add_argument("--method", choices=["direct", "amg", "pcg", "descent"], default="direct",
                    help="how the Mass Tensor solve reaches equilibrium: direct (one sparse "
                         "factorization per phase or sliding round), amg (conjugate gradients "
-                        "with an AMG preconditioner, stopped within an estimated 0.01 mm: for "
-                        "large meshes), or iterations stopped at the seed's 0.01 mm rule "
+                        "with an AMG preconditioner, stopped when an estimate of the distance to go "
+                        "is below half of 0.01 mm: for large meshes), or iterations stopped at the seed's 0.01 mm rule "
                         "(descent = the seed's, pcg)")
     p.add_argument("--no-reference", action="store_true",
                    help="skip the FEM reference comparison (d_max/mean reported as null)")

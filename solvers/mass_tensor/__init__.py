@@ -47,14 +47,17 @@ Solves (all on the same tensors):
 
 * ``method="amg"`` -- for large meshes: conjugate gradients on the same projected tensors,
   preconditioned by an aggregation AMG V-cycle (``solvers.admm.amg``) of the scalar matrix of
-  the tensors' traces (a scaled P1 Laplacian; one V-cycle per displacement component), kept in
-  the model per pattern of point types like the factorization. It stops when the distance still
-  to go, estimated from its last move s and the slowest contraction rho of its last moves as
-  s rho / (1 - rho) (``iterations.distance_to_go``), is below ``stop_mm``: on the glued phantom
-  at 0.01 mm it ended 1.3e-3 to 7.3e-3 mm from the exact answer in 13-22 iterations from 1.7k
-  to 185k tets. Work and memory are O(n): at 185k tets a first solve (tensors included) took
-  1.04 s against the direct solve's 7.4 s and the linear reference's 5.4 s, and kept 27 MiB
-  for the next solve against the factor's 806 MiB (bench/bench_mass_tensor_speed.py).
+  the tensors' traces on the vertices not fully held (a scaled P1 Laplacian; one V-cycle per
+  displacement component), kept in the model per pattern of point types like the
+  factorization. It stops when the distance still to go, estimated from its last move s and
+  the slowest contraction rho of its last moves as s rho / (1 - rho)
+  (``iterations.distance_to_go``), is below half of ``stop_mm``. That is an estimate, not a
+  bound: on the glued phantom at 0.01 mm it ended 1.8e-3 to 2.9e-3 mm from the exact answer
+  in 15-25 iterations from 1.7k to 185k tets, but on a box at nu = 0.49 the error reached 1.1
+  times the stop (it warns above nu = 0.48; "direct" has no stopping error). Work and memory
+  are O(n): at 185k tets a first solve (tensors included) took 1.0 s against the direct
+  solve's 7.2 s and the linear reference's 5.8 s, and kept 11 MiB for the next solve against
+  the factor's 806 MiB (bench/bench_mass_tensor_speed.py).
 
 The seed's iterations (both stop when the largest displacement of any vertex in one iteration is
 below ``stop_mm``, seed value 0.01 mm):
@@ -76,7 +79,7 @@ then P rather than forming their product), which is the same arithmetic as the e
 ``forces`` but one compiled sparse product per iteration.
 
 Surface sliding is nonlinear (the tangent plane moves): descent projects and refreshes the
-tangent planes every iteration; direct and pcg solve with frozen tangent planes, project,
+tangent planes every iteration; direct, amg and pcg solve with frozen tangent planes, project,
 refresh and repeat until one such pass moves no vertex by ``stop_mm`` or more.
 
 Lower-level API (for the implant-planning code)::

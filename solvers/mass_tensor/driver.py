@@ -71,8 +71,9 @@ def solve(case, *, pushes=None, initial=None, method: str = "direct", stop_mm: f
     """Mass Tensor solve of a Case (linear elasticity with the Case's E, nu, whatever its model).
 
     pushes: actuator name -> push (mm); initial (n, d) mm warm start; method "direct" (default),
-    "pcg" | "descent" (``model.METHODS``); stop_mm: stopping rule of the iterations and of the
-    surface-sliding rounds (largest per-vertex displacement in one iteration, mm); callback(it, u)
+    "amg" | "pcg" | "descent" (``model.METHODS``); stop_mm: stopping rule of the iterations and
+    of the surface-sliding rounds (largest per-vertex displacement in one iteration, mm; "amg":
+    the distance still to go estimated from those, below half of it); callback(it, u)
     every iteration; factorize: the direct solve's factorization hook
     (``MassTensorModel.solve``). Returns SolveResult(solver="mass-tensor"): u (n, d) mm, probes (mm),
     reactions per Dirichlet region = sum over its prescribed directions of F(u) - f_ext (mN),

@@ -18,8 +18,8 @@ METHODS = ("direct", "amg", "pcg", "descent")
 """How a solve reaches equilibrium: "direct" (one sparse factorization of the projected tensors
 per phase or sliding round: the answer the iterations tend to, without their stopping error),
 "amg" (conjugate gradients preconditioned by an AMG V-cycle, stopped when the distance still to
-go, estimated from the contraction of its moves, is below ``stop_mm``: work and memory O(n),
-for large meshes), "pcg" and "descent" (iterations stopped by the seed's rule on the largest
+go, estimated from the contraction of its moves, is below half of ``stop_mm``: an estimate,
+not a bound; work and memory O(n), for large meshes), "pcg" and "descent" (iterations stopped by the seed's rule on the largest
 per-vertex move)."""
 
 
@@ -62,7 +62,7 @@ class MassTensorModel:
         self._K = None
         # direct solves: the factorization of the projected tensors per pattern of point types
         # (which directions are prescribed where), kept while the model is: a solve with new
-        # prescribed values (another push) only back-substitutes
+        # prescribed values (another push) only back-substitutes; "amg": its hierarchy
         self._factors: dict = {}
         self._norms = None
 
@@ -115,7 +115,8 @@ class MassTensorModel:
 
         f_ext (n, d) mN external nodal forces (default none); initial (n, d) mm warm start (its
         prescribed components are replaced by the prescriptions); method: one of ``METHODS``;
-        stop when the largest per-vertex displacement in one iteration < stop_mm (mm);
+        stop when the largest per-vertex displacement in one iteration < stop_mm (mm; "amg":
+        when the distance still to go, estimated from those moves, is below half of it);
         max_iter total iterations (converged=False when reached); step_scale: fixed descent
         step (see the package docstring); callback(it, u) after every iteration (u (n, d) mm).
         factorize(A, cache): optional, method "direct": a factorization of the SPD matrix A with

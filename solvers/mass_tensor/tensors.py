@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from tissue_reference.meshes.errors import CaseError
+
 
 def barycentric_gradients(points: np.ndarray, cells: np.ndarray):
     """Barycentric gradients (m, d+1, d) in 1/mm and cell measures (m,) in mm^d."""
@@ -18,10 +20,17 @@ def barycentric_gradients(points: np.ndarray, cells: np.ndarray):
         cof = np.stack([np.cross(D[:, 1], D[:, 2]), np.cross(D[:, 2], D[:, 0]),
                         np.cross(D[:, 0], D[:, 1])], axis=1)
         det = np.einsum("mi,mi->m", D[:, 0], cof[:, 0])
+    else:
+        det = np.linalg.det(D)
+    bad = np.flatnonzero(~(np.abs(det) > 0))
+    if bad.size:
+        raise CaseError(f"{bad.size} cell(s) of zero {'volume' if d == 3 else 'area'} (cell "
+                        f"{int(bad[0])}, vertices {cells[bad[0]].tolist()}): the Mass Tensor "
+                        f"method needs non-degenerate simplices")
+    if d == 3:
         g[:, 1:] = cof / det[:, None, None]
         vol = np.abs(det) / 6.0
     else:
-        det = np.linalg.det(D)
         vol = np.abs(det) / 2.0
         g[:, 1:] = np.transpose(np.linalg.inv(D), (0, 2, 1))   # column k-1 of D^-1
     g[:, 0] = -g[:, 1:].sum(axis=1)
