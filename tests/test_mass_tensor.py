@@ -219,6 +219,20 @@ def test_amg_in_2d_and_its_kept_hierarchy():
     assert not model._factors
 
 
+def test_amg_warns_near_incompressibility(cube, caplog):
+    """Its stopping estimate is not a bound near nu = 0.5: the solve says so (and not at the
+    tissue's nu = 0.45)."""
+    import logging
+    for nu, warned in ((0.45, False), (0.49, True)):
+        case = Case(mesh=cube, material=Material(model="linear-elastic", E=48.0, nu=nu),
+                    boundaries=[Boundary("xmin", "fixed"),
+                                Boundary("xmax", "displacement", value=(1.5, 0.5, -0.3))])
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="tissue.mass_tensor"):
+            mt.solve(case, method="amg", stop_mm=1e-3)
+        assert any("close to 0.5" in r.getMessage() for r in caplog.records) == warned
+
+
 def test_pcg_needs_fewer_iterations_than_descent_for_the_same_stopping_rule(cube):
     case = stretch_case(cube)
     a = mt.solve(case, method="pcg", stop_mm=0.001)
