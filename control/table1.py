@@ -6,10 +6,10 @@ steady-state error and retraction, written as JSON, Markdown and HTML (each file
 ``control.plants.build_loop``), writing the tables after every scenario so an interrupted run
 keeps what it finished; a loop that runs long reports its step every ``STEP_LINE_S`` seconds
 (a plant solve on a fine mesh takes minutes, a loop up to half an hour). With ``jobs`` > 1 the
-scenarios run in that many worker processes, each building its own loop with ``loop_factory`` (the plant's solver state cannot cross processes);
-the rows are the serial run's, in the same order, within round-off: every loop runs with
-``LOOP_BLAS_THREADS`` BLAS threads, and a reference solve does not depend on what its process
-solved before.
+scenarios run in that many worker processes, each building its own loop with ``loop_factory``
+(the plant's solver state cannot cross processes); the rows are the serial run's, in the same
+order, within round-off: every loop runs with ``LOOP_BLAS_THREADS`` BLAS threads, and a
+reference solve does not depend on what its process solved before.
 """
 from __future__ import annotations
 
@@ -241,9 +241,10 @@ def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
     """Every target x task (1, 2, 3) on ``loop`` (``control.plants.LoopSetup``); returns the
     summary. ``progress(line)`` gets one line per scenario as it ends and, with
     ``step_lines``, a long loop's step lines (``STEP_LINE_S``; a worker process prints its own
-    to stdout); ``plots``: a time-response PNG per scenario in ``out``. ``jobs`` > 1: that many worker processes, each
-    running ``loop_factory(factory_key)`` once for its own loop (a picklable callable: a
-    module-level function or a functools.partial of one); ``loop`` then serves nobody."""
+    to stdout); ``plots``: a time-response PNG per scenario in ``out``. ``jobs`` > 1: that many
+    worker processes, each running ``loop_factory(factory_key)`` once for its own loop (a
+    picklable callable: a module-level function or a functools.partial of one); ``loop`` then
+    serves nobody."""
     pairs = [(t, task) for t in targets for task in (1, 2, 3)]
     n = len(pairs)
     summ = table1_summary([], n)

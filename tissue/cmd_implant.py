@@ -19,6 +19,7 @@ from tissue_reference.implant.surface import check_single_sheet, read_surface
 from tissue_reference.meshes.errors import CaseError, ReadError
 from tissue_reference.meshes.io import check_output_file
 from tissue_reference.meshes.results import write_json
+from tissue_reference.solvers.mass_tensor import METHODS
 
 from .common import check_outputs, real
 from .implant_study import run_implant_study
@@ -56,12 +57,12 @@ def add_parser(sub) -> None:
                    help="free ring around the implant (mm, 0 = none; seed: 30)")
     p.add_argument("--sliding", action="store_true",
                    help="switch target points to sliding on the implant once reached")
-    p.add_argument("--method", choices=["direct", "amg", "pcg", "descent"], default="direct",
+    p.add_argument("--method", choices=list(METHODS), default="direct",
                    help="how the Mass Tensor solve reaches equilibrium: direct (one sparse "
                         "factorization per phase or sliding round), amg (conjugate gradients "
-                        "with an AMG preconditioner, stopped when an estimate of the distance to go "
-                        "is below half of 0.01 mm: for large meshes), or iterations stopped at the seed's 0.01 mm rule "
-                        "(descent = the seed's, pcg)")
+                        "with an AMG preconditioner, stopped when an estimate of the distance "
+                        "to go is below half of 0.01 mm: for large meshes), or iterations "
+                        "stopped at the seed's 0.01 mm rule (descent = the seed's, pcg)")
     p.add_argument("--no-reference", action="store_true",
                    help="skip the FEM reference comparison (d_max/mean reported as null)")
     p.add_argument("--neo-hookean", action="store_true",

@@ -74,9 +74,9 @@ class FreeVertexAmg:
         L = sp.csr_matrix((np.concatenate([dii[self.free] * (1.0 + m[self.free] / d), dij, dij]),
                            (np.concatenate([np.arange(k), i, j]),
                             np.concatenate([np.arange(k), j, i]))), shape=(k, k))
-        self.amg = ArrayAmgPcg(AmgPcg(L, compiled=False), np)
-        lu = self.amg._coarse_lu
-        self.nbytes = self.amg.nbytes + 12 * (lu.L.nnz + lu.U.nnz)
+        hierarchy = AmgPcg(L, compiled=False)
+        self.amg = ArrayAmgPcg(hierarchy, np)
+        self.nbytes = hierarchy.bytes
 
     def vcycle(self, X):
         """One V-cycle on the columns of X (n, d), zero on the fully held vertices."""

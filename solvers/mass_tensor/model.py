@@ -19,8 +19,8 @@ METHODS = ("direct", "amg", "pcg", "descent")
 per phase or sliding round: the answer the iterations tend to, without their stopping error),
 "amg" (conjugate gradients preconditioned by an AMG V-cycle, stopped when the distance still to
 go, estimated from the contraction of its moves, is below half of ``stop_mm``: an estimate,
-not a bound; work and memory O(n), for large meshes), "pcg" and "descent" (iterations stopped by the seed's rule on the largest
-per-vertex move)."""
+not a bound; work and memory O(n), for large meshes), "pcg" and "descent" (iterations stopped
+by the seed's rule on the largest per-vertex move)."""
 
 
 @dataclass(frozen=True)
