@@ -58,6 +58,11 @@ class PetscFactor:
         self.ksp.getPC().setFactorSolverType("cholmod")
         self.b, self.x = self.M.createVecLeft(), self.M.createVecRight()
 
+    @property
+    def nbytes(self) -> int:
+        """The factor's memory: 12 bytes (value and index) per entry."""
+        return 12 * int(self.ksp.getPC().getFactorMatrix().getInfo()["nz_used"])
+
     def same_pattern(self, A):
         ip, ind, _ = self.keep
         return (A.shape[0] == len(ip) - 1 and A.nnz == len(ind) and np.array_equal(A.indptr, ip)

@@ -5,13 +5,16 @@ Lengths are in mm. Cells are linear tetrahedra (3D) or linear triangles (2D, pla
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
+import scipy.sparse as sp
 
 from .errors import CaseError, MeshQualityError
 
-__all__ = ["MeshData", "MeshQuality", "boundary_facets", "cell_jacobians", "cell_volumes",
-           "check_cells", "check_tangles", "deformation_state", "quality"]
+__all__ = ["EdgeTopology", "MeshData", "MeshQuality", "boundary_facets", "cell_jacobians",
+           "cell_volumes", "check_cells", "check_tangles", "deformation_state", "edge_topology",
+           "quality"]
 
 
 @dataclass(frozen=True)
@@ -81,6 +84,18 @@ class MeshData:
             return np.unique(self.cells[self.cell_regions[name]])
         raise CaseError(f"unknown region {name!r}; regions in this mesh: {self.region_names}")
 
+    @cached_property
+    def edge_topology(self) -> EdgeTopology:
+        """The mesh's ``EdgeTopology``, computed on first use and kept (the cells of a MeshData
+        are not to be changed in place)."""
+        return edge_topology(self.cells, self.n_vertices)
+
+    @cached_property
+    def reference_volumes(self) -> np.ndarray:
+        """``cell_volumes`` of the undeformed mesh (mm^3, mm^2 in 2D), computed on first use and
+        kept (the points of a MeshData are not to be changed in place)."""
+        return cell_volumes(self.points, self.cells)
+
     def facet_measures(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """(facets, areas): reference areas (mm^2, or lengths in 2D) of a facet region."""
         if name not in self.facet_regions:
@@ -105,6 +120,63 @@ def cell_volumes(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
                 + (a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]) * c[:, 1]
                 + (a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]) * c[:, 2]) / 6.0
     return 0.5 * (d[:, 0, 0] * d[:, 1, 1] - d[:, 0, 1] * d[:, 1, 0])
+
+
+@dataclass(frozen=True)
+class EdgeTopology:
+    """The edges of a simplex mesh, where each cell's vertex pairs lie among them, and the
+    pattern of the vertex adjacency (every vertex with itself and with each neighbour) as the
+    CSR matrix of d x d blocks on node-major dofs (dof = d*i + c) that P1 vector fields use:
+    all from the cells alone, computed once per mesh as a finite element code computes its dof
+    map and sparsity pattern once.
+
+    edges (e, 2): vertex ids, ``edges[:, 0] < edges[:, 1]``, rows sorted.
+    pair_edge (m * p,): the edge of cell c's k-th vertex pair (``cell_pairs``), at c * p + k.
+    pair_flipped (m * p,): whether that pair's first vertex is its edge's second.
+    indptr (n d + 1,), indices: the CSR pattern; gather: the position, in the stacked blocks
+    [vertex blocks (n, d, d); edge blocks (i, j) (e, d, d); their transposes (j, i)] read flat,
+    of each CSR entry (``block_csr``)."""
+
+    edges: np.ndarray
+    pair_edge: np.ndarray
+    pair_flipped: np.ndarray
+    indptr: np.ndarray
+    indices: np.ndarray
+    gather: np.ndarray
+
+    def block_csr(self, T_ii, T_ij) -> sp.csr_matrix:
+        """The CSR matrix (n d, n d) with vertex blocks T_ii (n, d, d) on the diagonal, edge
+        blocks T_ij (e, d, d) at (i, j) and their transposes at (j, i)."""
+        n, d = T_ii.shape[0], T_ii.shape[1]
+        data = np.concatenate([T_ii.reshape(-1), T_ij.reshape(-1),
+                               np.transpose(T_ij, (0, 2, 1)).reshape(-1)])[self.gather]
+        return sp.csr_matrix((data, self.indices, self.indptr), shape=(n * d, n * d))
+
+
+def cell_pairs(d: int) -> tuple[np.ndarray, np.ndarray]:
+    """The vertex pairs (a[k], b[k]), a < b, of a d-simplex's local vertices, in
+    ``EdgeTopology.pair_edge``'s order."""
+    return np.triu_indices(d + 1, 1)
+
+
+def edge_topology(cells: np.ndarray, n_vertices: int) -> EdgeTopology:
+    """The ``EdgeTopology`` of simplices ``cells`` (m, d+1) on ``n_vertices`` vertices."""
+    cells = np.asarray(cells, np.int64)
+    n, d = int(n_vertices), cells.shape[1] - 1
+    a, b = cell_pairs(d)
+    i, j = cells[:, a].reshape(-1), cells[:, b].reshape(-1)
+    key, pair_edge = np.unique(np.minimum(i, j) * n + np.maximum(i, j), return_inverse=True)
+    edges = np.stack([key // n, key % n], axis=1)
+    rows = np.concatenate([np.arange(n), edges[:, 0], edges[:, 1]])
+    cols = np.concatenate([np.arange(n), edges[:, 1], edges[:, 0]])
+    order = np.argsort(rows * n + cols)
+    block_indptr = np.r_[0, np.cumsum(np.bincount(rows, minlength=n))]
+    # the flat positions of the stacked blocks, laid out as CSR by scipy's BSR -> CSR
+    pos = (order[:, None] * (d * d) + np.arange(d * d)).reshape(-1, d, d).astype(float)
+    csr = sp.bsr_matrix((pos, cols[order], block_indptr), shape=(n * d, n * d)).tocsr()
+    return EdgeTopology(edges=edges, pair_edge=pair_edge, pair_flipped=i > j,
+                        indptr=csr.indptr, indices=csr.indices,
+                        gather=csr.data.astype(np.int64))
 
 
 @dataclass(frozen=True)
@@ -389,8 +461,11 @@ def deformation_state(mesh: MeshData, u, *, degree: int = 1,
     ``runaway`` times the body's diameter (bounding-box diagonal, mm).
     """
     u = np.asarray(u, float).reshape(mesh.points.shape)
-    J = cell_jacobians(mesh.points, mesh.cells, u) if cell_J is None else \
-        np.asarray(cell_J, float).reshape(mesh.n_cells)
+    if cell_J is None:
+        with np.errstate(all="ignore"):
+            J = cell_volumes(mesh.points + u, mesh.cells) / mesh.reference_volumes
+    else:
+        J = np.asarray(cell_J, float).reshape(mesh.n_cells)
     finite = bool(np.all(np.isfinite(u)))
     inverted = int(np.count_nonzero(~(J > 0)))
     with np.errstate(all="ignore"):

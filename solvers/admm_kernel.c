@@ -445,8 +445,8 @@ double p1_forces(int model, int d, long m, double mu, double kappa, double lmbda
 /* The large-mesh x-step: conjugate gradients with a smoothed-aggregation AMG V-cycle on the
  * scalar x-step matrix, k right-hand sides at once (row-major (n, k) arrays: the matrix entries
  * are read once for all k columns). The hierarchy (A, P, R, Jacobi weights per level and the
- * dense inverse of the coarsest matrix, Ainv) is built in Python (admm._AmgPcg); this is the
- * arithmetic of admm._AmgPcg._vcycle / _pcg, in C. */
+ * coarsest matrix's direct solve) is built in Python (admm.amg.AmgPcg); this is the
+ * arithmetic of amg_array.ArrayAmgPcg's vcycle / pcg, in C. cwork: 3 nc k doubles. */
 typedef struct {
     long n;
     const int *Ap, *Ai;
@@ -479,29 +479,77 @@ static inline __attribute__((always_inline)) void csr_mm_k(
     }
 }
 
-/* coarsest level: x = Ainv b with the dense inverse (nc x nc, row-major) of its matrix */
-static inline __attribute__((always_inline)) void coarse_solve(long nc, const double *Ainv,
-                                                                const int k, const double *b,
-                                                                double *x)
+/* The coarsest level's direct solve: by the dense inverse of its matrix (Ainv, nc x nc
+ * row-major), or, when Ainv is NULL, by its sparse factors Pr A Pc = L U (SuperLU's, CSC: x =
+ * Pc U^-1 L^-1 Pr b, with (Pr b)[perm_r[i]] = b[i] and x[i] = w[perm_c[i]]; Ld, Ud their
+ * diagonals) */
+typedef struct {
+    long nc;
+    const double *Ainv;
+    const int *Lp, *Li;
+    const double *Lx, *Ld;
+    const int *Up, *Ui;
+    const double *Ux, *Ud;
+    const int *perm_r, *perm_c;
+} amg_coarse;
+
+/* x = A_c^-1 b on k columns; tmp: nc k doubles (the factors' solve) */
+static inline __attribute__((always_inline)) void coarse_solve(const amg_coarse *co, const int k,
+                                                                const double *b, double *x,
+                                                                double *tmp)
 {
-    for (long i = 0; i < nc; ++i) {
-        const double *a = Ainv + i * nc;
-        double acc[8] = {0.0};
-        for (long c = 0; c < nc; ++c)
+    const long nc = co->nc;
+    if (co->Ainv) {
+        for (long i = 0; i < nc; ++i) {
+            const double *a = co->Ainv + i * nc;
+            double acc[8] = {0.0};
+            for (long c = 0; c < nc; ++c)
+                for (int j = 0; j < k; ++j)
+                    acc[j] += a[c] * b[c * k + j];
             for (int j = 0; j < k; ++j)
-                acc[j] += a[c] * b[c * k + j];
-        for (int j = 0; j < k; ++j)
-            x[i * k + j] = acc[j];
+                x[i * k + j] = acc[j];
+        }
+        return;
     }
+    double *w = tmp;
+    for (long i = 0; i < nc; ++i)
+        for (int j = 0; j < k; ++j)
+            w[(long)co->perm_r[i] * k + j] = b[i * k + j];
+    for (long c = 0; c < nc; ++c) { /* L y = Pr b, column by column */
+        double *wc = w + c * k;
+        for (int j = 0; j < k; ++j)
+            wc[j] /= co->Ld[c];
+        for (int e = co->Lp[c]; e < co->Lp[c + 1]; ++e) {
+            const long i = co->Li[e];
+            if (i > c)
+                for (int j = 0; j < k; ++j)
+                    w[i * k + j] -= co->Lx[e] * wc[j];
+        }
+    }
+    for (long c = nc - 1; c >= 0; --c) { /* U w = y */
+        double *wc = w + c * k;
+        for (int j = 0; j < k; ++j)
+            wc[j] /= co->Ud[c];
+        for (int e = co->Up[c]; e < co->Up[c + 1]; ++e) {
+            const long i = co->Ui[e];
+            if (i < c)
+                for (int j = 0; j < k; ++j)
+                    w[i * k + j] -= co->Ux[e] * wc[j];
+        }
+    }
+    for (long i = 0; i < nc; ++i)
+        for (int j = 0; j < k; ++j)
+            x[i * k + j] = w[(long)co->perm_c[i] * k + j];
 }
 
 /* x = V(b): one pre- and one post-smoothing damped-Jacobi sweep per level (down: x_l = dw b_l,
  * r_l = b_l - A_l x_l, b_(l+1) = R_l r_l; coarsest: x = Ainv b; up: x_l += P_l x_(l+1),
  * x_l += dw (b_l - A_l x_l)) */
 static inline __attribute__((always_inline)) void vcycle(
-    int nlev, const amg_level *lv, long nc, const double *Ainv, const int k, const double *b0,
+    int nlev, const amg_level *lv, const amg_coarse *co, const int k, const double *b0,
     double *x0, double *cwork)
 {
+    const long nc = co->nc;
     for (int l = 0; l < nlev; ++l) {
         const amg_level *L = lv + l;
         const double *b = l ? L->b : b0;
@@ -517,7 +565,11 @@ static inline __attribute__((always_inline)) void vcycle(
         csr_mm_k(n, L->Ap, L->Ai, L->Ax, k, x, r, -1.0, 1.0);
         csr_mm_k(nn, L->Rp, L->Ri, L->Rx, k, r, bn, 1.0, 0.0);
     }
-    coarse_solve(nc, Ainv, k, cwork, cwork + nc * k);
+    if (nlev == 0) { /* no levels: the coarsest matrix is the matrix */
+        coarse_solve(co, k, b0, x0, cwork + 2 * nc * k);
+        return;
+    }
+    coarse_solve(co, k, cwork, cwork + nc * k, cwork + 2 * nc * k);
     for (int l = nlev - 1; l >= 0; --l) {
         const amg_level *L = lv + l;
         const double *b = l ? L->b : b0;
@@ -537,10 +589,10 @@ static inline __attribute__((always_inline)) void vcycle(
 /* PCG from X (in place) on A X = B (level 0's A), k <= 8 columns; stops after maxit iterations,
  * when every column's residual is below rtol |B_j|, or (step_tol > 0) after at least min_it
  * iterations once the largest row update is below max(step_tol, step_rtol x the first one).
- * work: 4 n k doubles; cwork: 2 nc k. Returns the iterations done; *last_update = the largest
+ * work: 4 n k doubles; cwork: 3 nc k. Returns the iterations done; *last_update = the largest
  * row update (2-norm over the k columns) of the last iteration. */
 static inline __attribute__((always_inline)) int pcg_k(
-    int nlev, const amg_level *lv, long nc, const double *Ainv, const int k, const double *B,
+    int nlev, const amg_level *lv, const amg_coarse *co, const int k, const double *B,
     double *X, int maxit, double rtol, double step_tol, double step_rtol, int min_it,
     double *work, double *cwork, double *last_update)
 {
@@ -556,7 +608,7 @@ static inline __attribute__((always_inline)) int pcg_k(
     for (long t = 0; t < nk; ++t)
         r[t] = B[t];
     csr_mm_k(n, lv[0].Ap, lv[0].Ai, lv[0].Ax, k, X, r, -1.0, 1.0);
-    vcycle(nlev, lv, nc, Ainv, k, r, z, cwork);
+    vcycle(nlev, lv, co, k, r, z, cwork);
     for (long t = 0; t < nk; ++t)
         p[t] = z[t];
     for (int j = 0; j < k; ++j) {
@@ -604,7 +656,7 @@ static inline __attribute__((always_inline)) int pcg_k(
             if (it + 1 >= min_it && dmax <= lim)
                 break;
         }
-        vcycle(nlev, lv, nc, Ainv, k, r, z, cwork);
+        vcycle(nlev, lv, co, k, r, z, cwork);
         for (int j = 0; j < k; ++j) {
             double s = 0.0;
             for (long i = 0; i < n; ++i)
@@ -619,16 +671,279 @@ static inline __attribute__((always_inline)) int pcg_k(
     return it + 1;
 }
 
-int amg_pcg(int nlev, const amg_level *lv, long nc, const double *Ainv, int k, const double *B,
+/* X = V(B): one V-cycle on k columns (the preconditioner alone, for an iteration run elsewhere);
+ * cwork: 3 nc k doubles */
+void amg_vcycle(int nlev, const amg_level *lv, const amg_coarse *co, int k, const double *B,
+                double *X, double *cwork)
+{
+    if (k == 3)
+        vcycle(nlev, lv, co, 3, B, X, cwork);
+    else if (k == 2)
+        vcycle(nlev, lv, co, 2, B, X, cwork);
+    else
+        vcycle(nlev, lv, co, k, B, X, cwork);
+}
+
+int amg_pcg(int nlev, const amg_level *lv, const amg_coarse *co, int k, const double *B,
             double *X, int maxit, double rtol, double step_tol, double step_rtol, int min_it,
             double *work, double *cwork, double *last_update)
 {
     if (k == 3)
-        return pcg_k(nlev, lv, nc, Ainv, 3, B, X, maxit, rtol, step_tol, step_rtol, min_it, work,
-                     cwork, last_update);
+        return pcg_k(nlev, lv, co, 3, B, X, maxit, rtol, step_tol, step_rtol, min_it, work, cwork,
+                     last_update);
     if (k == 2)
-        return pcg_k(nlev, lv, nc, Ainv, 2, B, X, maxit, rtol, step_tol, step_rtol, min_it, work,
-                     cwork, last_update);
-    return pcg_k(nlev, lv, nc, Ainv, k, B, X, maxit, rtol, step_tol, step_rtol, min_it, work,
-                 cwork, last_update);
+        return pcg_k(nlev, lv, co, 2, B, X, maxit, rtol, step_tol, step_rtol, min_it, work, cwork,
+                     last_update);
+    return pcg_k(nlev, lv, co, k, B, X, maxit, rtol, step_tol, step_rtol, min_it, work, cwork,
+                 last_update);
+}
+
+/* ------------------------------------------------------------------------------------------ */
+/* The Mass Tensor method's "amg" iteration (solvers/mass_tensor/iterations.py, solve_linear):
+ * conjugate gradients on P K P for the displacement u = u_c + P w, preconditioned by one V-cycle
+ * per displacement component of the scalar hierarchy on the vertices not fully held. K: the
+ * tensors as CSR on node-major dofs (n d rows); P (n, d, d) the projectors onto each vertex's
+ * free directions; free (nf): the V-cycle's vertices, in its row order. u (n d): in, the start
+ * (its prescribed part already set); out, the last iterate. f (n d): the external forces (mN).
+ *
+ * Each iteration appends its largest per-vertex move to steps (mm) and stops once the distance
+ * still to go, estimated as s rho / (1 - rho) from the last move s and the largest contraction
+ * rho of the last `tail` moves, is below margin x stop_mm, or a move is exactly zero.
+ * Returns: 0 stopped by that rule, 1 max_it iterations done, 2 a non-positive preconditioned
+ * residual (info[0] = r.z), 3 non-positive curvature (info[0] = p.Kp), 4 a vertex moved a
+ * non-finite distance or more than blowup mm (*bad = the vertex, info[0] = its move), 5 the
+ * largest residual grew past 1e12 x its first value (info[0] = it). *n_it: the iterations done.
+ * work: 4 n d + 2 nf d doubles; cwork: 3 nc d. */
+static inline __attribute__((always_inline)) void mt_project(long n, const int d, const double *P,
+                                                              const double *x, double *y)
+{
+    for (long i = 0; i < n; ++i) {
+        const double *Pi = P + i * d * d, *xi = x + i * d;
+        double yi[MAXD];
+        for (int a = 0; a < d; ++a) {
+            double s = 0.0;
+            for (int b = 0; b < d; ++b)
+                s += Pi[a * d + b] * xi[b];
+            yi[a] = s;
+        }
+        for (int a = 0; a < d; ++a)
+            y[i * d + a] = yi[a];
+    }
+}
+
+static inline __attribute__((always_inline)) void mt_precondition(
+    long n, const int d, const double *P, long nf, const int *free, int nlev, const amg_level *lv,
+    const amg_coarse *co, const double *r, double *z, double *bf, double *xf, double *cwork)
+{
+    memset(z, 0, sizeof(double) * n * d);
+    if (nf == 0)
+        return;
+    for (long t = 0; t < nf; ++t)
+        for (int a = 0; a < d; ++a)
+            bf[t * d + a] = r[(long)free[t] * d + a];
+    vcycle(nlev, lv, co, d, bf, xf, cwork);
+    for (long t = 0; t < nf; ++t) {
+        const long i = free[t];
+        const double *Pi = P + i * d * d;
+        for (int a = 0; a < d; ++a) {
+            double s = 0.0;
+            for (int b = 0; b < d; ++b)
+                s += Pi[a * d + b] * xf[t * d + b];
+            z[i * d + a] = s;
+        }
+    }
+}
+
+static inline double dot(long m, const double *x, const double *y)
+{
+    double s = 0.0;
+    for (long t = 0; t < m; ++t)
+        s += x[t] * y[t];
+    return s;
+}
+
+static inline __attribute__((always_inline)) int mt_pcg_d(
+    long n, const int d, const int *Kp, const int *Ki, const double *Kx, const double *P, long nf,
+    const int *free, int nlev, const amg_level *lv, const amg_coarse *co, const double *f,
+    double *u, int max_it, double stop_mm, int tail, double margin, double blowup,
+    double *steps, int *n_it, int *bad, double *info, double *work, double *cwork)
+{
+    const long nd = n * d;
+    double *r = work, *z = work + nd, *p = work + 2 * nd, *q = work + 3 * nd;
+    double *bf = work + 4 * nd, *xf = bf + nf * d;
+    *n_it = 0;
+    csr_mm_k(nd, Kp, Ki, Kx, 1, u, q, 1.0, 0.0); /* r = P (f - K u) */
+    for (long t = 0; t < nd; ++t)
+        q[t] = f[t] - q[t];
+    mt_project(n, d, P, q, r);
+    mt_precondition(n, d, P, nf, free, nlev, lv, co, r, z, bf, xf, cwork);
+    memcpy(p, z, sizeof(double) * nd);
+    double rz = dot(nd, r, z), r0 = 0.0;
+    for (long t = 0; t < nd; ++t)
+        r0 = fmax(r0, fabs(r[t]));
+    r0 = fmax(r0, 1e-300);
+    int it = 0;
+    while (it < max_it) {
+        if (rz <= 0.0) {
+            if (rz == 0.0)
+                break;
+            info[0] = rz;
+            *n_it = it;
+            return 2;
+        }
+        ++it;
+        csr_mm_k(nd, Kp, Ki, Kx, 1, p, z, 1.0, 0.0); /* q = P K p (z: scratch) */
+        mt_project(n, d, P, z, q);
+        const double pq = dot(nd, p, q);
+        if (!(pq > 0.0)) {
+            info[0] = pq;
+            *n_it = it;
+            return 3;
+        }
+        const double alpha = rz / pq;
+        long worst = 0, first_bad = -1;
+        double smax = -1.0, bad_move = 0.0;
+        for (long i = 0; i < n; ++i) {
+            double s2 = 0.0;
+            for (int a = 0; a < d; ++a) {
+                const double dx = alpha * p[i * d + a];
+                u[i * d + a] += dx;
+                s2 += dx * dx;
+            }
+            const double s = sqrt(s2);
+            if (!isfinite(s) && first_bad < 0) {
+                first_bad = i;
+                bad_move = s;
+            }
+            if (s > smax) {
+                smax = s;
+                worst = i;
+            }
+        }
+        if (n == 0)
+            smax = 0.0;
+        steps[it - 1] = smax;
+        if (first_bad >= 0 || smax > blowup) {
+            *bad = (int)(first_bad >= 0 ? first_bad : worst);
+            info[0] = first_bad >= 0 ? bad_move : smax;
+            *n_it = it;
+            return 4;
+        }
+        double rmax = 0.0;
+        for (long t = 0; t < nd; ++t) {
+            r[t] -= alpha * q[t];
+            rmax = fmax(rmax, fabs(r[t]));
+        }
+        if (!isfinite(rmax) || rmax > 1e12 * r0) {
+            info[0] = rmax;
+            *n_it = it;
+            return 5;
+        }
+        if (smax == 0.0)
+            break;
+        if (it > tail) { /* the distance still to go */
+            double rho = 0.0;
+            for (int t = it - tail; t < it; ++t) {
+                const double ratio = steps[t] / steps[t - 1];
+                rho = (ratio > rho || isnan(ratio)) ? ratio : rho;
+            }
+            if (rho < 1.0 && steps[it - 1] * rho / (1.0 - rho) / margin < stop_mm)
+                break;
+        }
+        mt_precondition(n, d, P, nf, free, nlev, lv, co, r, z, bf, xf, cwork);
+        const double rz_new = dot(nd, r, z);
+        const double beta = rz_new / rz;
+        for (long t = 0; t < nd; ++t)
+            p[t] = z[t] + beta * p[t];
+        rz = rz_new;
+    }
+    *n_it = it;
+    return it >= max_it ? 1 : 0;
+}
+
+int mt_amg_pcg(long n, int d, const int *Kp, const int *Ki, const double *Kx, const double *P,
+               long nf, const int *free, int nlev, const amg_level *lv, const amg_coarse *co,
+               const double *f, double *u, int max_it, double stop_mm, int tail, double margin,
+               double blowup, double *steps, int *n_it, int *bad, double *info, double *work,
+               double *cwork)
+{
+    if (d == 3)
+        return mt_pcg_d(n, 3, Kp, Ki, Kx, P, nf, free, nlev, lv, co, f, u, max_it, stop_mm, tail,
+                        margin, blowup, steps, n_it, bad, info, work, cwork);
+    return mt_pcg_d(n, 2, Kp, Ki, Kx, P, nf, free, nlev, lv, co, f, u, max_it, stop_mm, tail,
+                    margin, blowup, steps, n_it, bad, info, work, cwork);
+}
+
+/* ------------------------------------------------------------------------------------------ */
+/* The Mass Tensor method's tensors (solvers/mass_tensor/tensors.py, stiffness_tensors): per
+ * cell its barycentric gradients g_a (the cofactors of the edge matrix over its determinant;
+ * 1/mm) and measure V, and the products O_ab = V g_a g_b^T summed per vertex (S_ii, (n, d, d),
+ * a = b) and per edge (S_e, (2 e, d, d): pair k of cell c at slot pair_edge[c p + k], plus e
+ * when the pair's first vertex is its edge's second), in cell order (numpy's bincount order).
+ * The caller zeroes S_ii and S_e. Returns -1, or the first cell of zero measure (nothing summed
+ * past it). */
+long mt_tensor_sums(int d, long m, const int64_t *cells, const double *points,
+                    const int64_t *pair_edge, const uint8_t *flipped, long e, double *S_ii,
+                    double *S_e)
+{
+    const int nv = d + 1, np_ = nv * d / 2;
+    for (long c = 0; c < m; ++c) {
+        const int64_t *cv = cells + c * nv;
+        const double *x0 = points + cv[0] * d;
+        double E[MAXD][MAXD], g[MAXD + 1][MAXD], det, vol;
+        for (int k = 0; k < d; ++k)
+            for (int j = 0; j < d; ++j)
+                E[k][j] = points[cv[k + 1] * d + j] - x0[j];
+        if (d == 3) {
+            double cof[3][3];
+            for (int k = 0; k < 3; ++k) { /* e_(k+1) x e_(k+2) */
+                const double *a = E[(k + 1) % 3], *b = E[(k + 2) % 3];
+                cof[k][0] = a[1] * b[2] - a[2] * b[1];
+                cof[k][1] = a[2] * b[0] - a[0] * b[2];
+                cof[k][2] = a[0] * b[1] - a[1] * b[0];
+            }
+            det = E[0][0] * cof[0][0] + E[0][1] * cof[0][1] + E[0][2] * cof[0][2];
+            if (!(fabs(det) > 0.0))
+                return c;
+            for (int k = 0; k < 3; ++k)
+                for (int j = 0; j < 3; ++j)
+                    g[k + 1][j] = cof[k][j] / det;
+            vol = fabs(det) / 6.0;
+        } else {
+            det = E[0][0] * E[1][1] - E[0][1] * E[1][0];
+            if (!(fabs(det) > 0.0))
+                return c;
+            g[1][0] = E[1][1] / det; /* the columns of E^-1 */
+            g[1][1] = -E[1][0] / det;
+            g[2][0] = -E[0][1] / det;
+            g[2][1] = E[0][0] / det;
+            vol = fabs(det) / 2.0;
+        }
+        const double sv = sqrt(vol);
+        for (int j = 0; j < d; ++j) {
+            double s = 0.0;
+            for (int k = 1; k < nv; ++k)
+                s += g[k][j];
+            g[0][j] = -s;
+        }
+        for (int a = 0; a < nv; ++a)
+            for (int j = 0; j < d; ++j)
+                g[a][j] *= sv;
+        for (int a = 0; a < nv; ++a) {
+            double *S = S_ii + cv[a] * d * d;
+            for (int i = 0; i < d; ++i)
+                for (int j = 0; j < d; ++j)
+                    S[i * d + j] += g[a][i] * g[a][j];
+        }
+        int k = 0;
+        for (int a = 0; a < nv; ++a)
+            for (int b = a + 1; b < nv; ++b, ++k) {
+                const long slot = pair_edge[c * np_ + k] + (flipped[c * np_ + k] ? e : 0);
+                double *S = S_e + slot * d * d;
+                for (int i = 0; i < d; ++i)
+                    for (int j = 0; j < d; ++j)
+                        S[i * d + j] += g[a][i] * g[b][j];
+            }
+    }
+    return -1;
 }

@@ -1,4 +1,6 @@
-"""Build and load the compiled ADMM element loop (``admm_kernel.c``).
+"""Build and load the fast solvers' compiled kernel (``admm_kernel.c``): the ADMM element loop,
+the AMG-preconditioned conjugate gradients of the ADMM x-step and of the Mass Tensor method, and
+the Mass Tensor method's tensor sums.
 
 Compiled once per source version with cffi and the C compiler that dolfinx's own JIT uses (the
 Makefile installs gcc and python3-dev for it), into a per-user cache directory
@@ -7,7 +9,7 @@ Makefile installs gcc and python3-dev for it), into a per-user cache directory
 one rename, so concurrent processes (pytest workers, MPI ranks) never load a half-written file.
 
 ``load()`` returns ``(ffi, lib)`` or None when no compiler is usable, after one warning; the
-solver then runs its numpy element loop (same arithmetic). ``TISSUE_NO_CKERNEL=1`` forces numpy.
+solvers then run their numpy forms (same arithmetic). ``TISSUE_NO_CKERNEL=1`` forces numpy.
 """
 from __future__ import annotations
 
@@ -43,9 +45,28 @@ typedef struct {
     const double *dw;
     double *x, *r, *b;
 } amg_level;
-int amg_pcg(int nlev, const amg_level *lv, long nc, const double *Ainv, int k, const double *B,
+typedef struct {
+    long nc;
+    const double *Ainv;
+    const int *Lp, *Li;
+    const double *Lx, *Ld;
+    const int *Up, *Ui;
+    const double *Ux, *Ud;
+    const int *perm_r, *perm_c;
+} amg_coarse;
+int amg_pcg(int nlev, const amg_level *lv, const amg_coarse *co, int k, const double *B,
             double *X, int maxit, double rtol, double step_tol, double step_rtol, int min_it,
             double *work, double *cwork, double *last_update);
+void amg_vcycle(int nlev, const amg_level *lv, const amg_coarse *co, int k, const double *B,
+                double *X, double *cwork);
+int mt_amg_pcg(long n, int d, const int *Kp, const int *Ki, const double *Kx, const double *P,
+               long nf, const int *free, int nlev, const amg_level *lv, const amg_coarse *co,
+               const double *f, double *u, int max_it, double stop_mm, int tail, double margin,
+               double blowup, double *steps, int *n_it, int *bad, double *info, double *work,
+               double *cwork);
+long mt_tensor_sums(int d, long m, const int64_t *cells, const double *points,
+                    const int64_t *pair_edge, const uint8_t *flipped, long e, double *S_ii,
+                    double *S_e);
 """
 # -march=native: the element update vectorizes over elements (the build is keyed by this CPU's
 # model and flags, so a cache shared by different machines never loads a foreign build);
@@ -122,8 +143,8 @@ def load():
         mod = _import(name, path)
         result = (mod.ffi, mod.lib)
     except Exception as exc:  # noqa: BLE001  (no compiler, no headers, read-only cache: numpy)
-        warnings.warn(f"ADMM: compiled element loop unavailable ({type(exc).__name__}: "
-                      f"{exc}); using the numpy loop (same results, slower). Set "
+        warnings.warn(f"fast solvers: compiled kernel unavailable ({type(exc).__name__}: "
+                      f"{exc}); using their numpy forms (same results, slower). Set "
                       f"TISSUE_KERNEL_CACHE to a writable directory or install gcc and "
                       f"python3-dev.", RuntimeWarning, stacklevel=3)
     _loaded["lib"] = result

@@ -88,17 +88,18 @@ def test_whole_solves_give_the_numpy_iterates(kind, monkeypatch):
     assert np.abs(ref.u - fast.u).max() <= 1e-9
 
 
+@pytest.mark.parametrize("coarse_factors", [False, True])
 @pytest.mark.parametrize("mode", ["solve", "step"])
-def test_compiled_amg_pcg_matches_the_numpy_one(mode, monkeypatch):
+def test_compiled_amg_pcg_matches_the_numpy_one(mode, coarse_factors, monkeypatch):
     """The large-mesh x-step (CG with the AMG V-cycle) in C against its numpy form on the x-step
-    matrix of a box mesh fixed on one face, with two AMG levels: same iterates, same iteration
-    counts."""
+    matrix of a box mesh fixed on one face, with two AMG levels, the coarsest solved by its
+    dense inverse or by SuperLU's factors: same iterates, same iteration counts."""
     monkeypatch.setattr(amg.AmgPcg, "coarse", 100)
     mesh = box(0.8)
     L = operators.scalar_laplacian(admm.element_kinematics(mesh), 9.0, mesh.n_vertices).tocsr()
     free = np.setdiff1d(np.arange(mesh.n_vertices), mesh.region_vertices("xmin"))
     A = L[free][:, free].tocsr()
-    M = amg.AmgPcg(A)
+    M = amg.AmgPcg(A, coarse_factors=coarse_factors)
     assert M._c is not None and len(M.levels) >= 2
     rng = np.random.default_rng(4)
     B = rng.standard_normal((A.shape[0], 3))
@@ -119,6 +120,30 @@ def test_compiled_amg_pcg_matches_the_numpy_one(mode, monkeypatch):
     assert lc == pytest.approx(ln, rel=1e-6)
     if mode == "solve":
         assert np.linalg.norm(B - A @ Xc) <= 1e-10 * np.linalg.norm(B)
+
+
+@pytest.mark.parametrize("coarse", [100, 5000])
+def test_compiled_vcycle_matches_the_numpy_one(coarse, monkeypatch):
+    """One V-cycle alone (the Mass Tensor method's preconditioner) in C, the coarsest level by
+    SuperLU's factors, against amg_array's in numpy: with levels, and with none (the coarsest
+    matrix is the matrix, its V-cycle a direct solve, checked against scipy's)."""
+    monkeypatch.setattr(amg.AmgPcg, "coarse", coarse)
+    mesh = box(0.8)
+    L = operators.scalar_laplacian(admm.element_kinematics(mesh), 9.0, mesh.n_vertices).tocsr()
+    free = np.setdiff1d(np.arange(mesh.n_vertices), mesh.region_vertices("xmin"))
+    A = L[free][:, free].tocsr()
+    M = amg.AmgPcg(A, coarse_factors=True)
+    assert M._c is not None and (len(M.levels) >= 1) is (coarse < A.shape[0])
+    B = np.random.default_rng(5).standard_normal((A.shape[0], 3))
+    Xc = M.vcycle(B)
+    c, M._c = M._c, None
+    Xn = M.vcycle(B)
+    M._c = c
+    assert np.abs(Xc - Xn).max() <= 1e-10 * np.abs(Xn).max()
+    if not M.levels:
+        from scipy.sparse.linalg import spsolve
+        X = spsolve(A.tocsc(), B)
+        assert np.abs(Xc - X).max() <= 1e-10 * np.abs(X).max()
 
 
 def test_polish_factorization_is_cholmod_while_definite_and_superlu_otherwise():

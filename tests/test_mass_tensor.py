@@ -12,6 +12,8 @@ from tissue_reference.meshes.builders import box, rectangle
 from tissue_reference.meshes.case import Boundary, Case, Material, Probe
 from tissue_reference.meshes.errors import CaseError, SolverDivergedError
 from tissue_reference.solvers import mass_tensor as mt
+from tissue_reference.solvers.admm import kernel_c
+from tissue_reference.solvers.mass_tensor import driver
 from tissue_reference.solvers.mass_tensor.iterations import IterationState
 
 MAT = Material(model="linear-elastic", E=48.0, nu=0.45)
@@ -108,6 +110,17 @@ def K_ref(cube):
     return assemble_reference(cube.points, cube.cells, MAT.E, MAT.nu)
 
 
+@pytest.fixture(params=["numpy", "compiled"])
+def kernel(request, monkeypatch):
+    """The tensors' sums and the "amg" iteration in numpy, then in the compiled kernel (built
+    here: ``make test`` installs gcc), each from an empty model cache."""
+    monkeypatch.setattr(kernel_c, "USE_CKERNEL", request.param == "compiled")
+    assert kernel_c.use_kernel() is (request.param == "compiled")
+    driver.MODEL_CACHE.clear()
+    yield request.param
+    driver.MODEL_CACHE.clear()
+
+
 # ----------------------------------------------------------------- tensors
 def test_tensors_equal_independent_BtDB_assembly(cube, cube_model, K_ref):
     K = cube_model.matrix()
@@ -140,10 +153,15 @@ def test_rigid_motions_give_zero_force(cube, cube_model):
         assert np.abs(cube_model.forces(u)).max() < 1e-11 * scale * 10
 
 
-def test_2d_plane_strain_tensors_equal_independent_assembly():
+def test_2d_plane_strain_tensors_equal_independent_assembly(kernel):
     rect = rectangle(2.5, lengths=(10.0, 6.0))
     m = mt.MassTensorModel(rect.points, rect.cells, MAT)
     K_ref = assemble_reference(rect.points, rect.cells, MAT.E, MAT.nu)
+    assert abs(m.matrix() - K_ref).max() <= 1e-12 * abs(K_ref).max()
+
+
+def test_3d_tensors_summed_in_numpy_or_compiled_equal_independent_assembly(cube, K_ref, kernel):
+    m = mt.MassTensorModel(cube.points, cube.cells, MAT)
     assert abs(m.matrix() - K_ref).max() <= 1e-12 * abs(K_ref).max()
 
 
@@ -182,7 +200,7 @@ def test_the_distance_to_go_of_geometric_moves_is_their_remaining_sum():
 
 
 @pytest.mark.parametrize("stop", [1e-2, 1e-4, 1e-6])
-def test_amg_stops_within_its_stop_of_the_direct_linear_fem(stop):
+def test_amg_stops_within_its_stop_of_the_direct_linear_fem(stop, kernel):
     """method "amg" on a mesh with an AMG hierarchy: the answer within stop_mm of the
     independently assembled stiffness's direct solve at every vertex."""
     mesh = box(1.0, lengths=(10.0, 10.0, 10.0))
@@ -196,11 +214,10 @@ def test_amg_stops_within_its_stop_of_the_direct_linear_fem(stop):
     assert 5 < res.iterations < 60
 
 
-def test_amg_in_2d_and_its_kept_hierarchy():
+def test_amg_in_2d_and_its_kept_hierarchy(kernel):
     """Plane strain: within stop_mm of the independent assembly's direct solve; the hierarchy
     is kept for the next solve of the same point types (another push) and dropped by
     ``forget_factorizations``."""
-    from tissue_reference.solvers.mass_tensor import driver
     mesh = rectangle(0.25)
     case = Case(mesh=mesh, material=MAT, boundaries=[
         Boundary("xmin", "fixed"), Boundary("xmax", "displacement", value=(1.5, 0.5))])
@@ -213,10 +230,38 @@ def test_amg_in_2d_and_its_kept_hierarchy():
     (model,) = driver.MODEL_CACHE.values()
     (kept,) = model._factors.values()
     assert kept.amg is not None and len(kept.amg.levels) >= 1   # a multilevel V-cycle
+    assert model.kept_bytes() == kept.nbytes > 0
     mt.solve(case, method="amg", stop_mm=1e-5)
     assert list(model._factors.values()) == [kept]
     mt.forget_factorizations()
-    assert not model._factors
+    assert not model._factors and model.kept_bytes() == 0
+
+
+@pytest.mark.parametrize("sliding", [False, True], ids=["free-or-held", "oblique-sliding"])
+def test_the_compiled_amg_iteration_is_the_numpy_iteration(cube, monkeypatch, sliding):
+    """The same eight iterations (no stopping rule reached: max_iter) in numpy and in the
+    compiled kernel: the same moves and displacements to round-off, with each vertex free or
+    held (the projector a mask) and with oblique sliding (3 x 3 projector blocks)."""
+    nrm = [1.0, 0.0, 1.0]
+    case = stretch_case(cube) if not sliding else Case(
+        mesh=cube, material=MAT, gravity=(3000.0, 5000.0, -9810.0),
+        boundaries=[Boundary("zmin", "fixed"),
+                    Boundary("xmax", "sliding", value=0.0, normal=nrm)])
+    out = []
+    for compiled in (False, True):
+        monkeypatch.setattr(kernel_c, "USE_CKERNEL", compiled)
+        driver.MODEL_CACHE.clear()
+        res = mt.solve(case, method="amg", stop_mm=1e-12, max_iter=8)
+        (model,) = driver.MODEL_CACHE.values()
+        (kept,) = model._factors.values()
+        assert kept.compiled is compiled
+        out.append(res)
+    driver.MODEL_CACHE.clear()
+    a, b = out
+    assert a.iterations == b.iterations == 8 and not a.converged and not b.converged
+    np.testing.assert_allclose(b.history["max_step_mm"], a.history["max_step_mm"], rtol=1e-9)
+    assert np.abs(a.u - b.u).max() <= 1e-9 * np.abs(a.u).max()
+    assert b.residual == pytest.approx(a.residual, rel=1e-6)
 
 
 def test_amg_warns_near_incompressibility(cube, caplog):
@@ -438,15 +483,16 @@ def test_descent_with_unstable_fixed_step_raises_naming_iteration_and_vertex(cub
         mt.solve(case, method="descent", step_scale=50.0, max_iter=5000)
 
 
-def test_indefinite_stiffness_raises_diverged(cube):
+@pytest.mark.parametrize("method", ["pcg", "amg"])
+def test_indefinite_stiffness_raises_diverged(cube, method, kernel):
     m = mt.MassTensorModel(cube.points, cube.cells, mu=-1.0, lmbda=0.5)
     pts = m.point_types().border(cube.region_vertices("xmin")).displacement(
         cube.region_vertices("xmax"), (1.0, 0.0, 0.0))
     with pytest.raises(SolverDivergedError, match="iteration"):
-        m.solve(pts, method="pcg", stop_mm=1e-12, max_iter=10000)
+        m.solve(pts, method=method, stop_mm=1e-12, max_iter=10000)
 
 
-def test_a_cell_of_zero_volume_is_rejected_naming_it():
+def test_a_cell_of_zero_volume_is_rejected_naming_it(kernel):
     points = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0]], float)
     cells = np.array([[0, 1, 2, 3], [0, 1, 4, 2]])        # the second is flat (z = 0)
     with pytest.raises(CaseError, match=r"zero volume \(cell 1, vertices \[0, 1, 4, 2\]\)"):
@@ -488,7 +534,6 @@ def test_the_direct_solve_equals_the_independent_assembly_and_reuses_its_factori
     """method "direct" (the default): the equilibrium of the independently assembled stiffness
     to round-off; a second solve with other prescribed values on the same point types reuses
     the model's factorization (one back-substitution) and is as exact."""
-    from tissue_reference.solvers.mass_tensor import driver
 
     driver.MODEL_CACHE.clear()
     calls = []
@@ -540,7 +585,6 @@ def test_the_direct_solve_by_cholmod_equals_the_one_by_superlu():
     """The command line's factorization hook (CHOLMOD through PETSc, from 500 unknowns on)
     gives SuperLU's answer."""
     from tissue_reference.fem_reference import cholmod_factor
-    from tissue_reference.solvers.mass_tensor import driver
 
     case = stretch_case(box(2.0, lengths=(10.0, 10.0, 10.0)))
     driver.MODEL_CACHE.clear()

@@ -59,8 +59,10 @@ class AmgPcg:
     (about 20k on 1e6 tets), the coarsest level solved directly) as
     preconditioner. Work and memory are O(n) (a direct factor's fill grows like n^(4/3) and more
     on 3D meshes). With the compiled kernel the PCG and V-cycle run in C (``amg_pcg``, all
-    right-hand sides at once, the coarsest level by its dense inverse), otherwise in numpy
-    (``amg_array``'s iteration on numpy, coarsest level by SuperLU); same arithmetic. ``step``
+    right-hand sides at once, the coarsest level by its dense inverse, or with
+    ``coarse_factors`` by SuperLU's factors, for any number of levels and coarsest size),
+    otherwise in numpy (``amg_array``'s iteration on numpy, coarsest level by SuperLU); same
+    arithmetic. ``vcycle`` applies the preconditioner alone. ``step``
     is the ADMM x-step: ``iters`` PCG
     iterations warm-started from the previous x (inexact; the x-step matrix is constant and at
     an ADMM fixed point the warm start solves it, so the fixed point is unchanged); ``solve``
@@ -72,7 +74,7 @@ class AmgPcg:
     coarse = 500
     smooth_levels = 1  # levels with a smoothed prolongator (below: plain aggregation)
 
-    def __init__(self, A, iters=1, compiled=True):
+    def __init__(self, A, iters=1, compiled=True, coarse_factors=False):
         self.iters = iters
         self.count = [0, 0]  # PCG calls, PCG iterations (statistics)
         self.last_update = 0.0  # largest vertex update (mm) of the last PCG iteration
@@ -110,15 +112,20 @@ class AmgPcg:
         self.nnz = sum(M.nnz for M in mats)
         self.untracked_bytes = 12 * (self.lu.L.nnz + self.lu.U.nnz)  # coarsest-level SuperLU
         # the compiled iteration: a hierarchy with levels and a coarsest matrix small enough for
-        # its dense inverse (compiled=False: a hierarchy only preconditioned through
+        # its dense inverse, or (coarse_factors) any hierarchy, its coarsest level solved with
+        # SuperLU's factors in C (compiled=False: a hierarchy only preconditioned through
         # ``amg_array``'s V-cycle, which needs neither)
-        self._c = self._compiled(A) if (compiled and self.levels and A.shape[0] <= 2000
-                                        and use_kernel()) else None
+        usable = coarse_factors or (self.levels and A.shape[0] <= 2000)
+        self._c = self._compiled(A, coarse_factors) if (compiled and usable and use_kernel()) \
+            else None
+        if self._c is not None and not coarse_factors:   # and the coarsest's dense inverse
+            self.bytes += 8 * A.shape[0] ** 2
 
-    def _compiled(self, Ac):
-        """The hierarchy as the compiled amg_pcg's level structs (int32 CSR arrays kept alive
-        here) and the dense inverse of the coarsest matrix (<= 2000 unknowns; its direct solve
-        by SuperLU in the numpy V-cycle: the two agree to round-off)."""
+    def _compiled(self, Ac, coarse_factors):
+        """The hierarchy as the compiled kernel's level structs (int32 CSR arrays kept alive
+        here) and its coarsest level's direct solve: the dense inverse of the coarsest matrix
+        (<= 2000 unknowns), or with ``coarse_factors`` SuperLU's factors (its direct solve in
+        the numpy V-cycle: the two agree to round-off)."""
         ffi, lib = ckernel.load()
         keep = []
 
@@ -138,26 +145,62 @@ class AmgPcg:
             s.Pp, s.Pi, s.Px = csr(P)
             s.Rp, s.Ri, s.Rx = csr(R)
             s.dw = arr(dw.ravel())
-        return {"ffi": ffi, "lib": lib, "lv": lv, "keep": keep, "nc": Ac.shape[0],
-                "Ainv": arr(np.linalg.inv(Ac.toarray())), "scratch": {}}
+        co = ffi.new("amg_coarse *")
+        co.nc = Ac.shape[0]
+        if coarse_factors:
+            L, U = self.lu.L.tocsc(), self.lu.U.tocsc()
+            co.Lp, co.Li, co.Lx = csr(L)     # CSC arrays: the same three
+            co.Up, co.Ui, co.Ux = csr(U)
+            co.Ld, co.Ud = arr(L.diagonal()), arr(U.diagonal())
+            co.perm_r = arr(self.lu.perm_r, np.int32, "int *")
+            co.perm_c = arr(self.lu.perm_c, np.int32, "int *")
+        else:
+            co.Ainv = arr(np.linalg.inv(Ac.toarray()))
+        return {"ffi": ffi, "lib": lib, "lv": lv, "co": co, "keep": keep, "nc": Ac.shape[0],
+                "scratch": {}}
 
-    def _pcg_compiled(self, B, X, maxit, rtol, step_tol):
+    def _scratch(self, k):
+        """The compiled kernel's work arrays for k columns, made on first use and kept: per
+        level (x, r, b), the PCG's, the coarsest level's, and the last update's cell."""
         c = self._c
-        ffi, k = c["ffi"], B.shape[1]
         if k > 8:
             raise ValueError("compiled PCG: at most 8 right-hand sides")
         sc = c["scratch"].get(k)
         if sc is None:  # per-level scratch (x, r, b), PCG work and coarsest-level work
+            ffi = c["ffi"]
             bufs = [np.empty((3, lvl[0].shape[0] * k)) for lvl in self.levels]
             sc = c["scratch"][k] = (bufs, np.empty(4 * self.A.shape[0] * k),
-                                    np.empty(2 * c["nc"] * k), ffi.new("double *"))
+                                    np.empty(3 * c["nc"] * k), ffi.new("double *"))
             for s, b in zip(c["lv"], bufs):
                 s.x, s.r, s.b = (ffi.cast("double *", b[j].ctypes.data) for j in range(3))
-        bufs, work, cwork, last = sc
+        return sc
+
+    def vcycle(self, B):
+        """One V-cycle on the columns of B (n, k): the preconditioner alone, compiled when the
+        kernel is (k <= 8), else ``amg_array``'s (same arithmetic)."""
+        if self._c is None or B.shape[1] > 8:
+            if self._arrays is None:
+                self._arrays = ArrayAmgPcg(self, np)
+            return self._arrays.vcycle(B)
+        c = self._c
+        ffi = c["ffi"]
+        _, _, cwork, _ = self._scratch(B.shape[1])
+        B = np.ascontiguousarray(B, dtype=np.float64)
+        X = np.empty_like(B)
+        c["lib"].amg_vcycle(len(self.levels), c["lv"], c["co"], B.shape[1],
+                            ffi.cast("double *", B.ctypes.data),
+                            ffi.cast("double *", X.ctypes.data),
+                            ffi.cast("double *", cwork.ctypes.data))
+        return X
+
+    def _pcg_compiled(self, B, X, maxit, rtol, step_tol):
+        c = self._c
+        ffi, k = c["ffi"], B.shape[1]
+        _, work, cwork, last = self._scratch(k)
         B = np.ascontiguousarray(B, dtype=np.float64)
         X = np.array(X, dtype=np.float64, order="C")
         n_it = c["lib"].amg_pcg(
-            len(self.levels), c["lv"], c["nc"], c["Ainv"], k,
+            len(self.levels), c["lv"], c["co"], k,
             ffi.cast("double *", B.ctypes.data), ffi.cast("double *", X.ctypes.data),
             maxit, rtol, step_tol, PCG_RTOL, self.iters,
             ffi.cast("double *", work.ctypes.data), ffi.cast("double *", cwork.ctypes.data), last)

@@ -15,7 +15,6 @@ import scipy.sparse as sp
 from tissue_reference.meshes.errors import SolverDivergedError
 
 from ..admm.amg import AmgPcg
-from ..admm.amg_array import ArrayAmgPcg
 from ..spd import spd_splu
 from .tensors import blockdiag
 
@@ -54,7 +53,8 @@ class FreeVertexAmg:
     displacement component, zero on the fully held ones (as Dirichlet rows they would stay
     one-vertex aggregates and stop the coarsening). A vertex with some directions prescribed
     keeps its row with that share of its diagonal added, so the matrix is definite wherever
-    anything is prescribed. ``nbytes``: the hierarchy's matrices and its coarsest factor."""
+    anything is prescribed. ``nbytes``: the hierarchy's matrices and its coarsest factor. The
+    V-cycle runs in the compiled kernel when it is available (``AmgPcg.vcycle``)."""
 
     def __init__(self, model, m):
         d = model.gdim
@@ -74,9 +74,8 @@ class FreeVertexAmg:
         L = sp.csr_matrix((np.concatenate([dii[self.free] * (1.0 + m[self.free] / d), dij, dij]),
                            (np.concatenate([np.arange(k), i, j]),
                             np.concatenate([np.arange(k), j, i]))), shape=(k, k))
-        hierarchy = AmgPcg(L, compiled=False)
-        self.amg = ArrayAmgPcg(hierarchy, np)
-        self.nbytes = hierarchy.bytes
+        self.amg = AmgPcg(L, coarse_factors=True)
+        self.nbytes = self.amg.bytes
 
     def vcycle(self, X):
         """One V-cycle on the columns of X (n, d), zero on the fully held vertices."""
@@ -84,6 +83,44 @@ class FreeVertexAmg:
         if self.amg is not None:
             out[self.free] = self.amg.vcycle(X[self.free])
         return out
+
+    @property
+    def compiled(self) -> bool:
+        """Whether ``iterate`` can run: the hierarchy is in the compiled kernel."""
+        return self.amg is not None and self.amg._c is not None
+
+    def iterate(self, K, P, f, u, max_it, stop_mm, blowup):
+        """The "amg" iteration of ``IterationState.solve_linear`` in the compiled kernel
+        (``mt_amg_pcg``: the same arithmetic, no per-iteration callback): K the tensors (CSR),
+        P (n, d, d) the projectors, f (n, d) the forces, u (n, d) the start with its prescribed
+        part set. Returns (u, moves (mm) per iteration, status, vertex, value, r, p): status 0
+        stopped by the rule, 1 max_it done, 2 non-positive r.z (value), 3 non-positive curvature
+        (value), 4 vertex moved value mm (non-finite or past blowup), 5 residual grew to value;
+        r and p (n, d) the last residual and search direction."""
+        c = self.amg._c
+        ffi, lib = c["ffi"], c["lib"]
+        n, d = u.shape
+        nf = self.free.size
+        u = np.array(u, dtype=np.float64, order="C")
+        steps = np.empty(max(int(max_it), 1))
+        work = np.empty(4 * n * d + 2 * nf * d)
+        cwork = np.empty(3 * c["nc"] * d)
+        n_it, bad, info = ffi.new("int *"), ffi.new("int *"), ffi.new("double *")
+        kept = [np.ascontiguousarray(K.indptr, np.int32), np.ascontiguousarray(K.indices, np.int32),
+                np.ascontiguousarray(K.data, np.float64), np.ascontiguousarray(P, np.float64),
+                np.ascontiguousarray(self.free, np.int32), np.ascontiguousarray(f, np.float64)]
+
+        def ptr(a):
+            return ffi.cast("int *" if a.dtype == np.int32 else "double *", a.ctypes.data)
+
+        Kp, Ki, Kx, Pp, free, fp = (ptr(a) for a in kept)
+        self.amg._scratch(d)   # the levels' work arrays for d columns
+        status = lib.mt_amg_pcg(n, d, Kp, Ki, Kx, Pp, nf, free, len(self.amg.levels), c["lv"],
+                                c["co"], fp, ptr(u), int(max_it), float(stop_mm), TAIL_RATES,
+                                TAIL_MARGIN, float(blowup), ptr(steps), n_it, bad, info,
+                                ptr(work), ptr(cwork))
+        return (u, steps[:n_it[0]].tolist(), int(status), int(bad[0]), float(info[0]),
+                work[:n * d].reshape(n, d), work[2 * n * d:3 * n * d].reshape(n, d))
 
 
 class IterationState:
@@ -165,18 +202,24 @@ class IterationState:
                             self.stop)
                 return u
 
-    def _operators(self, types, method, fold):
+    def _operators(self, types, method, fold, P=None):
         """Projector P, preconditioner M and projected stiffness P K P as block-diagonal / CSR
         matrices acting on (n, d) arrays (fold: precompute P K P once for the phase; "amg"
         never does: at 185k tets the product costs as much as 10 of its iterations)."""
-        P = types.projector()
-        Pm = blockdiag(P)
+        P = types.projector() if P is None else P
         shape = (self.model.n_vertices, self.model.gdim)
         fold = fold and method != "amg"
+        mask = np.all((types.m == 0) | (types.m == self.model.gdim))   # each vertex free or held
+        Pm = blockdiag(P) if fold or not mask else None
         KP = (Pm @ self.K @ Pm).tocsr() if fold else None
+        if mask:
+            free = (types.m == 0).astype(float)[:, None]
 
-        def proj(x):
-            return (Pm @ x.reshape(-1)).reshape(shape)
+            def proj(x):
+                return x * free
+        else:
+            def proj(x):
+                return (Pm @ x.reshape(-1)).reshape(shape)
 
         if method == "amg":
             vcycle = self._amg(types).vcycle
@@ -291,8 +334,11 @@ class IterationState:
         conjugate = method in ("pcg", "amg")
         if method == "direct":
             return self._direct(types, u)
-        proj, applyM, Kproj = self._operators(types, method, fold=refresh is None)
+        P = types.projector()
+        proj, applyM, Kproj = self._operators(types, method, fold=refresh is None, P=P)
         u = types.prescribed_part() + proj(u)
+        if method == "amg" and self.callback is None and self._amg(types).compiled:
+            return self._compiled_amg(types, u, proj, P)
         r = proj(self.f - self.Kx(u))
         z = applyM(r)
         p = z.copy()
@@ -355,6 +401,27 @@ class IterationState:
             if conjugate:
                 p = z + (rz_new / rz) * p
             rz = rz_new
+        self.residual = float(np.abs(proj(self.f - self.Kx(u))).max(initial=0.0))
+        return u
+
+    def _compiled_amg(self, types, u, proj, P):
+        """``solve_linear``'s "amg" iteration in the compiled kernel (same arithmetic, same
+        stopping rule and divergence checks)."""
+        r0 = max(float(np.abs(proj(self.f - self.Kx(u))).max(initial=0.0)), 1e-300)
+        u, moves, status, v, value, r, p = self._amg(types).iterate(
+            self.K, P, self.f, u, self.max_iter - self.it, self.stop, self.blowup)
+        self.steps.extend(moves)
+        self.it += len(moves)
+        if status == 2:
+            self._diverged("non-positive preconditioned residual", r)
+        if status == 3:
+            self._diverged(f"non-positive curvature p.Kp = {value:g} (stiffness not positive "
+                           f"definite)", p)
+        if status == 4:
+            raise SolverDivergedError(f"mass-tensor amg: diverged at iteration {self.it}: vertex "
+                                      f"{v} moved {value:g} mm in one iteration")
+        if status == 5:
+            self._diverged(f"residual grew from {r0:g} to {value:g} mN", r)
         self.residual = float(np.abs(proj(self.f - self.Kx(u))).max(initial=0.0))
         return u
 

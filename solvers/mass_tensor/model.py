@@ -9,10 +9,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.mesh import edge_topology
 
 from .iterations import IterationState
 from .point_types import PointTypes
-from .tensors import bsr_from_blocks, stiffness_tensors
+from .tensors import stiffness_tensors
 
 METHODS = ("direct", "amg", "pcg", "descent")
 """How a solve reaches equilibrium: "direct" (one sparse factorization of the projected tensors
@@ -40,10 +41,12 @@ class MTSolution:
 class MassTensorModel:
     """Linear-elastic P1 Mass Tensor model of a tetrahedral (3D) or triangular (2D plane strain)
     mesh: points (n, d) mm, cells (m, d+1); Lame parameters mu, lmbda in kPa (or ``material``
-    with E, nu in kPa, as ``meshes.case.Material``)."""
+    with E, nu in kPa, as ``meshes.case.Material``); topology: the cells'
+    ``meshes.mesh.EdgeTopology`` when the caller holds it (``MeshData.edge_topology``), else
+    made here."""
 
     def __init__(self, points, cells, material=None, *, mu: float | None = None,
-                 lmbda: float | None = None):
+                 lmbda: float | None = None, topology=None):
         if material is not None:
             mu, lmbda = material.mu, material.lmbda
         if mu is None or lmbda is None or not (np.isfinite(mu) and np.isfinite(lmbda)):
@@ -57,8 +60,11 @@ class MassTensorModel:
                             f"and {self.cells.shape}")
         self.mu, self.lmbda = float(mu), float(lmbda)
         self.n_vertices, self.gdim = self.points.shape
+        if topology is None:
+            topology = edge_topology(self.cells, len(self.points))
+        self.topology = topology
         self.T_ii, self.edges, self.T_ij = stiffness_tensors(self.points, self.cells, self.mu,
-                                                             self.lmbda)
+                                                             self.lmbda, topology)
         self._K = None
         # direct solves: the factorization of the projected tensors per pattern of point types
         # (which directions are prescribed where), kept while the model is: a solve with new
@@ -90,13 +96,18 @@ class MassTensorModel:
         """The same tensors as a node-major (dof = d*i + c) CSR matrix (mN/mm); used for the fast
         matrix-vector product inside the iterations (identical numbers to ``forces``)."""
         if self._K is None:
-            d, n = self.gdim, self.n_vertices
-            i, j = self.edges[:, 0], self.edges[:, 1]
-            rows = np.concatenate([np.arange(n), i, j])
-            cols = np.concatenate([np.arange(n), j, i])
-            data = np.concatenate([self.T_ii, self.T_ij, np.transpose(self.T_ij, (0, 2, 1))])
-            self._K = bsr_from_blocks(rows, cols, data, n, d)
+            self._K = self.topology.block_csr(self.T_ii, self.T_ij)
         return self._K
+
+    def kept_bytes(self) -> int:
+        """Bytes the model keeps for its next solves: the direct solve's factorizations (a
+        factorization's ``nbytes`` when it has one, else SuperLU's factor entries at 12 bytes)
+        and the "amg" hierarchies (``FreeVertexAmg.nbytes``); the tensors not counted."""
+        total = 0
+        for kept in self._factors.values():
+            nb = getattr(kept, "nbytes", None)
+            total += int(nb) if nb is not None else 12 * (kept.L.nnz + kept.U.nnz)
+        return total
 
     def energy(self, u) -> float:
         """Strain energy 1/2 u . F(u) (kPa mm^3 = uJ)."""

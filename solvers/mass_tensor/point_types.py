@@ -72,8 +72,10 @@ class PointTypes:
             self.m[vi] = k + 1
 
     def _set_labels(self, verts, lab):
-        cur = self.label[verts].astype(str)
-        self.label[verts] = np.where((cur == "free") | (cur == lab), lab, np.char.add(cur, "+" + lab))
+        cur = self.label[verts]
+        plain = (cur == "free") | (cur == lab)
+        self.label[verts[plain]] = lab
+        self.label[verts[~plain]] = [f"{c}+{lab}" for c in cur[~plain]]
 
     # -- public
     def free(self, verts):

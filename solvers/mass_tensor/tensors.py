@@ -1,13 +1,22 @@
 """Cotin's stiffness tensors of linear-elastic P1 simplices: one d x d tensor per vertex (T_ii)
 and one per edge (T_ij), precomputed once from the barycentric gradients and cell measures, and
-the block-sparse helpers that turn (n, d, d) blocks into CSR matrices on node-major dofs
-(dof = d*i + c)."""
+the block-diagonal CSR matrix of (n, d, d) blocks on node-major dofs (dof = d*i + c)."""
 from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
 
 from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.mesh import cell_pairs, edge_topology
+from tissue_reference.solvers import ckernel
+
+from ..admm.kernel_c import use_kernel
+
+
+def _degenerate(cells, bad: int, count: int, d: int) -> CaseError:
+    return CaseError(f"{count} cell(s) of zero {'volume' if d == 3 else 'area'} (cell {bad}, "
+                     f"vertices {cells[bad].tolist()}): the Mass Tensor method needs "
+                     f"non-degenerate simplices")
 
 
 def barycentric_gradients(points: np.ndarray, cells: np.ndarray):
@@ -24,9 +33,7 @@ def barycentric_gradients(points: np.ndarray, cells: np.ndarray):
         det = np.linalg.det(D)
     bad = np.flatnonzero(~(np.abs(det) > 0))
     if bad.size:
-        raise CaseError(f"{bad.size} cell(s) of zero {'volume' if d == 3 else 'area'} (cell "
-                        f"{int(bad[0])}, vertices {cells[bad[0]].tolist()}): the Mass Tensor "
-                        f"method needs non-degenerate simplices")
+        raise _degenerate(cells, int(bad[0]), bad.size, d)
     if d == 3:
         g[:, 1:] = cof / det[:, None, None]
         vol = np.abs(det) / 6.0
@@ -37,43 +44,74 @@ def barycentric_gradients(points: np.ndarray, cells: np.ndarray):
     return g, vol
 
 
-def stiffness_tensors(points, cells, mu: float, lmbda: float):
+def stiffness_tensors(points, cells, mu: float, lmbda: float, topology=None):
     """Cotin's per-vertex and per-edge stiffness tensors.
 
-    points (n, d) mm, cells (m, d+1), mu and lmbda in kPa. Returns ``(T_ii, edges, T_ij)``:
-    T_ii (n, d, d) and T_ij (e, d, d) in mN/mm, edges (e, 2) with edges[:, 0] < edges[:, 1];
-    the block of row j, column i is T_ij^T.
+    points (n, d) mm, cells (m, d+1), mu and lmbda in kPa; topology: the cells'
+    ``meshes.mesh.EdgeTopology`` (made here when None). Returns ``(T_ii, edges, T_ij)``: T_ii
+    (n, d, d) and T_ij (e, d, d) in mN/mm, edges (e, 2) with edges[:, 0] < edges[:, 1]; the
+    block of row j, column i is T_ij^T.
 
     Every cell's block is linear in the outer product of its vertices' gradients,
     K^c_ab = lambda O + mu O^T + mu tr(O) I with O = V_c g_a g_b^T, so the products O are
-    summed per vertex and per edge first and the tensors formed once per vertex and edge.
+    summed per vertex and per edge first (in the compiled kernel when it is available, else in
+    numpy: the same sums) and the tensors formed once per vertex and edge.
     """
     points = np.asarray(points, float)
     cells = np.asarray(cells, np.int64)
+    if topology is None:
+        topology = edge_topology(cells, len(points))
+    e = len(topology.edges)
+    S_ii, S_e = (_compiled_sums if use_kernel() else _numpy_sums)(points, cells, topology)
+    # a cell's pair (a, b) whose first vertex is its edge's second entered transposed
+    S = S_e[:e] + np.transpose(S_e[e:], (0, 2, 1))
+    return _tensors(S_ii, mu, lmbda), topology.edges, _tensors(S, mu, lmbda)
+
+
+def _numpy_sums(points, cells, topology):
+    """The summed products per vertex (n, d, d) and per edge slot (2 e, d, d)."""
     n, d = points.shape
     g, vol = barycentric_gradients(points, cells)
     gs = g * np.sqrt(vol)[:, None, None]                      # sqrt(V_c) grad lambda_a
-    outer = (gs[:, :, :, None] * gs[:, :, None, :]).reshape(-1, d * d)
     flat = cells.reshape(-1)
-    S = np.empty((n, d * d))
-    for c in range(d * d):
-        S[:, c] = np.bincount(flat, outer[:, c], minlength=n)
-    T_ii = _tensors(S.reshape(n, d, d), mu, lmbda)
-    A, B = np.triu_indices(d + 1, 1)
-    i, j = cells[:, A].reshape(-1), cells[:, B].reshape(-1)
-    uniq, inv = np.unique(np.minimum(i, j) * n + np.maximum(i, j), return_inverse=True)
-    e = len(uniq)
-    # a cell's pair (a, b) with i > j is edge (j, i): its product sums into the second half of
-    # the bins and enters transposed
-    slot = inv + e * (i > j)
+    S_ii = np.empty((n, d, d))
+    for a in range(d):
+        for b in range(a, d):   # symmetric: g g^T per vertex
+            S_ii[:, a, b] = S_ii[:, b, a] = np.bincount(
+                flat, (gs[:, :, a] * gs[:, :, b]).reshape(-1), minlength=n)
+    A, B = cell_pairs(d)
+    e = len(topology.edges)
+    slot = topology.pair_edge + e * topology.pair_flipped
     ga, gb = gs[:, A].reshape(-1, d), gs[:, B].reshape(-1, d)
-    S = np.empty((2 * e, d, d))
+    S_e = np.empty((2 * e, d, d))
     for a in range(d):
         for b in range(d):
-            S[:, a, b] = np.bincount(slot, ga[:, a] * gb[:, b], minlength=2 * e)
-    S = S[:e] + np.transpose(S[e:], (0, 2, 1))
-    edges = np.stack([uniq // n, uniq % n], axis=1)
-    return T_ii, edges, _tensors(S, mu, lmbda)
+            S_e[:, a, b] = np.bincount(slot, ga[:, a] * gb[:, b], minlength=2 * e)
+    return S_ii, S_e
+
+
+def _compiled_sums(points, cells, topology):
+    """``_numpy_sums`` in the compiled kernel (``mt_tensor_sums``): one pass over the cells."""
+    ffi, lib = ckernel.load()
+    n, d = points.shape
+    e = len(topology.edges)
+    S_ii, S_e = np.zeros((n, d, d)), np.zeros((2 * e, d, d))
+    pts = np.ascontiguousarray(points, np.float64)
+    cl = np.ascontiguousarray(cells, np.int64)
+    pe = np.ascontiguousarray(topology.pair_edge, np.int64)
+    fl = np.ascontiguousarray(topology.pair_flipped, np.uint8)
+    bad = lib.mt_tensor_sums(d, len(cl), ffi.cast("int64_t *", cl.ctypes.data),
+                             ffi.cast("double *", pts.ctypes.data),
+                             ffi.cast("int64_t *", pe.ctypes.data),
+                             ffi.cast("uint8_t *", fl.ctypes.data), e,
+                             ffi.cast("double *", S_ii.ctypes.data),
+                             ffi.cast("double *", S_e.ctypes.data))
+    if bad >= 0:
+        x = pts[cl]
+        D = x[:, 1:] - x[:, :1]
+        count = int(np.count_nonzero(~(np.abs(np.linalg.det(D)) > 0)))
+        raise _degenerate(cl, int(bad), max(count, 1), d)
+    return S_ii, S_e
 
 
 def _tensors(S, mu, lmbda):
@@ -85,14 +123,6 @@ def _tensors(S, mu, lmbda):
     for c in range(d):
         T[:, c, c] += tr
     return T
-
-
-def bsr_from_blocks(rows, cols, data, n, d):
-    """(k, d, d) blocks at distinct (rows, cols) -> CSR matrix (n d, n d)."""
-    order = np.argsort(np.asarray(rows, np.int64) * n + cols)
-    rows, cols, data = rows[order], cols[order], data[order]
-    indptr = np.r_[0, np.cumsum(np.bincount(rows, minlength=n))]
-    return sp.bsr_matrix((data, cols, indptr), shape=(d * n, d * n)).tocsr()
 
 
 def blockdiag(B):
