@@ -41,6 +41,7 @@ Units: mm, mN.
 """
 from __future__ import annotations
 
+import numbers
 import time
 
 import numpy as np
@@ -118,7 +119,8 @@ class FastModel:
 
     def __init__(self, case, target: str, press_widths: float = 0.0, factorize=None,
                  state_tol_mm: float = STATE_TOL_MM):
-        if not (isinstance(state_tol_mm, (int, float)) and 0 < state_tol_mm < 1):
+        if isinstance(state_tol_mm, bool) or not (isinstance(state_tol_mm, numbers.Real)
+                                                  and 0 < state_tol_mm < 1):
             raise CaseError(f"state_tol_mm must be in (0, 1) mm, got {state_tol_mm!r}")
         case.probe(target)
         self.state_tol_mm = float(state_tol_mm)

@@ -136,8 +136,11 @@ def test_compiled_vcycle_matches_the_numpy_one(coarse, monkeypatch):
     assert M._c is not None and (len(M.levels) >= 1) is (coarse < A.shape[0])
     B = np.random.default_rng(5).standard_normal((A.shape[0], 3))
     Xc = M.vcycle(B)
+    X1 = M.vcycle(B[:, :1])          # another number of columns, then three again
+    assert np.array_equal(M.vcycle(B), Xc)
     c, M._c = M._c, None
     Xn = M.vcycle(B)
+    assert np.abs(X1 - M.vcycle(B[:, :1])).max() <= 1e-10 * np.abs(Xn).max()
     M._c = c
     assert np.abs(Xc - Xn).max() <= 1e-10 * np.abs(Xn).max()
     if not M.levels:

@@ -65,7 +65,8 @@ def test_a_looser_state_tolerance_keeps_the_state_within_it(case):
     from tissue_reference.meshes.errors import CaseError
     counts = {}
     for tol in (1e-3, None):
-        m = FastModel(case, "T2") if tol is None else FastModel(case, "T2", state_tol_mm=tol)
+        m = FastModel(case, "T2") if tol is None else \
+            FastModel(case, "T2", state_tol_mm=np.float32(tol))   # any real number type
         for k in range(8):
             p = _pushes(k)
             m.jacobian(p)
@@ -75,8 +76,9 @@ def test_a_looser_state_tolerance_keeps_the_state_within_it(case):
         counts[tol] = m.chord_iterations
         assert m.fallbacks == 0
     assert counts[1e-3] < counts[None]
-    with pytest.raises(CaseError, match="state_tol_mm"):
-        FastModel(case, "T2", state_tol_mm=0.0)
+    for bad in (0.0, 1.5, True, "1e-3"):
+        with pytest.raises(CaseError, match="state_tol_mm"):
+            FastModel(case, "T2", state_tol_mm=bad)
 
 
 def test_a_jump_it_cannot_follow_falls_back_to_a_full_solve(case):

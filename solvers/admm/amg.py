@@ -167,12 +167,13 @@ class AmgPcg:
             raise ValueError("compiled PCG: at most 8 right-hand sides")
         sc = c["scratch"].get(k)
         if sc is None:  # per-level scratch (x, r, b), PCG work and coarsest-level work
-            ffi = c["ffi"]
             bufs = [np.empty((3, lvl[0].shape[0] * k)) for lvl in self.levels]
             sc = c["scratch"][k] = (bufs, np.empty(4 * self.A.shape[0] * k),
-                                    np.empty(3 * c["nc"] * k), ffi.new("double *"))
-            for s, b in zip(c["lv"], bufs):
-                s.x, s.r, s.b = (ffi.cast("double *", b[j].ctypes.data) for j in range(3))
+                                    np.empty(3 * c["nc"] * k), c["ffi"].new("double *"))
+        if c.get("k") != k:   # the level structs point at this k's scratch
+            for s, b in zip(c["lv"], sc[0]):
+                s.x, s.r, s.b = (c["ffi"].cast("double *", b[j].ctypes.data) for j in range(3))
+            c["k"] = k
         return sc
 
     def vcycle(self, B):

@@ -129,10 +129,11 @@ class MassTensorModel:
         stop when the largest per-vertex displacement in one iteration < stop_mm (mm; "amg":
         when the distance still to go, estimated from those moves, is below half of it);
         max_iter total iterations (converged=False when reached); step_scale: fixed descent
-        step (see the package docstring); callback(it, u) after every iteration (u (n, d) mm).
+        step (see the package docstring); callback(it, u) after every iteration (u (n, d) mm;
+        "amg" iterates in the compiled kernel when there is none, in numpy when there is).
         factorize(A, cache): optional, method "direct": a factorization of the SPD matrix A with
-        ``solve(b)``, or None for SuperLU (e.g. ``fem_reference.cholmod_factor``, which this
-        package does not import).
+        ``solve(b)`` (and ``nbytes``, its memory, if it knows it), or None for SuperLU (e.g.
+        ``fem_reference.cholmod_factor``, which this package does not import).
         """
         if method not in METHODS:
             raise CaseError(f"unknown Mass Tensor method {method!r}; methods: {list(METHODS)}")
