@@ -947,3 +947,45 @@ long mt_tensor_sums(int d, long m, const int64_t *cells, const double *points,
     }
     return -1;
 }
+
+/* ------------------------------------------------------------------------------------------ */
+/* The AMG hierarchy's aggregation (solvers/admm/amg.py, strength_aggregates), compiled: on the
+ * graph of the strength matrix S (CSR, n rows), roots whose neighbourhood is still free, then
+ * the leftovers joined to a neighbouring aggregate of the first pass, then isolated ones; the
+ * same greedy order, so the same aggregates. first: n scratch. Returns the number of
+ * aggregates; agg (n) the aggregate of each row. */
+long amg_aggregates(long n, const int *Sp, const int *Si, int64_t *agg, int64_t *first)
+{
+    long na = 0;
+    for (long i = 0; i < n; ++i)
+        agg[i] = -1;
+    for (long i = 0; i < n; ++i) {
+        if (agg[i] >= 0)
+            continue;
+        int free_ = 1;
+        for (int e = Sp[i]; e < Sp[i + 1]; ++e)
+            if (agg[Si[e]] >= 0) {
+                free_ = 0;
+                break;
+            }
+        if (free_) {
+            for (int e = Sp[i]; e < Sp[i + 1]; ++e)
+                agg[Si[e]] = na;
+            agg[i] = na;
+            ++na;
+        }
+    }
+    for (long i = 0; i < n; ++i)
+        first[i] = agg[i];
+    for (long i = 0; i < n; ++i)
+        if (first[i] < 0)
+            for (int e = Sp[i]; e < Sp[i + 1]; ++e)
+                if (first[Si[e]] >= 0) {
+                    agg[i] = first[Si[e]];
+                    break;
+                }
+    for (long i = 0; i < n; ++i)
+        if (agg[i] < 0)
+            agg[i] = na++;
+    return na;
+}

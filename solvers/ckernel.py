@@ -67,6 +67,7 @@ int mt_amg_pcg(long n, int d, const int *Kp, const int *Ki, const double *Kx, co
 long mt_tensor_sums(int d, long m, const int64_t *cells, const double *points,
                     const int64_t *pair_edge, const uint8_t *flipped, long e, double *S_ii,
                     double *S_e);
+long amg_aggregates(long n, const int *Sp, const int *Si, int64_t *agg, int64_t *first);
 """
 # -march=native: the element update vectorizes over elements (the build is keyed by this CPU's
 # model and flags, so a cache shared by different machines never loads a foreign build);

@@ -4,6 +4,7 @@ x-step data, element by element, and the same ADMM iterates in whole solves (3D 
 Neo-Hookean and linear elasticity, oblique sliding, implicit-Euler dynamics)."""
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from tissue_reference.meshes.builders import box, rectangle
 from tissue_reference.meshes.case import Boundary, Case, Material
@@ -120,6 +121,24 @@ def test_compiled_amg_pcg_matches_the_numpy_one(mode, coarse_factors, monkeypatc
     assert lc == pytest.approx(ln, rel=1e-6)
     if mode == "solve":
         assert np.linalg.norm(B - A @ Xc) <= 1e-10 * np.linalg.norm(B)
+
+
+def test_compiled_aggregates_are_the_python_ones():
+    """The aggregation in C against its Python form, entry by entry: on a mesh Laplacian's
+    graph and on a random symmetric graph with isolated rows."""
+    mesh = box(0.8)
+    L = operators.scalar_laplacian(admm.element_kinematics(mesh), 9.0, mesh.n_vertices).tocsr()
+    rng = np.random.default_rng(6)
+    R = sp.random(3000, 3000, density=0.002, random_state=7, format="csr")
+    keep = np.ones(3000)
+    keep[rng.choice(3000, 50, replace=False)] = 0.0   # rows and columns with no neighbour
+    R = (sp.diags(keep) @ (R + R.T + sp.identity(3000)) @ sp.diags(keep)).tocsr()
+    R.eliminate_zeros()
+    for A in (L, R):
+        agg_c, na_c = amg.strength_aggregates(A)
+        agg_p, na_p = amg.python_aggregates(A)
+        assert na_c == na_p and np.array_equal(agg_c, agg_p)
+        assert agg_p.min() == 0 and agg_p.max() == na_p - 1
 
 
 @pytest.mark.parametrize("coarse", [100, 5000])

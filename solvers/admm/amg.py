@@ -21,7 +21,25 @@ SOLVE_MAXIT, SOLVE_RTOL = 500, 1e-12  # a full solve (harmonic lift): its bounds
 def strength_aggregates(A):
     """Smoothed-aggregation aggregates (Vanek, Mandel, Brezina 1996) on the graph of the
     strength matrix A (CSR): roots whose neighbourhood is still free, then the leftovers joined
-    to a neighbouring aggregate, then isolated ones. Returns (agg (n,), number of aggregates)."""
+    to a neighbouring aggregate, then isolated ones. Returns (agg (n,), number of aggregates).
+    In the compiled kernel when it is available (``amg_aggregates``: the same greedy order, so
+    the same aggregates), else in Python (``python_aggregates``)."""
+    if not use_kernel():
+        return python_aggregates(A)
+    ffi, lib = ckernel.load()
+    n = A.shape[0]
+    ip = np.ascontiguousarray(A.indptr, np.int32)
+    ind = np.ascontiguousarray(A.indices, np.int32)
+    agg, first = np.empty(n, np.int64), np.empty(n, np.int64)
+    na = lib.amg_aggregates(n, ffi.cast("int *", ip.ctypes.data),
+                            ffi.cast("int *", ind.ctypes.data),
+                            ffi.cast("int64_t *", agg.ctypes.data),
+                            ffi.cast("int64_t *", first.ctypes.data))
+    return agg, int(na)
+
+
+def python_aggregates(A):
+    """``strength_aggregates`` in Python."""
     n = A.shape[0]
     ip, ind = A.indptr.tolist(), A.indices.tolist()
     agg = [-1] * n
