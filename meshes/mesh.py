@@ -13,13 +13,13 @@ import scipy.sparse as sp
 from .errors import CaseError, MeshQualityError
 
 __all__ = ["EdgeTopology", "MeshData", "MeshQuality", "boundary_facets", "cell_jacobians",
-           "cell_volumes", "check_cells", "check_tangles", "deformation_state", "edge_topology",
-           "quality"]
+           "cell_pairs", "cell_volumes", "check_cell_ids", "check_cells", "check_tangles",
+           "deformation_state", "edge_topology", "quality"]
 
 
 @dataclass(frozen=True)
 class MeshData:
-    """A simplex mesh with named regions.
+    """A simplex mesh with named regions. Its points and cells are read-only copies.
 
     points: (n, gdim) vertex coordinates, mm.
     cells: (m, gdim + 1) vertex ids of tetrahedra (gdim 3) or triangles (gdim 2).
@@ -48,10 +48,14 @@ class MeshData:
         if cells.ndim != 2 or cells.shape[1] != pts.shape[1] + 1:
             raise CaseError(f"cells of shape {cells.shape} do not match {pts.shape[1]}D points "
                             f"(expected {pts.shape[1] + 1} vertices per cell)")
-        if cells.size and (cells.min() < 0 or cells.max() >= len(pts)):
-            raise CaseError(f"cell vertex ids out of range [0, {len(pts)})")
-        object.__setattr__(self, "points", pts)
-        object.__setattr__(self, "cells", cells)
+        check_cell_ids(cells, len(pts))
+        # the mesh's own read-only arrays (what is derived from them is kept: edge_topology,
+        # reference_volumes): a caller's array changed later does not change the mesh
+        for name, a in (("points", pts), ("cells", cells)):
+            if a.flags.writeable or a.base is not None:
+                a = a.copy()
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
 
     @property
     def gdim(self) -> int:
@@ -153,6 +157,15 @@ class EdgeTopology:
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(n * d, n * d))
 
 
+def check_cell_ids(cells: np.ndarray, n_vertices: int) -> None:
+    """CaseError naming the first cell with a vertex id outside [0, n_vertices)."""
+    out = (cells < 0) | (cells >= n_vertices)
+    if out.any():
+        c = int(np.flatnonzero(out.any(axis=1))[0])
+        raise CaseError(f"cell vertex ids out of range [0, {n_vertices}): cell {c} has "
+                        f"{cells[c][out[c]].tolist()} (its vertices {cells[c].tolist()})")
+
+
 def cell_pairs(d: int) -> tuple[np.ndarray, np.ndarray]:
     """The vertex pairs (a[k], b[k]), a < b, of a d-simplex's local vertices, in
     ``EdgeTopology.pair_edge``'s order."""
@@ -163,6 +176,7 @@ def edge_topology(cells: np.ndarray, n_vertices: int) -> EdgeTopology:
     """The ``EdgeTopology`` of simplices ``cells`` (m, d+1) on ``n_vertices`` vertices."""
     cells = np.asarray(cells, np.int64)
     n, d = int(n_vertices), cells.shape[1] - 1
+    check_cell_ids(cells, n)
     a, b = cell_pairs(d)
     i, j = cells[:, a].reshape(-1), cells[:, b].reshape(-1)
     key, pair_edge = np.unique(np.minimum(i, j) * n + np.maximum(i, j), return_inverse=True)

@@ -712,7 +712,8 @@ int amg_pcg(int nlev, const amg_level *lv, const amg_coarse *co, int k, const do
  * Returns: 0 stopped by that rule, 1 max_it iterations done, 2 a non-positive preconditioned
  * residual (info[0] = r.z), 3 non-positive curvature (info[0] = p.Kp), 4 a vertex moved a
  * non-finite distance or more than blowup mm (*bad = the vertex, info[0] = its move), 5 the
- * largest residual grew past 1e12 x its first value (info[0] = it). *n_it: the iterations done.
+ * largest residual grew past 1e12 x its first value or is not finite (info[0] = it). *n_it: the
+ * moves made and recorded in steps (for 3 and 4, the failing iteration's is not one of them).
  * work: 4 n d + 2 nf d doubles; cwork: 3 nc d. */
 static inline __attribute__((always_inline)) void mt_project(long n, const int d, const double *P,
                                                               const double *x, double *y)
@@ -754,6 +755,12 @@ static inline __attribute__((always_inline)) void mt_precondition(
     }
 }
 
+/* the larger of a and b, NaN when either is (numpy's max, unlike fmax) */
+static inline double max_nan(double a, double b)
+{
+    return (isnan(a) || a > b) ? a : b;
+}
+
 static inline double dot(long m, const double *x, const double *y)
 {
     double s = 0.0;
@@ -780,8 +787,8 @@ static inline __attribute__((always_inline)) int mt_pcg_d(
     memcpy(p, z, sizeof(double) * nd);
     double rz = dot(nd, r, z), r0 = 0.0;
     for (long t = 0; t < nd; ++t)
-        r0 = fmax(r0, fabs(r[t]));
-    r0 = fmax(r0, 1e-300);
+        r0 = max_nan(r0, fabs(r[t]));
+    r0 = max_nan(r0, 1e-300);
     int it = 0;
     while (it < max_it) {
         if (rz <= 0.0) {
@@ -797,7 +804,7 @@ static inline __attribute__((always_inline)) int mt_pcg_d(
         const double pq = dot(nd, p, q);
         if (!(pq > 0.0)) {
             info[0] = pq;
-            *n_it = it;
+            *n_it = it - 1; /* moves made; this iteration made none */
             return 3;
         }
         const double alpha = rz / pq;
@@ -826,13 +833,13 @@ static inline __attribute__((always_inline)) int mt_pcg_d(
         if (first_bad >= 0 || smax > blowup) {
             *bad = (int)(first_bad >= 0 ? first_bad : worst);
             info[0] = first_bad >= 0 ? bad_move : smax;
-            *n_it = it;
+            *n_it = it - 1; /* this move is refused, not recorded */
             return 4;
         }
         double rmax = 0.0;
         for (long t = 0; t < nd; ++t) {
             r[t] -= alpha * q[t];
-            rmax = fmax(rmax, fabs(r[t]));
+            rmax = max_nan(rmax, fabs(r[t]));
         }
         if (!isfinite(rmax) || rmax > 1e12 * r0) {
             info[0] = rmax;

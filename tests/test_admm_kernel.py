@@ -166,6 +166,8 @@ def test_compiled_vcycle_matches_the_numpy_one(coarse, monkeypatch):
         from scipy.sparse.linalg import spsolve
         X = spsolve(A.tocsc(), B)
         assert np.abs(Xc - X).max() <= 1e-10 * np.abs(X).max()
+        # and the PCG around it (its compiled form needs a level: numpy's runs)
+        assert np.abs(M.solve(B) - X).max() <= 1e-10 * np.abs(X).max()
 
 
 def test_polish_factorization_is_cholmod_while_definite_and_superlu_otherwise():

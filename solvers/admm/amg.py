@@ -133,7 +133,8 @@ class AmgPcg:
         # its dense inverse, or (coarse_factors) any hierarchy, its coarsest level solved with
         # SuperLU's factors in C (compiled=False: a hierarchy only preconditioned through
         # ``amg_array``'s V-cycle, which needs neither)
-        usable = coarse_factors or (self.levels and A.shape[0] <= 2000)
+        usable = (coarse_factors or (self.levels and A.shape[0] <= 2000)) \
+            and self.A.nnz < 2 ** 31   # the kernel's int32 indices
         self._c = self._compiled(A, coarse_factors) if (compiled and usable and use_kernel()) \
             else None
         if self._c is not None and not coarse_factors:   # and the coarsest's dense inverse
@@ -197,6 +198,8 @@ class AmgPcg:
     def vcycle(self, B):
         """One V-cycle on the columns of B (n, k): the preconditioner alone, compiled when the
         kernel is (k <= 8), else ``amg_array``'s (same arithmetic)."""
+        if B.ndim != 2 or B.shape[0] != self.A.shape[0]:
+            raise ValueError(f"vcycle: B must be ({self.A.shape[0]}, k), got {B.shape}")
         if self._c is None or B.shape[1] > 8:
             if self._arrays is None:
                 self._arrays = ArrayAmgPcg(self, np)
@@ -229,7 +232,7 @@ class AmgPcg:
         return X
 
     def _pcg(self, B, X, maxit, rtol, step_tol=0.0):
-        if self._c is not None:
+        if self._c is not None and self.levels:   # the compiled PCG's matrix is level 0's
             return self._pcg_compiled(B, X, maxit, rtol, step_tol)
         if self._arrays is None:   # the iteration the array backends run, here on numpy
             self._arrays = ArrayAmgPcg(self, np)

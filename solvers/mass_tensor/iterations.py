@@ -31,6 +31,9 @@ of 1.2k and 5.2k vertices at nu = 0.45; at half of it, 0.34 times (nu = 0.45), 0
 and 1.11 on the 5.2k-vertex box at nu = 0.49, hence the warning near nu = 0.5
 (NEAR_INCOMPRESSIBLE)."""
 NEAR_INCOMPRESSIBLE = 0.48
+COMPILED_MAX_ITER = 1_000_000
+"""The "amg" iteration runs in the compiled kernel when at most this many iterations are left
+(its moves are kept in one array of that length), else in numpy."""
 
 
 def distance_to_go(steps) -> float:
@@ -337,7 +340,8 @@ class IterationState:
         P = types.projector()
         proj, applyM, Kproj = self._operators(types, method, fold=refresh is None, P=P)
         u = types.prescribed_part() + proj(u)
-        if method == "amg" and self.callback is None and self._amg(types).compiled:
+        if method == "amg" and self.callback is None and self._amg(types).compiled \
+                and self.max_iter - self.it <= COMPILED_MAX_ITER and self.K.nnz < 2 ** 31:
             return self._compiled_amg(types, u, proj, P)
         r = proj(self.f - self.Kx(u))
         z = applyM(r)
@@ -350,7 +354,7 @@ class IterationState:
             if rz <= 0.0:
                 if rz == 0.0:
                     break
-                self._diverged("non-positive preconditioned residual", r)
+                self._diverged(f"non-positive preconditioned residual r.z = {rz:g}", r)
             self.it += 1
             if conjugate:
                 q = Kproj(p)
@@ -411,9 +415,9 @@ class IterationState:
         u, moves, status, v, value, r, p = self._amg(types).iterate(
             self.K, P, self.f, u, self.max_iter - self.it, self.stop, self.blowup)
         self.steps.extend(moves)
-        self.it += len(moves)
+        self.it += len(moves) + (status in (3, 4))   # the failing iteration made no move
         if status == 2:
-            self._diverged("non-positive preconditioned residual", r)
+            self._diverged(f"non-positive preconditioned residual r.z = {value:g}", r)
         if status == 3:
             self._diverged(f"non-positive curvature p.Kp = {value:g} (stiffness not positive "
                            f"definite)", p)

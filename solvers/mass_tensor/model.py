@@ -3,6 +3,7 @@ tensors as one CSR matrix, the strain energy, and ``solve`` with given point typ
 then the target -> sliding phase) returning an ``MTSolution``."""
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -137,7 +138,7 @@ class MassTensorModel:
         """
         if method not in METHODS:
             raise CaseError(f"unknown Mass Tensor method {method!r}; methods: {list(METHODS)}")
-        if not (isinstance(stop_mm, (int, float)) and stop_mm > 0):
+        if isinstance(stop_mm, bool) or not (isinstance(stop_mm, numbers.Real) and stop_mm > 0):
             raise CaseError(f"stop_mm must be > 0 mm, got {stop_mm!r}")
         if types.n != self.n_vertices or types.d != self.gdim:
             raise CaseError(f"PointTypes for {types.n} vertices in {types.d}D does not match the "

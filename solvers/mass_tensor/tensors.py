@@ -7,7 +7,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from tissue_reference.meshes.errors import CaseError
-from tissue_reference.meshes.mesh import cell_pairs, edge_topology
+from tissue_reference.meshes.mesh import cell_pairs, check_cell_ids, edge_topology
 from tissue_reference.solvers import ckernel
 
 from ..admm.kernel_c import use_kernel
@@ -59,13 +59,31 @@ def stiffness_tensors(points, cells, mu: float, lmbda: float, topology=None):
     """
     points = np.asarray(points, float)
     cells = np.asarray(cells, np.int64)
+    check_cell_ids(cells, len(points))
     if topology is None:
         topology = edge_topology(cells, len(points))
+    _check_topology(topology, cells, points.shape)
     e = len(topology.edges)
     S_ii, S_e = (_compiled_sums if use_kernel() else _numpy_sums)(points, cells, topology)
     # a cell's pair (a, b) whose first vertex is its edge's second entered transposed
     S = S_e[:e] + np.transpose(S_e[e:], (0, 2, 1))
     return _tensors(S_ii, mu, lmbda), topology.edges, _tensors(S, mu, lmbda)
+
+
+def _check_topology(topology, cells, shape):
+    """CaseError when ``topology`` is not an EdgeTopology of ``cells`` on ``shape`` points."""
+    (n, d), m = shape, len(cells)
+    p = d * (d + 1) // 2   # vertex pairs per cell
+    e = len(topology.edges)
+    faults = [what for what, bad in (
+        ("cell pairs", len(topology.pair_edge) != m * p or len(topology.pair_flipped) != m * p),
+        ("edge ids", m > 0 and not 0 <= topology.pair_edge.min() <= topology.pair_edge.max() < e),
+        ("edge vertices", e > 0 and not 0 <= topology.edges.min() <= topology.edges.max() < n),
+        ("matrix rows", len(topology.indptr) != n * d + 1)) if bad]
+    if faults:
+        raise CaseError(f"the topology given does not belong to these {m} cells on {n} vertices "
+                        f"(its {', '.join(faults)} do not match): pass the mesh's own "
+                        f"(MeshData.edge_topology) or none")
 
 
 def _numpy_sums(points, cells, topology):
@@ -107,10 +125,8 @@ def _compiled_sums(points, cells, topology):
                              ffi.cast("double *", S_ii.ctypes.data),
                              ffi.cast("double *", S_e.ctypes.data))
     if bad >= 0:
-        x = pts[cl]
-        D = x[:, 1:] - x[:, :1]
-        count = int(np.count_nonzero(~(np.abs(np.linalg.det(D)) > 0)))
-        raise _degenerate(cl, int(bad), max(count, 1), d)
+        barycentric_gradients(pts, cl)   # raises naming the first and counting all, as numpy does
+        raise _degenerate(cl, int(bad), 1, d)   # the two formulas differ in the last bit here
     return S_ii, S_e
 
 
