@@ -195,6 +195,19 @@ class AmgPcg:
             c["k"] = k
         return sc
 
+    @property
+    def compiled(self) -> bool:
+        """Whether the hierarchy is in the compiled kernel."""
+        return self._c is not None
+
+    def kernel_parts(self, k):
+        """The compiled hierarchy for an iteration of the caller's own in the kernel, on k
+        columns: (ffi, lib, level structs, coarsest solve, coarsest size), the level structs
+        pointing at k columns' scratch. Only when ``compiled``."""
+        c = self._c
+        self._scratch(k)
+        return c["ffi"], c["lib"], c["lv"], c["co"], c["nc"]
+
     def vcycle(self, B):
         """One V-cycle on the columns of B (n, k): the preconditioner alone, compiled when the
         kernel is (k <= 8), else ``amg_array``'s (same arithmetic)."""

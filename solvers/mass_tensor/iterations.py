@@ -90,7 +90,7 @@ class FreeVertexAmg:
     @property
     def compiled(self) -> bool:
         """Whether ``iterate`` can run: the hierarchy is in the compiled kernel."""
-        return self.amg is not None and self.amg._c is not None
+        return self.amg is not None and self.amg.compiled
 
     def iterate(self, K, P, f, u, max_it, stop_mm, blowup):
         """The "amg" iteration of ``IterationState.solve_linear`` in the compiled kernel
@@ -100,14 +100,13 @@ class FreeVertexAmg:
         stopped by the rule, 1 max_it done, 2 non-positive r.z (value), 3 non-positive curvature
         (value), 4 vertex moved value mm (non-finite or past blowup), 5 residual grew to value;
         r and p (n, d) the last residual and search direction."""
-        c = self.amg._c
-        ffi, lib = c["ffi"], c["lib"]
         n, d = u.shape
+        ffi, lib, levels, coarse, nc = self.amg.kernel_parts(d)
         nf = self.free.size
         u = np.array(u, dtype=np.float64, order="C")
         steps = np.empty(max(int(max_it), 1))
         work = np.empty(4 * n * d + 2 * nf * d)
-        cwork = np.empty(3 * c["nc"] * d)
+        cwork = np.empty(3 * nc * d)
         n_it, bad, info = ffi.new("int *"), ffi.new("int *"), ffi.new("double *")
         kept = [np.ascontiguousarray(K.indptr, np.int32), np.ascontiguousarray(K.indices, np.int32),
                 np.ascontiguousarray(K.data, np.float64), np.ascontiguousarray(P, np.float64),
@@ -117,9 +116,8 @@ class FreeVertexAmg:
             return ffi.cast("int *" if a.dtype == np.int32 else "double *", a.ctypes.data)
 
         Kp, Ki, Kx, Pp, free, fp = (ptr(a) for a in kept)
-        self.amg._scratch(d)   # the levels' work arrays for d columns
-        status = lib.mt_amg_pcg(n, d, Kp, Ki, Kx, Pp, nf, free, len(self.amg.levels), c["lv"],
-                                c["co"], fp, ptr(u), int(max_it), float(stop_mm), TAIL_RATES,
+        status = lib.mt_amg_pcg(n, d, Kp, Ki, Kx, Pp, nf, free, len(self.amg.levels), levels,
+                                coarse, fp, ptr(u), int(max_it), float(stop_mm), TAIL_RATES,
                                 TAIL_MARGIN, float(blowup), ptr(steps), n_it, bad, info,
                                 ptr(work), ptr(cwork))
         return (u, steps[:n_it[0]].tolist(), int(status), int(bad[0]), float(info[0]),
