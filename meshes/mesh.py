@@ -451,15 +451,18 @@ RUNAWAY_FACTOR = 10.0
 runaway growth, not an answer."""
 
 
-def cell_jacobians(points: np.ndarray, cells: np.ndarray, u) -> np.ndarray:
+def cell_jacobians(points: np.ndarray, cells: np.ndarray, u, reference_volumes=None) -> np.ndarray:
     """J = det F of each cell under the vertex displacement ``u`` ((n, gdim), mm), interpolated
     linearly (P1): F = I + grad u is constant in a linear simplex and J is the ratio of the
     deformed cell's signed volume (area in 2D, plane strain) to the reference cell's.
-    Dimensionless; J <= 0 is an inverted cell; a non-finite displacement gives nan."""
+    Dimensionless; J <= 0 is an inverted cell; a non-finite displacement gives nan.
+    reference_volumes: the cells' ``cell_volumes`` when the caller keeps them."""
     points = np.asarray(points, float)
     u = np.asarray(u, float).reshape(points.shape)
+    if reference_volumes is None:
+        reference_volumes = cell_volumes(points, cells)
     with np.errstate(all="ignore"):
-        return cell_volumes(points + u, cells) / cell_volumes(points, cells)
+        return cell_volumes(points + u, cells) / reference_volumes
 
 
 def deformation_state(mesh: MeshData, u, *, degree: int = 1,
@@ -475,11 +478,8 @@ def deformation_state(mesh: MeshData, u, *, degree: int = 1,
     ``runaway`` times the body's diameter (bounding-box diagonal, mm).
     """
     u = np.asarray(u, float).reshape(mesh.points.shape)
-    if cell_J is None:
-        with np.errstate(all="ignore"):
-            J = cell_volumes(mesh.points + u, mesh.cells) / mesh.reference_volumes
-    else:
-        J = np.asarray(cell_J, float).reshape(mesh.n_cells)
+    J = cell_jacobians(mesh.points, mesh.cells, u, mesh.reference_volumes) if cell_J is None \
+        else np.asarray(cell_J, float).reshape(mesh.n_cells)
     finite = bool(np.all(np.isfinite(u)))
     inverted = int(np.count_nonzero(~(J > 0)))
     with np.errstate(all="ignore"):

@@ -92,7 +92,7 @@ class AmgPcg:
     coarse = 500
     smooth_levels = 1  # levels with a smoothed prolongator (below: plain aggregation)
 
-    def __init__(self, A, iters=1, compiled=True, coarse_factors=False):
+    def __init__(self, A, iters=1, coarse_factors=False):
         self.iters = iters
         self.count = [0, 0]  # PCG calls, PCG iterations (statistics)
         self.last_update = 0.0  # largest vertex update (mm) of the last PCG iteration
@@ -131,12 +131,10 @@ class AmgPcg:
         self.untracked_bytes = 12 * (self.lu.L.nnz + self.lu.U.nnz)  # coarsest-level SuperLU
         # the compiled iteration: a hierarchy with levels and a coarsest matrix small enough for
         # its dense inverse, or (coarse_factors) any hierarchy, its coarsest level solved with
-        # SuperLU's factors in C (compiled=False: a hierarchy only preconditioned through
-        # ``amg_array``'s V-cycle, which needs neither)
+        # SuperLU's factors in C
         usable = (coarse_factors or (self.levels and A.shape[0] <= 2000)) \
             and self.A.nnz < 2 ** 31   # the kernel's int32 indices
-        self._c = self._compiled(A, coarse_factors) if (compiled and usable and use_kernel()) \
-            else None
+        self._c = self._compiled(A, coarse_factors) if (usable and use_kernel()) else None
         if self._c is not None and not coarse_factors:   # and the coarsest's dense inverse
             self.bytes += 8 * A.shape[0] ** 2
 

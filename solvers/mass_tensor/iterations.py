@@ -338,9 +338,11 @@ class IterationState:
         P = types.projector()
         proj, applyM, Kproj = self._operators(types, method, fold=refresh is None, P=P)
         u = types.prescribed_part() + proj(u)
-        if method == "amg" and self.callback is None and self._amg(types).compiled \
+        if method == "amg" and self.callback is None \
                 and self.max_iter - self.it <= COMPILED_MAX_ITER and self.K.nnz < 2 ** 31:
-            return self._compiled_amg(types, u, proj, P)
+            amg = self._amg(types)
+            if amg.compiled:
+                return self._compiled_amg(amg, u, proj, P)
         r = proj(self.f - self.Kx(u))
         z = applyM(r)
         p = z.copy()
@@ -406,12 +408,11 @@ class IterationState:
         self.residual = float(np.abs(proj(self.f - self.Kx(u))).max(initial=0.0))
         return u
 
-    def _compiled_amg(self, types, u, proj, P):
+    def _compiled_amg(self, amg, u0, proj, P):
         """``solve_linear``'s "amg" iteration in the compiled kernel (same arithmetic, same
-        stopping rule and divergence checks)."""
-        r0 = max(float(np.abs(proj(self.f - self.Kx(u))).max(initial=0.0)), 1e-300)
-        u, moves, status, v, value, r, p = self._amg(types).iterate(
-            self.K, P, self.f, u, self.max_iter - self.it, self.stop, self.blowup)
+        stopping rule and divergence checks), with ``amg`` the pattern's ``FreeVertexAmg``."""
+        u, moves, status, v, value, r, p = amg.iterate(
+            self.K, P, self.f, u0, self.max_iter - self.it, self.stop, self.blowup)
         self.steps.extend(moves)
         self.it += len(moves) + (status in (3, 4))   # the failing iteration made no move
         if status == 2:
@@ -423,6 +424,7 @@ class IterationState:
             raise SolverDivergedError(f"mass-tensor amg: diverged at iteration {self.it}: vertex "
                                       f"{v} moved {value:g} mm in one iteration")
         if status == 5:
+            r0 = max(float(np.abs(proj(self.f - self.Kx(u0))).max(initial=0.0)), 1e-300)
             self._diverged(f"residual grew from {r0:g} to {value:g} mN", r)
         self.residual = float(np.abs(proj(self.f - self.Kx(u))).max(initial=0.0))
         return u

@@ -59,10 +59,11 @@ def stiffness_tensors(points, cells, mu: float, lmbda: float, topology=None):
     """
     points = np.asarray(points, float)
     cells = np.asarray(cells, np.int64)
-    check_cell_ids(cells, len(points))
     if topology is None:
-        topology = edge_topology(cells, len(points))
-    _check_topology(topology, cells, points.shape)
+        topology = edge_topology(cells, len(points))   # which checks the cells' vertex ids
+    else:
+        check_cell_ids(cells, len(points))
+        _check_topology(topology, cells, points.shape)
     e = len(topology.edges)
     S_ii, S_e = (_compiled_sums if use_kernel() else _numpy_sums)(points, cells, topology)
     # a cell's pair (a, b) whose first vertex is its edge's second entered transposed
