@@ -25,6 +25,8 @@
 #include <stdint.h>
 #include <string.h>
 
+#include "admm_kernel.h"
+
 #define MAXD 3
 
 /* cofactor (J F^-T), J and I1 (plane strain: |F|^2 + 1) */
@@ -446,19 +448,8 @@ double p1_forces(int model, int d, long m, double mu, double kappa, double lmbda
  * scalar x-step matrix, k right-hand sides at once (row-major (n, k) arrays: the matrix entries
  * are read once for all k columns). The hierarchy (A, P, R, Jacobi weights per level and the
  * coarsest matrix's direct solve) is built in Python (admm.amg.AmgPcg); this is the
- * arithmetic of amg_array.ArrayAmgPcg's vcycle / pcg, in C. cwork: 3 nc k doubles. */
-typedef struct {
-    long n;
-    const int *Ap, *Ai;
-    const double *Ax;
-    const int *Pp, *Pi; /* n x (next level's n) */
-    const double *Px;
-    const int *Rp, *Ri; /* (next level's n) x n */
-    const double *Rx;
-    const double *dw; /* damped-Jacobi weights (n) */
-    double *x, *r, *b; /* scratch, n * k each */
-} amg_level;
-
+ * arithmetic of amg_array.ArrayAmgPcg's vcycle / pcg, in C. cwork: 3 nc k doubles. The level
+ * and coarsest-solve structs (amg_level, amg_coarse) are in admm_kernel.h. */
 /* Y = beta Y + alpha M X, M CSR (rows x ?), X and Y row-major with k columns; k is a
  * compile-time constant for k = 2, 3 (unrolled), a loop otherwise */
 static inline __attribute__((always_inline)) void csr_mm_k(
@@ -482,18 +473,8 @@ static inline __attribute__((always_inline)) void csr_mm_k(
 /* The coarsest level's direct solve: by the dense inverse of its matrix (Ainv, nc x nc
  * row-major), or, when Ainv is NULL, by its sparse factors Pr A Pc = L U (SuperLU's, CSC: x =
  * Pc U^-1 L^-1 Pr b, with (Pr b)[perm_r[i]] = b[i] and x[i] = w[perm_c[i]]; Ld, Ud their
- * diagonals) */
-typedef struct {
-    long nc;
-    const double *Ainv;
-    const int *Lp, *Li;
-    const double *Lx, *Ld;
-    const int *Up, *Ui;
-    const double *Ux, *Ud;
-    const int *perm_r, *perm_c;
-} amg_coarse;
-
-/* x = A_c^-1 b on k columns; tmp: nc k doubles (the factors' solve) */
+ * diagonals): the struct amg_coarse in admm_kernel.h.
+ * x = A_c^-1 b on k columns; tmp: nc k doubles (the factors' solve) */
 static inline __attribute__((always_inline)) void coarse_solve(const amg_coarse *co, const int k,
                                                                 const double *b, double *x,
                                                                 double *tmp)

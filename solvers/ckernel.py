@@ -1,4 +1,5 @@
-"""Build and load the fast solvers' compiled kernel (``admm_kernel.c``): the ADMM element loop,
+"""Build and load the fast solvers' compiled kernel (``admm_kernel.c``, its interface in
+``admm_kernel.h``): the ADMM element loop,
 the AMG-preconditioned conjugate gradients of the ADMM x-step and of the Mass Tensor method, and
 the Mass Tensor method's tensor sums.
 
@@ -26,49 +27,7 @@ from pathlib import Path
 from tissue_reference.meshes.io import user_cache_root
 
 SOURCE = Path(__file__).with_name("admm_kernel.c")
-CDEF = """
-void admm_iteration(int model, int d, long m, double mu, double kappa, double rho,
-                    double f_dev, double f_vol, int rounds, double small_step, const int *cells,
-                    const double *G, const double *wv, const double *h2, const double *u,
-                    double *F, double *lam, double *r, double *dsq, double *f);
-int admm_block_size(void);
-double p1_forces(int model, int d, long m, double mu, double kappa, double lmbda,
-                 const int *dofs, const double *G, const double *V, const double *u, double *f);
-typedef struct {
-    long n;
-    const int *Ap, *Ai;
-    const double *Ax;
-    const int *Pp, *Pi;
-    const double *Px;
-    const int *Rp, *Ri;
-    const double *Rx;
-    const double *dw;
-    double *x, *r, *b;
-} amg_level;
-typedef struct {
-    long nc;
-    const double *Ainv;
-    const int *Lp, *Li;
-    const double *Lx, *Ld;
-    const int *Up, *Ui;
-    const double *Ux, *Ud;
-    const int *perm_r, *perm_c;
-} amg_coarse;
-int amg_pcg(int nlev, const amg_level *lv, const amg_coarse *co, int k, const double *B,
-            double *X, int maxit, double rtol, double step_tol, double step_rtol, int min_it,
-            double *work, double *cwork, double *last_update);
-void amg_vcycle(int nlev, const amg_level *lv, const amg_coarse *co, int k, const double *B,
-                double *X, double *cwork);
-int mt_amg_pcg(long n, int d, const int *Kp, const int *Ki, const double *Kx, const double *P,
-               long nf, const int *free, int nlev, const amg_level *lv, const amg_coarse *co,
-               const double *f, double *u, int max_it, double stop_mm, int tail, double margin,
-               double blowup, double *steps, int *n_it, int *bad, double *info, double *work,
-               double *cwork);
-long mt_tensor_sums(int d, long m, const int64_t *cells, const double *points,
-                    const int64_t *pair_edge, const uint8_t *flipped, long e, double *S_ii,
-                    double *S_e);
-long amg_aggregates(long n, const int *Sp, const int *Si, int64_t *agg, int64_t *first);
-"""
+HEADER = Path(__file__).with_name("admm_kernel.h")
 # -march=native: the element update vectorizes over elements (the build is keyed by this CPU's
 # model and flags, so a cache shared by different machines never loads a foreign build);
 # no -ffast-math: NaN/inf must propagate to the divergence checks.
@@ -92,17 +51,18 @@ def _cpu() -> str:
         return platform.processor()
 
 
-def _module_name(src: str) -> str:
-    key = "\0".join([src, CDEF, " ".join(CFLAGS), sys.version, sysconfig.get_platform(), _cpu()])
+def _module_name(src: str, cdef: str) -> str:
+    key = "\0".join([src, cdef, " ".join(CFLAGS), sys.version, sysconfig.get_platform(), _cpu()])
     return "_tissue_admm_" + hashlib.sha256(key.encode()).hexdigest()[:16]
 
 
-def _build(name: str, src: str, target_dir: Path) -> Path:
+def _build(name: str, src: str, cdef: str, target_dir: Path) -> Path:
     import cffi
 
     ffi = cffi.FFI()
-    ffi.cdef(CDEF)
-    ffi.set_source(name, src, extra_compile_args=CFLAGS, libraries=["m"])
+    ffi.cdef(cdef)   # the interface: admm_kernel.h, which the source includes
+    ffi.set_source(name, src, extra_compile_args=CFLAGS, libraries=["m"],
+                   include_dirs=[str(HEADER.parent)])
     target_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=target_dir, prefix=".build-") as tmp:
         built = Path(ffi.compile(tmpdir=tmp, verbose=False))
@@ -129,18 +89,19 @@ def load():
         return None
     try:
         src = SOURCE.read_text()
-        name = _module_name(src)
+        cdef = HEADER.read_text()
+        name = _module_name(src, cdef)
         d = _cache_dir()
         suffix = importlib.machinery.EXTENSION_SUFFIXES[0]
         path = d / (name + suffix)
         if not path.exists():
             try:
-                path = _build(name, src, d)
+                path = _build(name, src, cdef, d)
             except OSError:  # cache directory not writable: a per-user temporary one
                 d = Path(tempfile.gettempdir()) / f"tissue-reference-{os.getuid()}"
                 path = d / (name + suffix)
                 if not path.exists():
-                    path = _build(name, src, d)
+                    path = _build(name, src, cdef, d)
         mod = _import(name, path)
         result = (mod.ffi, mod.lib)
     except Exception as exc:  # noqa: BLE001  (no compiler, no headers, read-only cache: numpy)

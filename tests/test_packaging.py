@@ -19,7 +19,8 @@ ROOT = Path(__file__).resolve().parents[1]
 NS = "tissue_reference"
 LAYERS = ("meshes", "fem_reference", "solvers", "control", "implant", "tissue")
 DATA = ["meshes/cases/phantom.toml", "meshes/case.schema.json", "solvers/admm_kernel.c",
-        "tissue/schemas/solve.schema.json", "tissue/schemas/common.schema.json"]
+        "solvers/admm_kernel.h", "tissue/schemas/solve.schema.json",
+        "tissue/schemas/common.schema.json"]
 
 # Run in a child: the layers through tissue_reference only, whatever sits first on sys.path.
 CHILD = r'''
