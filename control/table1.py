@@ -4,7 +4,8 @@ steady-state error and retraction, written as JSON, Markdown and HTML (each file
 
 ``run_table1(case, targets, loop, settings, out)`` runs the scenarios (``loop`` from
 ``control.plants.build_loop``), writing the tables after every scenario so an interrupted run
-keeps what it finished; a loop that runs long reports its step every ``STEP_LINE_S`` seconds
+keeps what it finished, and with ``resume`` a run in a folder that holds such a table runs only
+the scenarios it lacks (``finished_rows``: the table's settings must be the run's); a loop that runs long reports its step every ``STEP_LINE_S`` seconds
 (a plant solve on a fine mesh takes minutes, a loop up to half an hour). With ``jobs`` > 1 the
 scenarios run in that many worker processes, each building its own loop with ``loop_factory``
 (the plant's solver state cannot cross processes); the rows are the serial run's, in the same
@@ -25,13 +26,13 @@ from threadpoolctl import threadpool_limits
 
 from tissue_reference.control.controllability import UnreachableGoalError
 from tissue_reference.control.loop import LoopStopped, plot_response
-from tissue_reference.meshes.errors import ConvergenceError, TissueWarning
+from tissue_reference.meshes.errors import CaseError, CaseReadError, ConvergenceError, TissueWarning
 from tissue_reference.meshes.html_page import Raw, image, kv_table, page, table, write_page
 from tissue_reference.meshes.io import atomic_path, save_figure
-from tissue_reference.meshes.results import write_json
+from tissue_reference.meshes.results import json_ready, write_json
 
-__all__ = ["LOOP_BLAS_THREADS", "SSE_GOAL_MM", "STEP_LINE_S", "plot_scenarios", "run_table1",
-           "table1_row", "table1_summary", "write_scenarios_page", "write_table1"]
+__all__ = ["LOOP_BLAS_THREADS", "SSE_GOAL_MM", "STEP_LINE_S", "finished_rows", "plot_scenarios",
+           "run_table1", "table1_row", "table1_summary", "write_scenarios_page", "write_table1"]
 
 
 SSE_GOAL_MM = 0.05   # the closed-loop steady-state error every scenario must meet (mm)
@@ -177,6 +178,50 @@ def write_table1(out, meta, rows, n_expected):
     return summ
 
 
+def _differences(old, new, prefix: str = "") -> list[str]:
+    """The keys (dotted paths) whose values differ between two JSON-ready dicts."""
+    out = []
+    for key in sorted(set(old) | set(new), key=str):
+        a, b = old.get(key), new.get(key)
+        name = f"{prefix}{key}"
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += _differences(a, b, name + ".")
+        elif json.dumps(a, sort_keys=True) != json.dumps(b, sort_keys=True):   # NaN == NaN
+            out.append(f"{name} ({json.dumps(a)} there, {json.dumps(b)} now)")
+    return out
+
+
+def finished_rows(out, meta, pairs) -> dict:
+    """The rows an earlier run left in ``out``/table1.json, by their index in ``pairs`` (the
+    (target, task) pairs of this run); {} when there is no table. Every finished row stays, a
+    failed or unreachable loop too (a loop's outcome depends on its settings alone). Refused
+    (CaseError, naming the file and what differs): a table of other settings (its ``meta``
+    against ``meta``), a row of a pair this run does not ask for, a file that is not such a
+    table (CaseReadError)."""
+    path = Path(out) / "table1.json"
+    if not path.is_file():
+        return {}
+    try:
+        data = json.loads(path.read_text())
+        old_meta, rows = data["meta"], data["rows"]
+        keys = [(r["target"], int(r["task"])) for r in rows]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise CaseReadError(f"{path}: not a Table I table to resume from ({exc}); start over "
+                            f"(--restart; resume=False in Python) or choose another folder") from None
+    differ = _differences(old_meta, json_ready(meta))
+    if differ:
+        raise CaseError(f"{path}: its rows were run with other settings: "
+                        f"{'; '.join(differ)}; resuming needs the same settings: start over "
+                        f"(--restart; resume=False in Python) or choose another folder")
+    index = {(t, int(task)): i for i, (t, task) in enumerate(pairs)}
+    foreign = [f"{t} task {task}" for t, task in keys if (t, task) not in index]
+    if foreign:
+        raise CaseError(f"{path}: it has rows this run does not ask for ({', '.join(foreign)}): "
+                        f"resume with the same targets, start over (--restart; resume=False in "
+                        f"Python) or choose another folder")
+    return {index[k]: row for k, row in zip(keys, rows)}
+
+
 def run_one(loop, t, task, settings, out, plots: bool = True,
             step_lines=None) -> tuple[dict, str]:
     """One scenario of Table I on ``loop``: (its row, its progress line); a time-response PNG
@@ -237,9 +282,10 @@ def _ignoring_warnings() -> bool:
 
 def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
                plots: bool = True, jobs: int = 1, loop_factory=None, factory_key=None,
-               step_lines: bool = True) -> dict:
+               step_lines: bool = True, resume: bool = False) -> dict:
     """Every target x task (1, 2, 3) on ``loop`` (``control.plants.LoopSetup``); returns the
-    summary. ``progress(line)`` gets one line per scenario as it ends and, with
+    summary. ``resume``: keep the rows an earlier run of the same settings left in ``out``
+    (``finished_rows``) and run only the others; otherwise the table starts empty. ``progress(line)`` gets one line per scenario as it ends and, with
     ``step_lines``, a long loop's step lines (``STEP_LINE_S``; a worker process prints its own
     to stdout); ``plots``: a time-response PNG per scenario in ``out``. ``jobs`` > 1: that many
     worker processes, each running ``loop_factory(factory_key)`` once for its own loop (a
@@ -247,8 +293,13 @@ def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
     serves nobody."""
     pairs = [(t, task) for t in targets for task in (1, 2, 3)]
     n = len(pairs)
-    summ = table1_summary([], n)
-    done = {}
+    done = finished_rows(out, meta or {}, pairs) if resume else {}
+    summ = table1_summary([done[k] for k in sorted(done)], n)
+    todo = [(i, pair) for i, pair in enumerate(pairs) if i not in done]
+    if done:
+        progress(f"table1: resuming from {Path(out) / 'table1.json'}: {len(done)} of {n} "
+                 f"loops finished there, {len(todo)} to run")
+        summ = write_table1(out, meta or {}, [done[k] for k in sorted(done)], n)
 
     def finish(i, row, line):
         nonlocal summ
@@ -256,8 +307,8 @@ def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
         progress(line)
         summ = write_table1(out, meta or {}, [done[k] for k in sorted(done)], n)   # each time
 
-    if jobs <= 1 or n <= 1:
-        for i, pair in enumerate(pairs):
+    if jobs <= 1 or len(todo) <= 1:
+        for i, pair in todo:
             finish(i, *run_one(loop, *pair, settings, out, plots,
                                progress if step_lines else None))
         return summ
@@ -268,11 +319,10 @@ def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
 
     Path(out).mkdir(parents=True, exist_ok=True)
     init = (loop_factory, factory_key, _ignoring_warnings(), bool(step_lines))
-    with ProcessPoolExecutor(max_workers=min(jobs, n),
+    with ProcessPoolExecutor(max_workers=min(jobs, len(todo)),
                              mp_context=multiprocessing.get_context("spawn"),
                              initializer=_worker_init, initargs=init) as pool:
-        futures = {pool.submit(_worker_run, *pair, settings, out, plots): i
-                   for i, pair in enumerate(pairs)}
+        futures = {pool.submit(_worker_run, *pair, settings, out, plots): i for i, pair in todo}
         for fut in as_completed(futures):
             finish(futures[fut], *fut.result())
     return summ

@@ -9,7 +9,7 @@ import numpy as np
 
 from .io import atomic_path
 
-__all__ = ["DynamicsResult", "SolveResult", "material_json", "write_json"]
+__all__ = ["DynamicsResult", "SolveResult", "json_ready", "material_json", "write_json"]
 
 
 def material_json(material) -> dict:
@@ -206,6 +206,13 @@ def _jsonable(v) -> bool:
         return True
     except TypeError:
         return False
+
+
+def json_ready(data):
+    """``data`` as ``write_json`` writes it and ``json.load`` reads it back (NumPy arrays and
+    scalars as lists and numbers, paths as strings): what a file written earlier is compared
+    with."""
+    return json.loads(json.dumps(data, default=_default))
 
 
 def write_json(data: dict, path) -> Path:

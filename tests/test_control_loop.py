@@ -314,6 +314,101 @@ def test_table1_passes_on_a_long_loops_steps_at_most_once_a_minute(setup, tmp_pa
     assert len(quiet) == 3 and all("itae closed" in line for line in quiet)
 
 
+def test_table1_killed_after_its_first_row_resumes_to_the_same_table(setup, tmp_path):
+    """A run stopped (KeyboardInterrupt) after its first loop leaves that row in table1.json;
+    the same run resumed runs only the two loops it lacks, and its table is the table of a run
+    never stopped (rows equal but for wall and step times). A folder of other settings is refused,
+    naming the setting; a row of a target not asked for too; restarting ignores the table."""
+    import json
+
+    from tissue_reference.control.table1 import run_table1
+
+    case, K, plant = setup
+    ran = []
+
+    class Loop:   # what run_table1 needs of control.plants.LoopSetup
+        def __init__(self, stop_after=None):
+            self.stop_after = stop_after
+
+        def run(self, target, task, settings, progress=None):
+            if self.stop_after is not None and len(ran) >= self.stop_after:
+                raise KeyboardInterrupt
+            ran.append((target, task))
+            model = LinearizedModel(case, plant, linear_tangent(K), target)
+            return run_closed_loop(plant, case, model, target, task, settings=settings)
+
+    meta = {"case": "phantom", "settings": {"steps": 6}}
+    settings = LoopSettings(steps=6)
+    whole = run_table1(case, ["T1"], Loop(), settings, tmp_path / "whole", meta=meta,
+                       plots=False, progress=lambda line: None)
+    assert len(ran) == 3
+    ran.clear()
+    out = tmp_path / "stopped"
+    with pytest.raises(KeyboardInterrupt):
+        run_table1(case, ["T1"], Loop(stop_after=1), settings, out, meta=meta, plots=False,
+                   progress=lambda line: None)
+    assert [r["task"] for r in json.loads((out / "table1.json").read_text())["rows"]] == [1]
+    ran.clear()
+    lines = []
+    summ = run_table1(case, ["T1"], Loop(), settings, out, meta=meta, plots=False,
+                      progress=lines.append, resume=True)
+    assert ran == [("T1", 2), ("T1", 3)]
+    assert "1 of 3 loops finished there, 2 to run" in lines[0]
+    assert summ == whole
+
+    def rows(folder):
+        return [{k: v for k, v in r.items() if not k.endswith(("_s", "_ms"))}
+                for r in json.loads((folder / "table1.json").read_text())["rows"]]
+
+    assert rows(out) == rows(tmp_path / "whole")
+    ran.clear()
+    run_table1(case, ["T1"], Loop(), settings, out, meta=meta, plots=False,
+               progress=lambda line: None, resume=True)
+    assert ran == []   # nothing left to run
+    other = {"case": "phantom", "settings": {"steps": 8}}
+    with pytest.raises(CaseError, match=r"other settings: settings\.steps \(6 there, 8 now\)"):
+        run_table1(case, ["T1"], Loop(), LoopSettings(steps=8), out, meta=other, plots=False,
+                   progress=lambda line: None, resume=True)
+    with pytest.raises(CaseError, match="rows this run does not ask for"):
+        run_table1(case, ["T2"], Loop(), settings, out, meta=meta, plots=False,
+                   progress=lambda line: None, resume=True)
+    run_table1(case, ["T1"], Loop(), settings, out, meta=other, plots=False,
+               progress=lambda line: None)   # not resumed: starts over
+    assert ran == [("T1", 1), ("T1", 2), ("T1", 3)]
+    (out / "table1.json").write_text("{")
+    with pytest.raises(CaseError, match="not a Table I table to resume from"):
+        run_table1(case, ["T1"], Loop(), settings, out, meta=meta, plots=False,
+                   progress=lambda line: None, resume=True)
+
+
+@pytest.mark.slow
+def test_tissue_table1_resumes_its_folder_and_restarts_on_request(tmp_path, capsys):
+    """The same ``tissue table1`` command run again in its folder resumes it (nothing left to
+    run here); other settings are refused with exit status 2, naming the setting; --restart
+    runs every loop again."""
+    import json
+
+    from tissue_reference.tissue.cli import main
+
+    out = tmp_path / "t"
+    cmd = ["table1", "phantom", "--size", "14", "--targets", "T1", "--steps", "2", "--out",
+           str(out)]
+    main(cmd + ["-q"])
+    first = json.loads((out / "table1.json").read_text())["rows"]
+    assert [r["task"] for r in first] == [1, 2, 3]
+    capsys.readouterr()
+    main(cmd)
+    assert "3 of 3 loops finished there, 0 to run" in capsys.readouterr().out
+    assert json.loads((out / "table1.json").read_text())["rows"] == first
+    assert main(cmd[:-3] + ["3", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "settings.steps (2 there, 3 now)" in err and "--restart" in err
+    main(cmd + ["--restart"])
+    assert "finished there" not in capsys.readouterr().out
+    again = json.loads((out / "table1.json").read_text())["rows"]
+    assert [r["wall_time_s"] for r in again] != [r["wall_time_s"] for r in first]   # rerun
+
+
 class StaleBoundary:
     """A plant that reports success but returns the previous call's state from call ``n`` on (the
     failure mode of a solver whose restart keeps the old boundary values)."""

@@ -81,8 +81,9 @@ def table1_loop(argv: dict, scenario: str | None):
 
 
 def _jobs(args, scenario=None) -> dict:
-    """run_table1's keywords for ``--jobs`` and the long loops' step lines (not with -q)."""
-    lines = {"step_lines": not args.quiet}
+    """run_table1's keywords for ``--jobs``, the long loops' step lines (not with -q) and
+    resuming (not with --restart)."""
+    lines = {"step_lines": not args.quiet, "resume": not args.restart}
     if args.jobs <= 1:
         return lines
     return {"jobs": args.jobs, "loop_factory": functools.partial(table1_loop, vars(args)),
@@ -174,5 +175,10 @@ def add_parser(sub):
                    help="run the loops in N worker processes (one core each; every worker "
                         "builds its own plant and model first); the tables are the same: every "
                         "loop, serial or not, runs with one BLAS thread")
-    p.add_argument("--out", required=True, help="folder for the tables, trajectories and plots")
+    p.add_argument("--out", required=True,
+                   help="folder for the tables, trajectories and plots; a folder where a run "
+                        "of the same settings stopped (its table1.json) is resumed: only the "
+                        "loops it lacks run (other settings are refused, naming them)")
+    p.add_argument("--restart", action="store_true",
+                   help="start the table over, discarding the rows of an earlier run in --out")
     p.set_defaults(func=run_table1)
