@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from tissue_reference.meshes.case import Case, Material
+from tissue_reference.meshes.case import UNCOUPLED_LAWS, Case, Material
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.tips import default_contact_rule, default_tip_start
 
@@ -30,8 +30,13 @@ def resolve_formulation(formulation: str, material: Material) -> str:
     for nu >= MIXED_FROM_NU, displacement below."""
     if formulation not in FORMULATIONS:
         raise CaseError(f"formulation must be one of {list(FORMULATIONS)}, got {formulation!r}")
+    split = material.model in UNCOUPLED_LAWS or material.model == "linear-elastic"
     if formulation == "auto":
-        return "mixed" if material.nu >= MIXED_FROM_NU else "displacement"
+        return "mixed" if split and material.nu >= MIXED_FROM_NU else "displacement"
+    if formulation == "mixed" and not split:
+        raise CaseError(f"the mixed u-p formulation splits off the volumetric energy of the laws "
+                        f"{list(UNCOUPLED_LAWS)} and linear elasticity; {material.model!r} "
+                        f"couples it (a compressible law): use the displacement formulation")
     return formulation
 
 

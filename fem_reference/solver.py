@@ -159,6 +159,9 @@ class ReferenceSolver:
         self.E = dolfinx.fem.Constant(mesh, PETSc.ScalarType(case.material.E))
         self.nu = dolfinx.fem.Constant(mesh, PETSc.ScalarType(case.material.nu))
         self.inv_kappa = dolfinx.fem.Constant(mesh, PETSc.ScalarType(_inv_kappa(case.material)))
+        # a law's own coefficients (Mooney-Rivlin's, Yeoh's; kPa), Constants like E
+        self.coefficients = {n: dolfinx.fem.Constant(mesh, PETSc.ScalarType(v))
+                             for n, v in case.material.coefficients.items()}
         self.load = dolfinx.fem.Constant(mesh, PETSc.ScalarType(1.0))
         # the fields' numbering: dolfinx's nodes <-> the Case's vertices, states in and out
         self.state = NodalState(V=self.V, Q=self.Q, x=self.x, u=self.u, p=self.p, umap=self._umap,
@@ -173,13 +176,13 @@ class ReferenceSolver:
         ds = ufl.Measure("ds", domain=mesh, subdomain_data=self.dm.facet_tags, metadata=md)
         if self.formulation == "mixed":
             psi, vol = mixed_energy_density(u, self.p_ufl, case.material.model, mu, self.inv_kappa,
-                                            case.material.volumetric)
+                                            case.material.volumetric, self.coefficients)
             self._vol_form = vol
         else:
             kappa = E / (3 * (1 - 2 * nu))
             lmbda = E * nu / ((1 + nu) * (1 - 2 * nu))
             psi, _ = strain_energy_density(u, case.material.model, mu, kappa, lmbda,
-                                           case.material.volumetric)
+                                           case.material.volumetric, self.coefficients)
         g = case.gravity if case.gravity is not None else (0.0,) * self.gdim
         self.body = dolfinx.fem.Constant(mesh, PETSc.ScalarType(
             tuple(case.material.density * np.asarray(g, float))))
@@ -345,6 +348,8 @@ class ReferenceSolver:
         self.E.value = case.material.E
         self.nu.value = case.material.nu
         self.inv_kappa.value = _inv_kappa(case.material)
+        for name, value in case.material.coefficients.items():
+            self.coefficients[name].value = value
         s = self.settings
         warm = initial is not None
         if warm:

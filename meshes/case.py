@@ -18,6 +18,7 @@ from .case_file import load_case
 from .case_model import (
     ACTUATOR_TYPES,
     BOUNDARY_TYPES,
+    COEFFICIENT_LAWS,
     CONTACT_RULES,
     CONTACT_TYPES,
     E_RANGE_KPA,
@@ -25,6 +26,7 @@ from .case_model import (
     RIM_J_WARN,
     TIP_SHAPES,
     TIP_STARTS,
+    UNCOUPLED_LAWS,
     Actuator,
     Boundary,
     Case,
@@ -39,6 +41,7 @@ from .case_model import (
 __all__ = [
     "ACTUATOR_TYPES",
     "BOUNDARY_TYPES",
+    "COEFFICIENT_LAWS",
     "CONTACT_RULES",
     "CONTACT_TYPES",
     "E_RANGE_KPA",
@@ -46,6 +49,7 @@ __all__ = [
     "RIM_J_WARN",
     "TIP_SHAPES",
     "TIP_STARTS",
+    "UNCOUPLED_LAWS",
     "Actuator",
     "Boundary",
     "Case",

@@ -4,19 +4,21 @@ kinds. Units: length mm, stress kPa (= mN/mm^2), density kg/mm^3."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .errors import CaseError
+from .errors import CaseError, NotModeledError
 
 __all__ = [
     "ACTUATOR_TYPES",
     "BOUNDARY_TYPES",
+    "COEFFICIENT_LAWS",
     "CONTACT_TYPES",
     "E_RANGE_KPA",
     "MATERIAL_MODELS",
     "TIP_SHAPES",
+    "UNCOUPLED_LAWS",
     "VOLUMETRIC_LAWS",
     "Actuator",
     "Boundary",
@@ -31,9 +33,17 @@ BOUNDARY_TYPES = ("fixed", "displacement", "affine", "sliding", "traction")
 E_RANGE_KPA = (1e-9, 1e12)
 """Young's moduli accepted (kPa): from far softer than any tissue to harder than diamond
 (1.2e9 kPa); outside it the residuals of a solve under- or overflow."""
-MATERIAL_MODELS = ("neo-hookean", "linear-elastic")
+MATERIAL_MODELS = ("neo-hookean", "linear-elastic", "stable-neo-hookean",
+                   "saint-venant-kirchhoff", "mooney-rivlin", "yeoh")
+"""The strain-energy laws (``Material``; formulas and checks: docs/laws.md)."""
+UNCOUPLED_LAWS = ("neo-hookean", "mooney-rivlin", "yeoh")
+"""Laws of an isochoric energy of Ibar1, Ibar2 (of J^(-2/3) C) plus kappa/2 G(J)^2: they take the
+``volumetric`` choice and the mixed u-p formulation, so nearly incompressible ones do not lock."""
+COEFFICIENT_LAWS = {"mooney-rivlin": ("c1", "c2", "k"), "yeoh": ("c1", "c2", "c3", "k")}
+"""Laws given by their coefficients (kPa) instead of E and nu, which follow from them: the
+small-strain shear modulus mu0 (2 (c1 + c2), 2 c1) and the bulk modulus k."""
 VOLUMETRIC_LAWS = ("quadratic", "log")
-"""The Neo-Hookean volumetric energies kappa/2 G(J)^2: G = J - 1 (seed 000 eq. 14) or ln J."""
+"""The uncoupled laws' volumetric energies kappa/2 G(J)^2: G = J - 1 (seed 000 eq. 14) or ln J."""
 ACTUATOR_TYPES = ("patch", "indenter")
 TIP_SHAPES = ("sphere", "punch")
 CONTACT_TYPES = ("frictionless", "tied")
@@ -46,10 +56,12 @@ def _real(x) -> bool:
 
 @dataclass(frozen=True)
 class Material:
-    """Isotropic material. E in kPa, density in kg/mm^3.
+    """Isotropic material. Moduli in kPa, density in kg/mm^3. ``model`` names the strain-energy
+    law (docs/laws.md), with C = F^T F, J = det F, Ibar1 = J^(-2/3) tr C and Ibar2 = J^(-4/3)
+    ((tr C)^2 - tr C^2) / 2 the invariants of J^(-2/3) C, mu = E / (2 (1 + nu)), kappa = E / (3 (1 - 2
+    nu)), lambda = E nu / ((1 + nu) (1 - 2 nu)):
 
-    neo-hookean: psi = mu/2 (J^(-2/3) tr C - 3) + kappa/2 G(J)^2, mu = E / (2 (1 + nu)),
-    kappa = E / (3 (1 - 2 nu)), with ``volumetric``:
+    neo-hookean: psi = mu/2 (Ibar1 - 3) + kappa/2 G(J)^2, with ``volumetric``:
       "quadratic" (seed 000 eq. 14): G = J - 1. The pressure kappa (1 - J) it resists with is
         bounded by kappa, and in hydrostatic compression the force per reference area,
         kappa (1 - J) J^(2/3), peaks at J = 0.4 and then falls: tissue pressed harder than that
@@ -57,18 +69,46 @@ class Material:
         far (J ~ 0.4) the answer stops.
       "log": G = ln J. The pressure -kappa ln J / J grows without bound as J -> 0; the same
         kappa, so the two agree at small strain (to first order in J - 1).
+    mooney-rivlin (``c1``, ``c2``, ``k``): psi = c1 (Ibar1 - 3) + c2 (Ibar2 - 3) + k/2 G(J)^2;
+      c1, c2 >= 0 (polyconvex: stable under every deformation), c1 + c2 > 0.
+    yeoh (``c1``, ``c2``, ``c3``, ``k``): psi = sum_i c_i (Ibar1 - 3)^i + k/2 G(J)^2; c1 > 0,
+      c3 >= 0 and c1 + 2 c2 x + 3 c3 x^2 > 0 for every x >= 0 (dpsi/dIbar1 > 0: stable).
+      For both, E and nu are not given: they follow from mu0 = 2 (c1 + c2) (resp. 2 c1) and
+      kappa = k (``volumetric`` as for neo-hookean).
+    stable-neo-hookean (``E``, ``nu``; Smith, de Goes and Kim 2018): psi = mu/2 (tr C - 3)
+      + lambda'/2 (J - 1 - mu/lambda')^2 - mu^2 / (2 lambda'), lambda' = lambda + mu: the rest
+      state carries no energy and the small-strain limit is linear elasticity's.
+    saint-venant-kirchhoff (``E``, ``nu``): psi = lambda/2 (tr Eg)^2 + mu Eg:Eg, Eg = (C - I)/2;
+      it softens in strong compression (a stiffness that vanishes at stretches of 1/sqrt(3)).
     linear-elastic: psi = mu eps:eps + lambda/2 tr(eps)^2 (``volumetric`` does not apply).
+    The last three are compressible laws: nu < 0.5, the displacement formulation.
     """
 
     model: str = "neo-hookean"
-    E: float = 6.0
-    nu: float = 0.45
+    E: float | None = None
+    nu: float | None = None
     density: float = 1.0e-6
     volumetric: str = "quadratic"
+    c1: float | None = None
+    c2: float | None = None
+    c3: float | None = None
+    k: float | None = None
 
     def __post_init__(self):
         if self.model not in MATERIAL_MODELS:
             raise CaseError(f"unknown material model {self.model!r}; models: {list(MATERIAL_MODELS)}")
+        coeffs = COEFFICIENT_LAWS.get(self.model, ())
+        extra = [n for n in ("c1", "c2", "c3", "k") if getattr(self, n) is not None
+                 and n not in coeffs]
+        if extra:
+            takes = ", ".join(coeffs) if coeffs else "E, nu"
+            raise CaseError(f"material model {self.model!r} takes {takes}; {', '.join(extra)} "
+                            f"belong to other laws (docs/laws.md)")
+        if coeffs:
+            self._coefficients(coeffs)
+        else:
+            object.__setattr__(self, "E", 6.0 if self.E is None else self.E)
+            object.__setattr__(self, "nu", 0.45 if self.nu is None else self.nu)
         if not (_real(self.E) and math.isfinite(self.E) and self.E > 0):
             raise CaseError(f"material E must be > 0 kPa, got E={self.E!r}")
         if not E_RANGE_KPA[0] <= self.E <= E_RANGE_KPA[1]:
@@ -82,9 +122,64 @@ class Material:
         if self.volumetric not in VOLUMETRIC_LAWS:
             raise CaseError(f"unknown material volumetric law {self.volumetric!r}; laws: "
                             f"{list(VOLUMETRIC_LAWS)}")
-        if self.model != "neo-hookean" and self.volumetric != "quadratic":
-            raise CaseError(f"material volumetric = {self.volumetric!r} applies to the "
-                            f"neo-hookean model only, not {self.model!r}")
+        if self.model not in UNCOUPLED_LAWS and self.volumetric != "quadratic":
+            raise CaseError(f"material volumetric = {self.volumetric!r} applies to the laws "
+                            f"{list(UNCOUPLED_LAWS)} only, not {self.model!r}")
+        if self.model not in UNCOUPLED_LAWS and self.model != "linear-elastic" \
+                and self.nu >= 0.5:
+            raise CaseError(f"material model {self.model!r} is a compressible law: nu must be "
+                            f"< 0.5, got nu={self.nu!r} (an incompressible material takes "
+                            f"{', '.join(UNCOUPLED_LAWS)} in the mixed formulation)")
+
+    def _coefficients(self, names):
+        """Check a coefficient law's parameters (kPa) and set E and nu from mu0 and k."""
+        missing = [n for n in names if getattr(self, n) is None]
+        if missing:
+            raise CaseError(f"material model {self.model!r} needs {', '.join(names)} (kPa); "
+                            f"missing: {', '.join(missing)}")
+        for n in names:
+            v = getattr(self, n)
+            if not (_real(v) and math.isfinite(v)):
+                raise CaseError(f"material {n} must be a finite number (kPa), got {n}={v!r}")
+        c1, c2, k = self.c1, self.c2, self.k
+        c3 = self.c3 or 0.0
+        if self.model == "mooney-rivlin":
+            if c1 < 0 or c2 < 0 or c1 + c2 <= 0:
+                raise CaseError(f"mooney-rivlin: c1 = {c1!r}, c2 = {c2!r} kPa: the law is stable "
+                                f"under every deformation (polyconvex) with c1 >= 0, c2 >= 0 and "
+                                f"c1 + c2 > 0")
+            mu0 = 2.0 * (c1 + c2)
+        else:
+            # c1 + 2 c2 x + 3 c3 x^2 > 0 for x = Ibar1 - 3 >= 0
+            if c1 <= 0 or c3 < 0 or (c2 < 0 and c2 * c2 >= 3.0 * c1 * c3):
+                raise CaseError(f"yeoh: c1 = {c1!r}, c2 = {c2!r}, c3 = {c3!r} kPa: dpsi/dIbar1 = "
+                                f"c1 + 2 c2 x + 3 c3 x^2 must stay > 0 for every x = Ibar1 - 3 "
+                                f">= 0 (c1 > 0, c3 >= 0, and c2 >= 0 or c2^2 < 3 c1 c3)")
+            mu0 = 2.0 * c1
+        if not k > 0:
+            raise CaseError(f"{self.model}: the bulk modulus k must be > 0 kPa, got k={k!r}")
+        E = 9.0 * k * mu0 / (3.0 * k + mu0)
+        nu = (3.0 * k - 2.0 * mu0) / (2.0 * (3.0 * k + mu0))
+        for name, given, derived in (("E", self.E, E), ("nu", self.nu, nu)):
+            if given is not None and not (_real(given) and math.isclose(given, derived,
+                                                                         rel_tol=1e-9)):
+                raise CaseError(f"material model {self.model!r} takes {', '.join(names)}; {name} "
+                                f"follows from them ({name} = {derived:.6g}), got {name}="
+                                f"{given!r}: leave it out")
+        object.__setattr__(self, "E", E)
+        object.__setattr__(self, "nu", nu)
+
+    @property
+    def coefficients(self) -> dict:
+        """The law's own coefficients (kPa) by name ({} for the laws of E and nu)."""
+        return {n: float(getattr(self, n)) for n in COEFFICIENT_LAWS.get(self.model, ())}
+
+    def scaled(self, factor: float) -> Material:
+        """This material with every modulus times ``factor`` (nu unchanged)."""
+        if self.model in COEFFICIENT_LAWS:
+            return replace(self, E=None, nu=None, **{n: v * factor for n, v in
+                                                      self.coefficients.items()})
+        return replace(self, E=self.E * factor)
 
     @property
     def mu(self) -> float:
@@ -103,6 +198,14 @@ class Material:
         if self.nu >= 0.5:
             return math.inf
         return self.E * self.nu / ((1.0 + self.nu) * (1.0 - 2.0 * self.nu))
+
+    def require_law(self, laws, who: str):
+        """Raise NotModeledError when this material's law is not one of ``laws``, those ``who``
+        (a fast solver) implements: the reference solves every law."""
+        if self.model not in laws:
+            raise NotModeledError(f"{who} implements the laws {list(laws)}; this material is "
+                                  f"{self.model!r} (the reference solves it: fem_reference.solve, "
+                                  f"tissue solve --solver fem)")
 
     def require_seed_volumetric(self, who: str):
         """Raise CaseError for a Neo-Hookean material whose volumetric law is not seed 000's

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .case_parts import Boundary
+from .case_parts import COEFFICIENT_LAWS, Boundary
 from .mesh import MeshData, cell_jacobians
 
 if TYPE_CHECKING:
@@ -163,7 +163,13 @@ def with_free_actuators(case) -> Case:
 
 
 def with_material(case, **changes) -> Case:
-    return replace(case, material=replace(case.material, **changes))
+    """``case`` with its material's fields changed; a law given by its coefficients (mooney-
+    rivlin, yeoh) takes a new E as every coefficient scaled by the same factor."""
+    m = case.material
+    if m.model in COEFFICIENT_LAWS and changes.get("model", m.model) == m.model \
+            and changes.get("E") is not None:
+        m = m.scaled(changes.pop("E") / m.E)
+    return replace(case, material=replace(m, **changes))
 
 
 def with_mesh(case, mesh: MeshData) -> Case:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .case_parts import UNCOUPLED_LAWS
 from .io import atomic_path
 
 __all__ = ["DynamicsResult", "SolveResult", "json_ready", "material_json", "write_json"]
@@ -16,8 +17,10 @@ def material_json(material) -> dict:
     """A Material as the JSON outputs write it (E in kPa, density in kg/mm^3)."""
     out = {"model": material.model, "E_kPa": float(material.E), "nu": float(material.nu),
            "density_kg_mm3": float(material.density)}
-    if material.model == "neo-hookean":
+    if material.model in UNCOUPLED_LAWS:
         out["volumetric"] = material.volumetric
+    if material.coefficients:
+        out["coefficients_kPa"] = material.coefficients
     return out
 
 

@@ -17,7 +17,7 @@ QUANTITY = re.compile(
     r"noise|gravity|density|energy|pressure|stress|\barea\b|penetration|\bsize\b|position|"
     r"(^|: )E$|^[uF]_[xyz]\b|\|[uF]\||\bgoal\b|\bdt\b|\bpoint\b", re.IGNORECASE)
 UNITS = {"mm", "mN", "kPa", "s", "ms", "µJ", "sqrt uJ", "mm·s²", "1/mm²", "mm/s²", "kg/mm³",
-         "mm²", "%", "rel", "relative", "deg", "cm³"}
+         "mm²", "mm/mm", "%", "rel", "relative", "deg", "cm³"}
 UNIT = re.compile(r"\(([^()]*)\)")
 NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
 

@@ -215,6 +215,33 @@ def test_a_missing_required_key_is_named_with_its_place(outputs, run, keys):
     assert f"tissue/schemas/{name}.schema.json" in str(err.value)
 
 
+PLUGIN = """
+import numpy as np
+
+
+def solve(case, pushes, **options):
+    return {"u": np.zeros((case.mesh.n_vertices, case.mesh.gdim)), "iterations": 2,
+            "history": {"iteration": [1, 2], "max_step_mm": [0.1, 0.01]},
+            "extra": {"model": "linear-elastic", "counts": np.arange(2), "tol": np.float64(1e-3)}}
+"""
+
+
+def test_a_verify_output_with_a_plugins_history_and_extra_matches_its_schema(outputs, tmp_path):
+    (tmp_path / "my_plugin.py").write_text(PLUGIN)
+    name = f"{tmp_path / 'my_plugin.py'}:solve"
+    js = tmp_path / "v.json"
+    assert main(["verify", str(outputs.case), "--push", "A1=1", "-q", "--solvers", name,
+                 "--json", str(js)]) == 0
+    data = validate_file("verify", js)
+    e = data["solvers"][name]
+    assert e["history"]["iteration"] == [1, 2] and e["extra"] == {"counts": [0, 1], "tol": 1e-3}
+    assert e["l2_error_mm"] > 0
+    e["history"]["max_step_mm"] = ["big"]
+    with pytest.raises(OutputSchemaError) as err:
+        validate("verify", data)
+    assert err.value.path == json_path(["solvers", name, "history", "max_step_mm", 0])
+
+
 def test_paths_name_plain_keys_with_dots_and_others_quoted():
     assert json_path([]) == "$"
     assert json_path(["reference", "runs", "neo-hookean", 0]) == \

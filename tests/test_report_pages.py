@@ -247,6 +247,40 @@ def test_the_verify_and_suite_pages_are_well_formed(work):
     check_page(work / "s" / "suite.html")
 
 
+PLUGIN = """
+import numpy as np
+
+
+def solve(case, pushes, **options):
+    return {{"u": np.full((case.mesh.n_vertices, case.mesh.gdim), {shift}),
+             "history": {{"iteration": [1, 2, 3], "max_step_mm": [0.1, 0.01, 0.001]}}}}
+"""
+
+
+def test_a_verify_page_links_the_plot_of_every_plugin_it_wrote(work):
+    """Two plugins named by files of one name in two folders (path/to/plugin.py:solve): each
+    plot is written beside the page under a name of its own without folders or colons, the
+    page shows every plot it wrote and links nothing else."""
+    names = []
+    for k, folder in enumerate(("first", "second")):
+        (work / folder).mkdir()
+        (work / folder / "plugin.py").write_text(PLUGIN.format(shift=0.001 * (k + 1)))
+        names.append(f"{work / folder / 'plugin.py'}:solve")
+    out = work / "v_plugins"
+    _run(["verify", work / "box.toml", "--push", "A1=1", "-q", "--solvers", "mass-tensor",
+          *names, "--out", out])
+    found = check_page(out / "report.html")         # every <img> a PNG beside the page
+    written = sorted(p.name for p in out.iterdir() if p.suffix == ".png")
+    assert sorted(found["images"]) == written and len(written) == 3
+    assert all(p.is_file() for p in out.iterdir())  # no folders made from a plugin's path
+    assert "convergence_mass-tensor.png" in written
+    for png in written:
+        assert re.fullmatch(r"convergence_[A-Za-z0-9][A-Za-z0-9._-]*\.png", png), png
+    page = (out / "report.html").read_text()
+    assert "<th>H1 seminorm error (mm/mm)</th>" in page
+    assert page.count("<h3>") == 3 and all(html.escape(n) in page for n in names)
+
+
 def test_the_reference_records_every_newton_iterate_for_the_plot():
     import tissue_reference.fem_reference as fr
 

@@ -37,7 +37,13 @@ def test_json_has_the_error_speed_and_iteration_keys_for_every_solver(run, small
         assert set(e["probe_error_mm"]) == {p.name for p in small_case.probes}
         assert 0 <= e["rms_vertex_error_mm"] <= e["max_vertex_error_mm"]
         assert max(e["probe_error_mm"].values()) <= e["max_vertex_error_mm"] + 1e-12
+        # the volume norms of the P1 interpolant of the difference: |e| inside a cell is at
+        # most its largest value at the cell's vertices, so the volume RMS is too
+        assert 0 <= e["l2_error_mm"] <= e["max_vertex_error_mm"] + 1e-12
+        assert np.isfinite(e["h1_seminorm_error"]) and e["h1_seminorm_error"] >= 0
+        assert np.isfinite(e["energy_norm_error_sqrt_uJ"]) and e["energy_norm_error_sqrt_uJ"] >= 0
     assert "mass-tensor" in on_disk["solvers"]
+    assert on_disk["solvers"]["mass-tensor"]["l2_error_mm"] < 1e-5
 
 
 def test_json_has_admm_and_reference_iteration_counts(run):
@@ -96,11 +102,33 @@ def test_report_has_tables_and_one_png_plot_per_solver(run):
     assert not [p for p in (out / "report").iterdir() if p.name.startswith(".")]  # no temp files
 
 
+def test_every_solver_gets_a_plot_file_name_that_is_safe_and_its_own():
+    """No folders, colons or characters a URL escapes; the built-ins keep their names; two
+    plugins of one file name in different folders get different files."""
+    import re
+
+    from tissue_reference.tissue.verify_report import plot_file
+
+    names = ["admm", "mass-tensor", "admm-plain", "a/b/plugin.py:solve", "c/b/plugin.py:solve",
+             "/abs/path/plugin.py:solve", "plugin.py:solve", "test_mod:<lambda>",
+             "test_mod:f.<locals>.g", "my dir/my solver.py:run", "C:\\x\\p.py:f",
+             "ünï:cödé", "../../up.py:x", "...", ":", "x" * 300]
+    files = [plot_file(n) for n in names]
+    for n, f in zip(names, files):
+        assert re.fullmatch(r"convergence_[A-Za-z0-9][A-Za-z0-9._-]*\.png", f), (n, f)
+        assert len(f) < 100, f
+    assert len(set(files)) == len(names)
+    assert files[:3] == ["convergence_admm.png", "convergence_mass-tensor.png",
+                         "convergence_admm-plain.png"]
+
+
 def test_loose_stopping_rule_gives_a_positive_error_below_the_pushes(small_case):
     res = verify(small_case, PUSHES, solvers=("mass-tensor-pcg", "mass-tensor"),
                  options={"mass-tensor-pcg": {"stop_mm": 0.05}})
     e = res["solvers"]["mass-tensor-pcg"]
     assert 1e-4 < e["max_vertex_error_mm"] < 2.0
+    assert 0 < e["l2_error_mm"] <= e["max_vertex_error_mm"]
+    assert e["h1_seminorm_error"] > 0 and e["energy_norm_error_sqrt_uJ"] > 0
     # the direct solve has no stopping error: the linear reference's answer to round-off
     assert res["solvers"]["mass-tensor"]["max_vertex_error_mm"] < 1e-9
     assert e["speedup_vs_reference"] > 0

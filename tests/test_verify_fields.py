@@ -66,22 +66,32 @@ def test_the_exact_field_scores_zero_in_any_vertex_order(case, tmp_path):
     assert max(e["probe_error_mm"].values()) < 1e-9
 
 
+A_PERT = np.array([[0.01, -0.02, 0.0], [0.03, 0.0, 0.01], [0.0, 0.02, -0.01]])
+C_PERT = np.array([0.1, -0.2, 0.05])
+
+
+def box_norms(A, c):
+    """Volume L2 (mm), H1 seminorm and small-strain energy norm (sqrt(uJ), MAT's E and nu) of
+    the linear field delta = A x + c over the box [0, L]^3, integrated by hand."""
+    # int_box x_i x_j dV / V = L^2/4 + delta_ij L^2/12;  int x_i dV / V = L/2
+    M = np.full((3, 3), L * L / 4) + np.eye(3) * L * L / 12
+    l2_sq = np.einsum("ki,kj,ij->", A, A, M) + 2 * c @ A @ np.full(3, L / 2) + c @ c
+    mu, lam = MAT.E / (2 * (1 + MAT.nu)), MAT.E * MAT.nu / ((1 + MAT.nu) * (1 - 2 * MAT.nu))
+    eps = (A + A.T) / 2
+    energy = np.sqrt(L ** 3 * (2 * mu * np.sum(eps * eps) + lam * np.trace(eps) ** 2))
+    return np.sqrt(l2_sq), np.linalg.norm(A), energy
+
+
 def test_a_linear_perturbation_scores_its_closed_form_norms(case, tmp_path):
-    A = np.array([[0.01, -0.02, 0.0], [0.03, 0.0, 0.01], [0.0, 0.02, -0.01]])
-    c = np.array([0.1, -0.2, 0.05])
+    A, c = A_PERT, C_PERT
     X = case.mesh.points
     perm = np.random.default_rng(2).permutation(len(X))
     write_vtu(tmp_path / "pert.vtu", X[perm], np.argsort(perm)[case.mesh.cells],
               (exact(X) + X @ A.T + c)[perm])
     e = score(case, tmp_path / "pert.vtu")
-    # int_box x_i x_j dV / V = L^2/4 + delta_ij L^2/12;  int x_i dV / V = L/2
-    M = np.full((3, 3), L * L / 4) + np.eye(3) * L * L / 12
-    l2_sq = np.einsum("ki,kj,ij->", A, A, M) + 2 * c @ A @ np.full(3, L / 2) + c @ c
-    assert e["l2_error_mm"] == pytest.approx(np.sqrt(l2_sq), rel=1e-9)
-    assert e["h1_seminorm_error"] == pytest.approx(np.linalg.norm(A), rel=1e-9)
-    mu, lam = MAT.E / (2 * (1 + MAT.nu)), MAT.E * MAT.nu / ((1 + MAT.nu) * (1 - 2 * MAT.nu))
-    eps = (A + A.T) / 2
-    energy = np.sqrt(L ** 3 * (2 * mu * np.sum(eps * eps) + lam * np.trace(eps) ** 2))
+    l2, h1, energy = box_norms(A, c)
+    assert e["l2_error_mm"] == pytest.approx(l2, rel=1e-9)
+    assert e["h1_seminorm_error"] == pytest.approx(h1, rel=1e-9)
     assert e["energy_norm_error_sqrt_uJ"] == pytest.approx(energy, rel=1e-9)
     d = np.linalg.norm(X @ A.T + c, axis=1)
     assert e["max_vertex_error_mm"] == pytest.approx(d.max(), rel=1e-9)
@@ -218,6 +228,47 @@ def test_a_plugin_may_return_a_result_object(case):
     out = verify(case, {}, solvers=[lambda c, p: Out(exact(c.mesh.points))])
     e = next(iter(out["solvers"].values()))
     assert e["iterations"] == 7 and e["converged"] is True and e["max_vertex_error_mm"] < 1e-9
+
+
+PLUGIN_FILE = """
+import numpy as np
+
+G = np.array({G})
+A = np.array({A})
+C = np.array({c})
+
+
+def zero(case, pushes, **options):
+    return np.zeros((case.mesh.n_vertices, 3))
+
+
+def perturbed(case, pushes, **options):
+    return case.mesh.points @ (G + A).T + C
+"""
+
+
+def test_a_plugin_file_gets_the_volume_norms_of_its_vertex_field(case, tmp_path):
+    """A solver named by its file (path/to/file.py:function) is scored with the L2, H1 and
+    energy-norm errors of the P1 interpolant of its vertex field, as that field given as
+    --field is: the zero field misses the whole affine answer G x (its error is the
+    reference's own norm), the perturbed one misses A x + c; both by hand over the box."""
+    f = tmp_path / "plugins" / "my_plugin.py"
+    f.parent.mkdir()
+    f.write_text(PLUGIN_FILE.format(G=G.tolist(), A=A_PERT.tolist(), c=C_PERT.tolist()))
+    zero, perturbed = f"{f}:zero", f"{f}:perturbed"
+    out = verify(case, {}, solvers=[zero, perturbed], degree=1, formulation="displacement")
+    for name, (A, c) in ((zero, (G, np.zeros(3))), (perturbed, (A_PERT, C_PERT))):
+        e = out["solvers"][name]
+        l2, h1, energy = box_norms(A, c)
+        assert e["l2_error_mm"] == pytest.approx(l2, rel=1e-9), name
+        assert e["h1_seminorm_error"] == pytest.approx(h1, rel=1e-9), name
+        assert e["energy_norm_error_sqrt_uJ"] == pytest.approx(energy, rel=1e-9), name
+    e = out["solvers"][zero]
+    for k in ("l2_relative_error", "h1_relative_error", "energy_relative_error"):
+        assert e[k] == pytest.approx(1.0, rel=1e-9), k
+    as_field = score(case, np.zeros((case.mesh.n_vertices, 3)), degree=1)
+    for k in ("l2_error_mm", "h1_seminorm_error", "energy_norm_error_sqrt_uJ"):
+        assert e[k] == pytest.approx(as_field[k], rel=1e-12), k
 
 
 # --------------------------------------------------------------------------- honest scores

@@ -22,6 +22,11 @@ from .common import (
 from .verify import DEFAULT_SOLVERS, FAST_SOLVERS, invalid_runs, verify
 
 
+def _rel(x) -> str:
+    """A relative error, or "-" where the reference's own norm is 0 (no pushes)."""
+    return "-" if x is None else f"{x:.3g}"
+
+
 def _line(name, e):
     its = ""
     if "admm_iterations" in e:
@@ -45,9 +50,9 @@ def _line(name, e):
         print(f"    polish restarts: {len(e['polish_restarts'])}: {e['polish_restarts'][0]}")
     if "l2_error_mm" in e:
         en = e.get("energy_norm_error_sqrt_uJ")
-        print(f"    volume L2 {e['l2_error_mm']:.4g} mm (rel {e['l2_relative_error'] or 0:.3g}), "
-              f"H1 seminorm {e['h1_seminorm_error']:.4g} (rel {e['h1_relative_error'] or 0:.3g})"
-              + (f", energy norm {en:.4g} sqrt(uJ) (rel {e['energy_relative_error']:.3g})"
+        print(f"    volume L2 {e['l2_error_mm']:.4g} mm (rel {_rel(e['l2_relative_error'])}), "
+              f"H1 seminorm {e['h1_seminorm_error']:.4g} (rel {_rel(e['h1_relative_error'])})"
+              + (f", energy norm {en:.4g} sqrt(uJ) (rel {_rel(e['energy_relative_error'])})"
                  if en is not None else ""))
     if e.get("matched"):
         how = e["matched"] + (f"; reference {e['reference_interpolation']}"

@@ -1,7 +1,7 @@
 """Solvers that are not ours: a callable, an import path ``module:function``, a Python file
 ``path/to/my_solver.py:function``, or an entry point.
 
-The protocol every solver follows (the built-in ones too, through ``builtin_solver``)::
+The protocol every such solver follows (docs/verification.md, "Writing a solver plugin")::
 
     def my_solver(case, pushes, **options):
         ...
@@ -11,13 +11,16 @@ The protocol every solver follows (the built-in ones too, through ``builtin_solv
 ``pushes`` maps actuator names to pushes (mm); ``case.with_pushes(pushes)`` gives the boundary
 values. Instead of an array a solver may return an object (or a mapping) with ``u`` and any of
 ``iterations`` (a whole number), ``converged`` (True or False), ``wall_time_s`` (seconds),
-``history`` (a mapping of per-iteration lists of numbers, e.g. ``max_step_mm`` for the
-convergence plot) and ``extra`` (a mapping; its ``"model"``, e.g. "linear-elastic", names the
-material model the solver solves in the scores) — a ``meshes.results.SolveResult`` is one. Each is
-checked as a built-in solver's figures are: a value of another kind is a PluginError naming the
-field, and so is a complex displacement. A solver that does not handle a problem raises
-``meshes.errors.CaseError`` with a message saying why; ``verify`` reports that (exit status 2)
-instead of a score.
+``history`` (a mapping of per-iteration lists of numbers: ``max_step_mm`` is drawn in the
+convergence plot, against ``iteration``, the iteration numbers, when that list is as long) and
+``extra`` (a mapping; its ``"model"``, e.g. "linear-elastic", names the material model the
+solver solves in the scores) — a ``meshes.results.SolveResult`` is one. Each is checked as a
+built-in solver's figures are: a value of another kind is a PluginError naming the field, and so
+is a complex displacement. ``tissue verify`` keeps ``history`` and ``extra`` in its output, so
+``extra`` holds what JSON can (``json_safe``: numbers, text, booleans, None, lists and mappings,
+NumPy arrays and scalars); another value is a PluginError naming it. A solver that does not
+handle a problem raises ``meshes.errors.CaseError`` with a message saying why; ``verify``
+reports that (exit status 2) instead of a score.
 
 A package makes its solver available by name through the entry-point group ``tissue.solvers``::
 
@@ -27,9 +30,11 @@ A package makes its solver available by name through the entry-point group ``tis
 from __future__ import annotations
 
 import importlib
+import json
 import os
 import sys
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -37,7 +42,7 @@ import numpy as np
 from tissue_reference.meshes.errors import TissueError
 
 __all__ = ["ENTRY_POINT_GROUP", "PluginError", "PluginRun", "SolverPlugin", "entry_point_solvers",
-           "resolve_solver", "run_plugin"]
+           "json_safe", "resolve_solver", "run_plugin"]
 
 ENTRY_POINT_GROUP = "tissue.solvers"
 
@@ -201,6 +206,59 @@ def run_plugin(plugin: SolverPlugin, case, pushes: dict, options: dict | None = 
 
 _FIGURES = ("iterations", "converged", "wall_time_s", "history", "extra")
 """What a solver may report beside its displacement (the module docstring)."""
+
+_JSON_DEPTH = 64   # deeper nesting than this in a reported figure is taken for a cycle
+
+
+def json_safe(plugin: SolverPlugin, what: str, value, _depth: int = 0):
+    """``value`` (a figure the solver ``plugin`` reported, e.g. its ``extra``) as JSON holds it:
+    numbers, text, True / False / None, lists and mappings of them, with NumPy arrays as lists,
+    NumPy scalars as numbers, tuples as lists and paths as text; mapping keys as text (JSON's
+    own rule: whole and real numbers, booleans and None become text). Anything else (a complex
+    number, an object, a key of another kind, nesting deeper than 64 levels) is a PluginError
+    naming where it is, e.g. ``extra['lu']``."""
+    def bad(why):
+        return PluginError(f"solver {plugin.name!r} reported {what} = {_short(value)}: {why}; "
+                           f"the verify output keeps what a solver reports as JSON: give "
+                           f"numbers, text, True/False/None, lists or mappings of them, or "
+                           f"NumPy arrays and scalars")
+
+    if _depth > _JSON_DEPTH:
+        raise bad(f"nested deeper than {_JSON_DEPTH} levels (a cycle?)")
+    if isinstance(value, (np.bool_, np.integer, np.floating)):
+        return value.item()
+    if value is None or isinstance(value, (bool, str, int, float)):
+        return value
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind in "biuf":
+            return value.tolist()
+        value = value.tolist()        # text or objects: each element checked below
+        if not isinstance(value, list):
+            return json_safe(plugin, what, value, _depth + 1)
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    if isinstance(value, Mapping):
+        out = {}
+        for k, v in value.items():
+            if not isinstance(k, (str, int, float, bool, np.integer, np.floating, np.bool_)) \
+                    and k is not None:
+                raise bad(f"a key of type {type(k).__name__} ({k!r}): keys must be text or "
+                          f"numbers")
+            key = k if isinstance(k, str) else json.dumps(_plain(k))
+            out[key] = json_safe(plugin, f"{what}[{k!r}]", v, _depth + 1)
+        return out
+    if isinstance(value, (list, tuple)):
+        return [json_safe(plugin, f"{what}[{i}]", v, _depth + 1) for i, v in enumerate(value)]
+    raise bad(f"a value of type {type(value).__name__}, which JSON cannot hold")
+
+
+def _plain(k):
+    return k.item() if isinstance(k, np.generic) else k
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def _has_complex(raw) -> bool:

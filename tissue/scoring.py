@@ -21,7 +21,8 @@ interpolant of the difference ``l2_error_mm`` (= sqrt(int |e|^2 dV / V), an RMS 
 norm of the difference with the Case's E and nu, ``energy_norm_error_sqrt_uJ`` (sqrt(int sigma(e) :
 eps(e) dV), sqrt(uJ); none at nu = 0.5); ``probe_error_mm`` per probe (the field interpolated
 at the probe, minus the reference's probe value); relative figures divide by the reference's own
-norm. Units: mm, kPa, uJ.
+norm. Units: mm, kPa, uJ. ``vertex_norms`` gives the volume norms of two fields at the Case mesh's
+vertices: ``tissue verify`` scores every solver's vertex displacements with it, built-in or not.
 """
 from __future__ import annotations
 
@@ -35,7 +36,8 @@ from tissue_reference.meshes.errors import CaseError
 
 log = logging.getLogger("tissue.scoring")
 
-__all__ = ["FIELD_NAMES", "Field", "field_from_array", "load_field", "score_field"]
+__all__ = ["FIELD_NAMES", "Field", "field_from_array", "load_field", "score_field",
+           "vertex_norms"]
 
 # point-data names taken as the displacement, in order of preference
 FIELD_NAMES = ("displacement", "u", "Displacement", "U", "disp", "DISPLACEMENT")
@@ -318,6 +320,17 @@ def _mesh_norms(X, cells, e, u_ref, material):
     return res
 
 
+def vertex_norms(case, u, u_ref, material=None) -> dict:
+    """The volume norms of ``u - u_ref`` for two fields at the Case mesh's vertices (its order,
+    (n, gdim) mm): the P1 interpolant of the difference on the Case's cells, as for a field on
+    the Case's mesh (module docstring: ``l2_error_mm``, ``h1_seminorm_error``,
+    ``energy_norm_error_sqrt_uJ`` and their relative values). material: the E and nu of the
+    energy norm (default the Case's)."""
+    u_ref = np.asarray(u_ref, float)
+    return _mesh_norms(case.mesh.points, case.mesh.cells, np.asarray(u, float) - u_ref, u_ref,
+                       case.material if material is None else material)
+
+
 def score_field(case, ref, field: Field, *, outside: str = "error") -> dict:
     """Scores of ``field`` against the reference SolveResult ``ref`` of ``case`` (see the module
     docstring). outside: "error" (default) raises CaseError naming the points outside the body;
@@ -344,7 +357,7 @@ def score_field(case, ref, field: Field, *, outside: str = "error") -> dict:
         out["matched"] = "case mesh vertices" + (" by coordinates" if field.points is not None
                                                   else " in their order")
         e = uu - ref_u
-        out.update(_mesh_norms(X, case.mesh.cells, e, ref_u, case.material))
+        out.update(vertex_norms(case, uu, ref_u))
         probes = case.probe_values(uu)
     else:                                     # another mesh: the reference at its points
         pts = field.points

@@ -18,13 +18,20 @@ Three kinds of candidate, each scored against the reference it should match:
 - a displacement field (``field=``: a file or a ``tissue.scoring.Field``), on the Case's mesh
   in any vertex order or on another mesh of the same body (``tissue.scoring``).
 
-Plugins and fields are scored against the reference of the Case's own material with the
+Plugins and fields are scored against the reference of the Case's own material (a plugin that
+declares another law of ``meshes.case.MATERIAL_MODELS`` in its ``extra["model"]``, against that
+law's reference of the same E and nu: ``declared_law_case``, with the two references' distance,
+the law difference, reported beside its score as ``law_difference_mm`` and a note) with the
 discretization options of ``tissue solve`` (``degree``, ``formulation``; default the same as
 there), so a field written by ``tissue solve --out`` scores ~0. Per candidate: the error at every
-probe and over all vertices (max and RMS of |u - u_ref|, mm), and for fields the volume norms of
-``tissue.scoring``; iterations, wall time (s) and the speed ratio to the matching reference solve
-(built-ins: both timed on a second, warm call, the reference's first call reported as
-``first_call_wall_time_s``). ``out_dir`` gets report.html with the tables and convergence plots.
+probe and over all vertices (max and RMS of |u - u_ref|, mm) and the volume norms of
+``tissue.scoring`` (L2, H1 seminorm, energy norm: for a solver, of the P1 interpolant of the
+difference at the Case mesh's vertices, ``scoring.vertex_norms``, built-in or not); iterations,
+wall time (s) and the speed ratio to the matching reference solve (built-ins: both timed on a
+second, warm call, the reference's first call reported as ``first_call_wall_time_s``); for a
+plugin also its ``history`` and ``extra`` (less ``model``, reported as the model it solves),
+NumPy arrays and scalars as lists and numbers; an ``extra`` value JSON cannot hold is a
+PluginError naming it. ``out_dir`` gets report.html with the tables and convergence plots.
 
 Python:  ``verify(case, {"A1": 15.0}, solvers=["admm", my_solver], field="u.vtu")``.
 """
@@ -36,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_reference.meshes.case import COEFFICIENT_LAWS, MATERIAL_MODELS, UNCOUPLED_LAWS
 from tissue_reference.meshes.converged_range import unconverged_load
 from tissue_reference.meshes.errors import CaseError, NotModeledError
 from tissue_reference.meshes.mesh import deformation_state
@@ -43,11 +51,11 @@ from tissue_reference.meshes.results import material_json, write_json
 from tissue_reference.solvers import SOLVERS, get_solver, solver_module
 
 from .common import with_factorization
-from .plugins import resolve_solver, run_plugin
-from .scoring import Field, field_from_array, load_field, score_field
+from .plugins import json_safe, resolve_solver, run_plugin
+from .scoring import Field, field_from_array, load_field, score_field, vertex_norms
 from .verify_report import write_report
 
-__all__ = ["DEFAULT_SOLVERS", "FAST_SOLVERS", "VALIDITY_KEYS", "invalid_runs",
+__all__ = ["DEFAULT_SOLVERS", "FAST_SOLVERS", "VALIDITY_KEYS", "declared_law_case", "invalid_runs",
            "reference_material_for", "verify"]
 
 VALIDITY_KEYS = ("valid", "invalid_reason", "inverted_cells", "min_J", "max_displacement_mm")
@@ -92,12 +100,17 @@ def reference_material_for(case, solver: str):
 
 
 def _errors(case, u, u_ref, probes, probes_ref):
+    """The scores of a solver's vertex displacements ``u`` against the reference's ``u_ref`` on
+    ``case`` (the Case the reference solved: its E and nu weigh the energy norm): probe, max and
+    RMS vertex errors, and the volume norms of the P1 interpolant of the difference
+    (``scoring.vertex_norms``, as for a field on the Case's mesh)."""
     e = np.linalg.norm(np.asarray(u) - np.asarray(u_ref), axis=1)
     return {
         "probe_error_mm": {k: float(np.linalg.norm(np.asarray(probes[k]) - np.asarray(probes_ref[k])))
                            for k in probes_ref},
         "max_vertex_error_mm": float(e.max(initial=0.0)),
         "rms_vertex_error_mm": float(np.sqrt(np.mean(e ** 2))) if e.size else 0.0,
+        **vertex_norms(case, u, u_ref),
     }
 
 
@@ -334,18 +347,45 @@ def _score_builtin(name, case, pushes, opts, refs, out):
     return _with_estimate(entry, res_ref), trace
 
 
+def declared_law_case(case, declared):
+    """(the Case to score a plugin's answer against, why not its declared law): ``case`` with
+    the law ``declared`` (its ``extra["model"]``) and the case's E, nu, density (and
+    ``volumetric`` where that law takes one), or ``case`` itself with the reason when the
+    declared law is the case's, is not a law of MATERIAL_MODELS, needs coefficients the case
+    does not give (mooney-rivlin, yeoh) or refuses the case's E and nu."""
+    m = case.material
+    if not isinstance(declared, str) or declared == m.model:
+        return case, None
+    if declared not in MATERIAL_MODELS:
+        return case, (f"it declares the law {declared!r}, which the reference does not know "
+                      f"(laws: {list(MATERIAL_MODELS)})")
+    if declared in COEFFICIENT_LAWS:
+        return case, (f"it declares the {declared} law, whose coefficients "
+                      f"({', '.join(COEFFICIENT_LAWS[declared])}) the case does not give: name "
+                      f"them in its [material] to score it on its own law")
+    try:
+        return case.with_material(model=declared, E=m.E, nu=m.nu, c1=None, c2=None, c3=None,
+                                  k=None, volumetric=m.volumetric if declared in UNCOUPLED_LAWS
+                                  else "quadratic"), None
+    except CaseError as exc:
+        return case, f"its declared law cannot take the case's material: {exc}"
+
+
 def _score_plugin(plugin, case, pushes, opts, refs, degree, formulation):
-    _, res_ref = refs.get(case, degree, formulation, warm=False)
+    _, res_case = refs.get(case, degree, formulation, warm=False)
     run = run_plugin(plugin, case, pushes, opts)
-    entry = _errors(case, run.u, res_ref.u, case.probe_values(run.u), res_ref.probes)
+    declared = run.extra.get("model")
+    lcase, why_not = declared_law_case(case, declared)
+    res_ref = res_case if lcase is case else refs.get(lcase, degree, formulation, warm=False)[1]
+    entry = _errors(lcase, run.u, res_ref.u, case.probe_values(run.u), res_ref.probes)
     entry.update({
         "iterations": run.iterations, "converged": run.converged,
         "wall_time_s": run.wall_time_s,
         "speedup_vs_reference": float(res_ref.wall_time_s / run.wall_time_s)
         if run.wall_time_s > 0 else float("inf"),
         # the model a plugin solves is what its answer says (extra["model"]), not the case's
-        "model": str(run.extra.get("model") or "not stated (its extra['model'])"),
-        "reference_model": case.material.model,
+        "model": str(declared or "not stated (its extra['model'])"),
+        "reference_model": lcase.material.model,
         "reference_discretization": _disc(res_ref),
         "reference_wall_time_s": float(res_ref.wall_time_s),
         "reference_newton_iterations": int(res_ref.iterations),
@@ -353,14 +393,42 @@ def _score_plugin(plugin, case, pushes, opts, refs, degree, formulation):
         "options": {k: v for k, v in opts.items() if isinstance(v, (int, float, str, bool))},
         # the same validity check as a built-in solver's final state (inverted cells, runaway)
         **{k: v for k, v in deformation_state(case.mesh, run.u).items() if k in VALIDITY_KEYS},
+        # what the solver reported beside its figures, kept whole (its "model" is above)
+        "history": {k: list(v) for k, v in run.history.items()},
+        "extra": json_safe(plugin, "extra",
+                           {k: v for k, v in run.extra.items() if k != "model"}),
     })
-    trace = None
-    steps = run.history.get("max_step_mm")
-    if steps is not None and len(steps):
-        trace = {"iteration": list(range(1, len(steps) + 1)),
-                 "max_error_mm": [float("nan")] * len(steps),
-                 "max_step_mm": [float(s) for s in steps]}
-    return _with_estimate(entry, res_ref), trace
+    if lcase is not case:
+        gap = np.linalg.norm(np.asarray(res_ref.u) - np.asarray(res_case.u), axis=1)
+        entry["law_difference_mm"] = float(gap.max(initial=0.0))
+        entry["note"] = (f"a {declared} solver: scored against the {declared} reference of the "
+                         f"case's E and nu, not the case's {case.material.model} material; the "
+                         f"two laws' references differ by up to {entry['law_difference_mm']:.3g} "
+                         f"mm (the law difference, not solver error)")
+    elif why_not:
+        entry["note"] = (f"scored against the case's {case.material.model} reference: {why_not}; "
+                         f"its score then holds the law difference too")
+    if entry.get("note"):
+        print(f"tissue verify: warning: {plugin.name}: {entry['note']}")
+    return _with_estimate(entry, res_ref), _plugin_trace(run.history)
+
+
+def _plugin_trace(history: dict) -> dict | None:
+    """The convergence plot's data of a plugin: its ``history["max_step_mm"]`` against its
+    ``history["iteration"]`` (the iteration numbers, as the built-in solvers' traces record
+    them) when it gives one per step, else against the entry's place in the history
+    (``"entry"``); None without steps. Its distance to the reference per iteration is unknown."""
+    steps = history.get("max_step_mm")
+    if not steps:
+        return None
+    trace = {"max_error_mm": [float("nan")] * len(steps),
+             "max_step_mm": [float(s) for s in steps]}
+    its = history.get("iteration")
+    if its is not None and len(its) == len(steps):
+        trace["iteration"] = [int(i) if float(i).is_integer() else float(i) for i in its]
+    else:
+        trace["entry"] = list(range(1, len(steps) + 1))
+    return trace
 
 
 def _score_field(field, case, refs, degree, formulation, outside):

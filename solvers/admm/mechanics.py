@@ -13,6 +13,9 @@ import scipy.sparse as sp
 
 from tissue_reference.meshes.errors import CaseError
 
+ADMM_LAWS = ("neo-hookean", "linear-elastic")
+"""The strain-energy laws the ADMM solver implements; it refuses the others by name."""
+
 
 @dataclass(frozen=True)
 class ElementKinematics:
@@ -82,6 +85,7 @@ class Law:
     displacement gradient H (m, d, d)."""
 
     def __init__(self, material, d):
+        material.require_law(ADMM_LAWS, "the ADMM solver")
         material.require_compressible("the ADMM solver")
         material.require_seed_volumetric("the ADMM solver")
         self.model = material.model
