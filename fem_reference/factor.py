@@ -1,15 +1,56 @@
-"""CHOLMOD factorizations of scipy sparse matrices through PETSc, for callers outside this
-package that must not import PETSc themselves (``solvers.admm.solve(..., factorize=
+"""CHOLMOD factorizations of scipy sparse matrices through PETSc (PETSc alone: no dolfinx), for
+callers outside this package that must not import PETSc themselves (``solvers.admm.solve(..., factorize=
 cholmod_factor)``: the Newton polish of the ADMM solver). Units are the caller's."""
 from __future__ import annotations
+
+import functools
+import os
+import sys
 
 import numpy as np
 import scipy.sparse as sp
 from petsc4py import PETSc
 
-from .linalg import has_cholmod, quiet_c_output
+__all__ = ["cholmod_factor", "has_cholmod", "quiet_c_output"]
 
-__all__ = ["cholmod_factor"]
+
+@functools.cache
+def has_cholmod() -> bool:
+    """Whether this PETSc build has SuiteSparse's CHOLMOD (Debian's has)."""
+    try:
+        m = PETSc.Mat().createAIJ((1, 1), nnz=1, comm=PETSc.COMM_SELF)
+        m.setValue(0, 0, 1.0)
+        m.assemble()
+        k = PETSc.KSP().create(PETSc.COMM_SELF)
+        k.setOperators(m)
+        k.setType("preonly")
+        k.getPC().setType("cholesky")
+        k.getPC().setFactorSolverType("cholmod")
+        k.setUp()
+        return True
+    except PETSc.Error:
+        return False
+
+
+class quiet_c_output:
+    """Silences C-level stdout and stderr (file descriptors 1 and 2) inside the block (CHOLMOD
+    prints its warnings with printf)."""
+
+    def __enter__(self):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        self._saved = [(fd, os.dup(fd)) for fd in (1, 2)]
+        null = os.open(os.devnull, os.O_WRONLY)
+        for fd, _ in self._saved:
+            os.dup2(null, fd)
+        os.close(null)
+
+    def __exit__(self, *exc):
+        for fd, saved in self._saved:
+            os.dup2(saved, fd)
+            os.close(saved)
+        return False
+
 
 
 def cholmod_factor(A, cache: dict | None = None):

@@ -5,16 +5,14 @@ CG + GAMG iterative mode and the fieldsplit (Schur complement) FGMRES of the mix
 the assembled tangent (mN/mm) and residual (mN)."""
 from __future__ import annotations
 
-import functools
 import logging
-import os
-import sys
 
 import dolfinx
 import dolfinx.fem
 from dolfinx.la import orthonormalize
 from petsc4py import PETSc
 
+from .factor import quiet_c_output
 from .mumps import grown_mumps_workspace, mumps_failure, set_mumps_workspace, solve_mumps
 from .newton_settings import NewtonSettings, Timings
 from .saddle import FieldSplit
@@ -28,44 +26,6 @@ LAGGED_ABOVE_DOFS = 1000
 # linear_solver="auto" with the mixed formulation: above this many dofs Newton solves the
 # saddle-point tangent by fieldsplit FGMRES (``saddle``) instead of the lagged MUMPS factor.
 FIELDSPLIT_ABOVE_DOFS = 100_000
-
-
-@functools.cache
-def has_cholmod() -> bool:
-    """Whether this PETSc build has SuiteSparse's CHOLMOD (Debian's has)."""
-    try:
-        m = PETSc.Mat().createAIJ((1, 1), nnz=1, comm=PETSc.COMM_SELF)
-        m.setValue(0, 0, 1.0)
-        m.assemble()
-        k = PETSc.KSP().create(PETSc.COMM_SELF)
-        k.setOperators(m)
-        k.setType("preonly")
-        k.getPC().setType("cholesky")
-        k.getPC().setFactorSolverType("cholmod")
-        k.setUp()
-        return True
-    except PETSc.Error:
-        return False
-
-
-class quiet_c_output:
-    """Silences C-level stdout and stderr (file descriptors 1 and 2) inside the block (CHOLMOD
-    prints its warnings with printf)."""
-
-    def __enter__(self):
-        sys.stdout.flush()
-        sys.stderr.flush()
-        self._saved = [(fd, os.dup(fd)) for fd in (1, 2)]
-        null = os.open(os.devnull, os.O_WRONLY)
-        for fd, _ in self._saved:
-            os.dup2(null, fd)
-        os.close(null)
-
-    def __exit__(self, *exc):
-        for fd, saved in self._saved:
-            os.dup2(saved, fd)
-            os.close(saved)
-        return False
 
 
 class LinearSolver:

@@ -52,9 +52,10 @@ from .discretization import (
     resolve_formulation,
 )
 from .dolfinx_mesh import DolfinxMesh, to_dolfinx
+from .factor import has_cholmod
 from .forms import mixed_energy_density, strain_energy_density
 from .jit import compile_form
-from .linalg import FIELDSPLIT_ABOVE_DOFS, LAGGED_ABOVE_DOFS, LinearSolver, has_cholmod
+from .linalg import FIELDSPLIT_ABOVE_DOFS, LAGGED_ABOVE_DOFS, LinearSolver
 from .logs import install_log_filters
 from .newton import Newton
 from .newton_settings import NewtonSettings, Timings

@@ -1,5 +1,6 @@
 """Shared helpers of the tests (no tests here): an independent linear-elastic P1 stiffness,
-central finite differences along coordinate directions, and a reference whose warm starts fail."""
+central finite differences along coordinate directions (of a function, and of the reference's
+probes in one push), and a reference whose warm starts fail."""
 from __future__ import annotations
 
 import numpy as np
@@ -47,6 +48,21 @@ def central_differences(fun, u, count, seed, h=1e-6):
         e = np.zeros_like(u)
         e[k] = h
         yield k, (fun(u + e) - fun(u - e)) / (2 * h)
+
+
+def jacobian_column_error(case, actuator: str, push: float, h: float = 0.01) -> float:
+    """The largest difference between the control Jacobian's column of ``actuator`` at a
+    ``push`` (mm) pre-push and the central difference of the reference's probes over +-``h``
+    mm, relative to the largest entry of the latter."""
+    import tissue_reference.fem_reference as fr
+    from tissue_reference.control.plants import jacobian_at
+
+    out = jacobian_at(case, {actuator: push}, fd_h=0)
+    col = np.asarray(out["J"])[:, out["actuators"].index(actuator)]
+    plus = fr.solve(case, pushes={actuator: push + h}).probes
+    minus = fr.solve(case, pushes={actuator: push - h}).probes
+    fd = np.concatenate([(plus[t] - minus[t]) / (2 * h) for t in out["targets"]])
+    return float(np.max(np.abs(col - fd)) / np.max(np.abs(fd)))
 
 
 def refuse_warm_starts(monkeypatch):

@@ -179,8 +179,7 @@ def test_polish_factorization_is_cholmod_while_definite_and_superlu_otherwise():
     import scipy.sparse.linalg as spla
 
     from tissue_reference.fem_reference import cholmod_factor
-    from tissue_reference.fem_reference.factor import PetscFactor
-    from tissue_reference.fem_reference.linalg import has_cholmod
+    from tissue_reference.fem_reference.factor import PetscFactor, has_cholmod
     case = _case(box(1.5), "neo-hookean")
     ops = admm.prepare(case)
     u = admm.solve(case, polish=False, max_iter=50).u.ravel()

@@ -34,7 +34,7 @@ def test_state_and_jacobian_match_full_solves_along_a_path(case, factorize):
     hook = None
     if factorize == "cholmod":
         from tissue_reference.fem_reference import cholmod_factor
-        from tissue_reference.fem_reference.linalg import has_cholmod
+        from tissue_reference.fem_reference.factor import has_cholmod
         if not has_cholmod():
             pytest.skip("this PETSc has no CHOLMOD")
         hook = cholmod_factor

@@ -150,3 +150,27 @@ def test_commands_share_helpers_through_modules_of_their_own():
     crossing = sorted((a, b) for a, out in graph.edges.items() if a.startswith(prefix)
                       for b in out if b.startswith(prefix))
     assert crossing == []
+
+
+def test_a_fast_solve_on_the_command_line_loads_no_dolfinx():
+    """`tissue solve --solver admm` and the modules of fem_reference that need no dolfinx
+    (its CHOLMOD factorization, the measured rows, the settings) load neither dolfinx nor UFL:
+    the package's names are imported on first use."""
+    import subprocess
+
+    code = ("import sys\n"
+            "from tissue_reference.tissue.cli import main\n"
+            "rc = main(['solve', 'phantom', '--size', '14', '--push', 'A1=1', '--solver', 'admm',"
+            " '-q'])\n"
+            "from tissue_reference.fem_reference import cholmod_factor\n"
+            "import tissue_reference.fem_reference.measured, tissue_reference.fem_reference.newton_settings\n"
+            "print('exit', rc, 'loaded', sorted(m for m in ('dolfinx', 'ufl', 'ffcx') "
+            "if m in sys.modules))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
+                         timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "exit 0 loaded []" in out.stdout, out.stdout[-2000:]
+    import tissue_reference.fem_reference as fr
+    assert fr.solve.__module__ == "tissue_reference.fem_reference.answer"   # resolved lazily
+    with pytest.raises(AttributeError, match="has no attribute 'nothing'"):
+        fr.nothing  # noqa: B018
