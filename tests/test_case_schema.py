@@ -110,9 +110,9 @@ def test_every_shipped_case_validates_and_loads(path):
     assert case.name == path.stem and len(case.probes) == targets
 
 
-def test_readme_and_test_case_examples_validate():
-    readme = (ROOT / "README.md").read_text()
-    block = re.search(r"## The Case file.*?```toml\n(.*?)```", readme, re.DOTALL)[1]
+def test_case_file_guide_and_test_case_examples_validate():
+    guide = (ROOT / "docs" / "case-files-guide.md").read_text()
+    block = re.search(r"## An example, key by key.*?```toml\n(.*?)```", guide, re.DOTALL)[1]
     for text in (block, BOX, EVERY_TYPE, RECTANGLE, MESH_FILE, INDENTER):
         assert schema_errors(tomllib.loads(text)) == []
 

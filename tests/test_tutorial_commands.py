@@ -1,4 +1,4 @@
-"""Every command of the tutorial (docs/tutorial.md) and of the README's first screen runs as a
+"""Every command of the tutorial (docs/tutorial.md) and of the README runs as a
 newcomer runs it: from a folder of their own outside the repository, with the shipped cases by
 name, output folders made as needed and their own solver given as a file (the tutorial's
 ``my_solver.py``: here the repository's example plugin, which the tutorial names as one).
@@ -50,8 +50,7 @@ def tutorial_commands() -> list[list[str]]:
 
 
 def readme_commands() -> list[list[str]]:
-    start = README.read_text().split("## Start here", 1)[1]
-    return _commands(_sh_blocks(start)[0], ".venv/bin/tissue")
+    return [c for b in _sh_blocks(README.read_text()) for c in _commands(b, ".venv/bin/tissue")]
 
 
 def _smaller(argv: list[str]) -> list[str]:
