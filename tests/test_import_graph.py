@@ -167,6 +167,7 @@ def test_a_fast_solve_on_the_command_line_loads_no_dolfinx():
             "print('exit', rc, 'loaded', sorted(m for m in ('dolfinx', 'ufl', 'ffcx') "
             "if m in sys.modules))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
+                         check=False,
                          timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
     assert "exit 0 loaded []" in out.stdout, out.stdout[-2000:]
