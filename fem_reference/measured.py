@@ -6,9 +6,10 @@ Its error is measured instead, once, against the converged answers of refinement
 (docs/verification.md), for the loads the case is meant for. The case file keeps each
 measurement as a row: the load (actuator -> push, mm), the discretization measured (its unknowns,
 degree, contact rule and tip start) and the largest relative differences of the indenters'
-forces and of the probes' displacement vectors from the converged values, with what those
-values are; a load at which no converged value is known is a row with ``converged = false``
-and why.
+forces and of the probes' displacement vectors from the values they are measured against, with
+what those values are and, as ``band``, how far those are themselves from the converged value
+(the GCI bands of the study's finest level): the answer's error bar is the sum (``error_bar``).
+A load at which no converged value is known is a row with ``converged = false`` and why.
 
 ``measured_accuracy`` hands back the row that describes a given answer: the same unknowns,
 degree, contact rule, tip start and pushes (to PUSH_TOL mm). Another mesh, degree, rule, start
@@ -25,8 +26,8 @@ from tissue_reference.meshes.tips import default_contact_rule, default_tip_start
 
 from .discretization import default_degree
 
-__all__ = ["PUSH_TOL", "accuracy_line", "describe", "measured_accuracy", "unmatched_note",
-           "with_measured_accuracy"]
+__all__ = ["PUSH_TOL", "accuracy_line", "describe", "error_bar", "measured_accuracy",
+           "unmatched_note", "with_measured_accuracy"]
 
 PUSH_TOL = 1e-9
 """A measured load matches an answer's when every push agrees to this (mm)."""
@@ -120,10 +121,35 @@ def accuracy_line(extra: dict) -> str | None:
     return None
 
 
+def error_bar(row: dict) -> dict | None:
+    """{"force": ..., "probes": ...}: how far an answer that ``row`` describes is from the
+    converged value, as fractions: the row's difference from the value it was measured against
+    plus that value's own band (``band``; the force only where the row has one); None for a row
+    without a band or without a converged value."""
+    band = row.get("band")
+    if not row.get("converged", True) or band is None:
+        return None
+    out = {"probes": row["probes"] + band["probes"]}
+    if "force" in row:
+        out["force"] = row["force"] + band["force"]
+    return out
+
+
 def describe(row: dict) -> str:
-    """One line for a measured row: the differences and their reference, or why there is none."""
+    """One line for a measured row: the error bar (the difference from the study's finest level
+    plus that level's band), the parts and the reference, or why there is none."""
     if not row.get("converged", True):
         return f"none: no converged value is known at this load ({row['why']})"
-    force = f"indenter force within {row['force']:.2%}, " if "force" in row else ""
+    bar = error_bar(row)
+    if bar is None:
+        force = f"indenter force within {row['force']:.2%}, " if "force" in row else ""
+        return f"measured for this discretization and load: {force}probes within " \
+               f"{row['probes']:.2%} of the converged value: {row['against']}"
+    band = row["band"]
+    force = f"indenter force within {bar['force']:.2%}, " if "force" in bar else ""
+    parts = (f"{row['force']:.2%} / {row['probes']:.2%} from the study's finest level, which is "
+             f"within {band['force']:.2%} / {band['probes']:.2%} of it by its GCI band" if "force"
+             in row else f"{row['probes']:.2%} from the study's finest level, which is within "
+             f"{band['probes']:.2%} of it by its GCI band")
     return f"measured for this discretization and load: {force}probes within " \
-           f"{row['probes']:.2%} of the converged value: {row['against']}"
+           f"{bar['probes']:.2%} of the converged value ({parts}): {row['against']}"

@@ -6,6 +6,7 @@ Units: mm."""
 import dataclasses
 import itertools
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -295,3 +296,68 @@ def test_the_half_case_s_gauss_rows_are_the_study_data_s():
         checked.add((row["tip_start"], push))
     assert checked == {(start, push) for start in ("nodes", "surface")
                        for push in (5.0, 10.0, 12.5)}
+
+
+def _gci_bands(key: str, push: float) -> tuple[float, float]:
+    """(force, worst probe) GCI bands of the finest level of a study in the data file at
+    ``push``: the force's band, and per probe its components' bands weighted by their sizes,
+    as its displacement's norm."""
+    entry = next(e for e in json.loads(DATA.read_text())["loads"][key]["pushes"]
+                 if e["push_mm"] == push)
+    gci = {q: a["gci_rel"] for q, a in entry["quantities"].items()}
+    probes = 0.0
+    for name, v in entry["probes_mm"].items():
+        u = np.asarray(v[-1])
+        parts = [gci.get(f"{name} u{c}") or 0.0 for c in "xyz"]   # none: zero by symmetry
+        probes = max(probes, np.linalg.norm(np.multiply(parts, np.abs(u))) / np.linalg.norm(u))
+    return gci["force A1"], probes
+
+
+@pytest.mark.parametrize("name", ["phantom-indenter", "phantom-indenter-quarter",
+                                  "phantom-indenter-half", "phantom-indenter-wide",
+                                  "phantom-indenter-control"])
+def test_every_row_against_a_study_carries_that_study_s_band_and_prints_the_sum(name):
+    """A row measured against a study of the data file holds that study's own GCI bands at its
+    push (computed here from the data), and the answer's error bar, printed and returned, is
+    the row's difference plus the band: what the answer is worth, not its distance from a
+    level that is itself uncertain."""
+    from tissue_reference.fem_reference.measured import describe, error_bar
+
+    case = load_case(CASES / f"{name}.toml")
+    checked = 0
+    for row in case.reference_measured:
+        study = re.search(r"phantom_indenter_reference\.json (\w+) (?:level \d+|finest level)",
+                          row.get("against", ""))
+        if study is None or row.get("converged") is False:
+            assert "band" not in row
+            continue
+        force, probes = _gci_bands(study[1], row["pushes"]["A1"])
+        assert row["band"]["force"] == pytest.approx(force, abs=6e-5)
+        assert row["band"]["probes"] == pytest.approx(probes, abs=6e-5)
+        bar = error_bar(row)
+        assert bar == pytest.approx({"force": row["force"] + force,
+                                     "probes": row["probes"] + probes}, abs=1e-4)
+        line = describe(row)
+        assert f"indenter force within {bar['force']:.2%}, probes within {bar['probes']:.2%} " \
+               f"of the converged value ({row['force']:.2%} / {row['probes']:.2%} from the " \
+               f"study's finest level" in line
+        checked += 1
+    assert checked >= 3
+
+
+def test_the_demo_states_the_error_bar_with_the_band():
+    """The demo's accuracy of an answer that a banded row describes: the row's parts and their
+    sum, the same line as tissue solve prints."""
+    from types import SimpleNamespace
+
+    from tissue_reference.tissue.demo import _accuracy
+
+    case = load_case(CASES / "phantom-indenter-quarter.toml")
+    row = {"converged": True, **case.reference_measured[1]}            # all four at 10 mm
+    res = SimpleNamespace(extra={"measured_accuracy": row},
+                          entries=lambda: {"measured_accuracy": row})
+    accuracy, line = _accuracy(res)
+    assert accuracy["band"] == row["band"]
+    assert accuracy["error_bar"]["probes"] == pytest.approx(row["probes"] + row["band"]["probes"])
+    assert accuracy["error_bar"]["force"] == pytest.approx(row["force"] + row["band"]["force"])
+    assert f"probes within {row['probes'] + row['band']['probes']:.2%} of the converged" in line

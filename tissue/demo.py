@@ -45,12 +45,14 @@ def _accuracy(res) -> tuple[dict | None, str]:
     """The measured accuracy of a reference answer (its case's ``[reference.measured]`` row,
     ``fem_reference.measured``) and one line saying what it is, or why there is none."""
     # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-    from tissue_reference.fem_reference.measured import accuracy_line
+    from tissue_reference.fem_reference.measured import accuracy_line, error_bar
 
     row = res.extra.get("measured_accuracy")
     line = accuracy_line(res.entries()) or "none: this discretization was not measured"
     if row and row.get("converged", True):
-        return {"force": row.get("force"), "probes": row["probes"], "against": row["against"]}, line
+        bar = error_bar(row)
+        return {"force": row.get("force"), "probes": row["probes"], "against": row["against"],
+                **({"band": row["band"], "error_bar": bar} if bar else {})}, line
     return None, line
 
 
@@ -85,8 +87,11 @@ def reference_series(case, out: Path, pushes_mm=PUSHES_MM, *, degree=None,
                      "accuracy": accuracy, "accuracy_line": line,
                      "warnings": list(res.warnings)})
         t1 = float(np.linalg.norm(res.probes["T1"]))
-        bar = (f" (force within {accuracy['force']:.2%}, targets within "
-               f"{accuracy['probes']:.2%} of the converged answers, measured)" if accuracy
+        within = (accuracy.get("error_bar") or accuracy) if accuracy else None
+        what = "the distance to the refinement study's finest level plus that level's band" \
+            if accuracy and "error_bar" in accuracy else "the distance to the study's value"
+        bar = (f" (force within {within['force']:.2%}, targets within {within['probes']:.2%} "
+               f"of the converged answers: {what}, measured)" if accuracy
                else f" (no error bar: {line})")
         _say(f"reference, all tips {push:g} mm: {res.iterations} Newton iterations, "
              f"{res.wall_time_s:.1f} s, tip force {forces.get(tips[0], float('nan')):.1f} mN, "
