@@ -40,6 +40,7 @@ __all__ = [
     "stable_neo_hookean_psi",
     "strain_energy_density",
     "volume_change",
+    "volume_measure",
 ]
 
 
@@ -120,6 +121,14 @@ def strain_energy_density(u, model: str, mu, kappa, lmbda, volumetric: str = "qu
         return saint_venant_kirchhoff_psi(F, mu, lmbda), F
     iso, J = isochoric_energy(F, model, mu, coefficients)
     return iso + kappa / 2 * volume_change(J, volumetric) ** 2, F
+
+
+def volume_measure(u, model: str, volumetric: str = "quadratic"):
+    """What the mixed formulation's pressure multiplies: G(J) of the uncoupled laws (the
+    ``volumetric`` measure), tr eps of linear elasticity (module docstring)."""
+    if model == "linear-elastic":
+        return ufl.tr(ufl.sym(ufl.grad(u)))
+    return volume_change(ufl.det(ufl.Identity(u.ufl_shape[0]) + ufl.grad(u)), volumetric)
 
 
 def mixed_energy_density(u, p, model: str, mu, inv_kappa, volumetric: str = "quadratic",

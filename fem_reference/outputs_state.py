@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import SolveResult
 
-from .forms import mixed_energy_density
+from .forms import volume_measure
 from .jit import compile_form
 
 __all__ = ["NodalState"]
@@ -103,8 +103,7 @@ class NodalState:
         if self._pproj is None:
             dx = ufl.Measure("dx", domain=self.dm.mesh, metadata={"quadrature_degree": self.qdeg})
             q, pt = ufl.TestFunction(self.Q), ufl.TrialFunction(self.Q)
-            _, vol = mixed_energy_density(self.u, 0.0, self.material.model, 1.0, 0.0,
-                                          self.material.volumetric)
+            vol = volume_measure(self.u, self.material.model, self.material.volumetric)
             M = dolfinx.fem.petsc.assemble_matrix(compile_form(pt * q * dx))
             M.assemble()
             ksp = PETSc.KSP().create(self.comm)
