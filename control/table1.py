@@ -5,8 +5,8 @@ steady-state error and retraction, written as JSON, Markdown and HTML (each file
 ``run_table1(case, targets, loop, settings, out)`` runs the scenarios (``loop`` from
 ``control.plants.build_loop``), writing the tables after every scenario so an interrupted run
 keeps what it finished, and with ``resume`` a run in a folder that holds such a table runs only
-the scenarios it lacks (``finished_rows``: the table's settings must be the run's); a loop that runs long reports its step every ``STEP_LINE_S`` seconds
-(a plant solve on a fine mesh takes minutes, a loop up to half an hour). With ``jobs`` > 1 the
+the scenarios it lacks (``finished_rows``: the table's settings must be the run's); a loop that
+runs long reports its step every ``STEP_LINE_S`` seconds (a plant solve on a fine mesh takes minutes, a loop up to half an hour). With ``jobs`` > 1 the
 scenarios run in that many worker processes, each building its own loop with ``loop_factory``
 (the plant's solver state cannot cross processes); the rows are the serial run's, in the same
 order, within round-off: every loop runs with ``LOOP_BLAS_THREADS`` BLAS threads, and a
@@ -178,6 +178,10 @@ def write_table1(out, meta, rows, n_expected):
     return summ
 
 
+_START_OVER = "start over (--restart; resume=False in Python) or choose another folder"
+"""What a refused resume can do instead (``finished_rows``)."""
+
+
 def _differences(old, new, prefix: str = "") -> list[str]:
     """The keys (dotted paths) whose values differ between two JSON-ready dicts."""
     out = []
@@ -206,19 +210,17 @@ def finished_rows(out, meta, pairs) -> dict:
         old_meta, rows = data["meta"], data["rows"]
         keys = [(r["target"], int(r["task"])) for r in rows]
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise CaseReadError(f"{path}: not a Table I table to resume from ({exc}); start over "
-                            f"(--restart; resume=False in Python) or choose another folder") from None
+        raise CaseReadError(f"{path}: not a Table I table to resume from ({exc}); "
+                            f"{_START_OVER}") from None
     differ = _differences(old_meta, json_ready(meta))
     if differ:
         raise CaseError(f"{path}: its rows were run with other settings: "
-                        f"{'; '.join(differ)}; resuming needs the same settings: start over "
-                        f"(--restart; resume=False in Python) or choose another folder")
+                        f"{'; '.join(differ)}; resuming needs the same settings: {_START_OVER}")
     index = {(t, int(task)): i for i, (t, task) in enumerate(pairs)}
     foreign = [f"{t} task {task}" for t, task in keys if (t, task) not in index]
     if foreign:
         raise CaseError(f"{path}: it has rows this run does not ask for ({', '.join(foreign)}): "
-                        f"resume with the same targets, start over (--restart; resume=False in "
-                        f"Python) or choose another folder")
+                        f"resume with the same targets, {_START_OVER}")
     return {index[k]: row for k, row in zip(keys, rows)}
 
 
@@ -285,7 +287,8 @@ def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
                step_lines: bool = True, resume: bool = False) -> dict:
     """Every target x task (1, 2, 3) on ``loop`` (``control.plants.LoopSetup``); returns the
     summary. ``resume``: keep the rows an earlier run of the same settings left in ``out``
-    (``finished_rows``) and run only the others; otherwise the table starts empty. ``progress(line)`` gets one line per scenario as it ends and, with
+    (``finished_rows``) and run only the others; otherwise the table starts empty.
+    ``progress(line)`` gets one line per scenario as it ends and, with
     ``step_lines``, a long loop's step lines (``STEP_LINE_S``; a worker process prints its own
     to stdout); ``plots``: a time-response PNG per scenario in ``out``. ``jobs`` > 1: that many
     worker processes, each running ``loop_factory(factory_key)`` once for its own loop (a
@@ -294,18 +297,22 @@ def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
     pairs = [(t, task) for t in targets for task in (1, 2, 3)]
     n = len(pairs)
     done = finished_rows(out, meta or {}, pairs) if resume else {}
-    summ = table1_summary([done[k] for k in sorted(done)], n)
     todo = [(i, pair) for i, pair in enumerate(pairs) if i not in done]
+
+    def write():   # the table of the rows done, in the pairs' order (each time one ends)
+        return write_table1(out, meta or {}, [done[k] for k in sorted(done)], n)
+
+    summ = table1_summary([], n)
     if done:
         progress(f"table1: resuming from {Path(out) / 'table1.json'}: {len(done)} of {n} "
                  f"loops finished there, {len(todo)} to run")
-        summ = write_table1(out, meta or {}, [done[k] for k in sorted(done)], n)
+        summ = write()
 
     def finish(i, row, line):
         nonlocal summ
         done[i] = row
         progress(line)
-        summ = write_table1(out, meta or {}, [done[k] for k in sorted(done)], n)   # each time
+        summ = write()
 
     if jobs <= 1 or len(todo) <= 1:
         for i, pair in todo:
