@@ -208,9 +208,9 @@ class Material:
                                   f"tissue solve --solver fem)")
 
     def require_seed_volumetric(self, who: str):
-        """Raise CaseError for a Neo-Hookean material whose volumetric law is not seed 000's
-        kappa/2 (J - 1)^2, the only one ``who`` (a fast solver) implements."""
-        if self.model == "neo-hookean" and self.volumetric != "quadratic":
+        """Raise CaseError for an uncoupled law (``UNCOUPLED_LAWS``) whose volumetric energy is
+        not seed 000's kappa/2 (J - 1)^2, the only one ``who`` (a fast solver) implements."""
+        if self.model in UNCOUPLED_LAWS and self.volumetric != "quadratic":
             raise CaseError(f"{who} implements seed 000's volumetric energy kappa/2 (J - 1)^2 "
                             f"only; this material has volumetric = {self.volumetric!r} (the "
                             f"reference solves it)")

@@ -28,7 +28,7 @@ import numpy as np
 from tissue_reference.meshes.errors import CaseError, TissueError
 
 from . import amg_array, operators
-from .kernel_array import ArrayElements, NumpyElements, ZStep
+from .kernel_array import ArrayElements, NumpyElements, zstep_for
 from .kernel_c import KernelElements, use_kernel
 from .operators import XSTEP_TOL
 
@@ -106,10 +106,11 @@ class _HostBackend:
         return self.ops.lu.solve(rhs)
 
     def zstep(self, rho):
-        return ZStep(self.ops, rho)
+        return zstep_for(self.ops, rho)
 
     def elements(self, zstep, up, F, lam):
-        return (KernelElements if use_kernel() else NumpyElements)(self.ops, zstep, up, F, lam)
+        kernel = use_kernel() and self.ops.law.kernel
+        return (KernelElements if kernel else NumpyElements)(self.ops, zstep, up, F, lam)
 
     def xstep(self, rhs, q, tol_mm):
         return self.ops.lu.step(rhs, q, XSTEP_TOL * tol_mm)
@@ -186,7 +187,7 @@ class _ArrayBackend:
         return self.get(q)
 
     def zstep(self, rho):
-        return ZStep(self.ops, rho, xp=self.xp)
+        return zstep_for(self.ops, rho, xp=self.xp)
 
     def elements(self, zstep, up, F, lam):
         return ArrayElements(self.ops, zstep, up, F, lam, dev=self.dev)

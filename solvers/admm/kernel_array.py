@@ -13,6 +13,10 @@ import contextlib
 
 import numpy as np
 
+from tissue_reference.meshes.errors import NotModeledError
+
+from .mechanics import KERNEL_LAWS
+
 ROUNDS = 4  # z-step rounds for elements whose line search backtracked
 CHUNK = 8192  # elements per cache block of the numpy ADMM loop
 
@@ -241,6 +245,96 @@ class ZStep:
                 partial[idx] = True
             redo = check[partial]
         return dz2, check, redo
+
+
+class LawZStep:
+    """The z-step of the laws the closed-form ``ZStep`` does not know (``mechanics.INVARIANT_LAWS``),
+    on numpy blocks (d, d, m): from the previous F, ``rounds`` safeguarded Newton steps on the
+    local objective phi(F) = psi(F) + rho/2 |F - Fhat|^2 with the law's exact Hessian A + rho I
+    (``mechanics.Law.tangent``; where that is not positive definite, so that the step does not
+    descend, A + (rho + |A|) I, which is), each with an Armijo backtracking that keeps det F > 0:
+    one step per ADMM iteration (warm start), more (up to ``rounds``) only for the elements
+    whose step backtracked. The element arrays are plain (d, d, m) blocks. At a fixed point the local gradient vanishes,
+    as with ``ZStep``."""
+
+    small_step = ZStep.small_step
+
+    def __init__(self, ops, rho, rounds=None, xp=np):
+        if xp is not np:
+            raise NotModeledError(f"the ADMM solver's GPU element pass implements the laws "
+                                  f"{list(KERNEL_LAWS)}; this material is {ops.law.model!r}: "
+                                  f"use device='cpu'")
+        self.xp = np
+        self.law = ops.law
+        self.d = ops.d
+        self.rounds = max(1, ROUNDS if rounds is None else rounds)
+        self.set_rho(rho)
+
+    def set_rho(self, rho):
+        self.rho = rho
+
+    def new_state(self, k):
+        """A buffer for F (d, d, k) and its F view (the same array)."""
+        E = np.empty((self.d, self.d, k))
+        return E, E
+
+    def _phi(self, F, Fhat):
+        """phi (k,) of F (k, d, d) against Fhat (k, d, d); inf where det F <= 0."""
+        psi, _ = self.law.psi_J(F - np.eye(self.d))
+        r = F - Fhat
+        return psi + 0.5 * self.rho * np.einsum("kij,kij->k", r, r)
+
+    def __call__(self, Fhat, E, Enew):
+        """Writes the new F into Enew (F = E is the previous one) and returns |F_new - F|^2 per
+        element; Fhat (d, d, m)."""
+        d, rho = self.d, self.rho
+        F0 = aos(E).copy()
+        Fh = aos(Fhat)
+        F = F0.copy()
+        eye = np.eye(d)
+        active = np.arange(len(F))
+        for _ in range(self.rounds):
+            H = F[active] - eye
+            P, _ = self.law.stress(H)
+            g = (P + rho * (F[active] - Fh[active])).reshape(len(active), -1)
+            A = self.law.tangent(H)
+            A[:, np.arange(d * d), np.arange(d * d)] += rho
+            step = -np.linalg.solve(A, g[:, :, None])[:, :, 0]
+            slope = np.einsum("ki,ki->k", g, step)
+            bad = ~(slope < 0)
+            if bad.any():   # not a descent direction: a positive definite shift
+                shift = np.sqrt(np.einsum("kij,kij->k", A[bad], A[bad]))
+                Ab = A[bad]
+                Ab[:, np.arange(d * d), np.arange(d * d)] += shift[:, None]
+                step[bad] = -np.linalg.solve(Ab, g[bad][:, :, None])[:, :, 0]
+                slope[bad] = np.einsum("ki,ki->k", g[bad], step[bad])
+            phi0 = self._phi(F[active], Fh[active])
+            tol = 1e-13 * np.abs(phi0)
+            step = step.reshape(-1, d, d)
+            alpha = np.ones(len(active))
+            todo = np.arange(len(active))
+            for _ in range(40):
+                Ft = F[active[todo]] + alpha[todo, None, None] * step[todo]
+                ok = self._phi(Ft, Fh[active[todo]]) <= \
+                    phi0[todo] + 1e-4 * alpha[todo] * slope[todo] + tol[todo]
+                F[active[todo[ok]]] = Ft[ok]
+                todo = todo[~ok]
+                if not len(todo):
+                    break
+                alpha[todo] *= 0.5
+            # as ``ZStep``: only the elements whose line search backtracked step again
+            active = active[alpha < 1.0]
+            if not len(active):
+                break
+        Enew[...] = soa(F)
+        dz = F - F0
+        return np.einsum("kij,kij->k", dz, dz)
+
+
+def zstep_for(ops, rho, rounds=None, xp=np):
+    """The z-step of the operators' law: ``ZStep`` for ``mechanics.KERNEL_LAWS``, else
+    ``LawZStep``."""
+    return (ZStep if ops.law.kernel else LawZStep)(ops, rho, rounds, xp)
 
 
 class ArrayElements:

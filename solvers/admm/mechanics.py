@@ -1,6 +1,19 @@
 """P1 mechanics of the ADMM solver: element kinematics (shape-function gradients, volumes), the
-material laws (Neo-Hookean, seed eq. 14, and linear elasticity; 2D is plane strain), and the
-P1 strain energy, internal forces and exact tangent of a displacement (mm, kPa, mN).
+material laws (Neo-Hookean, seed eq. 14, linear elasticity, and the other laws of
+``fem_reference.forms``: Mooney-Rivlin, Yeoh, stable Neo-Hookean, St Venant-Kirchhoff; 2D is
+plane strain), and the P1 strain energy, internal forces and exact tangent of a displacement
+(mm, kPa, mN).
+
+The laws besides Neo-Hookean and linear elasticity are written once, as an energy Phi(I1, I2, J)
+of the invariants of C = F^T F (plane strain: C33 = 1) with its first and second partial
+derivatives; the chain rule through
+
+    dI1/dF = 2 F,   dI2/dF = 2 (I1 F - F C),   dJ/dF = cof F,
+    d2I1 = 2 d_ik d_JL,
+    d2I2 = 2 (2 F_iJ F_kL + I1 d_ik d_JL - d_ik C_LJ - F_iL F_kJ - (F F^T)_ik d_JL),
+    d2J  = (cof_iJ cof_kL - cof_iL cof_kJ) / J
+
+gives the stress P = dpsi/dF and its tangent A_iJkL = dP_iJ / dF_kL (``InvariantLaw``).
 
 Everything here is host (numpy/scipy) code: the Newton polish, the tangent lift and the final
 checks use it whatever backend ran the ADMM iterations."""
@@ -13,7 +26,12 @@ import scipy.sparse as sp
 
 from tissue_reference.meshes.errors import CaseError
 
-ADMM_LAWS = ("neo-hookean", "linear-elastic")
+KERNEL_LAWS = ("neo-hookean", "linear-elastic")
+"""The laws of the compiled element pass (``kernel_c``) and of the closed-form z-steps
+(``kernel_array.ZStep``); the others run the numpy element pass with ``kernel_array.LawZStep``."""
+INVARIANT_LAWS = ("mooney-rivlin", "yeoh", "stable-neo-hookean", "saint-venant-kirchhoff")
+"""The laws written as an energy of the invariants (I1, I2, J) (``InvariantLaw``)."""
+ADMM_LAWS = KERNEL_LAWS + INVARIANT_LAWS
 """The strain-energy laws the ADMM solver implements; it refuses the others by name."""
 
 
@@ -80,9 +98,117 @@ def det_cof(F):
     return J, cof
 
 
+class InvariantLaw:
+    """A law as an energy Phi(I1, I2, J) of the invariants of C (module docstring): ``phi`` gives
+    Phi (m,), its gradient (m, 3) and Hessian (m, 3, 3) in (I1, I2, J); ``psi_J``, ``stress``
+    and ``tangent`` follow by the chain rule, on displacement gradients H (m, d, d)."""
+
+    def __init__(self, material, d):
+        self.model = material.model
+        self.mu, self.kappa, self.lmbda = material.mu, material.kappa, material.lmbda
+        self.coefficients = material.coefficients
+        self.d = d
+
+    def _invariants(self, H):
+        d = self.d
+        F = H + np.eye(d)
+        J, cof = det_cof(F)
+        C = np.einsum("mki,mkj->mij", F, F)
+        I1 = np.einsum("mii->m", C) + (3 - d)
+        I2 = 0.5 * (I1 ** 2 - np.einsum("mij,mij->m", C, C) - (3 - d))
+        return F, C, J, cof, I1, I2
+
+    def phi(self, I1, I2, J):
+        """(Phi, dPhi (m, 3), d2Phi (m, 3, 3)) in (I1, I2, J) of this law."""
+        m = len(J)
+        g = np.zeros((m, 3))
+        h = np.zeros((m, 3, 3))
+        mu, lam = self.mu, self.lmbda
+        if self.model == "stable-neo-hookean":
+            lp = lam + mu
+            a = J - 1.0 - mu / lp
+            g[:, 0], g[:, 2], h[:, 2, 2] = 0.5 * mu, lp * a, lp
+            return 0.5 * mu * (I1 - 3.0) + 0.5 * lp * a ** 2 - mu ** 2 / (2.0 * lp), g, h
+        if self.model == "saint-venant-kirchhoff":
+            # tr Eg = (I1 - 3)/2, Eg:Eg = (I1^2 - 2 I2 - 2 I1 + 3)/4
+            g[:, 0] = 0.25 * lam * (I1 - 3.0) + 0.5 * mu * (I1 - 1.0)
+            g[:, 1] = -0.5 * mu
+            h[:, 0, 0] = 0.25 * lam + 0.5 * mu
+            return (0.125 * lam * (I1 - 3.0) ** 2
+                    + 0.25 * mu * (I1 ** 2 - 2.0 * I2 - 2.0 * I1 + 3.0)), g, h
+        # uncoupled: W(x1, x2) + kappa/2 (J - 1)^2, x1 = J^(-2/3) I1, x2 = J^(-4/3) I2
+        c = self.coefficients
+        j23 = np.abs(J) ** (-2.0 / 3.0)
+        x1, x2 = j23 * I1, j23 * j23 * I2
+        if self.model == "mooney-rivlin":
+            W = c["c1"] * (x1 - 3.0) + c["c2"] * (x2 - 3.0)
+            W1, W2, W11 = np.full(m, c["c1"]), np.full(m, c["c2"]), np.zeros(m)
+        elif self.model == "yeoh":
+            x = x1 - 3.0
+            W = c["c1"] * x + c["c2"] * x ** 2 + c["c3"] * x ** 3
+            W1 = c["c1"] + 2.0 * c["c2"] * x + 3.0 * c["c3"] * x ** 2
+            W2, W11 = np.zeros(m), 2.0 * c["c2"] + 6.0 * c["c3"] * x
+        elif self.model == "neo-hookean":   # (the kernel's own closed forms serve it)
+            W = 0.5 * mu * (x1 - 3.0)
+            W1, W2, W11 = np.full(m, 0.5 * mu), np.zeros(m), np.zeros(m)
+        else:
+            raise ValueError(f"{self.model!r} is not an invariant law")
+        iJ = 1.0 / J
+        g1 = np.stack([j23, np.zeros(m), -2.0 / 3.0 * x1 * iJ], axis=1)
+        g2 = np.stack([np.zeros(m), j23 * j23, -4.0 / 3.0 * x2 * iJ], axis=1)
+        h[:, 0, 2] = h[:, 2, 0] = W1 * (-2.0 / 3.0) * j23 * iJ
+        h[:, 1, 2] = h[:, 2, 1] = W2 * (-4.0 / 3.0) * j23 * j23 * iJ
+        h[:, 2, 2] = (W1 * 10.0 / 9.0 * x1 + W2 * 28.0 / 9.0 * x2) * iJ * iJ + self.kappa
+        h += W11[:, None, None] * np.einsum("ma,mb->mab", g1, g1)
+        g = W1[:, None] * g1 + W2[:, None] * g2
+        g[:, 2] += self.kappa * (J - 1.0)
+        return W + 0.5 * self.kappa * (J - 1.0) ** 2, g, h
+
+    def psi_J(self, H):
+        _, _, J, _, I1, I2 = self._invariants(H)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            psi, _, _ = self.phi(I1, I2, J)
+        psi = np.where(J > 0, psi, np.inf)
+        return psi, J
+
+    def _first(self, F, C, cof, I1):
+        """dI/dF (m, 3, d, d) for (I1, I2, J)."""
+        return np.stack([2.0 * F, 2.0 * (I1[:, None, None] * F - F @ C), cof], axis=1)
+
+    def stress(self, H):
+        """(P, J)."""
+        F, C, J, cof, I1, I2 = self._invariants(H)
+        _, g, _ = self.phi(I1, I2, J)
+        return np.einsum("ma,maij->mij", g, self._first(F, C, cof, I1)), J
+
+    def tangent(self, H):
+        """A (m, d*d, d*d), rows (iJ), columns (kL): A_iJkL = d P_iJ / d H_kL."""
+        d = self.d
+        m = len(H)
+        F, C, J, cof, I1, I2 = self._invariants(H)
+        _, g, h = self.phi(I1, I2, J)
+        dI = self._first(F, C, cof, I1).reshape(m, 3, d * d)
+        A = np.einsum("mab,mai,mbj->mij", h, dI, dI)
+        eye = np.eye(d)
+        B = F @ np.transpose(F, (0, 2, 1))
+        d2I2 = 2.0 * (2.0 * np.einsum("miJ,mkL->miJkL", F, F)
+                      + I1[:, None, None, None, None] * np.einsum("ik,JL->iJkL", eye, eye)
+                      - np.einsum("ik,mLJ->miJkL", eye, C)
+                      - np.einsum("miL,mkJ->miJkL", F, F)
+                      - np.einsum("mik,JL->miJkL", B, eye))
+        d2J = (np.einsum("miJ,mkL->miJkL", cof, cof)
+               - np.einsum("miL,mkJ->miJkL", cof, cof)) / J[:, None, None, None, None]
+        A += (g[:, 1, None, None, None, None] * d2I2
+              + g[:, 2, None, None, None, None] * d2J).reshape(m, d * d, d * d)
+        A[:, np.arange(d * d), np.arange(d * d)] += 2.0 * g[:, 0, None]
+        return A
+
+
 class Law:
     """Energy density psi (kPa), first Piola stress P = dpsi/dH (kPa) and A = dP/dH (kPa) of the
-    displacement gradient H (m, d, d)."""
+    displacement gradient H (m, d, d): Neo-Hookean and linear elasticity in closed form, the
+    other laws of ``ADMM_LAWS`` through ``InvariantLaw``. ``kernel``: whether the compiled element
+    pass and the closed-form z-steps implement this law (``KERNEL_LAWS``)."""
 
     def __init__(self, material, d):
         material.require_law(ADMM_LAWS, "the ADMM solver")
@@ -91,9 +217,13 @@ class Law:
         self.model = material.model
         self.mu, self.kappa, self.lmbda = material.mu, material.kappa, material.lmbda
         self.d = d
+        self.kernel = self.model in KERNEL_LAWS
+        self._invariant = None if self.kernel else InvariantLaw(material, d)
 
     def psi_J(self, H):
         d = self.d
+        if self._invariant is not None:
+            return self._invariant.psi_J(H)
         if self.model == "linear-elastic":
             eps = 0.5 * (H + np.transpose(H, (0, 2, 1)))
             tr = np.einsum("mii->m", eps)
@@ -111,6 +241,8 @@ class Law:
     def stress(self, H):
         """(P, J); J is None for linear elasticity."""
         d = self.d
+        if self._invariant is not None:
+            return self._invariant.stress(H)
         if self.model == "linear-elastic":
             eps = 0.5 * (H + np.transpose(H, (0, 2, 1)))
             tr = np.einsum("mii->m", eps)
@@ -131,6 +263,8 @@ class Law:
         """A (m, d*d, d*d), rows (iJ), columns (kL): A_iJkL = d P_iJ / d H_kL."""
         d = self.d
         m = len(H)
+        if self._invariant is not None:
+            return self._invariant.tangent(H)
         if self.model == "linear-elastic":
             I = np.eye(d)
             A = self.mu * (np.einsum("ik,jl->ijkl", I, I) + np.einsum("il,jk->ijkl", I, I)) \

@@ -303,7 +303,8 @@ class AdmmOperators:
         compiled pass (``kernel_c.KernelForces``) where the kernel is built, else numpy's
         stress and two sparse products (the same arithmetic)."""
         if self._kernel_forces is None:
-            self._kernel_forces = KernelForces(self) if use_kernel() else False
+            self._kernel_forces = KernelForces(self) if use_kernel() and self.law.kernel \
+                else False
         if self._kernel_forces:
             r = np.zeros(self.N)
             r -= fext
