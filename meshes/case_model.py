@@ -205,6 +205,11 @@ class Case:
         """This Case with its material's fields changed (``case_variants``)."""
         return case_variants.with_material(self, **changes)
 
+    def with_law(self, model: str, params: dict | None = None) -> Case:
+        """This Case with its tissue's strain-energy law ``model`` and parameters ``params``
+        (``case_variants.with_law``)."""
+        return case_variants.with_law(self, model, params)
+
     def with_mesh(self, mesh: MeshData) -> Case:
         """This Case on another mesh (``case_variants``)."""
         return case_variants.with_mesh(self, mesh)

@@ -5,7 +5,7 @@ Units: pushes and displacements mm; J (volume ratio) dimensionless.
 
 ``with_pushes`` applies actuator pushes (patches displaced rigidly, idle held patches held),
 ``with_free_actuators`` lets the idle patches move with the tissue, ``with_material`` and
-``with_mesh`` swap one part; ``glued_patch_warnings`` flags a pushed glued patch pushed past the
+``with_mesh`` swap one part, ``with_law`` gives the tissue another strain-energy law; ``glued_patch_warnings`` flags a pushed glued patch pushed past the
 range where its answers converge under refinement (``glued_unconverged``: GLUED_CONVERGED_RADII
 of its radius, whatever the mesh) or whose rim cells are compressed below ``RIM_J_WARN``.
 """
@@ -17,15 +17,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .case_parts import COEFFICIENT_LAWS, Boundary
+from .case_parts import COEFFICIENT_LAWS, MATERIAL_MODELS, UNCOUPLED_LAWS, Boundary, Material
+from .errors import CaseError
 from .mesh import MeshData, cell_jacobians
 
 if TYPE_CHECKING:
     from .case_model import Case
 
 __all__ = ["GLUED_CONVERGED_RADII", "PUSHED_KEPT", "RIM_J_WARN", "glued_patch_warnings",
-           "glued_unconverged", "patch_radius", "with_free_actuators", "with_material",
-           "with_mesh", "with_pushes"]
+           "glued_unconverged", "patch_radius", "with_free_actuators", "with_law",
+           "with_material", "with_mesh", "with_pushes"]
 
 RIM_J_WARN = 0.2
 """Smallest volume ratio J at the rim of a pushed glued patch before the solvers warn."""
@@ -170,6 +171,37 @@ def with_material(case, **changes) -> Case:
             and changes.get("E") is not None:
         m = m.scaled(changes.pop("E") / m.E)
     return replace(case, material=replace(m, **changes))
+
+
+def law_parameters(model: str) -> tuple[str, ...]:
+    """The parameters ``with_law`` takes for ``model``: its coefficients (kPa) for a law given
+    by them, else E (kPa) and nu; ``volumetric`` for an uncoupled law; density (kg/mm^3)."""
+    names = COEFFICIENT_LAWS.get(model, ("E", "nu"))
+    return names + (("volumetric",) if model in UNCOUPLED_LAWS else ()) + ("density",)
+
+
+def with_law(case, model: str, params: dict | None = None) -> Case:
+    """``case`` with its tissue's strain-energy law ``model`` (docs/laws.md), parameters
+    ``params`` (names as ``law_parameters``). A law of E and nu keeps the case's E, nu (a law given
+    by its coefficients has them too) where ``params`` does not give them; a law given by its
+    coefficients needs them all; ``volumetric`` stays the case's between uncoupled laws and
+    density stays the case's. Raises CaseError naming a law or parameter that does not fit."""
+    params = dict(params or {})
+    if model not in MATERIAL_MODELS:
+        raise CaseError(f"unknown material law {model!r}; laws: {list(MATERIAL_MODELS)}")
+    allowed = law_parameters(model)
+    wrong = [n for n in params if n not in allowed]
+    if wrong:
+        raise CaseError(f"material law {model!r} takes {', '.join(allowed)}; not "
+                        f"{', '.join(wrong)}")
+    m = case.material
+    fields = {"density": m.density}
+    if model not in COEFFICIENT_LAWS:
+        fields.update(E=m.E, nu=m.nu)
+    if model in UNCOUPLED_LAWS and m.model in UNCOUPLED_LAWS:
+        fields["volumetric"] = m.volumetric
+    fields.update(params)
+    return replace(case, material=Material(model, **fields))
 
 
 def with_mesh(case, mesh: MeshData) -> Case:

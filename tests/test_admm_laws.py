@@ -105,3 +105,39 @@ def test_admm_refuses_what_it_does_not_implement():
 
     with pytest.raises(NotModeledError, match="GPU element pass implements the laws"):
         LawZStep(Ops(), 10.0, xp=object())
+
+
+def test_with_law_keeps_what_the_new_law_shares_and_names_what_does_not_fit(phantom):
+    mr = phantom.with_law("mooney-rivlin", {"c1": 1.0, "c2": 0.5, "k": 30.0})
+    assert mr.material.coefficients == {"c1": 1.0, "c2": 0.5, "k": 30.0}
+    assert mr.material.density == phantom.material.density
+    snh = mr.with_law("stable-neo-hookean")   # E and nu follow from the coefficients
+    assert (snh.material.E, snh.material.nu) == (mr.material.E, mr.material.nu)
+    assert snh.material.coefficients == {}
+    with pytest.raises(CaseError, match="missing: c2, k"):
+        phantom.with_law("mooney-rivlin", {"c1": 1.0})
+    with pytest.raises(CaseError, match="takes c1, c2, c3, k, volumetric, density; not E"):
+        phantom.with_law("yeoh", {"E": 3.0})
+    with pytest.raises(CaseError, match="unknown material law 'ogden'"):
+        phantom.with_law("ogden")
+
+
+def test_tissue_verify_scores_admm_on_the_law_given_on_the_command_line(tmp_path, capsys):
+    """--material swaps the case's law: the reference and ADMM both solve St Venant-Kirchhoff,
+    and agree to round-off (the scores are the JSON's); a bad parameter exits 2 naming it."""
+    import json
+
+    from tissue_reference.tissue.cli import main
+
+    out = tmp_path / "v.json"
+    rc = main(["verify", "phantom", "--size", "10", "--material", "saint-venant-kirchhoff",
+               "--push", "A1=2", "--solvers", "admm", "--json", str(out), "-q"])
+    assert rc == 0
+    data = json.loads(out.read_text())
+    assert data["reference"]["material"]["model"] == "saint-venant-kirchhoff"
+    score = data["solvers"]["admm"]
+    assert score["model"] == score["reference_model"] == "saint-venant-kirchhoff"
+    assert score["max_vertex_error_mm"] < 1e-8
+    rc = main(["solve", "phantom", "--size", "10", "--material", "yeoh:c1=x", "--solver", "admm"])
+    assert rc == 2
+    assert "c1 must be a number, got 'x'" in capsys.readouterr().err

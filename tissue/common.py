@@ -36,7 +36,7 @@ from tissue_reference.solvers import admm, mass_tensor
 
 __all__ = ["PROGRESS_FROM_CELLS", "SOLVER_NAMES", "add_case_args", "add_discretization_args",
            "body_diameter", "case_from_args", "check_outputs", "check_prescribed",
-           "check_pushes", "integer",
+           "check_pushes", "integer", "material_spec",
            "parse_pushes", "real", "report_validity", "run_solver", "with_factorization"]
 
 SOLVER_NAMES = ("fem", "admm", "mass-tensor")
@@ -200,7 +200,32 @@ def add_case_args(p: argparse.ArgumentParser):
     p.add_argument("--free-actuators", action="store_true",
                    help="actuator patches a solve does not push move with the tissue (default: "
                         "held where they are, the case's idle setting)")
+    p.add_argument("--material", type=material_spec, default=None, metavar="LAW[:NAME=VALUE,...]",
+                   help="the tissue's strain-energy law instead of the case's (docs/laws.md), "
+                        "e.g. stable-neo-hookean (the case's E and nu), neo-hookean:E=8, "
+                        "mooney-rivlin:c1=1,c2=0.5,k=30 (kPa)")
     add_max_cells(p)
+
+
+def material_spec(text: str) -> tuple[str, dict]:
+    """argparse type of --material: "LAW" or "LAW:NAME=VALUE,..." -> (law, parameters); values
+    are numbers (kPa; density kg/mm^3) except ``volumetric``'s."""
+    model, _, rest = text.partition(":")
+    params = {}
+    for item in filter(None, (x.strip() for x in rest.split(","))):
+        name, eq, value = item.partition("=")
+        if not eq or not name.strip() or not value.strip():
+            raise argparse.ArgumentTypeError(f"LAW[:NAME=VALUE,...], got {text!r} ({item!r} is "
+                                             f"not NAME=VALUE)")
+        name, value = name.strip(), value.strip()
+        if name != "volumetric":
+            try:
+                value = float(value)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"{name} must be a number, got {value!r} in "
+                                                 f"{text!r}") from None
+        params[name] = value
+    return model.strip(), params
 
 
 def add_max_cells(p: argparse.ArgumentParser, default=None, what="builtin mesh"):
@@ -287,6 +312,11 @@ def case_from_args(args, *, size: float | None = None) -> Case:
         print(f"tissue {getattr(args, 'command', '') or ''}: meshed {b[0]!r} at size {b[1]:g} mm "
               f"with gmsh ({case.mesh.n_cells:,} cells) in {took:.1f} s; {later}",
               file=sys.stderr, flush=True)
+    if getattr(args, "material", None) is not None:
+        try:
+            case = case.with_law(*args.material)
+        except CaseError as exc:
+            raise CaseError(f"--material: {exc}") from None
     if getattr(args, "contact_quadrature", None) is not None:
         case = dataclasses.replace(case, reference_contact_quadrature=args.contact_quadrature)
     if getattr(args, "tip_start", None) is not None:
