@@ -36,6 +36,7 @@ LAWS = {
     "yeoh": {"c1": MU0 / 2, "c2": -0.05 * MU0, "c3": 0.01 * MU0, "k": K},
     "stable-neo-hookean": {"E": E, "nu": NU},
     "saint-venant-kirchhoff": {"E": E, "nu": NU},
+    "corotational": {"E": E, "nu": NU},
     "linear-elastic": {"E": E, "nu": NU},
 }
 

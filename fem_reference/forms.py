@@ -11,6 +11,13 @@ with Ibar2 = J^(-4/3) ((tr C)^2 - tr C^2) / 2 and kappa = k (``meshes.case_parts
 Stable Neo-Hookean (Smith et al. 2018):  psi = mu/2 (tr C - 3) + lambda'/2 (J - 1 - mu/lambda')^2
 - mu^2 / (2 lambda'),  lambda' = lambda + mu.
 St Venant-Kirchhoff:  psi = lambda/2 (tr Eg)^2 + mu Eg:Eg,  Eg = (C - I) / 2.
+Corotational:  psi = mu |F - R|^2 + lambda/2 tr(R^T F - I)^2 = mu (tr C - 2 a + 3) + lambda/2 (a - 3)^2,
+with F = R U the polar decomposition and a = tr U, the sum of the principal stretches. The
+invariants of U and C are tied by a^2 - 2 b = I1, b^2 - 2 J a = I2 (b the second invariant of
+U), so a is the largest root of (a^2 - I1)^2 / 4 - 2 J a - I2 = 0: Newton's iteration on it
+from an upper bound (``principal_stretch_sum``) converges monotonically and reaches round-off in
+four steps for principal stretches from 1/4 to 4; a smooth function of C, exact at equal
+stretches (at rest too), whose UFL derivatives are the exact ones to round-off.
 Linear elasticity:  psi = mu eps:eps + lambda/2 (tr eps)^2,  eps = sym(grad u).
 In 2D (plane strain) F is the 2x2 in-plane block and F33 = 1, so tr C gains + 1 (and tr C^2 too;
 Eg33 = 0).
@@ -30,7 +37,10 @@ from __future__ import annotations
 
 import ufl
 
+from .invariants import principal_stretch_sum
+
 __all__ = [
+    "corotational_psi",
     "first_piola",
     "isochoric_energy",
     "linear_elastic_psi",
@@ -100,6 +110,14 @@ def saint_venant_kirchhoff_psi(F, mu, lmbda):
     return lmbda / 2 * ufl.tr(Eg) ** 2 + mu * ufl.inner(Eg, Eg)
 
 
+def corotational_psi(F, mu, lmbda):
+    """mu |F - R|^2 + lambda/2 tr(R^T F - I)^2 (F = R U), written as mu (I1 - 2 tr U + 3) +
+    lambda/2 (tr U - 3)^2 with tr U from ``principal_stretch_sum`` (module docstring)."""
+    I1, I2, J = _invariants(F)
+    a = principal_stretch_sum(I1, I2, J)
+    return mu * (I1 - 2 * a + 3) + lmbda / 2 * (a - 3) ** 2
+
+
 def linear_elastic_psi(F, mu, lmbda):
     gdim = F.ufl_shape[0]
     eps = ufl.sym(F - ufl.Identity(gdim))
@@ -119,6 +137,8 @@ def strain_energy_density(u, model: str, mu, kappa, lmbda, volumetric: str = "qu
         return stable_neo_hookean_psi(F, mu, lmbda), F
     if model == "saint-venant-kirchhoff":
         return saint_venant_kirchhoff_psi(F, mu, lmbda), F
+    if model == "corotational":
+        return corotational_psi(F, mu, lmbda), F
     iso, J = isochoric_energy(F, model, mu, coefficients)
     return iso + kappa / 2 * volume_change(J, volumetric) ** 2, F
 

@@ -34,7 +34,7 @@ E_RANGE_KPA = (1e-9, 1e12)
 """Young's moduli accepted (kPa): from far softer than any tissue to harder than diamond
 (1.2e9 kPa); outside it the residuals of a solve under- or overflow."""
 MATERIAL_MODELS = ("neo-hookean", "linear-elastic", "stable-neo-hookean",
-                   "saint-venant-kirchhoff", "mooney-rivlin", "yeoh")
+                   "saint-venant-kirchhoff", "corotational", "mooney-rivlin", "yeoh")
 """The strain-energy laws (``Material``; formulas and checks: docs/laws.md)."""
 UNCOUPLED_LAWS = ("neo-hookean", "mooney-rivlin", "yeoh")
 """Laws of an isochoric energy of Ibar1, Ibar2 (of J^(-2/3) C) plus kappa/2 G(J)^2: they take the
@@ -80,8 +80,12 @@ class Material:
       state carries no energy and the small-strain limit is linear elasticity's.
     saint-venant-kirchhoff (``E``, ``nu``): psi = lambda/2 (tr Eg)^2 + mu Eg:Eg, Eg = (C - I)/2;
       it softens in strong compression (a stiffness that vanishes at stretches of 1/sqrt(3)).
+    corotational (``E``, ``nu``): psi = mu |F - R|^2 + lambda/2 tr(R^T F - I)^2 with F = R U
+      the polar decomposition, = mu (tr C - 2 tr U + 3) + lambda/2 (tr U - 3)^2: the energy that
+      co-rotational FEM linearizes (SOFA's), linear elasticity in the element's rotated frame.
     linear-elastic: psi = mu eps:eps + lambda/2 tr(eps)^2 (``volumetric`` does not apply).
-    The last three are compressible laws: nu < 0.5, the displacement formulation.
+    Stable Neo-Hookean, St Venant-Kirchhoff and corotational are compressible laws: nu < 0.5,
+    the displacement formulation.
     """
 
     model: str = "neo-hookean"

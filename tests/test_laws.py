@@ -17,6 +17,7 @@ LAWS = {
     "neo-hookean": {"E": 6.0, "nu": 0.45},
     "stable-neo-hookean": {"E": 6.0, "nu": 0.45},
     "saint-venant-kirchhoff": {"E": 6.0, "nu": 0.3},
+    "corotational": {"E": 6.0, "nu": 0.3},
     "mooney-rivlin": {"c1": 1.0, "c2": 0.5, "k": 30.0},
     "yeoh": {"c1": 1.2, "c2": -0.2, "c3": 0.05, "k": 40.0},
     "linear-elastic": {"E": 6.0, "nu": 0.3},
@@ -53,12 +54,24 @@ def psi_formula(F, model, p):
     if model == "saint-venant-kirchhoff":
         Eg = (C - np.eye(3)) / 2
         return lam / 2 * np.trace(Eg) ** 2 + mu * np.sum(Eg * Eg)
+    if model == "corotational":   # mu |F - R|^2 + lambda/2 tr(R^T F - I)^2, F = R U (SVD)
+        W, _, Vt = np.linalg.svd(F)
+        R = W @ Vt
+        return mu * np.sum((F - R) ** 2) + lam / 2 * (np.trace(R.T @ F) - 3) ** 2
     eps = (F + F.T) / 2 - np.eye(3)
     return mu * np.sum(eps * eps) + lam / 2 * np.trace(eps) ** 2
 
 
 def piola_formula(F, model, p):
-    """dpsi/dF by complex steps of psi_formula (exact to round-off)."""
+    """dpsi/dF by complex steps of psi_formula (exact to round-off); the corotational law's in
+    closed form, P = 2 mu (F - R) + lambda tr(R^T F - I) R (d tr U / dF = R), R from the SVD
+    (which complex steps do not pass through)."""
+    if model == "corotational":
+        E, nu = p["E"], p["nu"]
+        mu, lam = E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
+        W, _, Vt = np.linalg.svd(F)
+        R = W @ Vt
+        return 2 * mu * (F - R) + lam * (np.trace(R.T @ F) - 3) * R
     P = np.zeros((3, 3))
     for i in range(3):
         for j in range(3):
@@ -130,6 +143,10 @@ def test_simple_shear_stress_in_closed_form(piola_code, model):
                          + 3 * p.get("c3", 0) * g ** 4),
         # (F S F^T)_12 with S = lambda tr(Eg) I + 2 mu Eg, Eg = [[0, g/2], [g/2, g^2/2]]:
         "saint-venant-kirchhoff": m.mu * g + m.lmbda * g ** 3 / 2 + m.mu * g ** 3,
+        # P_12 of 2 mu (F - R) + lambda (tr U - 3) R, R the rotation by atan(g/2), c its cosine,
+        # tr U = 2 / c + 1:
+        "corotational": (m.mu * g * (2 - 1 / math.sqrt(1 + g * g / 4))
+                         + m.lmbda * g * (1 - 1 / math.sqrt(1 + g * g / 4))),
         "linear-elastic": m.mu * g,
     }[model]
     assert sigma12 == pytest.approx(expected, rel=1e-10)

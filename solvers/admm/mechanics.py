@@ -24,12 +24,14 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from tissue_reference.fem_reference.invariants import principal_stretch_sum
 from tissue_reference.meshes.errors import CaseError
 
 KERNEL_LAWS = ("neo-hookean", "linear-elastic")
 """The laws of the compiled element pass (``kernel_c``) and of the closed-form z-steps
 (``kernel_array.ZStep``); the others run the numpy element pass with ``kernel_array.LawZStep``."""
-INVARIANT_LAWS = ("mooney-rivlin", "yeoh", "stable-neo-hookean", "saint-venant-kirchhoff")
+INVARIANT_LAWS = ("mooney-rivlin", "yeoh", "stable-neo-hookean", "saint-venant-kirchhoff",
+                  "corotational")
 """The laws written as an energy of the invariants (I1, I2, J) (``InvariantLaw``)."""
 ADMM_LAWS = KERNEL_LAWS + INVARIANT_LAWS
 """The strain-energy laws the ADMM solver implements; it refuses the others by name."""
@@ -136,6 +138,8 @@ class InvariantLaw:
             h[:, 0, 0] = 0.25 * lam + 0.5 * mu
             return (0.125 * lam * (I1 - 3.0) ** 2
                     + 0.25 * mu * (I1 ** 2 - 2.0 * I2 - 2.0 * I1 + 3.0)), g, h
+        if self.model == "corotational":
+            return self._corotational(I1, I2, J, g, h)
         # uncoupled: W(x1, x2) + kappa/2 (J - 1)^2, x1 = J^(-2/3) I1, x2 = J^(-4/3) I2
         c = self.coefficients
         j23 = np.abs(J) ** (-2.0 / 3.0)
@@ -163,6 +167,27 @@ class InvariantLaw:
         g = W1[:, None] * g1 + W2[:, None] * g2
         g[:, 2] += self.kappa * (J - 1.0)
         return W + 0.5 * self.kappa * (J - 1.0) ** 2, g, h
+
+    def _corotational(self, I1, I2, J, g, h):
+        """mu (I1 - 2 a + 3) + lambda/2 (a - 3)^2 with a = tr U the root of
+        f(a) = (a^2 - I1)^2 / 4 - 2 J a - I2 (``fem_reference.forms``: the same iteration), its
+        derivatives in (I1, I2, J) by implicit differentiation of f(a; I1, I2, J) = 0."""
+        mu, lam = self.mu, self.lmbda
+        a = principal_stretch_sum(I1, I2, J)
+        fa = a * (a * a - I1) - 2.0 * J
+        fx = np.stack([-(a * a - I1) / 2.0, -np.ones_like(a), -2.0 * a], axis=1)
+        fax = np.stack([-a, np.zeros_like(a), -2.0 * np.ones_like(a)], axis=1)
+        fxx = np.zeros_like(h)
+        fxx[:, 0, 0] = 0.5
+        ax = -fx / fa[:, None]
+        axx = -(fxx + np.einsum("mi,mj->mij", fax, ax) + np.einsum("mi,mj->mij", ax, fax)
+                + (3.0 * a * a - I1)[:, None, None] * np.einsum("mi,mj->mij", ax, ax)) \
+            / fa[:, None, None]
+        pa = -2.0 * mu + lam * (a - 3.0)
+        g[:] = pa[:, None] * ax
+        g[:, 0] += mu
+        h[:] = lam * np.einsum("mi,mj->mij", ax, ax) + pa[:, None, None] * axx
+        return mu * (I1 - 2.0 * a + 3.0) + 0.5 * lam * (a - 3.0) ** 2, g, h
 
     def psi_J(self, H):
         _, _, J, _, I1, I2 = self._invariants(H)
