@@ -25,17 +25,18 @@ from tissue_reference.control.jacobian import (
 from tissue_reference.meshes.case import E_RANGE_KPA
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import material_json
+from tissue_reference.solvers import registry
 from tissue_reference.solvers.admm import prepare
 from tissue_reference.solvers.admm import solve as admm_solve
-from tissue_reference.solvers.admm import tangent_stiffness as admm_tangent
 
 from .fast_model import ADMM_CONTROL_OPTIONS, FastModel
 from .jacobian import admm_indenter_jacobian
 from .loop import LinearizedModel, run_closed_loop
 
 __all__ = ["ADMM_CONTROL_OPTIONS", "FD_FLOOR", "MODEL_UPDATES", "PRESS_WIDTHS", "LoopSetup",
-           "actuator_kind", "admm_indenter_sensitivity", "build_loop", "indenter_sensitivity",
-           "jacobian_at", "matching_case", "material_json", "plant_for", "pressing", "reference_state", "solver_description", "tangent_for"]
+           "actuator_kind", "admm_indenter_sensitivity", "build_loop", "control_solver",
+           "indenter_sensitivity", "jacobian_at", "matching_case", "material_json", "plant_for",
+           "pressing", "reference_state", "solver_description", "tangent_for"]
 
 FD_FLOOR = 1e-7
 """Smallest central-difference step, relative to the body's diameter: the solves agree to about
@@ -43,64 +44,52 @@ FD_FLOOR = 1e-7
 
 
 
+def control_solver(name: str):
+    """The registry's entry (``solvers.registry``) of the plant/model/Jacobian solver ``name``;
+    CaseError naming the choices for a solver that plays none of them."""
+    entry = registry.solver(name) if name in registry.names() else None
+    if entry is None or not entry.control:
+        raise CaseError(f"unknown plant/model solver {name!r}; choose "
+                        f"{' or '.join(registry.control_names())}")
+    return entry
+
+
 def solver_description(name: str, case, *, degree: int | None = None,
                        formulation: str = "auto") -> dict:
     """What solver ``name`` (fem | admm) computes on ``case`` as a plant, a model or a Jacobian's
-    solver, JSON-ready: ``discretization`` (formulation, degrees, cells; the reference's default
-    degree is resolved as ``fem_reference`` resolves it) and ``settings`` (the reference's Newton
-    controls, which the control layer leaves at their defaults, or ``ADMM_CONTROL_OPTIONS``)."""
-
-    if name == "fem":
-        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-        from tissue_reference.fem_reference.discretization import (
-            default_degree,
-            resolve_formulation,
-        )
-        from tissue_reference.fem_reference.newton_settings import settings_json
-
-        form = resolve_formulation(formulation, case.material)
-        p = degree if degree is not None else default_degree(case, form)
-        disc = {"formulation": form, "degree": p,
-                "pressure_degree": p - 1 if form == "mixed" else None,
-                "cells": case.mesh.n_cells}
-        return {"solver": name, "discretization": disc,
-                "settings": settings_json()}
-    if name == "admm":
-        return {"solver": name,
-                "discretization": {"formulation": "displacement", "degree": 1,
-                                   "pressure_degree": None, "cells": case.mesh.n_cells},
-                "settings": dict(ADMM_CONTROL_OPTIONS)}
-    raise CaseError(f"unknown plant/model solver {name!r}; choose fem or admm")
+    solver, JSON-ready (``SolverEntry.describe``): ``discretization`` (formulation, degrees,
+    cells; the reference's default degree is resolved as ``fem_reference`` resolves it) and
+    ``settings`` (the reference's Newton controls, which the control layer leaves at their
+    defaults, or ``ADMM_CONTROL_OPTIONS``)."""
+    entry = control_solver(name)
+    return entry.describe(case, degree=degree, formulation=formulation,
+                          options=None if entry.reference else ADMM_CONTROL_OPTIONS)
 
 
 def plant_for(name: str, *, degree: int | None = None, tight: bool = True):
     """plant(case, pushes, initial_u) -> SolveResult for solver ``name`` (fem | admm).
     tight: ADMM with ``ADMM_CONTROL_OPTIONS`` (else the solver's defaults)."""
-    if name == "fem":
-        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-        from tissue_reference.fem_reference import solve
-
-        return full_warm_start(lambda case, pushes, initial: solve(
+    entry = control_solver(name)
+    if entry.reference:
+        return full_warm_start(lambda case, pushes, initial: entry.solve(
             case, degree=degree, pushes=pushes, initial=initial))
-    if name == "admm":
-        kw = dict(ADMM_CONTROL_OPTIONS) if tight else {}
-        # the previous answer itself warm-starts: with rigid tips it carries their pushes, so
-        # the tips start where that state was solved
-        return full_warm_start(lambda case, pushes, initial: admm_solve(
-            case, pushes=pushes, initial=initial, **kw))
-    raise CaseError(f"unknown plant/model solver {name!r}; choose fem or admm")
+    kw = dict(ADMM_CONTROL_OPTIONS) if tight else {}
+    solve = entry.load().solve
+    # the previous answer itself warm-starts: with rigid tips it carries their pushes, so
+    # the tips start where that state was solved
+    return full_warm_start(lambda case, pushes, initial: solve(
+        case, pushes=pushes, initial=initial, **kw))
 
 
 def tangent_for(name: str):
     """tangent(case, u) -> CSR K (P1, node-major, Case numbering) for solver ``name``."""
-    if name == "fem":
+    entry = control_solver(name)
+    if entry.reference:
         # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
         from tissue_reference.fem_reference import tangent_stiffness
 
         return lambda case, u: tangent_stiffness(case, u).K
-    if name == "admm":
-        return admm_tangent
-    raise CaseError(f"unknown plant/model solver {name!r}; choose fem or admm")
+    return entry.load().tangent_stiffness
 
 
 def reference_state(case, state_pushes, *, degree=None, formulation="auto"):
@@ -159,8 +148,10 @@ def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="a
     actuators: the columns (default: every actuator of the Case; the others are held)."""
     if degree not in (None, 1, 2):
         raise CaseError(f"--degree must be 1 or 2, got {degree}")
-    if solver != "fem" and (degree == 2 or formulation == "mixed"):
-        raise CaseError("--degree 2 and --formulation mixed need --solver fem")
+    reference = control_solver(solver).reference
+    if not reference and (degree == 2 or formulation == "mixed"):
+        raise CaseError(f"--degree 2 and --formulation mixed need --solver "
+                        f"{registry.reference().name}")
     st = full_pushes(case, state_pushes)
     pushed = case.with_pushes(st)
     names = [a.name for a in case.actuators] if actuators is None else list(actuators)
@@ -168,7 +159,7 @@ def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="a
     if tips & set(names) and not set(names) <= tips:
         raise CaseError(f"the Jacobian's actuators {names} mix indenters and glued patches: ask "
                         f"for the columns of one kind at a time (--actuators)")
-    if solver == "fem" and tips & set(names):
+    if reference and tips & set(names):
         # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
         from tissue_reference.fem_reference.contact_jacobian import indenter_jacobian
 
@@ -183,7 +174,7 @@ def jacobian_at(case, state_pushes, *, solver="fem", degree=None, formulation="a
         if not res.converged:
             raise CaseError(f"the state solve at pushes {st} did not converge")
         jac = admm_indenter_jacobian(pushed, res.u, actuators=names)
-    elif solver == "fem":
+    elif reference:
         res, T, plant = reference_state(case, st, degree=degree, formulation=formulation)
         degree = T.degree
         if degree == 2:
@@ -345,7 +336,7 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
         meta["plant_contact_rule"] = "nodal" if rule in (None, "nodal") else int(rule)
     sensitivity = None
     if mcase.indenters():
-        sensitivity = indenter_sensitivity() if mname == "fem" else admm_indenter_sensitivity()
+        sensitivity = indenter_sensitivity() if control_solver(mname).reference else admm_indenter_sensitivity()
     if model_update not in MODEL_UPDATES:
         raise CaseError(f"model update {model_update!r}: choose one of {list(MODEL_UPDATES)}")
     fast = model_update == "fast" and mname == "admm" and msolve is not psolve

@@ -173,7 +173,7 @@ def error_estimate(case: Case, result: SolveResult, *, pushes=None, progress: bo
     solve fails.
     """
     t0 = time.perf_counter()
-    if result.solver != "fem":
+    if not result.reference:
         raise CaseError(f"error estimates are for reference (fem) answers, got a "
                         f"{result.solver!r} result")
     if result.n_vertices != case.mesh.n_vertices:
@@ -280,7 +280,7 @@ def _no_auto_estimate(case: Case, result: SolveResult, max_dofs: int, options: d
     """Why ``auto_estimate`` does not estimate ``result`` (None: it does)."""
     from mpi4py import MPI
 
-    if result.solver != "fem":
+    if not result.reference:
         return f"a {result.solver!r} answer: estimates are for reference answers"
     if not result.converged or result.valid is False:
         return "the answer is not a valid converged state"

@@ -53,7 +53,7 @@ def measured_accuracy(case: Case, result: SolveResult, pushes=None) -> dict | No
     """The ``[reference.measured]`` row of ``case`` that describes ``result`` (a reference answer
     of ``case`` under ``pushes``, actuator name -> mm; the others at 0), with ``converged``
     filled in; None when no row has its unknowns, degree, contact rule and pushes."""
-    if not case.reference_measured or result.solver != "fem":
+    if not case.reference_measured or not result.reference:
         return None
     load = {a.name: float((pushes or {}).get(a.name, 0.0)) for a in case.actuators}
     for row in case.reference_measured:
@@ -80,7 +80,7 @@ def with_measured_accuracy(case: Case, result: SolveResult, pushes=None) -> Solv
     """``result`` with ``extra["measured_accuracy"]`` (``measured_accuracy``) where a row of the
     case describes it; where the case has rows and none does, ``extra["measured_note"]`` names
     the loads it measured (``unmatched_note``); unchanged for a case without rows."""
-    if not case.reference_measured or result.solver != "fem":
+    if not case.reference_measured or not result.reference:
         return result
     row = measured_accuracy(case, result, pushes)
     if row is None:

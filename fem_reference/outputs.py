@@ -121,7 +121,7 @@ def solve_result(solver, case, converged, iters, residual, wall, steps, history,
     disc = discretization(solver)
     return SolveResult(
         u=u_v, converged=converged, iterations=iters, residual=float(residual),
-        wall_time_s=wall, solver="fem", probes=probe_values(solver, case, u_v),
+        wall_time_s=wall, solver="fem", reference=True, probes=probe_values(solver, case, u_v),
         reactions=reactions(solver, case), strain_energy=float(energy), load_steps=steps,
         degree=solver.degree, case_name=case.name, n_vertices=case.mesh.n_vertices,
         n_cells=case.mesh.n_cells, history=history, discretization=disc,

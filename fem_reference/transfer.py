@@ -155,6 +155,7 @@ def prolong(coarse_solver, coarse: SolveResult, fine_solver, parents) -> SolveRe
     node_u = values[match_points(x[:, :gdim], points, "the refined nodes")]
     return SolveResult(u=node_u[:fine_solver.case.mesh.n_vertices].copy(), converged=True,
                        iterations=0, residual=0.0, wall_time_s=0.0, solver="fem",
+                       reference=True,
                        degree=fine_solver.degree, case_name=coarse.case_name,
                        n_vertices=fine_solver.case.mesh.n_vertices,
                        n_cells=fine_solver.case.mesh.n_cells,

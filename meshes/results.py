@@ -51,7 +51,9 @@ class SolveResult:
         (``fem_reference.contact``); {} without tips.  probe_error_estimates (mm) and
         reaction_error_estimates (mN): the norm of the estimated discretization error per
         probe / Dirichlet region ({} when not estimated); estimate_note: why an answer has no
-        estimate (None when it has one or none was asked for).
+        estimate (None when it has one or none was asked for).  reference: whether the
+        reference (``fem_reference``) computed it; its JSON form says so by ``solver`` and by
+        ``newton_iterations`` (the iterations of a reference answer, else 0).
     """
 
     u: np.ndarray
@@ -78,6 +80,7 @@ class SolveResult:
     probe_error_estimates: dict = field(default_factory=dict)
     reaction_error_estimates: dict = field(default_factory=dict)
     estimate_note: str | None = None
+    reference: bool = False
 
     def __post_init__(self):
         given = {k: self.extra[k] for k in TYPED_EXTRAS if k in self.extra}
@@ -127,7 +130,7 @@ class SolveResult:
             "case": self.case_name, "solver": self.solver, "degree": self.degree,
             "dimension": self.dimension, "n_vertices": self.n_vertices, "n_cells": self.n_cells,
             "converged": bool(self.converged), "load_steps": int(self.load_steps),
-            "newton_iterations": int(self.iterations) if self.solver == "fem" else 0,
+            "newton_iterations": int(self.iterations) if self.reference else 0,
             "iterations": int(self.iterations),
             "wall_time_s": float(self.wall_time_s),
             "probes": {k: {"point": pts.get(k), "displacement": np.asarray(v, float).tolist()}

@@ -1,4 +1,5 @@
-"""The fast solvers, by name: ``get_solver("admm")`` -> ``solvers.admm.solve``.
+"""The fast solvers, by name: ``get_solver("admm")`` -> ``solvers.admm.solve``. Every built-in
+solver, the reference included, with one face: ``solvers.registry``.
 
 Every registered ``solve(case, *, pushes=None, initial=None, callback=None, progress=False, ...)``
 returns a ``meshes.results.SolveResult``; every module also has ``require_modeled(case)``, which
@@ -11,13 +12,13 @@ import importlib
 
 from tissue_reference.meshes.errors import CaseError
 
+from .registry import entries
+
 __all__ = ["SOLVERS", "get_solver", "solver_module"]
 
-# name -> module whose ``solve`` it is
-SOLVERS = {
-    "admm": "tissue_reference.solvers.admm",
-    "mass-tensor": "tissue_reference.solvers.mass_tensor",
-}
+# name -> module whose ``solve`` it is: the fast solvers of the registry (``solvers.registry``,
+# which has the reference too)
+SOLVERS = {e.name: e.module for e in entries() if not e.reference}
 
 
 def solver_module(name: str):

@@ -20,6 +20,7 @@ from tissue_reference.meshes.case_file import case_path
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.io import check_output_dir, check_output_file, save_figure
 from tissue_reference.meshes.results import write_json
+from tissue_reference.solvers.registry import control_names
 
 from .common import (
     add_case_args,
@@ -208,7 +209,7 @@ def add_parser(sub):
     add_case_args(p)
     p.add_argument("--compare", nargs="*", type=case_path, default=["phantom-3"],
                    help="other cases to map side by side (default: the 3-actuator phantom)")
-    p.add_argument("--solver", choices=("fem", "admm"), default="fem",
+    p.add_argument("--solver", choices=control_names(), default="fem",
                    help="whose tangent stiffness the maps use")
     p.add_argument("--plane-z", type=real("finite", "mm"), default=15.0,
                    help="height of the mapped section (mm)")

@@ -12,7 +12,7 @@ import numpy as np
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.io import atomic_path, check_output_file, write_mesh
 from tissue_reference.meshes.results import material_json, write_json
-from tissue_reference.solvers.trajectory import admm_trajectory
+from tissue_reference.solvers.registry import dynamics_names, reference, solver
 
 from .common import (
     add_case_args,
@@ -64,14 +64,14 @@ def trajectory_json(case, traj, args) -> dict:
               "material": material_json(case.material),
               "gravity_mm_s2": list(map(float, case.gravity)) if case.gravity is not None
               else None})
-    if args.solver == "fem":
+    if solver(args.solver).reference:
         disc = (traj.final.discretization if traj.final is not None else None)
         if disc is not None:
             d["discretization"] = disc
-        d["solver_settings"] = solver_settings("fem", mass=args.mass,
+        d["solver_settings"] = solver_settings(args.solver, mass=args.mass,
                                                ramp_steps=args.ramp_steps)
     else:
-        d["solver_settings"] = solver_settings("admm")
+        d["solver_settings"] = solver_settings(args.solver)
     return d
 
 
@@ -83,11 +83,8 @@ def run(args) -> int:
                 check_output_file(Path(args.out) / f"{stem}{suffix}", "--out")
         for name in PAGE_FILES:
             check_output_file(Path(args.out) / name, "--out")
-    if args.solver == "admm" and (args.degree not in (None, 1) or args.formulation == "mixed"
-                                  or args.mass != "lumped" or args.ramp_steps):
-        raise CaseError("solver 'admm' is P1 with the lumped mass and Dirichlet values in full "
-                        "from the first step: --degree, --formulation mixed, --mass consistent "
-                        "and --ramp-steps apply to --solver fem")
+    entry = solver(args.solver)
+    entry.check_dynamics(args.degree, args.formulation, args.mass, args.ramp_steps)
     pushes = parse_pushes(args.push)
     case = case_from_args(args)
     if args.gravity is not None:
@@ -99,19 +96,9 @@ def run(args) -> int:
     check_prescribed(case, pushes)
     progress = not args.quiet
     try:
-        if args.solver == "fem":
-            # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-            from tissue_reference.fem_reference.dynamics import simulate
-
-            traj = simulate(case, dt=args.dt, steps=args.steps, pushes=pushes,
-                            degree=args.degree, formulation=args.formulation, mass=args.mass,
-                            ramp_steps=args.ramp_steps, progress=progress)
-        else:
-            # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-            from tissue_reference.fem_reference import cholmod_factor
-
-            traj = admm_trajectory(case.with_pushes(pushes), dt=args.dt, steps=args.steps,
-                                   progress=progress, factorize=cholmod_factor)
+        traj = entry.simulate(case, dt=args.dt, steps=args.steps, pushes=pushes,
+                              degree=args.degree, formulation=args.formulation, mass=args.mass,
+                              ramp_steps=args.ramp_steps, progress=progress)
     except ConvergenceError as exc:
         if exc.last_converged is not None:
             write_outputs(case.with_pushes(pushes), exc.last_converged, args.out, None,
@@ -147,7 +134,7 @@ def add_parser(sub):
     p.add_argument("--dt", type=real("positive", "s"), required=True, help="time step (s)")
     p.add_argument("--steps", type=integer(1, MAX_STEPS), required=True,
                    help="number of time steps")
-    p.add_argument("--solver", choices=("fem", "admm"), default="fem",
+    p.add_argument("--solver", choices=dynamics_names(), default=reference().name,
                    help="the reference or ADMM (same lumped mass)")
     add_discretization_args(p)
     p.add_argument("--mass", choices=("lumped", "consistent"), default="lumped",

@@ -19,6 +19,7 @@ from tissue_reference.control.plants import FD_FLOOR, jacobian_at
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.io import check_output_file
 from tissue_reference.meshes.results import write_json
+from tissue_reference.solvers.registry import control_names
 
 from .common import (
     add_case_args,
@@ -80,7 +81,7 @@ def add_parser(sub):
     add_case_args(p)
     p.add_argument("--state-push", action="append", default=[], metavar="NAME=MM",
                    help="state at which to linearize (repeatable); other actuators held at 0")
-    p.add_argument("--solver", choices=("fem", "admm"), default="fem",
+    p.add_argument("--solver", choices=control_names(), default="fem",
                    help="whose tangent and solves: the reference or ADMM")
     add_discretization_args(p)
     p.add_argument("--fd-h", type=real("nonneg", "mm"), default=0.02,

@@ -13,6 +13,7 @@ from tissue_reference.meshes.errors import AccuracyNotReached, CaseError, Conver
 from tissue_reference.meshes.io import check_output_file
 from tissue_reference.meshes.refine import projector_for
 from tissue_reference.solvers.admm import require_device
+from tissue_reference.solvers.registry import reference, solver
 
 from .common import (
     SOLVER_NAMES,
@@ -39,14 +40,15 @@ SUFFIXES = (".xdmf", ".h5", ".vtu", "_view_u.png", "_view_J.png", "_history.png"
 
 def _settings_of(args) -> dict:
     """solver_settings of ``tissue solve``'s options."""
-    if args.solver == "fem":
+    entry = solver(args.solver)
+    if entry.reference:
         given = {"estimate": "auto" if args.estimate is None else bool(args.estimate)}
         if args.accuracy is not None:
             given.update({"accuracy_rel": args.accuracy, "refine": args.refine,
                           "max_dofs": args.max_dofs})
-        return solver_settings("fem", **given)
-    if args.solver == "admm":
-        return solver_settings("admm", device=args.device)
+        return solver_settings(args.solver, **given)
+    if len(entry.devices) > 1:
+        return solver_settings(args.solver, device=args.device)
     return solver_settings(args.solver)
 
 
@@ -57,8 +59,9 @@ def run(args) -> int:
         for stem in STEMS:
             for suffix in SUFFIXES:
                 check_output_file(Path(args.out) / f"{stem}{suffix}", "--out")
+    entry = solver(args.solver)
     if args.device != "cpu":
-        if args.solver != "admm":
+        if args.device not in entry.devices:
             raise CaseError(f"--device {args.device} applies to the ADMM solver (--solver admm)")
 
         require_device(args.device)  # no CuPy / no GPU: a one-line error before the mesh is built
@@ -66,7 +69,7 @@ def run(args) -> int:
     case = case_from_args(args)
     check_pushes(case, pushes)
     check_prescribed(case, pushes)
-    if (args.estimate or args.accuracy is not None) and args.solver != "fem":
+    if (args.estimate or args.accuracy is not None) and not entry.reference:
         raise CaseError("--estimate and --accuracy apply to the reference (--solver fem)")
     if args.estimate is not None and args.accuracy is not None:
         raise CaseError("--accuracy estimates every level itself: drop --estimate / "
@@ -77,10 +80,10 @@ def run(args) -> int:
             case, res = solve_adaptive(case, pushes, args)
         else:
             estimate = {"estimate": "auto" if args.estimate is None else bool(args.estimate)} \
-                if args.solver == "fem" else {}
+                if entry.reference else {}
             res = run_solver(args.solver, case, degree=args.degree, formulation=args.formulation,
                              pushes=pushes, progress=not args.quiet, **estimate,
-                             **({"device": args.device} if args.solver == "admm" else {}))
+                             **({"device": args.device} if len(entry.devices) > 1 else {}))
     except AccuracyNotReached as exc:
         if exc.result is not None:   # the last answer, on the mesh it was solved on
             write_outputs(exc.result.case.with_pushes(pushes), exc.result.result, args.out,
@@ -203,7 +206,7 @@ def print_answer(res):
 def add_parser(sub):
     p = sub.add_parser("solve", help="solve a case with the reference or a fast solver")
     add_case_args(p)
-    p.add_argument("--solver", choices=SOLVER_NAMES, default="fem",
+    p.add_argument("--solver", choices=SOLVER_NAMES, default=reference().name,
                    help="fem: the reference; admm, mass-tensor: the fast solvers (P1)")
     add_discretization_args(p)
     p.add_argument("--push", action="append", metavar="NAME=MM",

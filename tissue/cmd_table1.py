@@ -13,6 +13,7 @@ from tissue_reference.control.table1 import plot_scenarios, write_scenarios_page
 from tissue_reference.control.table1 import run_table1 as run_all
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import write_json
+from tissue_reference.solvers.registry import solver
 
 from .common import add_case_args, case_from_args, check_outputs, contact_rule, integer
 from .loop_options import (
@@ -32,7 +33,7 @@ def run_table1(args) -> int:
         if value is not None and "contact" not in (args.scenarios or ()):
             raise CaseError(f"{flag}: only with --scenarios contact (it sets that scenario's "
                             f"plant)")
-    if args.scenarios and args.plant != "fem":
+    if args.scenarios and not solver(args.plant).reference:
         raise CaseError(f"--plant {args.plant}: the scenarios' plant is the reference (fem), "
                         f"changed as each scenario says")
     case = case_from_args(args)

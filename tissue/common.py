@@ -32,14 +32,14 @@ from tissue_reference.meshes.case_file import case_path
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.io import check_output_dir, check_output_file
 from tissue_reference.meshes.mesh import RUNAWAY_FACTOR
-from tissue_reference.solvers import admm, mass_tensor
+from tissue_reference.solvers.registry import names, solver
 
 __all__ = ["PROGRESS_FROM_CELLS", "SOLVER_NAMES", "add_case_args", "add_discretization_args",
            "body_diameter", "case_from_args", "check_outputs", "check_prescribed",
            "check_pushes", "integer", "material_spec",
            "parse_pushes", "real", "report_validity", "run_solver", "with_factorization"]
 
-SOLVER_NAMES = ("fem", "admm", "mass-tensor")
+SOLVER_NAMES = names()
 PROGRESS_FROM_CELLS = 100_000
 """A builtin mesh estimated at more cells than this announces the estimate before gmsh starts."""
 ANNOUNCE_LOAD_S = 1.0
@@ -327,43 +327,20 @@ def case_from_args(args, *, size: float | None = None) -> Case:
 # --------------------------------------------------------------------------- solving
 def run_solver(name: str, case: Case, *, degree: int | None = None, formulation: str = "auto",
                pushes=None, initial=None, progress: bool = False, **kw):
-    """Solve ``case`` with the named solver; every solver returns a SolveResult. ``degree`` and
-    ``formulation`` are the reference's; the fast solvers are P1 displacement solvers and refuse
-    anything else."""
-    if name == "fem":
-        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-        from tissue_reference.fem_reference import solve
-
-        return solve(case, degree=degree, formulation=formulation, pushes=pushes,
-                     initial=initial, progress=progress, **kw)
-    if degree not in (None, 1) or formulation == "mixed":
-        raise CaseError(f"solver {name!r} is a P1 displacement solver: --degree and "
-                        f"--formulation mixed apply to the reference (--solver fem)")
-    if name == "admm":
-        solve = admm.solve
-    elif name == "mass-tensor":
-        solve = mass_tensor.solve
-    else:
-        raise CaseError(f"unknown solver {name!r}; solvers: {list(SOLVER_NAMES)}")
-    return solve(case, pushes=pushes, initial=initial, progress=progress,
-                 **with_factorization(name, kw))
+    """Solve ``case`` with the named built-in solver (``solvers.registry``); every solver
+    returns a SolveResult. ``degree`` and ``formulation`` are the reference's; the fast solvers
+    are P1 displacement solvers and refuse anything else."""
+    return solver(name).solve(case, degree=degree, formulation=formulation, pushes=pushes,
+                              initial=initial, progress=progress, **kw)
 
 
-FACTORIZED_SOLVERS = ("admm", "mass-tensor")
-"""The built-in fast solvers that take a ``factorize`` hook: ADMM (its polish's tangents) and the
-Mass Tensor Method (its direct solve)."""
-
-
-def with_factorization(solver: str, options: dict) -> dict:
-    """``options`` of the built-in fast solver ``solver`` with CHOLMOD through PETSc
+def with_factorization(name: str, options: dict) -> dict:
+    """``options`` of the built-in solver ``name`` with CHOLMOD through PETSc
     (``fem_reference.cholmod_factor``) as its ``factorize`` hook, where it takes one and none was
-    given: the fast solvers import no PETSc themselves."""
-    if solver not in FACTORIZED_SOLVERS or "factorize" in options:
+    given (``SolverEntry.with_factorization``); ``options`` unchanged for another name."""
+    if name not in SOLVER_NAMES:
         return options
-    # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-    from tissue_reference.fem_reference import cholmod_factor
-
-    return {**options, "factorize": cholmod_factor}
+    return solver(name).with_factorization(options)
 
 
 def report_validity(command: str, res, what: str = "the answer") -> int:

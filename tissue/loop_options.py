@@ -9,6 +9,7 @@ from tissue_reference.control.mpc import WEIGHTS, MPCSettings
 from tissue_reference.control.plants import MODEL_UPDATES, build_loop, matching_case
 from tissue_reference.meshes.converged_range import converged_push_limit
 from tissue_reference.meshes.errors import CaseError
+from tissue_reference.solvers.registry import control_names
 
 from .common import body_diameter, case_from_args, check_prescribed, integer, real
 
@@ -21,9 +22,9 @@ def travel(text):
 
 
 def add_loop_args(p):
-    p.add_argument("--plant", choices=("fem", "admm"), default="fem",
+    p.add_argument("--plant", choices=control_names(), default="fem",
                    help="the solver playing the tissue (the \"true\" plant)")
-    p.add_argument("--model", choices=("fem", "admm"), default=None,
+    p.add_argument("--model", choices=control_names(), default=None,
                    help="controller's model solver (default: the plant's)")
     p.add_argument("--model-update", choices=MODEL_UPDATES, default="fast",
                    help="how an ADMM model follows the pushes: fast (chord Newton on its P1 "

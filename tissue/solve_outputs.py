@@ -3,14 +3,12 @@ with the settings the solver ran with, and the report page; rank 0 writes, each 
 at all."""
 from __future__ import annotations
 
-import inspect
-
 import numpy as np
 
 from tissue_reference.meshes.io import write_point_data
 from tissue_reference.meshes.mesh import cell_jacobians
 from tissue_reference.meshes.results import write_json
-from tissue_reference.solvers import admm, mass_tensor
+from tissue_reference.solvers.registry import solver
 
 from .solve_report import write_solve_report
 
@@ -53,22 +51,9 @@ def write_outputs(case, res, out_dir=None, json_file=None, stem="displacement", 
         write_solve_report(case, res, out_dir, data=data, stem=stem)
 
 
-# keyword arguments of a fast solver's solve() that are inputs or hooks, not settings
-_NOT_SETTINGS = {"case", "pushes", "initial", "callback", "progress", "factorize", "dynamics"}
-
-
 def solver_settings(name: str, **given) -> dict:
-    """The settings a solve by ``name`` ran with, JSON-ready: for the reference its Newton and
-    load-stepping controls (``fem_reference.newton_settings.NewtonSettings``, which the command line
-    leaves at their defaults), for a fast solver the defaults of its ``solve`` keywords (null:
-    the solver picks the value itself); ``given`` (what the command chose) goes over them."""
-    if name == "fem":
-        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-        from tissue_reference.fem_reference.newton_settings import settings_json
-
-        return {**settings_json(), **given}
-    solve = admm.solve if name == "admm" else mass_tensor.solve
-    out = {k: p.default for k, p in inspect.signature(solve).parameters.items()
-           if p.kind is inspect.Parameter.KEYWORD_ONLY and k not in _NOT_SETTINGS
-           and (p.default is None or isinstance(p.default, (bool, int, float, str)))}
-    return {**out, **given}
+    """The settings a solve by the built-in solver ``name`` ran with, JSON-ready
+    (``SolverEntry.settings``): for the reference its Newton and load-stepping controls, for a
+    fast solver the defaults of its ``solve`` keywords (null: the solver picks the value
+    itself); ``given`` (what the command chose) goes over them."""
+    return solver(name).settings(**given)

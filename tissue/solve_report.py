@@ -17,6 +17,7 @@ from tissue_reference.meshes.answer_warnings import ESTIMATE_WARN
 from tissue_reference.meshes.html_page import Raw, fmt, image, kv_table, page, table, write_page
 from tissue_reference.meshes.io import save_figure
 from tissue_reference.meshes.mesh import cell_jacobians
+from tissue_reference.solvers.registry import is_reference
 
 from .views import start_views
 
@@ -148,7 +149,7 @@ def _answer(d: dict) -> list:
     # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
     from tissue_reference.fem_reference.measured import accuracy_line
 
-    its = d.get("newton_iterations") if d.get("solver") == "fem" else d.get("iterations")
+    its = d.get("newton_iterations") if is_reference(d.get("solver")) else d.get("iterations")
     rows = [("converged", d.get("converged")), ("iterations", its),
             ("load steps", d.get("load_steps")), ("load fraction", d.get("load_fraction")),
             ("wall time (s)", d.get("wall_time_s")),

@@ -40,10 +40,10 @@ from tissue_reference.meshes.builders import box, cook_membrane, shell_octant
 from tissue_reference.meshes.case import Boundary, Case, Material, Probe
 from tissue_reference.meshes.errors import CaseError, TissueError
 from tissue_reference.meshes.results import material_json, write_json
-from tissue_reference.solvers import get_solver
+from tissue_reference.solvers.registry import is_reference
+from tissue_reference.solvers.registry import solver as registry_solver
 
 from . import closed_forms as cf
-from .common import with_factorization
 from .plugins import resolve_solver, run_plugin
 from .suite_report import write_scorecard
 from .verify import FAST_SOLVERS
@@ -165,12 +165,8 @@ def _options(solver, problem) -> dict:
     """The settings ``solver`` runs ``problem`` with (JSON-ready): the reference's options and
     Newton controls (left at their defaults), a built-in fast solver's options, {} for a
     plugin."""
-    if solver == "fem":
-        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-        from tissue_reference.fem_reference.newton_settings import settings_json
-
-        return {**problem.reference, **settings_json()}
-
+    if is_reference(solver):
+        return {**problem.reference, **registry_solver(solver).settings()}
     if isinstance(solver, str) and solver in FAST_SOLVERS:
         return dict(FAST_SOLVERS[solver][1])
     return {}
@@ -179,17 +175,14 @@ def _options(solver, problem) -> dict:
 def _run_one(solver, problem):
     """(value, iterations, converged, wall s, discretization) of ``solver`` on ``problem``."""
     case = problem.case
-    if solver == "fem":
-        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
-        from tissue_reference.fem_reference import solve
-
-        res = solve(case, **problem.reference)
+    if is_reference(solver):
+        res = registry_solver(solver).solve(case, **problem.reference)
         return _value(problem, res.probes), res.iterations, res.converged, res.wall_time_s, \
             res.discretization
 
     if isinstance(solver, str) and solver in FAST_SOLVERS:
         key, opts, _ = FAST_SOLVERS[solver]
-        res = get_solver(key)(case, **with_factorization(key, opts))
+        res = registry_solver(key).solve(case, **opts)
         return _value(problem, res.probes), res.iterations, res.converged, res.wall_time_s, \
             {"formulation": "displacement", "degree": 1}
     run = run_plugin(resolve_solver(solver), case, {})

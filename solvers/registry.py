@@ -1,0 +1,211 @@
+"""Every built-in solver, the reference among them, as one ``SolverEntry`` with the same face:
+``solve`` (a ``meshes.results.SolveResult``), ``settings`` (what a solve ran with, JSON-ready),
+``describe`` (what it computes on a Case as a control plant, model or Jacobian's solver) and,
+where it has one, ``simulate`` (implicit-Euler dynamics). ``solver(name)`` looks one up;
+``names()`` lists them for the command line's ``--solver`` choices.
+
+Entries load their modules on first use: importing this module imports neither dolfinx nor
+PETSc, and ``tissue_reference.fem_reference`` is imported only when the reference itself (or a
+fast solver's CHOLMOD factorization hook) is used.
+"""
+from __future__ import annotations
+
+import importlib
+import inspect
+from dataclasses import dataclass
+
+from tissue_reference.meshes.errors import CaseError
+
+__all__ = ["SolverEntry", "control_names", "dynamics_names", "entries", "is_reference", "names",
+           "reference", "solver"]
+
+# keyword arguments of a fast solver's solve() that are inputs or hooks, not settings
+_NOT_SETTINGS = {"case", "pushes", "initial", "callback", "progress", "factorize", "dynamics"}
+
+
+@dataclass(frozen=True)
+class SolverEntry:
+    """One built-in solver. name: what the command line and the JSON call it; module: the module
+    whose ``solve`` it runs (imported on first use); reference: the FEniCSx reference (any degree
+    and formulation, Newton settings, error estimates) rather than a P1 displacement fast
+    solver; degrees: the Lagrange degrees it solves with; factorized: it takes a ``factorize``
+    hook (CHOLMOD through PETSc is given where the caller gives none); control: it plays a
+    control loop's plant or model and a Jacobian's solver; dynamics: "module:function" of its
+    implicit-Euler dynamics, None without; devices: where it runs (one with more than "cpu"
+    takes ``device=``); summary: one line for help texts."""
+
+    name: str
+    module: str
+    reference: bool = False
+    degrees: tuple = (1,)
+    factorized: bool = False
+    control: bool = False
+    dynamics: str | None = None
+    devices: tuple = ("cpu",)
+    summary: str = ""
+
+    def load(self):
+        """The solver's module (ImportError if it cannot be imported)."""
+        return importlib.import_module(self.module)
+
+    def check_discretization(self, degree: int | None = None, formulation: str = "auto"):
+        """Raise CaseError for a degree or formulation this solver does not solve with."""
+        if self.reference:
+            return
+        if degree not in (None, *self.degrees) or formulation == "mixed":
+            raise CaseError(f"solver {self.name!r} is a P1 displacement solver: --degree and "
+                            f"--formulation mixed apply to the reference (--solver "
+                            f"{reference().name})")
+
+    def with_factorization(self, options: dict) -> dict:
+        """``options`` with CHOLMOD through PETSc (``fem_reference.cholmod_factor``) as the
+        ``factorize`` hook, where this solver takes one and none was given: the fast solvers
+        import no PETSc themselves."""
+        if not self.factorized or "factorize" in options:
+            return options
+        # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
+        from tissue_reference.fem_reference import cholmod_factor
+
+        return {**options, "factorize": cholmod_factor}
+
+    def solve(self, case, *, degree: int | None = None, formulation: str = "auto", pushes=None,
+              initial=None, progress: bool = False, **kw):
+        """Solve ``case``; a SolveResult. ``degree`` and ``formulation`` are the reference's;
+        a fast solver refuses anything but P1 displacement and gets the factorization hook
+        (``with_factorization``)."""
+        if self.reference:
+            return self.load().solve(case, degree=degree, formulation=formulation,
+                                     pushes=pushes, initial=initial, progress=progress, **kw)
+        self.check_discretization(degree, formulation)
+        return self.load().solve(case, pushes=pushes, initial=initial, progress=progress,
+                                 **self.with_factorization(kw))
+
+    def settings(self, **given) -> dict:
+        """The settings a solve ran with, JSON-ready: for the reference its Newton and
+        load-stepping controls (``fem_reference.newton_settings.NewtonSettings``, which the
+        command line leaves at their defaults), for a fast solver the defaults of its ``solve``
+        keywords (null: the solver picks the value itself); ``given`` (what the caller chose)
+        goes over them."""
+        if self.reference:
+            # lazy: fem_reference is imported only when the reference is used
+            from tissue_reference.fem_reference.newton_settings import settings_json
+
+            return {**settings_json(), **given}
+        params = inspect.signature(self.load().solve).parameters
+        out = {k: p.default for k, p in params.items()
+               if p.kind is inspect.Parameter.KEYWORD_ONLY and k not in _NOT_SETTINGS
+               and (p.default is None or isinstance(p.default, (bool, int, float, str)))}
+        return {**out, **given}
+
+    def describe(self, case, degree: int | None = None, formulation: str = "auto",
+                 options: dict | None = None) -> dict:
+        """What this solver computes on ``case``, JSON-ready: ``discretization`` (formulation,
+        degrees, cells; the reference's default degree resolved as ``fem_reference`` resolves
+        it) and ``settings``: the reference's Newton controls (``options`` over them), a fast
+        solver's ``options`` (default: its ``settings()``)."""
+        if self.reference:
+            # lazy: fem_reference is imported only when the reference is used
+            from tissue_reference.fem_reference.discretization import (
+                default_degree,
+                resolve_formulation,
+            )
+            from tissue_reference.fem_reference.newton_settings import settings_json
+
+            form = resolve_formulation(formulation, case.material)
+            p = degree if degree is not None else default_degree(case, form)
+            disc = {"formulation": form, "degree": p,
+                    "pressure_degree": p - 1 if form == "mixed" else None,
+                    "cells": case.mesh.n_cells}
+            return {"solver": self.name, "discretization": disc,
+                    "settings": {**settings_json(), **(options or {})}}
+        return {"solver": self.name,
+                "discretization": {"formulation": "displacement", "degree": 1,
+                                   "pressure_degree": None, "cells": case.mesh.n_cells},
+                "settings": dict(options) if options is not None else self.settings()}
+
+    def check_dynamics(self, degree: int | None = None, formulation: str = "auto",
+                       mass: str = "lumped", ramp_steps: int = 0):
+        """Raise CaseError where ``simulate`` would refuse these options (before any mesh is
+        built)."""
+        if self.dynamics is None:
+            raise CaseError(f"solver {self.name!r} has no dynamics; solvers with dynamics: "
+                            f"{list(dynamics_names())}")
+        if self.reference:
+            return
+        if degree not in (None, *self.degrees) or formulation == "mixed" or mass != "lumped" \
+                or ramp_steps:
+            raise CaseError(f"solver {self.name!r} is P1 with the lumped mass and Dirichlet "
+                            f"values in full from the first step: --degree, --formulation "
+                            f"mixed, --mass consistent and --ramp-steps apply to --solver "
+                            f"{reference().name}")
+
+    def simulate(self, case, *, dt: float, steps: int, pushes=None, degree: int | None = None,
+                 formulation: str = "auto", mass: str = "lumped", ramp_steps: int = 0,
+                 progress: bool = False):
+        """``steps`` implicit-Euler steps of ``dt`` (s) of ``case`` under ``pushes`` (name ->
+        mm); a ``meshes.results.DynamicsResult``. ``degree``, ``formulation``, ``mass`` and
+        ``ramp_steps`` are the reference's: a fast solver runs P1 with the lumped mass and the
+        Dirichlet values in full from the first step, and refuses anything else."""
+        self.check_dynamics(degree, formulation, mass, ramp_steps)
+        modname, func = self.dynamics.split(":")
+        run = getattr(importlib.import_module(modname), func)
+        if self.reference:
+            return run(case, dt=dt, steps=steps, pushes=pushes, degree=degree,
+                       formulation=formulation, mass=mass, ramp_steps=ramp_steps,
+                       progress=progress)
+        return run(case.with_pushes(pushes), dt=dt, steps=steps, progress=progress,
+                   **self.with_factorization({}))
+
+
+_ENTRIES = (
+    SolverEntry("fem", "tissue_reference.fem_reference", reference=True, degrees=(1, 2, 3),
+                control=True, dynamics="tissue_reference.fem_reference.dynamics:simulate",
+                summary="the reference"),
+    SolverEntry("admm", "tissue_reference.solvers.admm", factorized=True, control=True,
+                dynamics="tissue_reference.solvers.trajectory:admm_trajectory",
+                devices=("cpu", "gpu"),
+                summary="ADMM, the fast solver (P1)"),
+    SolverEntry("mass-tensor", "tissue_reference.solvers.mass_tensor", factorized=True,
+                summary="the Mass Tensor Method (P1)"),
+)
+_BY_NAME = {e.name: e for e in _ENTRIES}
+
+
+def entries() -> tuple:
+    """Every built-in solver, the reference first."""
+    return _ENTRIES
+
+
+def names() -> tuple:
+    """The built-in solvers' names, the reference first."""
+    return tuple(_BY_NAME)
+
+
+def control_names() -> tuple:
+    """The solvers that play a control plant or model and a Jacobian's solver."""
+    return tuple(e.name for e in _ENTRIES if e.control)
+
+
+def dynamics_names() -> tuple:
+    """The solvers with implicit-Euler dynamics."""
+    return tuple(e.name for e in _ENTRIES if e.dynamics is not None)
+
+
+def solver(name: str) -> SolverEntry:
+    """The built-in solver ``name``; CaseError naming the known ones for another name."""
+    try:
+        return _BY_NAME[name]
+    except (KeyError, TypeError):
+        raise CaseError(f"unknown solver {name!r}; solvers: {list(_BY_NAME)}") from None
+
+
+def reference() -> SolverEntry:
+    """The reference's entry."""
+    return next(e for e in _ENTRIES if e.reference)
+
+
+def is_reference(name) -> bool:
+    """Whether ``name`` (a solver's name as the JSON writes it, or anything else: a plugin, a
+    callable) names the reference."""
+    entry = _BY_NAME.get(name) if isinstance(name, str) else None
+    return entry is not None and entry.reference
