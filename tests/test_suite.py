@@ -98,3 +98,62 @@ def test_cli_suite_exit_status(tmp_path, capsys):
     rc = main(["suite", "-q", "--solvers", "fem", "mass-tensor", "--problems", "uniaxial-stretch",
                "--strict"])
     assert rc == 1 and "failed: ['mass-tensor']" in capsys.readouterr().err
+
+
+LAW_PARAMS = {
+    "neo-hookean": {"E": 6.0, "nu": 0.45},
+    "stable-neo-hookean": {"E": 6.0, "nu": 0.45},
+    "saint-venant-kirchhoff": {"E": 6.0, "nu": 0.3},
+    "corotational": {"E": 6.0, "nu": 0.45},
+    "mooney-rivlin": {"c1": 1.0, "c2": 0.5, "k": 30.0},
+    "yeoh": {"c1": 1.2, "c2": -0.2, "c3": 0.05, "k": 40.0},
+    "linear-elastic": {"E": 6.0, "nu": 0.3},
+}
+
+
+@pytest.mark.parametrize("model", list(LAW_PARAMS))
+def test_the_principal_stresses_of_each_law_meet_its_formula_in_F(model):
+    """closed_forms writes each energy in the principal stretches; tests/test_laws.py writes it
+    in F (and the corotational stress by the SVD): the two agree at diag(1.2, 0.9, 0.9)."""
+    from test_laws import piola_formula
+
+    m = Material(model, **LAW_PARAMS[model])
+    P = piola_formula(np.diag([1.2, 0.9, 0.9]), model, LAW_PARAMS[model])
+    np.testing.assert_allclose(cf.law_piola(m, 1.2, 0.9), (P[0, 0], P[1, 1]), rtol=1e-12,
+                               atol=1e-12 * np.abs(P).max())
+
+
+def test_the_law_forms_reproduce_the_neo_hookean_ones_and_the_linear_limits():
+    nh = Material("neo-hookean", E=6.0, nu=0.45)
+    assert cf.law_uniaxial_lateral_stretch(1.2, nh) == pytest.approx(
+        cf.uniaxial_lateral_stretch(1.2, nh.mu, nh.kappa), rel=1e-13)
+    assert cf.law_thick_sphere(10.0, 20.0, 2.0, nh)["u_outer"] == pytest.approx(
+        cf.thick_sphere(10.0, 20.0, 2.0, nh.mu, nh.kappa)["u_outer"], rel=1e-8)
+    # without rotation the corotational law is linear elasticity in the stretches: the lateral
+    # stretch is 1 - nu eps exactly
+    for model in ("corotational", "linear-elastic"):
+        m = Material(model, E=6.0, nu=0.45)
+        assert cf.law_uniaxial_lateral_stretch(1.2, m) == pytest.approx(1 - 0.45 * 0.2,
+                                                                        rel=1e-13)
+    m = Material("stable-neo-hookean", E=6.0, nu=0.45)
+    assert cf.law_thick_sphere(10.0, 20.0, 1e-4, m)["u_outer"] == pytest.approx(
+        lame_sphere_u_outer(10.0, 20.0, 1e-4, 6.0, 0.45), rel=1e-3)
+
+
+def test_the_suite_on_another_law_scores_it_and_says_what_it_leaves_out(tmp_path):
+    out = run_suite(("fem", "admm"), ["uniaxial-stretch", "shear-patch", "cook-membrane"],
+                    law="mooney-rivlin", json_file=tmp_path / "s.json")
+    assert out["law"] == "mooney-rivlin"
+    assert [p["name"] for p in out["problems"]] == ["uniaxial-stretch", "shear-patch"]
+    for p in out["problems"]:
+        assert p["material"]["model"] == "mooney-rivlin"
+        assert all(r["passed"] for r in p["results"].values())
+    assert "published linear-elastic value" in out["not_applicable"]["cook-membrane"]
+    svk = run_suite(("fem",), ["thick-sphere-nearly-incompressible", "thick-sphere"],
+                    law="saint-venant-kirchhoff")
+    assert svk["problems"] == []
+    assert "does not split" in svk["not_applicable"]["thick-sphere-nearly-incompressible"]
+    assert "no solution of the shell's radial equilibrium" in svk["not_applicable"][
+        "thick-sphere"]
+    with pytest.raises(CaseError, match="unknown law 'ogden'"):
+        run_suite(("fem",), ["shear-patch"], law="ogden")

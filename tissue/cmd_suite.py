@@ -1,10 +1,11 @@
-"""``tissue suite [--solvers fem admm ... module:function] [--problems NAME ...] [--strict]
-[--out DIR] [--json FILE]``: the verification suite (``tissue.suite``): problems with known
+"""``tissue suite [--solvers fem admm ... module:function] [--problems NAME ...] [--law LAW]
+[--strict] [--out DIR] [--json FILE]``: the verification suite (``tissue.suite``): problems with known
 answers, each solver scored on one scorecard."""
 from __future__ import annotations
 
 import sys
 
+from tissue_reference.meshes.case import MATERIAL_MODELS
 from tissue_reference.solvers.registry import is_reference
 
 from .common import check_outputs
@@ -17,7 +18,9 @@ def run(args) -> int:
     check_outputs(args, files=("json",), dirs=("out",))
     solvers = list(args.solvers or DEFAULT) + list(args.solver or [])
     out = run_suite(tuple(solvers), args.problems, json_file=args.json, out_dir=args.out,
-                    progress=not args.quiet)
+                    progress=not args.quiet, law=args.law)
+    if args.law is not None:
+        print(f"law: {args.law} (every problem's material, same small-strain E and nu)")
     names = list(out["summary"])
     width = max(len(p["name"]) for p in out["problems"])
     print(f"{'problem':{width}s}  {'expected (mm)':>13s}  " + "  ".join(f"{n:>14.14s}"
@@ -39,6 +42,8 @@ def run(args) -> int:
         for n, r in p["results"].items():
             if "error" in r or "refused" in r:
                 print(f"  {p['name']} / {n}: {r.get('error') or r.get('refused')}")
+    for name, why in out.get("not_applicable", {}).items():
+        print(f"  {name}: not run on this law: {why}")
     for n, s in out["summary"].items():
         print(f"  {n}: {s['passed']} passed, {s['failed']} failed, {s['refused']} refused")
     if "report" in out:
@@ -65,6 +70,11 @@ def add_parser(sub):
                    help="one more solver (repeatable), added to the defaults or --solvers")
     p.add_argument("--problems", nargs="+", metavar="NAME", choices=[p.name for p in PROBLEMS],
                    help="problems to run (default: all)")
+    p.add_argument("--law", choices=MATERIAL_MODELS, default=None,
+                   help="run every problem on this strain-energy law (same small-strain E and "
+                        "nu; answers from the law's own closed forms; docs/laws.md); problems "
+                        "with no answer on it are listed with the reason. Default: each "
+                        "problem's own law")
     p.add_argument("--strict", action="store_true",
                    help="exit status 1 when any solver fails a problem (default: only when the "
                         "reference does)")

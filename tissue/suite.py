@@ -20,6 +20,15 @@ Problems (``PROBLEMS``; units mm, kPa):
   stress E = 1, nu = 1/3 as the equivalent plane strain); the tip's vertical displacement against
   the published converged value 23.96 (Cook 1974; Simo & Rifai 1990).
 
+On another law (``run_suite(law=...)``, ``tissue suite --law``) every problem's material becomes
+that law with the same small-strain E and nu (``law_material``) and its answer that law's
+(``tissue.closed_forms``: the uniaxial root and the shell's ODE from the law's energy in
+principal stretches); the shear patch is exact for every law. A problem with no answer for the
+law is left out with the reason (``not_applicable`` in the scorecard): Cook's panel (a published
+linear-elastic value), the nearly incompressible shell for the laws without the mixed
+formulation, and the shell where the law's radial stress has no root on the physical branch
+(St Venant-Kirchhoff: the inner surface needs more radial compression than the law carries).
+
 Every solver runs on the problem's mesh (P1 solvers there have their own discretization error,
 which is part of their score: the question is how far from the true answer each solver is). The
 reference runs with the discretization listed per problem. A solver that refuses a problem (a
@@ -31,13 +40,20 @@ pushes (see the case file).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
 
 from tissue_reference.meshes.builders import box, cook_membrane, shell_octant
-from tissue_reference.meshes.case import Boundary, Case, Material, Probe
+from tissue_reference.meshes.case import (
+    MATERIAL_MODELS,
+    UNCOUPLED_LAWS,
+    Boundary,
+    Case,
+    Material,
+    Probe,
+)
 from tissue_reference.meshes.errors import CaseError, TissueError
 from tissue_reference.meshes.results import material_json, write_json
 from tissue_reference.solvers.registry import is_reference
@@ -48,9 +64,26 @@ from .plugins import resolve_solver, run_plugin
 from .suite_report import write_scorecard
 from .verify import FAST_SOLVERS
 
-__all__ = ["PROBLEMS", "Problem", "run_suite"]
+__all__ = ["PROBLEMS", "SPLIT_LAWS", "Problem", "law_material", "run_suite"]
 
 E_TISSUE = 6.0   # kPa
+
+
+SPLIT_LAWS = (*UNCOUPLED_LAWS, "linear-elastic")
+"""The laws whose volumetric energy the mixed u-p formulation splits off (the nearly
+incompressible shell's reference needs it)."""
+
+
+def law_material(model: str, E: float, nu: float) -> Material:
+    """The law ``model`` with the small-strain moduli E (kPa) and nu: Mooney-Rivlin splits
+    mu0 = E / (2 (1 + nu)) as c1 = 0.35 mu0, c2 = 0.15 mu0; Yeoh has c1 = mu0 / 2,
+    c2 = -0.05 mu0, c3 = 0.01 mu0 (inside its stable range); both k = E / (3 (1 - 2 nu))."""
+    mu0, k = E / (2 * (1 + nu)), E / (3 * (1 - 2 * nu))
+    if model == "mooney-rivlin":
+        return Material(model, c1=0.35 * mu0, c2=0.15 * mu0, k=k)
+    if model == "yeoh":
+        return Material(model, c1=0.5 * mu0, c2=-0.05 * mu0, c3=0.01 * mu0, k=k)
+    return Material(model, E=E, nu=nu)
 
 
 @dataclass
@@ -72,9 +105,34 @@ class Problem:
     def case(self):
         return self.build()
 
+    law_answer: object = None
+    """Callable(Material) -> the expected value (mm) on that law, or a str: why this problem has
+    no answer on another law (``on_law``)."""
+
     @cached_property
     def expected(self) -> float:
         return float(self.expected_fn())
+
+    def on_law(self, model: str):
+        """This problem with its material made the law ``model`` (``law_material``, same E and
+        nu) and the expected value that law's; a str (why not) where it has no answer there."""
+        if model == self.case.material.model:
+            return self
+        if not callable(self.law_answer):
+            return self.law_answer or f"{self.name} has no answer on other laws"
+        m = self.case.material
+        if (model == "linear-elastic" or model not in UNCOUPLED_LAWS) and (
+                m.nu >= 0.5 or (self.reference.get("formulation") == "mixed"
+                                and model not in SPLIT_LAWS)):
+            return (f"{self.name} needs the mixed u-p formulation, which the {model} law does "
+                    f"not split (a compressible law)")
+        material = law_material(model, m.E, m.nu)
+        try:
+            expected = float(self.law_answer(material))
+        except (RuntimeError, ValueError) as exc:
+            return f"{self.name} has no answer on the {model} law here: {exc}"
+        case = replace(self.case, material=material)
+        return replace(self, build=lambda: case, expected_fn=lambda: expected, law_answer=None)
 
 
 def _material(nu, model="neo-hookean", E=E_TISSUE):
@@ -132,23 +190,30 @@ def _cook():
                 probes=(Probe("tip", (48.0, 52.0)),))
 
 
+def _sphere_law(material) -> float:
+    return cf.law_thick_sphere(10.0, 20.0, 2.0, material)["u_outer"]
+
+
 PROBLEMS = [
     Problem("uniaxial-stretch", "Neo-Hookean block stretched 20 %, lateral faces free",
             _uniaxial, ("corner", 1), _uniaxial_expected,
-            "closed form (root of P_22 = 0)", 1e-6, {"degree": 1}),
+            "closed form (root of P_22 = 0)", 1e-6, {"degree": 1},
+            lambda m: (cf.law_uniaxial_lateral_stretch(1.2, m) - 1.0) * 10.0),
     Problem("shear-patch", "affine simple shear gamma = 0.3 on every face (patch test)",
             _shear, ("interior", 0), lambda: 0.3 * 4.0, "exact: u_x = gamma y", 1e-6,
-            {"degree": 1}),
+            {"degree": 1}, lambda m: 0.3 * 4.0),
     Problem("thick-sphere", "thick shell 10/20 mm, inner surface pushed 2 mm, nu = 0.45",
             _sphere(0.45), ("outer", "radial"), _sphere_expected(0.45),
-            "radial equilibrium ODE (boundary-value problem)", 0.01, {"degree": 2}),
+            "radial equilibrium ODE (boundary-value problem)", 0.01, {"degree": 2},
+            _sphere_law),
     Problem("thick-sphere-nearly-incompressible", "the same shell at nu = 0.4999",
             _sphere(0.4999), ("outer", "radial"), _sphere_expected(0.4999),
-            "radial equilibrium ODE (boundary-value problem)", 0.01, {"formulation": "mixed"}),
+            "radial equilibrium ODE (boundary-value problem)", 0.01, {"formulation": "mixed"},
+            _sphere_law),
     Problem("cook-membrane", "Cook's panel, unit shear load, linear elastic (plane stress "
             "E = 1, nu = 1/3)", _cook, ("tip", 1), lambda: 23.96,
             "published converged value 23.96 (Cook 1974; Simo & Rifai 1990)", 0.01,
-            {"degree": 3}),
+            {"degree": 3}, "cook-membrane's answer is a published linear-elastic value"),
 ]
 
 
@@ -198,16 +263,27 @@ def _name(solver) -> str:
 
 
 def run_suite(solvers=("fem",), problems=None, *, json_file=None, out_dir=None,
-              progress: bool = False) -> dict:
+              progress: bool = False, law: str | None = None) -> dict:
     """Run every problem (``problems``: names, default all) with every solver ("fem" for the
     reference, built-in fast-solver names, plugins) and score it. Returns {"problems": [...],
     "summary": {solver: {"passed", "failed", "refused"}}}; each problem lists its expected
     value, source, tolerance and per solver {value_mm, error_rel, passed, wall_time_s,
-    iterations} or {refused: message}."""
+    iterations} or {refused: message}. ``law``: every problem on that strain-energy law
+    (``Problem.on_law``); "law" and "not_applicable" (problem -> why it has no answer on it)
+    are then in the result."""
     chosen = PROBLEMS if problems is None else [_problem(n) for n in problems]
+    skipped = {}
+    if law is not None:
+        if law not in MATERIAL_MODELS:
+            raise CaseError(f"unknown law {law!r}; laws: {list(MATERIAL_MODELS)}")
+        on = [(p.name, p.on_law(law)) for p in chosen]
+        skipped = {n: q for n, q in on if isinstance(q, str)}
+        chosen = [q for _, q in on if not isinstance(q, str)]
     names = [_name(s) for s in solvers]
     out = {"problems": [], "summary": {n: {"passed": 0, "failed": 0, "refused": 0}
                                        for n in names}}
+    if law is not None:
+        out.update(law=law, not_applicable=skipped)
     for p in chosen:
         row = {"name": p.name, "description": p.description, "expected_mm": p.expected,
                "source": p.source, "tolerance_rel": p.tol, "reference_options": p.reference,
