@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+from test_laws import LAWS, piola_formula
 
 from tissue_reference.meshes.case import Material
 from tissue_reference.meshes.errors import CaseError
@@ -100,25 +101,14 @@ def test_cli_suite_exit_status(tmp_path, capsys):
     assert rc == 1 and "failed: ['mass-tensor']" in capsys.readouterr().err
 
 
-LAW_PARAMS = {
-    "neo-hookean": {"E": 6.0, "nu": 0.45},
-    "stable-neo-hookean": {"E": 6.0, "nu": 0.45},
-    "saint-venant-kirchhoff": {"E": 6.0, "nu": 0.3},
-    "corotational": {"E": 6.0, "nu": 0.45},
-    "mooney-rivlin": {"c1": 1.0, "c2": 0.5, "k": 30.0},
-    "yeoh": {"c1": 1.2, "c2": -0.2, "c3": 0.05, "k": 40.0},
-    "linear-elastic": {"E": 6.0, "nu": 0.3},
-}
 
 
-@pytest.mark.parametrize("model", list(LAW_PARAMS))
+@pytest.mark.parametrize("model", list(LAWS))
 def test_the_principal_stresses_of_each_law_meet_its_formula_in_F(model):
     """closed_forms writes each energy in the principal stretches; tests/test_laws.py writes it
     in F (and the corotational stress by the SVD): the two agree at diag(1.2, 0.9, 0.9)."""
-    from test_laws import piola_formula
-
-    m = Material(model, **LAW_PARAMS[model])
-    P = piola_formula(np.diag([1.2, 0.9, 0.9]), model, LAW_PARAMS[model])
+    m = Material(model, **LAWS[model])
+    P = piola_formula(np.diag([1.2, 0.9, 0.9]), model, LAWS[model])
     np.testing.assert_allclose(cf.law_piola(m, 1.2, 0.9), (P[0, 0], P[1, 1]), rtol=1e-12,
                                atol=1e-12 * np.abs(P).max())
 
