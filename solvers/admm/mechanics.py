@@ -213,16 +213,21 @@ class InvariantLaw:
         F, C, J, cof, I1, I2 = self._invariants(H)
         _, g, h = self.phi(I1, I2, J)
         dI = self._first(F, C, cof, I1).reshape(m, 3, d * d)
-        A = np.einsum("mab,mai,mbj->mij", h, dI, dI)
+        A = np.matmul(dI.transpose(0, 2, 1), np.matmul(h, dI))       # sum_ab h_ab dIa dIb
         eye = np.eye(d)
         B = F @ np.transpose(F, (0, 2, 1))
-        d2I2 = 2.0 * (2.0 * np.einsum("miJ,mkL->miJkL", F, F)
-                      + I1[:, None, None, None, None] * np.einsum("ik,JL->iJkL", eye, eye)
-                      - np.einsum("ik,mLJ->miJkL", eye, C)
-                      - np.einsum("miL,mkJ->miJkL", F, F)
-                      - np.einsum("mik,JL->miJkL", B, eye))
-        d2J = (np.einsum("miJ,mkL->miJkL", cof, cof)
-               - np.einsum("miL,mkJ->miJkL", cof, cof)) / J[:, None, None, None, None]
+
+        def outer(X, Y):   # (m, i, J, k, L) = X_iJ Y_kL
+            return X[:, :, :, None, None] * Y[:, None, None, :, :]
+
+        FF = outer(F, F)
+        cc = outer(cof, cof)
+        # d2I2 = 2 (2 F_iJ F_kL + I1 d_ik d_JL - d_ik C_LJ - F_iL F_kJ - B_ik d_JL)
+        d2I2 = 2.0 * (2.0 * FF - FF.transpose(0, 1, 4, 3, 2)
+                      - B[:, :, None, :, None] * eye[None, None, :, None, :])
+        for i in range(d):
+            d2I2[:, i, :, i, :] += 2.0 * (I1[:, None, None] * eye - C)
+        d2J = (cc - cc.transpose(0, 1, 4, 3, 2)) / J[:, None, None, None, None]
         A += (g[:, 1, None, None, None, None] * d2I2
               + g[:, 2, None, None, None, None] * d2J).reshape(m, d * d, d * d)
         A[:, np.arange(d * d), np.arange(d * d)] += 2.0 * g[:, 0, None]
