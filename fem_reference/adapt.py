@@ -33,7 +33,7 @@ Refinement, ``refine=``:
 
 Each refined level's degree-2 answer starts from the coarser level's degree-3 solution carried to
 the new mesh (``fem_reference.transfer``), and its estimate from the answer; both with a damped
-Newton (``transfer.warm_newton``). When they do not converge ``solve_to_accuracy`` raises
+Newton (``transfer.warm_settings``). When they do not converge ``solve_to_accuracy`` raises
 AccuracyNotReached carrying the last level's answer with its estimate, as at ``max_dofs``; past
 the first level the estimate is then tried from rest only with indenters (whose contact set the
 enriched surface nodes change): near a glued patch's rim that solve crawls through cut-backs for
@@ -84,7 +84,7 @@ from .dof_counts import entity_counts, predicted_dofs, refined_counts
 from .estimate import ESTIMATE_RTOL, MAX_DEGREE, error_estimate
 from .indicators import energy_indicators
 from .kept import forget_solvers, solver_for
-from .transfer import prolong, warm_newton
+from .transfer import prolong, warm_settings
 
 __all__ = [
     "DORFLER_THETA",
@@ -356,8 +356,9 @@ def level_answer(case, degree, pushes, formulation, options, start):
         ref = solver_for(case, degree, formulation=formulation, **options)
         try:
             init = prolong(start[0], start[1], ref, start[2])
-            with warm_newton(ref, WARM_ANSWER_ITERATIONS):
-                return ref.solve(pushes, case=case, initial=init)
+            return ref.solve(pushes, case=case, initial=init,
+                             settings=warm_settings(ref.settings, WARM_ANSWER_ITERATIONS),
+                             residual_line_search=True)
         except (CaseError, ConvergenceError):
             pass
     return solve(case, degree=degree, pushes=pushes, formulation=formulation, **options)

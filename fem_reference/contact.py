@@ -133,6 +133,7 @@ from .contact_indenter import (  # noqa: F401  (re-exported)
     facet_sample_points,
 )
 from .jit import compile_form
+from .newton_settings import NewtonSettings
 
 __all__ = ["DEFAULT_CONTACT_PENALTY", "Contact", "TipShape", "contact_key", "nodal_rule"]
 
@@ -154,12 +155,19 @@ def contact_key(case: Case) -> tuple:
 class Contact:
     """The contact of a Case's indenters on a ReferenceSolver: ``energy`` (UFL, 0 without
     indenters) joins the solver's energy; ``ramps`` moves the tips with the load stepping;
-    ``extra`` reports them; ``accepts`` is Newton's line search with indenters. penalty: beta,
-    the ``contact_penalty`` (module docstring); quadrature: "nodal" (``nodal_rule``) or the
-    degree (int) of a Gauss rule on each facet for the contact integrals (module docstring);
-    tip_start: where each tip starts, "nodes" or "surface" (``TIP_STARTS``)."""
+    ``extra`` reports them; ``accepts`` is Newton's line search. penalty: beta, the
+    ``contact_penalty`` (module docstring); quadrature: "nodal" (``nodal_rule``) or the degree
+    (int) of a Gauss rule on each facet for the contact integrals (module docstring);
+    tip_start: where each tip starts, "nodes" or "surface" (``TIP_STARTS``).
 
-    def __init__(self, solver, case: Case, *, penalty: float = DEFAULT_CONTACT_PENALTY,
+    What it works on, the solver's: ``comm``; ``dm`` (``dolfinx_mesh.DolfinxMesh``: the mesh,
+    its facet tags and regions); ``gdim`` and ``degree`` (of the displacement); ``V`` (the
+    displacement's space) and ``u`` (the displacement Function on it, which the reports read);
+    ``u_ufl`` (the displacement in the forms: ``u``, or the mixed unknown's part); ``E`` (the
+    material's Constant, kPa); ``formulation`` ("displacement" or "mixed")."""
+
+    def __init__(self, case: Case, *, comm, dm, gdim: int, degree: int, V, u, u_ufl, E,
+                 formulation: str, penalty: float = DEFAULT_CONTACT_PENALTY,
                  quadrature: str | int = "nodal", tip_start: str = "nodes"):
         if not (isinstance(penalty, (int, float)) and np.isfinite(penalty) and penalty > 0):
             raise CaseError(f"contact_penalty must be a finite number > 0, got {penalty!r}")
@@ -168,8 +176,8 @@ class Contact:
         if tip_start not in TIP_STARTS:
             raise CaseError(f"tip_start must be one of {list(TIP_STARTS)}, got {tip_start!r}")
         self.quadrature = quadrature
-        self.solver = solver
-        self.comm = solver.comm
+        self.comm, self.dm, self.gdim, self.formulation = comm, dm, gdim, formulation
+        self._u_field = u
         self._total, self._energy = None, 0.0
         self.key = contact_key(case)
         self.indenters: list[Indenter] = []
@@ -177,18 +185,18 @@ class Contact:
         self.normal_energy = 0
         if not self.key:
             return
-        mesh = solver.dm.mesh
+        mesh = dm.mesh
         if quadrature == "nodal":
-            pts, wts = nodal_rule(solver.gdim - 1, solver.degree)
+            pts, wts = nodal_rule(gdim - 1, degree)
             md = {"quadrature_rule": "custom", "quadrature_degree": 1,
                   "quadrature_points": pts.tolist(), "quadrature_weights": wts.tolist()}
         else:
             md = {"quadrature_degree": quadrature}
-        ds = ufl.Measure("ds", domain=mesh, subdomain_data=solver.dm.facet_tags, metadata=md)
+        ds = ufl.Measure("ds", domain=mesh, subdomain_data=dm.facet_tags, metadata=md)
         X = ufl.SpatialCoordinate(mesh)
         for a in case.indenters():
-            ind = Indenter(a, solver, case, penalty, ds, X, solver.u_ufl, self._cell_sizes(),
-                            tip_start)
+            ind = Indenter(a, case, penalty, ds, X, u_ufl, self._cell_sizes(), tip_start,
+                           comm=comm, dm=dm, gdim=gdim, V=V, u_field=u, E=E)
             self.indenters.append(ind)
             self.energy = self.energy + ind.energy
             self.normal_energy = self.normal_energy + ind.normal_energy
@@ -208,10 +216,10 @@ class Contact:
     def _cell_sizes(self):
         """h (mm): the longest edge of each cell (between its vertices), a DG0 Function."""
         if getattr(self, "_h", None) is None:
-            mesh = self.solver.dm.mesh
+            mesh = self.dm.mesh
             tdim = mesh.topology.dim
             V0 = dolfinx.fem.FunctionSpace(mesh, ("DG", 0))
-            x = mesh.geometry.x[:, :self.solver.gdim]
+            x = mesh.geometry.x[:, :self.gdim]
             n_cells = mesh.topology.index_map(tdim).size_local + \
                 mesh.topology.index_map(tdim).num_ghosts
             geo = mesh.geometry.dofmap.array.reshape(n_cells, -1)[:, :tdim + 1]
@@ -222,11 +230,13 @@ class Contact:
             self._h.x.array[V0.dofmap.list.array.reshape(n_cells, -1)[:, 0]] = h
         return self._h
 
-    def ramps(self, case: Case, ramps: list, initial=None) -> float:
+    def ramps(self, case: Case, ramps: list, initial=None, *,
+              settings: NewtonSettings) -> float:
         """Append (tip position, start, full) per indenter to the load stepping's ``ramps``
         (its Dirichlet ramps: value = start + fraction (full - start)); returns the largest tip
-        travel (mm). The start is the push of ``initial`` (a SolveResult that reports it), else
-        where the last solve left the tip for a warm start, else push 0."""
+        travel (mm), scaled so that the solve's ``settings`` (``max_step_mm``, ``tip_step``)
+        give each tip its increments. The start is the push of ``initial`` (a SolveResult that
+        reports it), else where the last solve left the tip for a warm start, else push 0."""
         if contact_key(case) != self.key:
             raise CaseError(f"{case.source or case.name}: the indenters differ from those this "
                             f"solver was built with; build a new ReferenceSolver")
@@ -242,15 +252,15 @@ class Contact:
             ramps.append((ind.q.value, ind.q0 + start_push * ind.d, ind.q0 + full_push * ind.d))
             # each load increment moves a tip by at most settings.tip_step of its radius (each
             # then changes the contact set a little)
-            limit = self.solver.settings.tip_step * ind.shape.radius
+            limit = settings.tip_step * ind.shape.radius
             span = max(span, abs(full_push - start_push)
-                       * max(1.0, self.solver.settings.max_step_mm / limit))
+                       * max(1.0, settings.max_step_mm / limit))
         return span
 
     def line_search_energy(self, total):
         """Compile the solver's total energy (UFL, uJ) for ``accepts`` (with indenters, in the
         displacement formulation, whose answer minimizes it)."""
-        if self.indenters and self.solver.formulation == "displacement":
+        if self.indenters and self.formulation == "displacement":
             self._total = compile_form(total)
 
     @property
@@ -260,14 +270,13 @@ class Contact:
         apply."""
         return self._total is not None
 
-    def total_energy(self) -> float:
-        """The total energy (uJ) at the solver's current state, with that of the solver's
-        ``Newton.extra_terms`` where they have one; kept as ``trial_energy``. Energy line search
+    def total_energy(self, extra_energy: float = 0.0) -> float:
+        """The total energy (uJ) at the solver's current state plus ``extra_energy`` (uJ: that
+        of the terms Newton adds to the solver's, e.g. the inertia of a dynamics time step,
+        ``Newton.iterate``'s ``extra_terms``); kept as ``trial_energy``. Energy line search
         only (``energy_search``)."""
         energy = self.comm.allreduce(dolfinx.fem.assemble_scalar(self._total), op=MPI.SUM)
-        extra = self.solver.newton.extra_terms   # e.g. the inertia of a dynamics time step
-        if extra is not None and hasattr(extra, "energy"):
-            energy += extra.energy()
+        energy += extra_energy
         self.trial_energy = energy
         return energy
 
@@ -277,18 +286,21 @@ class Contact:
         return energy <= self._energy + 1e-12 * abs(self._energy)
 
     def accepts(self, r_new: float, r_old: float, forced: bool,
-                energy: float | None = None) -> bool:
-        """Newton's line search with indenters: is the correction just tried (the solver's
-        current state) taken, or shortened? Taken when it lowers the total energy (uJ; the
+                energy: float | None = None, *, residual: bool = False) -> bool:
+        """Newton's line search: is the correction just tried (the solver's current state)
+        taken, or shortened? With indenters: taken when it lowers the total energy (uJ; the
         residual norm r_new < r_old (mN) in the mixed formulation, a saddle point), or when
         ``forced`` (the first correction of a load step, which also moves the Dirichlet values,
         and the shortest step). A node sliding along a curved tip leaves it by s^2 / (2 R) at
         second order, which the stiff penalty turns into a large residual, so the residual norm
-        would refuse steps that the energy takes. Without indenters every correction is taken.
+        would refuse steps that the energy takes. Without indenters every correction is taken,
+        or with ``residual`` only one that lowers the residual norm (r_new < r_old) or is
+        ``forced`` (a warm start's line search, ``transfer.warm_settings``).
         ``accepted_energy`` is then the taken state's energy and ``trial_energy`` the one just
-        tried (``total_energy``; ``energy``: that of the current state, already computed)."""
+        tried (``total_energy``; ``energy``: that of the current state, already computed with
+        any extra terms' energy; None: computed here, without them)."""
         if not self.indenters:
-            return True
+            return (forced or r_new < r_old) if residual else True
         if self._total is None:
             return forced or r_new < r_old
         if energy is None:
@@ -359,6 +371,6 @@ class Contact:
         the state invalid (``through_surface``)."""
         if not self.indenters:
             return {}
-        arr = self.solver.u.x.array
+        arr = self._u_field.x.array
         return {"indenters": {ind.name: {**ind.report(arr), "quadrature": self.quadrature}
                               for ind in self.indenters}}

@@ -98,15 +98,20 @@ def _curved_facet_points(mesh, facets, f2c, n: int, keep=None) -> np.ndarray:
 
 
 class Indenter:
-    """One indenter's constants, forms and start position on a ReferenceSolver."""
+    """One indenter's constants, forms and start position on a ReferenceSolver: the actuator
+    ``a`` of ``case``, the penalty's ``beta``, the contact measure ``ds``, the reference
+    coordinates ``X`` and displacement ``u`` (UFL), the cell sizes ``h_cell`` (DG0 Function,
+    mm) and ``tip_start``. The solver's parts it works on: ``comm``, ``dm``
+    (``dolfinx_mesh.DolfinxMesh``), ``gdim``, ``V`` (the displacement's space), ``u_field``
+    (the displacement Function on ``V``, for the surface check) and ``E`` (the material's
+    Constant, kPa)."""
 
-    def __init__(self, a: Actuator, solver, case: Case, beta: float, ds, X, u, h_cell,
-                 tip_start: str = "nodes"):
-        dm, gdim = solver.dm, solver.gdim
+    def __init__(self, a: Actuator, case: Case, beta: float, ds, X, u, h_cell,
+                 tip_start: str = "nodes", *, comm, dm, gdim: int, V, u_field, E):
         mesh = dm.mesh
         self.name, self.actuator = a.name, a
         self.shape = TipShape.of(a)
-        self.comm = solver.comm
+        self.comm = comm
         regions = a.contact_regions
         missing = [r for r in regions if r not in dm.region_tags]
         if missing:
@@ -130,7 +135,6 @@ class Indenter:
         # touching the skin presses with the full penalty stiffness once this far in
         self.smoothing_width = self.h_range[1] / self.beta
         # the displacement nodes of the contact surface: start position and penetration
-        V = solver.V
         self.dofs = dolfinx.fem.locate_dofs_topological(V, mesh.topology.dim - 1, facets)
         self.dofs = self.dofs[self.dofs < V.dofmap.index_map.size_local]
         self.x_nodes = V.tabulate_dof_coordinates()[self.dofs, :gdim]
@@ -139,7 +143,7 @@ class Indenter:
         self.q0 = self._start(a, (mesh, facets, f2c) if tip_start == "surface" else None)
         # the tip must not pass between the contact surface's nodes: sample points on its
         # undeformed facets and the cell of each, where the displacement is evaluated
-        self._u_field = solver.u
+        self._u_field = u_field
         self._samples, self._sample_cells = _facet_sample_points(mesh, facets, f2c)
         # constants: tip front point (ramped by the load stepping), shape, axis
         sc = PETSc.ScalarType
@@ -148,8 +152,8 @@ class Indenter:
         d = dolfinx.fem.Constant(mesh, sc(tuple(self.d)))
         flat = dolfinx.fem.Constant(mesh, sc(self.shape.flat))
         edge = dolfinx.fem.Constant(mesh, sc(self.shape.edge))
-        k = beta * solver.E / h_cell
-        self.E = solver.E
+        k = beta * E / h_cell
+        self.E = E
         y = ufl.variable(X + u)
         g = gap_ufl(y, self.q - edge * d, d, flat, edge, self.shape.sphere)
         pen = -g

@@ -19,7 +19,7 @@ The mass M (kg):
 - ``mass="consistent"`` (any degree, mixed formulation too): int density u . v dx at quadrature
   degree 2 * degree; the pressure of the mixed formulation carries no mass.
 The inertia enters the reference's own Newton (``ReferenceSolver.solve`` per time step: PETSc
-line search, exact tangent, converged reason checked) through ``Newton.extra_terms``: after
+line search, exact tangent, converged reason checked) as its ``extra_terms``: after
 assembly M (u - u_tilde) / dt^2 is added to the residual and M / dt^2 to the tangent (the
 Dirichlet rows and columns excluded).
 
@@ -63,7 +63,8 @@ MASS_KINDS = ("lumped", "consistent")
 
 class _Inertia:
     """M (u - u_tilde) / dt^2 for the residual and M / dt^2 for the tangent of ``solver``'s
-    Newton (``Newton.extra_terms``); M in kg, dt in s, contributions in mN and mN/mm."""
+    Newton (``ReferenceSolver.solve``'s ``extra_terms``); M in kg, dt in s, contributions in mN
+    and mN/mm."""
 
     def __init__(self, solver, case: Case, dt: float, kind: str):
         self.solver, self.kind = solver, kind
@@ -268,7 +269,6 @@ def simulate(case: Case, *, dt: float, steps: int, pushes=None, initial=None,
         kin, strain = [inertia.kinetic(v)], [state.strain_energy]
         conv, its = [], []
         total_mass = _total_mass(solver, inertia.rho)
-        solver.newton.extra_terms = inertia
 
         def partial(final):
             return DynamicsResult(
@@ -286,7 +286,8 @@ def simulate(case: Case, *, dt: float, steps: int, pushes=None, initial=None,
             inertia.set_target(x + dt * v)
             case_k = case_at(k)
             try:
-                res = solver.solve(None, case=case_k, initial=state, progress=False)
+                res = solver.solve(None, case=case_k, initial=state, progress=False,
+                                   extra_terms=inertia)
             except ConvergenceError as exc:
                 err = ConvergenceError(
                     f"{case.source or case.name}: implicit-Euler step {k}/{steps} "
@@ -313,7 +314,6 @@ def simulate(case: Case, *, dt: float, steps: int, pushes=None, initial=None,
                       f"{kin[-1]:.3e} uJ", file=sys.stderr, flush=True)
         return partial(state)
     finally:
-        solver.newton.extra_terms = None
         inertia.destroy()
 
 

@@ -42,7 +42,7 @@ estimates are not affected.
 
 Cost: one solve at degree p + 1 on the same mesh, stopped at a residual reduction of
 ESTIMATE_RTOL; for a degree-2 answer warm-started (one load step, a few Newton iterations, a
-correction taken only when it lowers the residual norm: ``transfer.warm_newton``), or, when
+correction taken only when it lowers the residual norm: ``transfer.warm_settings``), or, when
 Newton does not converge from there within WARM_ITERATIONS (large strains on a coarse mesh),
 solved along the load path from rest (``estimate_warm_start`` False; ``from_rest=False`` raises
 ConvergenceError instead).
@@ -73,7 +73,7 @@ from tissue_reference.meshes.results import SolveResult
 from .dof_counts import entity_counts, predicted_dofs
 from .kept import solver_for
 from .newton_settings import NewtonSettings
-from .transfer import match_points, warm_newton
+from .transfer import match_points, warm_settings
 
 __all__ = ["AUTO_MAX_DOFS", "ESTIMATE_METHOD", "ESTIMATE_RTOL", "MAX_DEGREE", "ErrorEstimate",
            "auto_estimate", "error_estimate", "estimate"]
@@ -206,11 +206,12 @@ def error_estimate(case: Case, result: SolveResult, *, pushes=None, progress: bo
     warm = p >= 2
     if warm:
         # one try (with nothing to ramp, cut-backs would repeat it) of WARM_ITERATIONS, with a
-        # line search on the residual norm (``transfer.warm_newton``)
+        # line search on the residual norm (``transfer.warm_settings``)
         try:
-            with warm_newton(enriched, WARM_ITERATIONS):
-                res = enriched.solve(pushes, case=case, initial=_lift(enriched, result),
-                                     progress=progress)
+            res = enriched.solve(pushes, case=case, initial=_lift(enriched, result),
+                                 progress=progress,
+                                 settings=warm_settings(enriched.settings, WARM_ITERATIONS),
+                                 residual_line_search=True)
         except ConvergenceError as exc:
             warm = False
             if not from_rest:

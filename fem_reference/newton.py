@@ -34,6 +34,11 @@ class Newton:
     or None), assembled into ``b`` and ``A``; ``linear`` (``linalg.LinearSolver``) solves for
     the corrections, ``contact`` (``contact.Contact``) is the line search with indenters.
 
+    Extra terms: ``iterate``'s ``extra_terms`` (e.g. the inertia of implicit-Euler dynamics,
+    ``dynamics``), an object with add_residual(b, bcs) and add_tangent(A, bcs), added to the
+    residual and tangent after assembly, and, for the energy line search, energy() (uJ), which
+    Newton adds to the contact's total energy (``Contact.total_energy``).
+
     Scale: the Dirichlet rows of the residual and of the tangent carry the stiffness E h_min
     (mN/mm, E the material's Constant, h_min the shortest cell edge) instead of 1, so every row
     of the residual is a force (mN) proportional to E and the relative tolerance means the same
@@ -47,10 +52,6 @@ class Newton:
         self.R_form, self.K_form, self.K_halved_form = R_form, K_form, K_halved_form
         self.E, self.h_min, self.linear, self.contact = E, float(h_min), linear, contact
         self.umap, self.comm, self.timings = umap, comm, timings
-        # terms added to the residual and tangent after assembly (e.g. the inertia of
-        # implicit-Euler dynamics, ``dynamics``): an object with add_residual(b, bcs) and
-        # add_tangent(A, bcs), and, for the energy line search, energy()
-        self.extra_terms = None
         # the Dirichlet conditions' values while ``iterate`` runs (its argument); None: unknown
         self.dirichlet_values = None
 
@@ -70,9 +71,10 @@ class Newton:
         """E h_min (mN/mm): the diagonal of the Dirichlet rows."""
         return float(self.E.value) * self.h_min
 
-    def assemble_residual(self, bcs) -> float:
+    def assemble_residual(self, bcs, extra_terms=None) -> float:
         """b = R(u) with the Dirichlet rows set to E h_min (u - g) (lifting included where the
-        values differ from u's, ``lifting_needed``); returns |b| (mN)."""
+        values differ from u's, ``lifting_needed``), plus ``extra_terms``' residual (class
+        docstring) where given; returns |b| (mN)."""
         t0 = time.perf_counter()
         b = self.b
         with b.localForm() as bl:
@@ -82,25 +84,25 @@ class Newton:
             dolfinx.fem.petsc.apply_lifting(b, [self.K_form], bcs=[bcs], x0=[self.x.vector],
                                             scale=-1.0)
         b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        if self.extra_terms is not None:
-            self.extra_terms.add_residual(b, bcs)
+        if extra_terms is not None:
+            extra_terms.add_residual(b, bcs)
         dolfinx.fem.petsc.set_bc(b, bcs, self.x.vector, -self.bc_stiffness())
         self.timings.assemble += time.perf_counter() - t0
         return b.norm()
 
-    def assemble_tangent(self, bcs, drop: bool = False):
+    def assemble_tangent(self, bcs, drop: bool = False, extra_terms=None):
         """The exact tangent, or with indenters and ``drop`` the one without the tips' curvature
-        terms (``K_halved_form``, fem_reference.contact)."""
+        terms (``K_halved_form``, fem_reference.contact), plus ``extra_terms``' tangent (class
+        docstring) where given."""
         t0 = time.perf_counter()
         self.A.zeroEntries()
         form = self.K_halved_form if drop and self.K_halved_form is not None else self.K_form
         dolfinx.fem.petsc.assemble_matrix(self.A, form, bcs=bcs,
                                           diagonal=self.bc_stiffness())
         self.A.assemble()
-        if self.extra_terms is not None:
-            self.extra_terms.add_tangent(self.A, bcs)
+        if extra_terms is not None:
+            extra_terms.add_tangent(self.A, bcs)
         self.timings.assemble += time.perf_counter() - t0
-
 
     def _shift_tangent(self, mu: float):
         """A += mu |diag A| (Levenberg-Marquardt; the Dirichlet rows, whose residual is zero
@@ -111,7 +113,7 @@ class Newton:
         self.A.setDiagonal(d, addv=PETSc.InsertMode.ADD_VALUES)
         self.linear.refactor = True
 
-    def _correction(self, s: NewtonSettings, bcs, eta, drop, shift, test):
+    def _correction(self, s: NewtonSettings, bcs, eta, drop, shift, test, extra_terms):
         """Newton's correction du from the tangent (without the tips' curvature if ``drop``,
         shifted by ``shift`` |diag K| if > 0). ``test``: the energy's slope along du is computed
         and, with ``settings.descent_shift``, a correction that does not descend or whose
@@ -120,7 +122,7 @@ class Newton:
         (the last one is taken whatever it gives: the line search still guards the energy).
         Returns (ok, slope (uJ; None untested), drop, shift): the tangent used."""
         while True:
-            self.assemble_tangent(bcs, drop)
+            self.assemble_tangent(bcs, drop, extra_terms)
             if shift > 0:
                 self._shift_tangent(shift)
                 self.timings.shifts += 1
@@ -140,7 +142,8 @@ class Newton:
                 shift = max(10.0 * shift, s.descent_shift)
 
     def iterate(self, s: NewtonSettings, bcs, progress, label, rtol=None, atol_mm=None,
-                trace=None, dirichlet_values=None):
+                trace=None, dirichlet_values=None, extra_terms=None,
+                residual_line_search: bool = False):
         """Newton iterations at fixed load with the settings ``s``; returns (converged,
         iterations, residual).
 
@@ -153,15 +156,28 @@ class Newton:
         ``trace`` (a list) gets the residual norm of every iterate. ``dirichlet_values``: the
         values of ``bcs`` as (value array, dofs of x, dofs of the value array) per condition,
         so that the residual skips a lifting that adds zero (``lifting_needed``); None: always
-        lifted.
+        lifted. ``extra_terms``: terms added to the residual, the tangent and the line search's
+        energy (class docstring); None: none. ``residual_line_search``: without indenters, a
+        correction after a load step's first is taken only when it lowers the residual norm
+        (halved otherwise, the last halving taken; ``Contact.accepts``); else every finite one
+        is taken.
         """
         self.dirichlet_values = dirichlet_values
         try:
-            return self._iterate(s, bcs, progress, label, rtol, atol_mm, trace)
+            return self._iterate(s, bcs, progress, label, rtol, atol_mm, trace, extra_terms,
+                                 residual_line_search)
         finally:
             self.dirichlet_values = None
 
-    def _iterate(self, s, bcs, progress, label, rtol, atol_mm, trace):
+    @staticmethod
+    def _extra_energy(extra_terms) -> float:
+        """The energy (uJ) of ``extra_terms`` at the current state; 0 without one."""
+        if extra_terms is not None and hasattr(extra_terms, "energy"):
+            return extra_terms.energy()
+        return 0.0
+
+    def _iterate(self, s, bcs, progress, label, rtol, atol_mm, trace, extra_terms,
+                 residual_line_search):
         rtol = s.rtol if rtol is None else rtol
         atol_mm = s.atol_mm if atol_mm is None else atol_mm
         u, du = self.x, self.du
@@ -173,7 +189,7 @@ class Newton:
         shift = 0.0  # Levenberg-Marquardt shift of the tangent (relative to its diagonal)
         floor = 0.5 ** s.line_search  # the shortest step, taken regardless
         converging = False  # the last correction was taken whole and halved the residual
-        rnorm = self.assemble_residual(bcs)
+        rnorm = self.assemble_residual(bcs, extra_terms)
         for it in range(1, 2 * s.max_iterations + 1):
             if trace is not None:
                 trace.append(rnorm)
@@ -195,7 +211,7 @@ class Newton:
                 or (not exact and rnorm > s.contact_curvature_below * r0))
             # the first correction of a load step also moves the Dirichlet values: not tested
             ok, slope, drop, shift = self._correction(s, bcs, eta, drop, shift,
-                                                      energy and it > 1)
+                                                      energy and it > 1, extra_terms)
             if not ok:
                 return False, it, rnorm
             # the largest displacement correction (mm; the pressure's, in kPa, is not compared)
@@ -220,13 +236,17 @@ class Newton:
                 # with the energy line search a trial is tested on its energy first: one that
                 # the energy refuses needs no residual (an assembly of the residual vector
                 # instead of the energy's scalar; most trials where the contact set moves)
-                trial = self.contact.total_energy() if energy and not forced else None
+                trial = self.contact.total_energy(self._extra_energy(extra_terms)) \
+                    if energy and not forced else None
                 if trial is not None and not self.contact.lowers(trial):
                     finite = math.isfinite(trial)
                 else:
-                    rnew = self.assemble_residual(bcs)
+                    rnew = self.assemble_residual(bcs, extra_terms)
                     finite = math.isfinite(rnew)
-                    if finite and self.contact.accepts(rnew, rnorm, forced, trial):
+                    if finite and energy and trial is None:
+                        trial = self.contact.total_energy(self._extra_energy(extra_terms))
+                    if finite and self.contact.accepts(rnew, rnorm, forced, trial,
+                                                       residual=residual_line_search):
                         break
                 if alpha <= floor:
                     u.x.array[:] = u_old

@@ -218,7 +218,9 @@ class ReferenceSolver:
                                  n_unknowns=len(self.x.x.array), umap=self._umap)
         if contact_quadrature is None:
             contact_quadrature = default_contact_rule(case)
-        self.contact = Contact(self, case, penalty=contact_penalty,  # rigid indenters
+        self.contact = Contact(case, comm=comm, dm=self.dm, gdim=self.gdim,  # rigid indenters
+                               degree=degree, V=self.V, u=self.u, u_ufl=self.u_ufl, E=self.E,
+                               formulation=self.formulation, penalty=contact_penalty,
                                quadrature=contact_quadrature,
                                tip_start=tip_start or default_tip_start(case,
                                                                         contact_quadrature))
@@ -320,7 +322,8 @@ class ReferenceSolver:
         raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     def solve(self, pushes=None, *, case: Case | None = None, initial=None, dirichlet_override=None,
-              progress: bool = False, cases_first=None) -> SolveResult:
+              progress: bool = False, cases_first=None, settings: NewtonSettings | None = None,
+              extra_terms=None, residual_line_search: bool = False) -> SolveResult:
         """Solve ``case`` (default: the one given at construction) with ``pushes`` applied.
 
         pushes: actuator name -> push (mm) along its direction.
@@ -331,6 +334,15 @@ class ReferenceSolver:
             prescribed values at fraction 0 scaled from there.
         dirichlet_override: (dofs, values): extra per-vertex prescriptions (node-major Case dofs,
             mm at full load), degree 1.
+        settings: this solve's Newton and load-stepping settings (NewtonSettings); None: the
+            solver's own (``settings`` of the constructor). ``lag_max_its`` stays the solver's
+            own: its linear solver was built with it.
+        extra_terms: terms Newton adds to the residual, the tangent and the line search's energy
+            (``Newton``: e.g. the inertia of an implicit-Euler time step, ``dynamics``); None:
+            none.
+        residual_line_search: without indenters, take a Newton correction after a load step's
+            first only when it lowers the residual norm (``Contact.accepts``; a warm start's
+            line search, ``transfer.warm_settings``); False: every finite correction is taken.
         Raises ConvergenceError (with ``last_converged`` SolveResult and the load fraction reached)
         when a load step still fails after the cut-backs.
         """
@@ -351,7 +363,7 @@ class ReferenceSolver:
         self.inv_kappa.value = _inv_kappa(case.material)
         for name, value in case.material.coefficients.items():
             self.coefficients[name].value = value
-        s = self.settings
+        s = settings or self.settings
         warm = initial is not None
         if warm:
             self.state.set_state(initial)
@@ -373,7 +385,7 @@ class ReferenceSolver:
                 start[coll] = self.x.x.array[parent]
             ramps.append((garr, start, full))
             span = max(span, np.abs(full[coll] - start[coll]).max(initial=0.0))
-        span = max(span, self.contact.ramps(case, ramps, initial))  # indenters' tips
+        span = max(span, self.contact.ramps(case, ramps, initial, settings=s))  # indenters' tips
         span = self.comm.allreduce(span, op=MPI.MAX)
         inc = 1.0 if span <= s.max_step_mm else s.max_step_mm / span
         lam = 0.0
@@ -390,6 +402,8 @@ class ReferenceSolver:
         # grow (NewtonSettings.contact_intermediate_rtol)
         step_rtol, grow = (s.contact_intermediate_rtol, s.contact_grow) \
             if self.contact.indenters else (s.intermediate_rtol, s.grow)
+        # what each Newton iteration adds to the solver's own forms and line search
+        newton = {"extra_terms": extra_terms, "residual_line_search": residual_line_search}
         while lam < 1.0 - 1e-14:
             trial = min(1.0, lam + inc)
             for garr, start, full in ramps:
@@ -403,14 +417,15 @@ class ReferenceSolver:
             tol = {} if final else {"rtol": step_rtol, "atol_mm": s.intermediate_atol_mm}
             trace = history["iterate_residual"]
             ok, it, res = self.newton.iterate(s, bcs, progress, f"load {trial:6.3f}", trace=trace,
-                                              dirichlet_values=values, **tol)
+                                              dirichlet_values=values, **tol, **newton)
             iters += it
             if not ok and predict and prev_good is not None:
                 # retry the same step from the last converged state, without the predictor
                 self.x.x.array[:] = last_good
                 self.x.x.scatter_forward()
                 ok, it, res = self.newton.iterate(s, bcs, progress, f"load {trial:6.3f}",
-                                                  trace=trace, dirichlet_values=values, **tol)
+                                                  trace=trace, dirichlet_values=values, **tol,
+                                                  **newton)
                 iters += it
             history["iterate_load"] += [trial] * (len(trace) - len(history["iterate_load"]))
             if ok:
@@ -443,7 +458,8 @@ class ReferenceSolver:
                     if steps:
                         # that state was converged to the intermediate tolerances only (it was
                         # to start the next step): it is the answer now, converged as one
-                        iters += self._converge_answer(s, bcs, values, progress, lam, history)
+                        iters += self._converge_answer(s, bcs, values, progress, lam, history,
+                                                       **newton)
                         residual = history["residual"][-1]
                     wall = time.perf_counter() - t_start
                     last = solve_result(self, case, False, iters, residual, wall, steps,
@@ -457,18 +473,21 @@ class ReferenceSolver:
         return solve_result(self, case, True, iters, residual, wall, max(steps, 1), history, 1.0)
 
     def _converge_answer(self, s: NewtonSettings, bcs, values, progress, lam: float,
-                         history: dict) -> int:
+                         history: dict, extra_terms=None,
+                         residual_line_search: bool = False) -> int:
         """Newton from the last converged state (at load fraction ``lam``, its prescriptions
         set) to the final load step's tolerances, as a failed solve's answer; its residual goes
         to ``history``. That state may have ended after its tips' predictor
         (``NewtonSettings.contact_intermediate_rtol``), far from converged, so it is given at
         least the default ``max_iterations`` whatever ``s`` asks for. A state that does not
-        converge further stays as it was. Returns the Newton iterations."""
+        converge further stays as it was. ``extra_terms`` and ``residual_line_search``: the
+        solve's (``solve``). Returns the Newton iterations."""
         x0 = self.x.x.array.copy()
         trace = history["iterate_residual"]
         s = replace(s, max_iterations=max(s.max_iterations, NewtonSettings.max_iterations))
         ok, it, res = self.newton.iterate(s, bcs, progress, f"load {lam:6.3f}", trace=trace,
-                                          dirichlet_values=values)
+                                          dirichlet_values=values, extra_terms=extra_terms,
+                                          residual_line_search=residual_line_search)
         history["iterate_load"] += [lam] * (len(trace) - len(history["iterate_load"]))
         if ok:
             history["residual"][-1] = res

@@ -9,11 +9,10 @@ left the cells alone the transferred field is the coarse one exactly (same cells
 degree), so Newton starts next to the answer there and has only the refined region to settle.
 
 Displacement formulation only (the mixed formulation's pressure is not transferred). Serial.
-``warm_newton`` holds the Newton settings of such warm starts. Units: mm.
+``warm_settings`` gives the Newton settings of such warm starts. Units: mm.
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 
 import numpy as np
@@ -22,7 +21,7 @@ from scipy.spatial import cKDTree
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import SolveResult
 
-__all__ = ["WARM_LINE_SEARCH", "dolfinx_cells", "field", "match_points", "prolong", "warm_newton"]
+__all__ = ["WARM_LINE_SEARCH", "dolfinx_cells", "field", "match_points", "prolong", "warm_settings"]
 
 
 def match_points(source: np.ndarray, target: np.ndarray, what: str) -> np.ndarray:
@@ -163,32 +162,22 @@ def prolong(coarse_solver, coarse: SolveResult, fine_solver, parents) -> SolveRe
 
 
 WARM_LINE_SEARCH = 8
-"""Halvings of a Newton correction allowed in a warm start (``warm_newton``)."""
+"""Halvings of a Newton correction allowed in a warm start (``warm_settings``)."""
 
 
-@contextlib.contextmanager
-def warm_newton(solver, max_iterations: int):
-    """Newton settings for a warm start of ``solver`` (at full load, from a state close to the
-    answer): one try of at most ``max_iterations`` iterations (no cut-backs: with the boundary
-    values already in place there is nothing to ramp), and a line search that takes a correction
-    only when it lowers the residual norm (halved up to WARM_LINE_SEARCH times, the last halving
-    taken). Near a pushed patch's rim the tangent of a refined mesh can be nearly singular and a
-    full correction of tens of mm, finite but far off, would otherwise be taken. A solver with
-    indenters keeps its own (energy) line search."""
-    settings = solver.settings
-    contact = solver.contact
-    own = "accepts" in vars(contact)
-    saved = vars(contact).get("accepts")
-    solver.settings = dataclasses.replace(settings, min_fraction=0.75,
-                                          max_iterations=max_iterations,
-                                          line_search=max(settings.line_search, WARM_LINE_SEARCH))
-    if not contact.indenters:
-        contact.accepts = lambda r_new, r_old, forced, energy=None: forced or r_new < r_old
-    try:
-        yield solver
-    finally:
-        solver.settings = settings
-        if own:
-            contact.accepts = saved
-        else:
-            vars(contact).pop("accepts", None)
+def warm_settings(settings, max_iterations: int):
+    """The Newton settings (``NewtonSettings``) of a warm start (at full load, from a state
+    close to the answer) made from a solver's ``settings``: one try of at most
+    ``max_iterations`` iterations (no cut-backs: with the boundary values already in place
+    there is nothing to ramp) and corrections halved up to WARM_LINE_SEARCH times. Solve with
+    them and ``residual_line_search=True`` (``ReferenceSolver.solve``), a line search that takes
+    a correction only when it lowers the residual norm (the last halving taken): near a pushed
+    patch's rim the tangent of a refined mesh can be nearly singular and a full correction of
+    tens of mm, finite but far off, would otherwise be taken. A solver with indenters keeps its
+    own (energy) line search.
+
+        ref.solve(pushes, initial=start, settings=warm_settings(ref.settings, 12),
+                  residual_line_search=True)
+    """
+    return dataclasses.replace(settings, min_fraction=0.75, max_iterations=max_iterations,
+                               line_search=max(settings.line_search, WARM_LINE_SEARCH))
