@@ -65,7 +65,7 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -258,7 +258,7 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
                             {k: np.asarray(v, float) for k, v in answer.probes.items()},
                             est.probe_norms, targets, time.perf_counter() - ts)
         steps.append(step)
-        last = (replace(answer, extra={**answer.extra, **est.extras()}), est)
+        last = (est.attach(answer), est)
         last_case = case
         if progress:
             name, ratio = step.worst

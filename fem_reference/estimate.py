@@ -133,11 +133,9 @@ class ErrorEstimate:
         return {k: float(np.linalg.norm(v)) for k, v in self.reactions.items()}
 
     def extras(self) -> dict:
-        """The entries ``estimate`` adds to a SolveResult (all JSON-serializable; the probe and
-        reaction estimates become its fields)."""
+        """The entries ``estimate`` adds to a SolveResult's ``extra`` (all JSON-serializable;
+        the probe and reaction norms are its fields, ``attach``)."""
         return {
-            "probe_error_estimates": self.probe_norms,
-            "reaction_error_estimates": self.reaction_norms,
             "probe_error_vectors": {k: np.asarray(v, float).tolist()
                                     for k, v in self.probes.items()},
             "reaction_error_vectors": {k: np.asarray(v, float).tolist()
@@ -150,6 +148,13 @@ class ErrorEstimate:
             "estimate_setup_s": self.setup_s,
             "estimate_cost_ratio": self.cost_ratio,
         }
+
+    def attach(self, result: SolveResult) -> SolveResult:
+        """``result`` with this estimate: its fields ``probe_error_estimates`` (mm) and
+        ``reaction_error_estimates`` (mN), and ``extras`` added to its ``extra``."""
+        return dataclasses.replace(result, probe_error_estimates=self.probe_norms,
+                                   reaction_error_estimates=self.reaction_norms,
+                                   extra={**result.extra, **self.extras()})
 
 
 def error_estimate(case: Case, result: SolveResult, *, pushes=None, progress: bool = False,
@@ -249,7 +254,7 @@ def estimate(case: Case, result: SolveResult, *, pushes=None, progress: bool = F
     (``ErrorEstimate.extras``).
     """
     est = error_estimate(case, result, pushes=pushes, progress=progress, **solver_options)
-    return dataclasses.replace(result, extra={**result.extra, **est.extras()})
+    return est.attach(result)
 
 
 AUTO_MAX_DOFS = 60_000

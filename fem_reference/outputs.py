@@ -119,21 +119,22 @@ def solve_result(solver, case, converged, iters, residual, wall, steps, history,
     contact = solver.contact.extra()
     cell_J = field_J(solver)
     disc = discretization(solver)
+    checked = through_surface_state(deformation_state(case.mesh, u_v, degree=solver.degree,
+                                                      cell_J=cell_J), contact)
     return SolveResult(
         u=u_v, converged=converged, iterations=iters, residual=float(residual),
         wall_time_s=wall, solver="fem", reference=True, probes=probe_values(solver, case, u_v),
         reactions=reactions(solver, case), strain_energy=float(energy), load_steps=steps,
         degree=solver.degree, case_name=case.name, n_vertices=case.mesh.n_vertices,
         n_cells=case.mesh.n_cells, history=history, discretization=disc,
+        valid=checked.pop("valid"), invalid_reason=checked.pop("invalid_reason"),
+        indenters=contact.get("indenters", {}),
+        warnings=tuple(case.glued_patch_warnings(u_v, cell_J) + solver.contact.warnings()),
         extra={"load_fraction": lam, "n_dofs": disc["dofs"],
                "assemble_s": solver.timings.assemble, "linear_solve_s": solver.timings.solve,
                "linear_solver": solver.linear_solver,
                "factorizations": solver.timings.factorizations,
                "krylov_iterations": solver.timings.krylov_iterations,
                "preconditioner_builds": solver.timings.preconditioner_builds,
-               "tangent_shifts": solver.timings.shifts, **state,
-               **contact,
-               **through_surface_state(deformation_state(case.mesh, u_v, degree=solver.degree,
-                                                    cell_J=cell_J), contact),
-               "warnings": case.glued_patch_warnings(u_v, cell_J) + solver.contact.warnings(),
+               "tangent_shifts": solver.timings.shifts, **state, **checked,
                **_no_converged_value(case, solver.contact)})

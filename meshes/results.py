@@ -24,13 +24,6 @@ def material_json(material) -> dict:
     return out
 
 
-TYPED_EXTRAS = ("valid", "invalid_reason", "warnings", "discretization", "indenters",
-                "probe_error_estimates", "reaction_error_estimates", "estimate_note")
-"""The entries every caller reads, fields of SolveResult (and keys of its JSON form). A solver
-that reports them in ``extra`` (a plug-in solver, a result built with
-``dataclasses.replace(result, extra={**result.extra, ...})``) has them moved to the fields."""
-
-
 @dataclass(frozen=True)
 class SolveResult:
     """A solve of a Case.
@@ -40,8 +33,8 @@ class SolveResult:
     the support exerts on the body (mN).  strain_energy in uJ (= kPa mm^3 = mN mm).
     iterations: Newton iterations (fem) or the fast solver's own iterations.
 
-    What every caller reads is a field; the solver's own figures (timings, counters, states)
-    are ``extra``:
+    What every caller reads is a field, set by the solver that computed it; the solver's own
+    figures (timings, counters) are ``extra``, which the JSON form writes beside the fields:
     valid: whether the deformed mesh is a physical answer (no inverted cell, no runaway, no tip
         through the skin); None when the solver checked nothing.  invalid_reason: why not (None
         when valid).  warnings: what the caller should know about the answer (a glued patch
@@ -83,12 +76,6 @@ class SolveResult:
     reference: bool = False
 
     def __post_init__(self):
-        given = {k: self.extra[k] for k in TYPED_EXTRAS if k in self.extra}
-        if given:
-            object.__setattr__(self, "extra", {k: v for k, v in self.extra.items()
-                                               if k not in given})
-            for k, v in given.items():
-                object.__setattr__(self, k, v)
         if self.valid is not None:
             object.__setattr__(self, "valid", bool(self.valid))
         object.__setattr__(self, "warnings", tuple(str(w) for w in self.warnings or ()))

@@ -163,9 +163,9 @@ def test_an_invalid_refined_answer_stops_the_loop_and_keeps_the_last_valid_one(m
         res = real(case, degree, pushes, formulation, options, start)
         if degree < 2:     # level 0's first answer (P1): the P2 estimate then answers
             return res
-        bad = replace(res, extra={**res.extra, "valid": False, "inverted_cells": 1,
-                                  "invalid_reason": "1 inverted cell (J <= 0; worst cell 7)",
-                                  "warnings": ["glued patch 'A1' (push 1 mm) compresses ..."]})
+        bad = replace(res, valid=False, extra={**res.extra, "inverted_cells": 1},
+                      invalid_reason="1 inverted cell (J <= 0; worst cell 7)",
+                      warnings=("glued patch 'A1' (push 1 mm) compresses ...",))
         folded.append(bad)
         return bad
 

@@ -19,10 +19,10 @@ def case():
     return load_case("meshes/cases/phantom.toml", size=14.0)
 
 
-def _result(extra, probes=None):
+def _result(fields, probes=None):
     n = 4
     return SolveResult(u=np.zeros((n, 3)), converged=True, iterations=1, residual=0.0,
-                       wall_time_s=0.0, solver="x", probes=probes or {}, extra=extra)
+                       wall_time_s=0.0, solver="x", probes=probes or {}, **fields)
 
 
 def test_each_concern_is_one_line():

@@ -474,9 +474,9 @@ def test_a_converged_but_folded_plant_state_is_not_measured():
     case = Case(mesh=mesh, boundaries=[Boundary("zmin", "fixed")], name="folded")
     r = SolveResult(u=np.zeros((mesh.n_vertices, 3)), converged=True, iterations=1, residual=0.0,
                     wall_time_s=0.0, solver="test",
-                    extra={"valid": False, "invalid_reason": "3 inverted cells"})
+                    valid=False, invalid_reason="3 inverted cells")
     with pytest.raises(ConvergenceError, match="not valid: 3 inverted cells"):
         check_prescribed(case, {}, r, "plant")
     ok = SolveResult(u=np.zeros((mesh.n_vertices, 3)), converged=True, iterations=1,
-                     residual=0.0, wall_time_s=0.0, solver="test", extra={"valid": True})
+                     residual=0.0, wall_time_s=0.0, solver="test", valid=True)
     check_prescribed(case, {}, ok, "plant")

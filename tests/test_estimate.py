@@ -264,7 +264,7 @@ def test_auto_estimate_names_what_it_cannot_estimate(block, monkeypatch):
     res3 = fr.solve(block, pushes=push, degree=3)
     assert "richest" in auto_estimate(block, res3, pushes=push).estimate_note
     res = fr.solve(block, pushes=push)
-    bad = dataclasses.replace(res, extra={**res.extra, "valid": False})
+    bad = dataclasses.replace(res, valid=False)
     assert "not a valid" in auto_estimate(block, bad, pushes=push).estimate_note
 
     def diverges(*a, **k):

@@ -77,8 +77,8 @@ def test_a_row_is_of_one_tip_start(coarse):
     n = res.discretization["dofs"]
     started = {}
     for how in ("nodes", "surface"):
-        extra = {**res.extra, "indenters": {"A1": {"quadrature": "nodal", "started_on": how}}}
-        started[how] = dataclasses.replace(res, extra=extra)
+        started[how] = dataclasses.replace(
+            res, indenters={"A1": {"quadrature": "nodal", "started_on": how}})
     rows = (_row(n, {"A1": 1.0}, probes=0.1), _row(n, {"A1": 1.0}, tip_start="surface",
                                                    probes=0.2))
     with_rows = dataclasses.replace(case, reference_measured=rows)
@@ -112,8 +112,8 @@ def test_a_solve_that_overrides_the_rule_or_start_gets_the_row_of_what_it_solved
         f'against = "{what}"\n' for named, probes, what in measured)), size=14)
     for rule, start, probes in (("nodal", "nodes", 0.01), (2, "surface", 0.02),
                                 (2, "nodes", 0.03)):
-        extra = {**res.extra, "indenters": {"A1": {"quadrature": rule, "started_on": start}}}
-        answer = dataclasses.replace(res, extra=extra)
+        answer = dataclasses.replace(
+            res, indenters={"A1": {"quadrature": rule, "started_on": start}})
         for override in ({}, {"reference_contact_quadrature": rule},
                          {"reference_contact_quadrature": rule, "reference_tip_start": start}):
             solved = dataclasses.replace(case, **override)     # as the command line does

@@ -149,10 +149,11 @@ def test_not_converged_indenters_and_warnings_are_on_the_page(work):
 
     case = load_case(work / "box.toml").with_pushes({"A1": 1.0})
     res = fr.solve(case, pushes={"A1": 1.0})
-    last = dataclasses.replace(res, converged=False, extra={
-        **res.extra, "load_fraction": 0.5, "warnings": ["patch A1 is glued"],
-        "indenters": {"I1": {"push": 3.0, "force": 12.5, "contact_area": 4.25,
-                             "max_penetration": 0.01}}})
+    last = dataclasses.replace(
+        res, converged=False, extra={**res.extra, "load_fraction": 0.5},
+        warnings=("patch A1 is glued",),
+        indenters={"I1": {"push": 3.0, "force": 12.5, "contact_area": 4.25,
+                          "max_penetration": 0.01}})
     out = work / "not_converged"
     path = write_solve_report(case, last, out, stem="last_converged", use_pyvista=False)
     check_page(path)
