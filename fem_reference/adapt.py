@@ -253,8 +253,7 @@ def solve_to_accuracy(case, pushes=None, *, accuracy: float = 0.01, max_dofs: in
                 forget_solvers(start[0].case.mesh)   # a mesh the loop has left: large factors
                 start = None
         targets = _targets(answer.probes, accuracy, floor)
-        step = AdaptiveStep(level, p, case.mesh.n_cells, int(answer.extra.get("n_dofs", 0)),
-                            int(est.enriched.extra.get("n_dofs", 0)),
+        step = AdaptiveStep(level, p, case.mesh.n_cells, _dofs(answer), _dofs(est.enriched),
                             {k: np.asarray(v, float) for k, v in answer.probes.items()},
                             est.probe_norms, targets, time.perf_counter() - ts)
         steps.append(step)
@@ -362,3 +361,8 @@ def level_answer(case, degree, pushes, formulation, options, start):
         except (CaseError, ConvergenceError):
             pass
     return solve(case, degree=degree, pushes=pushes, formulation=formulation, **options)
+
+
+def _dofs(result: SolveResult) -> int:
+    """The unknowns of the reference answer ``result`` (0 when it does not say)."""
+    return int((result.discretization or {}).get("dofs", 0))

@@ -175,7 +175,7 @@ def refinement_study(case: Case, *, levels: int = MIN_LEVELS, degree: int = 1, p
         for name, r in res.reactions.items():
             reactions.setdefault(name, []).append(np.asarray(r, dtype=np.float64))
         cells.append(mesh.n_cells)
-        dofs.append(int(res.extra.get("n_dofs", mesh.n_vertices * mesh.gdim)))
+        dofs.append(int((res.discretization or {}).get("dofs", mesh.n_vertices * mesh.gdim)))
         its.append(int(res.iterations))
         walls.append(wall)
         if progress:

@@ -314,11 +314,11 @@ def _lift(enriched, result: SolveResult) -> SolveResult:
     tissue: kappa times the interpolation error of J)."""
     import dolfinx.fem
 
-    node_u = result.extra.get("node_u")
-    node_points = result.extra.get("node_points")
+    node_u = result.node_u
+    node_points = result.node_points
     if node_u is None or node_points is None:
         raise CaseError(f"a degree-{result.degree} answer without its nodal state "
-                        f"(extra['node_u'], serial solves only) cannot be estimated")
+                        f"(node_u, serial solves only) cannot be estimated")
     gdim = enriched.gdim
     mesh = enriched.dm.mesh
     Vp = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", int(result.degree)))
@@ -332,7 +332,7 @@ def _lift(enriched, result: SolveResult) -> SolveResult:
     own = enriched.V.tabulate_dof_coordinates()[:, :gdim]
     state = {"node_u": uq.x.array.reshape(-1, gdim)[match_points(own, points, "the enriched nodes")],
              "node_points": points}
-    pressure = result.extra.get("pressure")
+    pressure = result.pressure
     if enriched.Q is not None and pressure is not None:
         Q1 = dolfinx.fem.FunctionSpace(mesh, ("Lagrange", 1))
         p1 = dolfinx.fem.Function(Q1)
@@ -340,4 +340,5 @@ def _lift(enriched, result: SolveResult) -> SolveResult:
             match_points(enriched.case.mesh.points, Q1.tabulate_dof_coordinates()[:, :gdim],
                    "the pressure's vertices")]
         state["pressure"] = p1
-    return dataclasses.replace(result, degree=enriched.degree, extra=state)
+    return dataclasses.replace(result, degree=enriched.degree, extra={},
+                               pressure=state.pop("pressure", None), **state)

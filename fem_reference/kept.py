@@ -93,7 +93,7 @@ def tangent_stiffness(case: Case, u=None, *, degree: int | None = None, pushes=N
                       formulation: str = "auto") -> Tangent:
     """Exact tangent K (scipy CSR, node-major, Case vertex numbering) at displacement ``u``
     (default: rest). Degree 2: pass the SolveResult of a degree-2 reference solve (or its full
-    nodal state ``res.extra["node_u"]``); vertex values alone raise CaseError unless all zero."""
+    nodal state ``res.node_u``); vertex values alone raise CaseError unless all zero."""
     s = solver_for(case, degree, formulation=formulation)
     if u is None:
         u = np.zeros((case.mesh.n_vertices, case.mesh.gdim))

@@ -23,13 +23,12 @@ from .field_jacobian import cell_min_J
 __all__ = ["discretization", "probe_values", "reactions", "solve_result"]
 
 
-def _no_converged_value(case: Case, contact) -> dict:
-    """{"no_converged_value": [why, ...]} where the load is past the range in which answers are
-    known to converge under refinement (a glued patch past one radius, an indenter past
-    UNCONVERGED_RADII): any estimate of such an answer is a difference between degrees, not an
-    error bar; {} otherwise."""
-    why = [*case.glued_unconverged().values(), *contact.unconverged()]
-    return {"no_converged_value": why} if why else {}
+def _no_converged_value(case: Case, contact) -> tuple:
+    """Why no converged value is known (a line per actuator) where the load is past the range in
+    which answers are known to converge under refinement (a glued patch past one radius, an
+    indenter past UNCONVERGED_RADII): any estimate of such an answer is a difference between degrees, not an
+    error bar; () otherwise."""
+    return (*case.glued_unconverged().values(), *contact.unconverged())
 
 
 def probe_values(solver, case: Case, u_vertices) -> dict:
@@ -107,13 +106,13 @@ def solve_result(solver, case, converged, iters, residual, wall, steps, history,
     solver.state.sync()
     u_v = solver.state.vertex_field()
     energy = solver.comm.allreduce(dolfinx.fem.assemble_scalar(solver.W_form))
-    state = {}
+    state = {"node_u": None, "node_points": None, "pressure": None}
     if solver.degree >= 2 and solver.comm.size == 1:
         # the full nodal state (u holds the vertices only): tangent / internal_forces / warm
         # starts from this result use it; arrays, so the JSON form leaves them out
         nodes = np.empty((len(solver.state.node_vertex), solver.gdim))
         nodes[solver.state.out_permutation()[0]] = solver.u.x.array.reshape(-1, solver.gdim)
-        state = {"node_u": nodes, "node_points": solver.state.node_points()}
+        state.update(node_u=nodes, node_points=solver.state.node_points())
     if solver.Q is not None:
         state["pressure"] = solver.state.pressure_vertex_field()
     contact = solver.contact.extra()
@@ -128,6 +127,8 @@ def solve_result(solver, case, converged, iters, residual, wall, steps, history,
         degree=solver.degree, case_name=case.name, n_vertices=case.mesh.n_vertices,
         n_cells=case.mesh.n_cells, history=history, discretization=disc,
         valid=checked.pop("valid"), invalid_reason=checked.pop("invalid_reason"),
+        min_J=checked.pop("min_J"), no_converged_value=_no_converged_value(case, solver.contact),
+        **state,
         indenters=contact.get("indenters", {}),
         warnings=tuple(case.glued_patch_warnings(u_v, cell_J) + solver.contact.warnings()),
         extra={"load_fraction": lam, "n_dofs": disc["dofs"],
@@ -136,5 +137,4 @@ def solve_result(solver, case, converged, iters, residual, wall, steps, history,
                "factorizations": solver.timings.factorizations,
                "krylov_iterations": solver.timings.krylov_iterations,
                "preconditioner_builds": solver.timings.preconditioner_builds,
-               "tangent_shifts": solver.timings.shifts, **state, **checked,
-               **_no_converged_value(case, solver.contact)})
+               "tangent_shifts": solver.timings.shifts, **checked})

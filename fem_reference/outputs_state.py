@@ -147,16 +147,16 @@ class NodalState:
         d = self.gdim
         arr = self.u.x.array.reshape(-1, d)
         if isinstance(initial, SolveResult):
-            node_u = initial.extra.get("node_u") if self.degree >= 2 else None
-            pressure = initial.extra.get("pressure") if self.Q is not None else None
+            node_u = initial.node_u if self.degree >= 2 else None
+            pressure = initial.pressure if self.Q is not None else None
             if node_u is not None:
                 self._set_nodes(self._nodes_in_own_order(np.asarray(node_u, float),
-                                                         initial.extra.get("node_points")))
+                                                         initial.node_points))
                 self.x_from_fields(pressure, exact=exact)
                 return
             u0 = np.asarray(initial.u, float)
             source = f"a degree-{initial.degree} {initial.solver} SolveResult without the nodal " \
-                     f"state (extra['node_u'])"
+                     f"state (node_u)"
         else:
             u0 = np.asarray(initial, float)
             source = "vertex values"

@@ -112,9 +112,9 @@ def field(solver, result: SolveResult):
         up.x.array.reshape(-1, gdim)[:] = np.asarray(result.u, float)[
             match_points(solver.case.mesh.points, xp, "the answer's vertices")]
     else:
-        node_u, node_points = result.extra.get("node_u"), result.extra.get("node_points")
+        node_u, node_points = result.node_u, result.node_points
         if node_u is None or node_points is None:
-            raise CaseError(f"a degree-{p} answer without its nodal state (extra['node_u'], "
+            raise CaseError(f"a degree-{p} answer without its nodal state (node_u, "
                             f"serial solves only)")
         up.x.array.reshape(-1, gdim)[:] = np.asarray(node_u, float)[
             match_points(np.asarray(node_points, float), xp, f"the degree-{p} answer's nodes")]
@@ -158,7 +158,7 @@ def prolong(coarse_solver, coarse: SolveResult, fine_solver, parents) -> SolveRe
                        degree=fine_solver.degree, case_name=coarse.case_name,
                        n_vertices=fine_solver.case.mesh.n_vertices,
                        n_cells=fine_solver.case.mesh.n_cells,
-                       extra={"node_u": node_u, "node_points": points})
+                       node_u=node_u, node_points=points)
 
 
 WARM_LINE_SEARCH = 8

@@ -45,14 +45,13 @@ def relative_estimates(res) -> dict:
 
 def answer_concerns(res) -> list[str]:
     """One line per fact about the SolveResult ``res`` that a caller must not miss."""
-    extra = getattr(res, "extra", None) or {}
     out = []
     if getattr(res, "valid", None) is False:
         why = res.invalid_reason
         advice = advice_for(why)
         out.append(f"the answer is not valid: {why}" + (f"; {advice}" if advice else ""))
     out += [str(w) for w in getattr(res, "warnings", ()) or ()]
-    why = extra.get("no_converged_value")
+    why = getattr(res, "no_converged_value", ())
     if why:
         out += [f"no mesh-converged answer is known at this load: {w}" for w in
                 ([why] if isinstance(why, str) else why) if str(w) not in out]

@@ -469,7 +469,8 @@ def deformation_state(mesh: MeshData, u, *, degree: int = 1,
                       runaway: float = RUNAWAY_FACTOR, cell_J=None) -> dict:
     """Whether the vertex displacement ``u`` ((n, gdim), mm) is an admissible final state.
 
-    Returns the keys every solver puts in ``SolveResult.extra``: ``inverted_cells`` (cells with
+    Returns what every solver reports of its final state (``valid``, ``invalid_reason`` and
+    ``min_J`` as SolveResult fields, the rest in its ``extra``): ``inverted_cells`` (cells with
     J <= 0, see ``cell_jacobians``), ``min_J``, ``max_displacement_mm``, ``valid`` and
     ``invalid_reason`` (None when valid), and ``J_evaluated`` (how J was taken: per P1 cell, or
     for ``degree`` >= 2 from the P1 interpolant of the vertex values, unless ``cell_J`` gives

@@ -47,6 +47,19 @@ class SolveResult:
         estimate (None when it has one or none was asked for).  reference: whether the
         reference (``fem_reference``) computed it; its JSON form says so by ``solver`` and by
         ``newton_iterations`` (the iterations of a reference answer, else 0).
+    no_converged_value: why no mesh-converged answer is known at this load (a glued patch or an
+        indenter past the loads where answers converge under refinement: an estimate is then no
+        error bar); () when none is in the way.
+    min_J: the smallest J = det F of the final state (dimensionless; ``deformation_state``),
+        written with the validity; None when not finite or not checked.
+    model: the material model the solver solved when it is not the case's (a fast solver's
+        linear elasticity), else None; model_note: that difference in words (None without one).
+    node_u: (n_nodes, gdim) displacement (mm) at every node of a degree >= 2 reference answer,
+        in the order of node_points ((n_nodes, gdim), mm); None at degree 1 and under MPI (the
+        warm start and the tangent of a later solve use them).  pressure: the mixed
+        formulation's pressure (kPa) at the Case vertices (a P1 Function in a state lifted to
+        a richer degree); None for the displacement formulation.  The JSON form leaves these
+        three out.
     """
 
     u: np.ndarray
@@ -74,11 +87,21 @@ class SolveResult:
     reaction_error_estimates: dict = field(default_factory=dict)
     estimate_note: str | None = None
     reference: bool = False
+    no_converged_value: tuple = ()
+    min_J: float | None = None
+    model: str | None = None
+    model_note: str | None = None
+    node_u: np.ndarray | None = None
+    node_points: np.ndarray | None = None
+    pressure: object = None
 
     def __post_init__(self):
         if self.valid is not None:
             object.__setattr__(self, "valid", bool(self.valid))
         object.__setattr__(self, "warnings", tuple(str(w) for w in self.warnings or ()))
+        why = self.no_converged_value
+        object.__setattr__(self, "no_converged_value",
+                           (why,) if isinstance(why, str) else tuple(str(w) for w in why or ()))
         for k in ("indenters", "probe_error_estimates", "reaction_error_estimates"):
             object.__setattr__(self, k, dict(getattr(self, k) or {}))
 
@@ -88,14 +111,16 @@ class SolveResult:
 
     def entries(self) -> dict:
         """``extra`` and the typed fields together, keyed as the JSON form keys them."""
-        return {**self.extra, **self.typed_json()}
+        state = {k: getattr(self, k) for k in ("node_u", "node_points", "pressure")}
+        return {**self.extra, **self.typed_json(),
+                **{k: v for k, v in state.items() if v is not None}}
 
     def typed_json(self) -> dict:
-        """The typed fields as the JSON form writes them: validity where checked, the warnings
-        always, the rest where the solver gave them."""
+        """The typed fields as the JSON form writes them: validity (and min_J) where checked,
+        the warnings always, the rest where the solver gave them; not the nodal state."""
         d = {}
         if self.valid is not None:
-            d.update(valid=self.valid, invalid_reason=self.invalid_reason)
+            d.update(min_J=self.min_J, valid=self.valid, invalid_reason=self.invalid_reason)
         if self.discretization is not None:
             d["discretization"] = self.discretization
         if self.indenters:
@@ -107,6 +132,12 @@ class SolveResult:
             d["reaction_error_estimates"] = self.reaction_error_estimates
         if self.estimate_note is not None:
             d["estimate_note"] = self.estimate_note
+        if self.no_converged_value:
+            d["no_converged_value"] = list(self.no_converged_value)
+        if self.model is not None:
+            d["model"] = self.model
+        if self.model_note is not None:
+            d["model_note"] = self.model_note
         return d
 
     def to_json_dict(self, case=None) -> dict:

@@ -193,7 +193,7 @@ def test_the_shipped_phantom_reaches_one_percent_at_a_two_mm_push():
 
     path = Path(__file__).resolve().parents[1] / "meshes/cases/phantom.toml"
     ad = solve_to_accuracy(path, {"A1": 2.0}, accuracy=0.01, progress=False)
-    assert ad.reached and ad.result.valid and ad.result.extra["min_J"] > 0
+    assert ad.reached and ad.result.valid and ad.result.min_J > 0
     est = ad.result.probe_error_estimates
     for name, q in ad.result.probes.items():   # every target well above the floor here
         assert est[name] <= 0.01 * np.linalg.norm(q), name

@@ -59,12 +59,12 @@ def test_a_coarse_mesh_that_hides_the_rim_still_says_there_is_no_error_bar(coars
     """At 10 mm the coarse mesh keeps every rim cell above the J warning, so the rim check alone
     would say nothing; the push says it."""
     res = fr.solve(coarse, pushes={"A1": 10.0})
-    assert res.converged and res.extra["min_J"] > RIM_J_WARN
-    why = res.extra["no_converged_value"]
+    assert res.converged and res.min_J > RIM_J_WARN
+    why = res.no_converged_value
     assert len(why) == 1 and "'A1'" in why[0]
     assert any("no mesh-converged answer" in w for w in res.warnings)
     near = fr.solve(coarse, pushes={"A1": 2.0})
-    assert "no_converged_value" not in near.extra and near.warnings == ()
+    assert not near.no_converged_value and near.warnings == ()
 
 
 def test_the_command_line_prints_a_difference_not_an_error_bar(tmp_path, capsys):

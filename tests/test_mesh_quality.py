@@ -53,4 +53,4 @@ def test_a_nearly_incompressible_solve_on_the_coarse_glued_phantom_is_valid(push
         r = fr.solve(case, pushes={"A1": push})
     assert r.converged
     assert r.valid is True, r.invalid_reason
-    assert r.extra["min_J"] > 0.1
+    assert r.min_J > 0.1

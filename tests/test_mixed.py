@@ -97,7 +97,7 @@ def solve_shell(size, nu, formulation, curved=None):
     f = s.internal_forces().reshape(-1, 3)
     inner = r < A * (1 + 1e-3)  # inner vertices and the edge nodes of inner facets (just inside)
     outer = np.abs(r - B) < 1e-6 * B
-    u_out = np.sum(res.extra["node_u"][outer] * X[outer], axis=1) / B
+    u_out = np.sum(res.node_u[outer] * X[outer], axis=1) / B
     return res, float(u_out.mean()), float(np.sum(f[inner] * X[inner]) / A)
 
 
@@ -122,7 +122,7 @@ def test_mixed_uniaxial_patch_test_is_exact(cube, nu):
     P11 = principal_piola(stretch, lat, mat.mu, mat.kappa)[0]
     np.testing.assert_allclose(res.reactions["xmax"][0], P11 * L * L, rtol=1e-8)
     J = stretch * lat * lat
-    np.testing.assert_allclose(res.extra["pressure"], -mat.kappa * (J - 1), rtol=1e-7)
+    np.testing.assert_allclose(res.pressure, -mat.kappa * (J - 1), rtol=1e-7)
     assert res.discretization["formulation"] == "mixed"
     assert res.discretization["pressure_degree"] == 1
 
@@ -135,7 +135,7 @@ def test_mixed_shear_patch_test_with_affine_boundary_is_exact(cube):
     res = fr.solve(Case(mesh=cube, material=mat, boundaries=bcs, name="shear"), degree=2,
                    formulation="mixed")
     np.testing.assert_allclose(res.u, cube.points @ (F - np.eye(3)).T, atol=1e-9)
-    np.testing.assert_allclose(res.extra["pressure"], 0.0, atol=1e-8 * mat.mu)
+    np.testing.assert_allclose(res.pressure, 0.0, atol=1e-8 * mat.mu)
     # strain energy of the isochoric shear: mu/2 (I1 - 3) per unit volume
     np.testing.assert_allclose(res.strain_energy, mat.mu / 2 * 0.2 ** 2 * L ** 3, rtol=1e-9)
 
@@ -264,7 +264,7 @@ def test_degree_3_patch_test_is_exact(cube, formulation):
     lat = brentq(lambda t: principal_piola(stretch, t, mat.mu, mat.kappa)[1], 0.5, 1.5, xtol=1e-15)
     F = np.diag([stretch, lat, lat])
     np.testing.assert_allclose(res.u, cube.points @ (F - np.eye(3)).T, atol=1e-9)
-    np.testing.assert_allclose(res.extra["node_u"], res.extra["node_points"] @ (F - np.eye(3)).T,
+    np.testing.assert_allclose(res.node_u, res.node_points @ (F - np.eye(3)).T,
                                atol=1e-9)
     P11 = principal_piola(stretch, lat, mat.mu, mat.kappa)[0]
     np.testing.assert_allclose(res.reactions["xmax"][0], P11 * L * L, rtol=1e-8)

@@ -13,8 +13,9 @@ from tissue_reference.meshes.results import SolveResult
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("meshes", "fem_reference", "solvers", "control", "implant", "tissue")
 TYPED = ("valid", "invalid_reason", "warnings", "discretization", "indenters",
-         "probe_error_estimates", "reaction_error_estimates", "estimate_note")
-"""The fields a producer once passed through ``extra``."""
+         "probe_error_estimates", "reaction_error_estimates", "estimate_note",
+         "no_converged_value", "min_J", "model", "model_note", "node_u", "node_points", "pressure")
+"""Fields of SolveResult that a producer sets itself, never through ``extra``."""
 
 
 def _result(**kw):

@@ -29,9 +29,9 @@ def solved():
 def test_result_carries_the_p2_state_in_tangent_node_order(solved):
     case, _, res, T = solved
     nv = case.mesh.n_vertices
-    nodes = res.extra["node_u"]
+    nodes = res.node_u
     assert nodes.shape == T.node_points.shape and nodes.shape[0] > nv
-    np.testing.assert_array_equal(res.extra["node_points"], T.node_points)
+    np.testing.assert_array_equal(res.node_points, T.node_points)
     np.testing.assert_array_equal(nodes[:nv], res.u)
     # arrays: the JSON form leaves them out
     assert "node_u" not in res.to_json_dict()
@@ -40,7 +40,7 @@ def test_result_carries_the_p2_state_in_tangent_node_order(solved):
 def test_degree2_tangent_from_the_solve_result_is_the_tangent_at_the_solution(solved):
     case, st, res, T = solved
     K = T.K                                            # the solver's own state (control Jacobian)
-    for u in (res, res.extra["node_u"]):
+    for u in (res, res.node_u):
         K2 = fr.tangent_stiffness(case, u, degree=2, pushes=st).K
         assert abs(K2 - K).max() <= 1e-10 * abs(K).max()
     # the old reconstruction (edge nodes = mean of their end vertices) is far off at this state
@@ -53,7 +53,7 @@ def test_degree2_tangent_from_the_solve_result_is_the_tangent_at_the_solution(so
 def test_degree2_tangent_is_the_finite_difference_of_the_degree2_residual(solved):
     case, st, res, _ = solved
     s = fr.ReferenceSolver(case, degree=2)
-    U = res.extra["node_u"]
+    U = res.node_u
     K = s.tangent(U, pushes=st).K
     rng = np.random.default_rng(1)
     h = 1e-6

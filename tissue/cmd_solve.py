@@ -108,8 +108,8 @@ def run(args) -> int:
         print(f"{case.name}: {args.solver} converged={res.converged} "
               f"iterations={res.iterations} load_steps={res.load_steps} "
               f"time={res.wall_time_s:.2f}s vertices={res.n_vertices} cells={res.n_cells}")
-        if res.extra.get("model_note"):
-            print(f"  model: {res.extra['model']} ({res.extra['model_note']})")
+        if res.model_note:
+            print(f"  model: {res.model} ({res.model_note})")
         disc = res.discretization
         if disc:
             p = f"/P{disc['pressure_degree']}" if disc.get("pressure_degree") is not None else ""
@@ -117,7 +117,7 @@ def run(args) -> int:
                   f"{disc['dofs']} dofs")
         print_answer(res)
         worst = max(relative_estimates(res).values(), default=None)
-        if worst is not None and res.extra.get("no_converged_value"):
+        if worst is not None and res.no_converged_value:
             print(f"tissue solve: warning: the degree-{int(res.degree) + 1} answer differs from "
                   f"this one by up to {worst:.1%} of a probe's displacement, but at this load no "
                   f"mesh-converged answer is known (below): neither is an error bar, and "
@@ -163,7 +163,7 @@ def print_answer(res):
     pe = res.probe_error_estimates
     re_ = res.reaction_error_estimates
     rels = relative_estimates(res)
-    bar = not res.extra.get("no_converged_value")   # an estimate is an error bar only then
+    bar = not res.no_converged_value   # an estimate is an error bar only then
     for k, v in res.probes.items():
         line = f"  probe {k}: u = [{', '.join(f'{x:+.4f}' for x in v)}] mm"
         if k in rels:
@@ -187,8 +187,8 @@ def print_answer(res):
               f"area {ind['contact_area']:.1f} mm^2, skin inside the tip "
               f"{ind.get('surface_penetration', ind['max_penetration']):.3f} mm "
               f"(contact rule {ind.get('quadrature', 'nodal')})")
-    if res.extra.get("min_J") is not None:
-        print(f"  smallest J = det F: {res.extra['min_J']:.3f}")
+    if res.min_J is not None:
+        print(f"  smallest J = det F: {res.min_J:.3f}")
     if res.estimate_note:
         print(f"  error estimate: none: {res.estimate_note}")
 

@@ -243,7 +243,7 @@ def _reference_at(case, ref, pts):
     X, cells = case.mesh.points, case.mesh.cells
     cell, w, inside = _locate(X, cells, pts, sag=boundary_sag(case.mesh))
     uv = np.asarray(ref.u, float)
-    node_u, node_pts = ref.extra.get("node_u"), ref.extra.get("node_points")
+    node_u, node_pts = ref.node_u, ref.node_points
     straight = case.mesh.curved_edges is None or len(case.mesh.curved_edges) == 0
     if ref.degree == 1:
         return np.einsum("mi,mij->mj", w, uv[cells[cell]]), inside, "P1 (exact)"

@@ -37,8 +37,8 @@ def write_outputs(case, res, out_dir=None, json_file=None, stem="displacement", 
     if out_dir:
         u = res.u
         fields = {"displacement": u, "displacement_magnitude": np.linalg.norm(u, axis=1)}
-        if res.extra.get("pressure") is not None:  # mixed formulation, kPa
-            fields["pressure"] = np.asarray(res.extra["pressure"], float)
+        if res.pressure is not None:  # mixed formulation, kPa
+            fields["pressure"] = np.asarray(res.pressure, float)
         J = cell_jacobians(case.mesh.points, case.mesh.cells, u)
         write_point_data(case.mesh, out_dir, stem, fields,
                          cell_data={"J": J, "inverted": (~(J > 0)).astype(float)})

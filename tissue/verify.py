@@ -269,8 +269,8 @@ def _with_estimate(entry, res_ref):
     if res_ref.probe_error_estimates:
         entry["discretization_error_estimate_mm"] = {
             k: float(v) for k, v in res_ref.probe_error_estimates.items()}
-        if res_ref.extra.get("no_converged_value"):   # then the estimate is no error bar
-            entry["no_converged_value"] = list(res_ref.extra["no_converged_value"])
+        if res_ref.no_converged_value:   # then the estimate is no error bar
+            entry["no_converged_value"] = list(res_ref.no_converged_value)
     return entry
 
 

@@ -211,6 +211,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         indenters = cset.report(u, push1)
         state = through_surface_state(state, {"indenters": indenters})
     valid, invalid_reason = state.pop("valid"), state.pop("invalid_reason")
+    min_J = state.pop("min_J")
     extra = {"admm_iterations": int(admm_it), "newton_iterations": int(newton_it),
              "load_steps": int(load_steps) if dynamics is None else 0,
              "rho_kPa": ops.rho, "setup_s": ops.setup_s, "tol_mm": tol_mm,
@@ -229,7 +230,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
                        strain_energy=float(ops.kin.V @ psi), case_name=case.name, n_vertices=n,
                        load_steps=int(load_steps) if dynamics is None else int(dynamics.steps),
                        n_cells=ops.m, history=hist, valid=valid, invalid_reason=invalid_reason,
-                       indenters=indenters, extra=extra)
+                       min_J=min_J, indenters=indenters, extra=extra)
 
 
 MIN_LOAD_STEP = 1.0 / 64  # the shortest increment a cut-back makes, as a fraction of a step

@@ -111,12 +111,11 @@ def solve(case, *, pushes=None, initial=None, method: str = "direct", stop_mm: f
         strain_energy=0.5 * float(np.vdot(u, F)), load_steps=1, degree=1, case_name=case.name,
         n_vertices=n, n_cells=case.mesh.n_cells, history={"max_step_mm": list(sol.max_step_mm)},
         valid=state.pop("valid"), invalid_reason=state.pop("invalid_reason"),
+        min_J=state.pop("min_J"), model="linear-elastic",
+        model_note=(f"the Mass Tensor Method is a linear model: it solved linear elasticity "
+                    f"with the case's E and nu, not its {case.material.model} material"
+                    if case.material.model != "linear-elastic" else None),
         extra={"method": method, "stop_mm": float(stop_mm), "point_types": types.counts(),
-               "model": "linear-elastic",
-               **({"model_note": f"the Mass Tensor Method is a linear model: it solved linear "
-                                 f"elasticity with the case's E and nu, not its "
-                                 f"{case.material.model} material"}
-                  if case.material.model != "linear-elastic" else {}),
                **state})
 
 
