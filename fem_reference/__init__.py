@@ -12,6 +12,7 @@ be imported without loading dolfinx, UFL and the form compiler (about 0.6 s and 
 from __future__ import annotations
 
 import importlib
+import warnings
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:   # what static tools and editors resolve
@@ -42,9 +43,21 @@ def __getattr__(name: str):
     home = _HOME.get(name)
     if home is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{home}", __name__), name)
+    value = getattr(_import_keeping_warnings(f".{home}"), name)
     globals()[name] = value
     return value
+
+
+def _import_keeping_warnings(module: str):
+    """Import a submodule with Python's warnings shown as they were before: the form compiler
+    (FFCx), which importing dolfinx imports, routes every warning to the logging module when it
+    is first imported (``logging.captureWarnings``), so that an answer's TissueWarning would
+    become a log record that ``warnings.catch_warnings`` and ``pytest.warns`` never see."""
+    shown = warnings.showwarning
+    try:
+        return importlib.import_module(module, __name__)
+    finally:
+        warnings.showwarning = shown
 
 
 def __dir__():

@@ -71,3 +71,17 @@ def test_the_command_line_prints_its_own_lines_not_pythons(capsys):
 def test_a_probe_that_did_not_move_with_no_error_is_no_concern():
     still = _result({"probe_error_estimates": {"T1": 0.0}}, {"T1": np.zeros(3)})
     assert answer_concerns(still) == []
+
+
+def test_the_first_use_of_the_reference_leaves_warnings_shown_as_warnings():
+    """Importing dolfinx imports FFCx, which routes Python's warnings to logging; the reference's
+    public names load it without that, so a first solve's TissueWarning is a warning."""
+    import subprocess
+    import sys
+
+    code = ("import warnings; shown = warnings.showwarning; "
+            "import tissue_reference.fem_reference as fr; fr.ReferenceSolver; "
+            "import sys; print('ffcx' in sys.modules, warnings.showwarning is shown)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out == ["True", "True"]
