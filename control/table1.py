@@ -5,8 +5,10 @@ steady-state error and retraction, written as JSON, Markdown and HTML (each file
 ``run_table1(case, targets, loop, settings, out)`` runs the scenarios (``loop`` from
 ``control.plants.build_loop``), writing the tables after every scenario so an interrupted run
 keeps what it finished, and with ``resume`` a run in a folder that holds such a table runs only
-the scenarios it lacks (``finished_rows``: the table's settings must be the run's); a loop that
-runs long reports its step every ``STEP_LINE_S`` seconds (a plant solve on a fine mesh takes minutes, a loop up to half an hour). With ``jobs`` > 1 the
+the scenarios it lacks (``finished_rows``: the table's meta must be the run's, else it is
+refused naming each difference, and a file that is no such table is refused too, the file left
+as it is either way); a loop that runs long reports its step every ``STEP_LINE_S`` seconds (a
+plant solve on a fine mesh takes minutes, a loop up to half an hour). With ``jobs`` > 1 the
 scenarios run in that many worker processes, each building its own loop with ``loop_factory``
 (the plant's solver state cannot cross processes); the rows are the serial run's, in the same
 order, within round-off: every loop runs with ``LOOP_BLAS_THREADS`` BLAS threads, and a
@@ -14,6 +16,7 @@ reference solve does not depend on what its process solved before.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import textwrap
 import time
@@ -32,7 +35,8 @@ from tissue_reference.meshes.io import atomic_path, save_figure
 from tissue_reference.meshes.results import json_ready, write_json
 
 __all__ = ["LOOP_BLAS_THREADS", "SSE_GOAL_MM", "STEP_LINE_S", "finished_rows", "plot_scenarios",
-           "run_table1", "table1_row", "table1_summary", "write_scenarios_page", "write_table1"]
+           "run_table1", "table1_meta", "table1_pairs", "table1_row", "table1_summary",
+           "write_scenarios_page", "write_table1"]
 
 
 SSE_GOAL_MM = 0.05   # the closed-loop steady-state error every scenario must meet (mm)
@@ -178,7 +182,8 @@ def write_table1(out, meta, rows, n_expected):
     return summ
 
 
-_START_OVER = "start over (--restart; resume=False in Python) or choose another folder"
+_START_OVER = ("choose another --out folder, delete the file, or start over in this folder "
+               "(--restart; resume=False in Python), which replaces its rows")
 """What a refused resume can do instead (``finished_rows``)."""
 
 
@@ -195,23 +200,60 @@ def _differences(old, new, prefix: str = "") -> list[str]:
     return out
 
 
+def table1_pairs(targets) -> list[tuple[str, int]]:
+    """The (target, task) pair of every row of a table of ``targets``, in the table's order."""
+    return [(t, task) for t in targets for task in (1, 2, 3)]
+
+
+def table1_meta(loop, settings, meta=None) -> dict:
+    """The ``meta`` a table of ``loop`` and ``settings`` records, and a resume compares:
+    ``meta`` as given (the command line's: the loop's meta with its settings), else the loop's
+    own ``meta`` (``control.plants.LoopSetup``: case, plant, model, mismatch); with the loop's
+    ``settings`` (``control.loop.LoopSettings``, as a dict) where it has none."""
+    meta = dict(meta if meta is not None else (getattr(loop, "meta", None) or {}))
+    if "settings" not in meta and dataclasses.is_dataclass(settings):
+        meta["settings"] = dataclasses.asdict(settings)
+    return json_ready(meta)
+
+
+def _read_table(path: Path) -> tuple[dict, list[dict], list[tuple[str, int]]]:
+    """(meta, rows, their (target, task) pairs) of a table1.json; CaseReadError naming the file
+    and what is wrong when it is not such a table."""
+    try:
+        data = json.loads(path.read_text())
+        if not isinstance(data, dict):
+            raise TypeError(f"a JSON {type(data).__name__}, not an object")
+        meta, rows = data["meta"], data["rows"]
+        if not isinstance(meta, dict):
+            raise TypeError("its meta is not an object")
+        if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
+            raise TypeError("its rows are not a list of objects")
+        keys = [(r["target"], r["task"]) for r in rows]
+        bad = [k for k in keys if not isinstance(k[0], str) or k[1] not in (1, 2, 3)
+               or isinstance(k[1], bool)]
+        if bad:
+            raise ValueError(f"a row of target {bad[0][0]!r} task {bad[0][1]!r}")
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        why = f"no key {exc}" if isinstance(exc, KeyError) else str(exc)
+        raise CaseReadError(f"{path}: not a Table I table to resume from ({why}); it is left "
+                            f"as it is: {_START_OVER}") from None
+    return meta, rows, keys
+
+
 def finished_rows(out, meta, pairs) -> dict:
     """The rows an earlier run left in ``out``/table1.json, by their index in ``pairs`` (the
     (target, task) pairs of this run); {} when there is no table. Every finished row stays, a
-    failed or unreachable loop too (a loop's outcome depends on its settings alone). Refused
-    (CaseError, naming the file and what differs): a table of other settings (its ``meta``
-    against ``meta``), a row of a pair this run does not ask for, a file that is not such a
-    table (CaseReadError)."""
+    failed or unreachable loop too (a loop's outcome depends on its settings alone). Refused,
+    the file left as it is: a table of other settings (its ``meta`` against ``meta``, every
+    difference named with both values: CaseError), a row of a pair this run does not ask for
+    (CaseError), a file that is not such a table (CaseReadError)."""
     path = Path(out) / "table1.json"
     if not path.is_file():
+        if path.exists() or path.is_symlink():
+            raise CaseReadError(f"{path}: not a file, so not a Table I table to resume from; "
+                                f"{_START_OVER}")
         return {}
-    try:
-        data = json.loads(path.read_text())
-        old_meta, rows = data["meta"], data["rows"]
-        keys = [(r["target"], int(r["task"])) for r in rows]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise CaseReadError(f"{path}: not a Table I table to resume from ({exc}); "
-                            f"{_START_OVER}") from None
+    old_meta, rows, keys = _read_table(path)
     differ = _differences(old_meta, json_ready(meta))
     if differ:
         raise CaseError(f"{path}: its rows were run with other settings: "
@@ -286,26 +328,30 @@ def run_table1(case, targets, loop, settings, out, *, meta=None, progress=print,
                plots: bool = True, jobs: int = 1, loop_factory=None, factory_key=None,
                step_lines: bool = True, resume: bool = False) -> dict:
     """Every target x task (1, 2, 3) on ``loop`` (``control.plants.LoopSetup``); returns the
-    summary. ``resume``: keep the rows an earlier run of the same settings left in ``out``
-    (``finished_rows``) and run only the others; otherwise the table starts empty.
+    summary. ``meta``: what the table records of the run, and what a resume compares
+    (``table1_meta``; default: the loop's meta and ``settings``). ``resume``: keep the rows an
+    earlier run of the same meta left in ``out`` (``finished_rows``; a progress line names
+    them) and run only the others; otherwise the table starts empty.
     ``progress(line)`` gets one line per scenario as it ends and, with
     ``step_lines``, a long loop's step lines (``STEP_LINE_S``; a worker process prints its own
     to stdout); ``plots``: a time-response PNG per scenario in ``out``. ``jobs`` > 1: that many
     worker processes, each running ``loop_factory(factory_key)`` once for its own loop (a
     picklable callable: a module-level function or a functools.partial of one); ``loop`` then
     serves nobody."""
-    pairs = [(t, task) for t in targets for task in (1, 2, 3)]
+    pairs = table1_pairs(targets)
     n = len(pairs)
-    done = finished_rows(out, meta or {}, pairs) if resume else {}
+    meta = table1_meta(loop, settings, meta)
+    done = finished_rows(out, meta, pairs) if resume else {}
     todo = [(i, pair) for i, pair in enumerate(pairs) if i not in done]
 
     def write():   # the table of the rows done, in the pairs' order (each time one ends)
-        return write_table1(out, meta or {}, [done[k] for k in sorted(done)], n)
+        return write_table1(out, meta, [done[k] for k in sorted(done)], n)
 
     summ = table1_summary([], n)
     if done:
+        kept = ", ".join(f"{t} task {task}" for t, task in (pairs[i] for i in sorted(done)))
         progress(f"table1: resuming from {Path(out) / 'table1.json'}: {len(done)} of {n} "
-                 f"loops finished there, {len(todo)} to run")
+                 f"loops finished there, {len(todo)} to run; taken from it: {kept}")
         summ = write()
 
     def finish(i, row, line):

@@ -9,7 +9,13 @@ import sys
 from pathlib import Path
 
 from tissue_reference.control.scenarios import SCENARIOS, scenario_loop
-from tissue_reference.control.table1 import plot_scenarios, write_scenarios_page
+from tissue_reference.control.table1 import (
+    finished_rows,
+    plot_scenarios,
+    table1_meta,
+    table1_pairs,
+    write_scenarios_page,
+)
 from tissue_reference.control.table1 import run_table1 as run_all
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.results import write_json
@@ -126,11 +132,16 @@ def _run_scenarios(args, case, targets) -> int:
     record = settings_from_args(args, travel_limit(args, case, model))[1]   # checked: refusals first
     out = Path(args.out)
     loops = _scenario_loops(args, case, model, args.scenarios)   # every one first: refusals
-    summaries, rows, metas = {}, {}, {}
+    summaries, rows, metas, owns = {}, {}, {}, {}
     for name, loop in loops.items():
-        own, loop.meta["settings"] = settings_from_args(args, travel_limit(args, loop.case,
-                                                                           loop.model_case))
+        owns[name], loop.meta["settings"] = settings_from_args(
+            args, travel_limit(args, loop.case, loop.model_case))
         metas[name] = loop.meta
+        if not args.restart:   # a folder that cannot be resumed is refused before any loop
+            finished_rows(out / name, table1_meta(loop, owns[name], loop.meta),
+                          table1_pairs(targets))
+    for name, loop in loops.items():
+        own = owns[name]
         _progress(args)(f"== scenario {name}: {loop.meta['scenario_description']}")
         summaries[name] = run_all(loop.case, targets, loop, own, out / name,
                                   meta=loop.meta, progress=_progress(args), **_jobs(args, name))
