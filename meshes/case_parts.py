@@ -278,8 +278,9 @@ class Actuator:
         the region does in a solve that does not push it: "held" (default) glued at push 0,
         "free" no condition (it moves with the tissue).
     type "indenter": a rigid tip pressing on the skin, solved with contact by the reference
-        (``fem_reference.contact``; the fast solvers refuse it). ``tip`` "sphere" of ``radius``,
-        or "punch": a flat circular punch of outer ``radius`` whose edge is rounded with
+        (``fem_reference.contact``; frictionless ones by the fast solvers too). ``tip``
+        "sphere" of ``radius``, or "punch": a flat circular punch of outer ``radius`` whose edge
+        is rounded with
         ``edge_radius`` (0 < edge_radius < radius; the flat face has radius radius -
         edge_radius). The tip's axis passes through ``point`` (default: the area centroid of the
         facet region ``region``) along ``direction``; at push 0 it touches the contact surface

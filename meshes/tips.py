@@ -1,8 +1,8 @@
 """Rigid indenters' tips, whatever solver presses them: the tip's shape and gap (with its normal
 and curvature), where a tip starts on the skin, and the contact defaults a solve takes from its
-Case. The reference's contact forms (``fem_reference.contact``) and the ADMM solver's contact
-(``solvers.admm.contact``) both build on this module, so that they minimize the same discrete
-energy.
+Case. The reference's contact forms (``fem_reference.contact``) and the fast solvers' contact
+points (``solvers.contact``: ADMM's and the Mass Tensor Method's) both build on this module, so
+that they minimize the same discrete energy.
 
 Units: length mm.
 

@@ -18,7 +18,7 @@ from tissue_reference.meshes.builders import indent_block
 from tissue_reference.meshes.case import Actuator, Boundary, Case, Material, Probe
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.facet_quadrature import gauss_rule, nodal_rule
-from tissue_reference.solvers import admm, mass_tensor
+from tissue_reference.solvers import admm
 from tissue_reference.solvers.admm import ImplicitEuler
 
 DOWN = (0.0, 0.0, -1.0)
@@ -131,16 +131,12 @@ def test_the_contact_rules_are_the_references_own():
     assert w == pytest.approx([1 / 6] * 3) and p.tolist() == [[0, 0], [1, 0], [0, 1]]
 
 
-def test_fast_solvers_refuse_what_they_do_not_model_naming_it(block):
-    """ADMM models frictionless tips, not tied ones; the Mass Tensor method none (its linear
-    model has no contact)."""
+def test_admm_refuses_what_it_does_not_model_naming_it(block):
+    """ADMM models frictionless tips, not tied ones (the Mass Tensor method's refusals:
+    tests/test_mass_tensor_contact.py)."""
     with pytest.raises(CaseError, match="the ADMM solver models frictionless tips; indenter "
                                         "'I' is 'tied'"):
         admm.solve(tip_case(block, "punch", contact="tied"), pushes={"I": 0.1})
-    with pytest.raises(CaseError) as err:
-        mass_tensor.solve(tip_case(block), pushes={"I": 0.1})
-    assert str(err.value).startswith("the Mass Tensor solver does not model contact: actuator "
-                                     "'I' is an indenter")
 
 
 def test_hertz_sphere_force_by_admm_approaches_hertz_as_the_cells_shrink():
@@ -171,13 +167,19 @@ def test_hertz_sphere_force_by_admm_approaches_hertz_as_the_cells_shrink():
     assert errors[2] < 0.10
 
 
-def test_verify_scores_admm_on_tips_and_skips_the_mass_tensor_and_chord_saying_why(block, tmp_path):
+def test_verify_scores_admm_and_the_mass_tensor_on_tips_and_skips_the_chord_saying_why(
+        block, tmp_path):
+    """The Mass Tensor method against the linear reference of the same E and nu (the same
+    contact), its iterative methods skipped: its tips need the direct solve."""
     from tissue_reference.tissue.verify import verify
 
-    out = verify(tip_case(block), {"I": 1.0}, solvers=["admm", "mass-tensor", "admm-chord"])
+    out = verify(tip_case(block), {"I": 1.0},
+                 solvers=["admm", "mass-tensor", "mass-tensor-amg", "admm-chord"])
     assert out["solvers"]["admm"]["max_vertex_error_mm"] < SAME
-    assert "mass-tensor" not in out["solvers"]
-    assert "does not model contact" in out["skipped"]["mass-tensor"]
+    assert out["solvers"]["mass-tensor"]["max_vertex_error_mm"] < 1e-6
+    assert out["solvers"]["mass-tensor"]["reference_model"] == "linear-elastic"
+    assert "mass-tensor-amg" not in out["solvers"]
+    assert "with method 'direct' only" in out["skipped"]["mass-tensor-amg"]
     assert "admm-chord" not in out["solvers"]
     assert "no contact stiffness" in out["skipped"]["admm-chord"]
 

@@ -26,7 +26,8 @@ ADMM_SETTINGS = {"tol_mm": 1e-4, "max_iter": None, "rho": None, "polish": True,
                  "contact_quadrature": None, "contact_penalty": None, "tip_start": None,
                  "initial_pushes": None, "anderson": 0}
 MASS_TENSOR_SETTINGS = {"method": "direct", "stop_mm": 0.01, "max_iter": 200000,
-                        "step_scale": None}
+                        "step_scale": None, "contact_quadrature": None, "contact_penalty": None,
+                        "tip_start": None, "contact_tol_mm": 1e-10}
 
 
 def _case(nu=0.45, degree=None, cells=12):

@@ -284,7 +284,10 @@ def _score_builtin(name, case, pushes, opts, refs, out):
     key, defaults, _ = FAST_SOLVERS[name]
     try:
         solve = get_solver(key)
-        solver_module(key).require_modeled(case)
+        if key == "mass-tensor":   # its tips need the direct solve's factorization
+            solver_module(key).require_modeled(case, {**defaults, **opts}.get("method", "direct"))
+        else:
+            solver_module(key).require_modeled(case)
         if defaults.get("polish") == "chord" and case.indenters():
             raise NotModeledError("the chord polish's tangent at rest has no contact stiffness "
                                   "(rigid tips): use admm")

@@ -30,7 +30,7 @@ from tissue_reference.meshes.errors import CaseError
 
 from .amg import AmgPcg
 from .constraints import constraint_reduction, vertex_rank
-from .contact import ContactSet
+from .contact import AdmmContactSet
 from .factor import CoupledSolver, Direct
 from .kernel_c import KernelForces, use_kernel
 from .mechanics import assemble, case_parts, det_closed_form, element_K
@@ -160,7 +160,7 @@ class AdmmOperators:
         self.dt = dt
         self.mass = None
         # rigid tips: their contact blocks' share S^T diag(c) S (x) I_d of the x-step matrix
-        self.contact = ContactSet(case, self.rho, **(contact or {})) if case.indenters() \
+        self.contact = AdmmContactSet(case, self.rho, **(contact or {})) if case.indenters() \
             else None
         self._contact_mats = None
         if self.contact is not None:
@@ -409,7 +409,7 @@ def prepare(case, *, rho: float | None = None, dt: float | None = None,
     """The per-Case operators (x-step factorization included unless ``factor`` is False: then
     it is built on first use), cached for the last 4 Case structures: a Case differing only in
     prescribed values or pushes reuses them. ``contact``: the options of the tips' contact
-    (``contact.ContactSet``: rule, penalty, tip_start; None for the case's defaults)."""
+    (``contact.AdmmContactSet``: rule, penalty, tip_start; None for the case's defaults)."""
     key = structure_key(case, rho, dt, contact)
     ops = OPERATOR_CACHE.get(key)
     if ops is not None and ops.mesh is case.mesh:

@@ -1,15 +1,21 @@
-"""Case level: the point types of a Case, the model cache, ``solve(case, ...)`` returning a
-``SolveResult`` (solver "mass-tensor") and the reactions per Dirichlet region."""
+"""Case level: the point types of a Case, the model cache (with the tips' contact points),
+``solve(case, ...)`` returning a ``SolveResult`` (solver "mass-tensor"; with rigid tips, their
+condensed contact: ``contact``) and the reactions per Dirichlet region."""
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from tissue_reference.meshes.case_constraints import axis_of
+from tissue_reference.meshes.errors import CaseError, NotModeledError
 from tissue_reference.meshes.mesh import deformation_state
 from tissue_reference.meshes.results import SolveResult
+from tissue_reference.meshes.tips import through_surface_state
 
+from ..contact import ContactSet, require_frictionless
+from .contact import solve_tips
 from .model import MassTensorModel
 from .point_types import PointTypes
 
@@ -54,21 +60,42 @@ def model_for(case) -> MassTensorModel:
 
 
 def forget_factorizations() -> None:
-    """Drop the direct solve's kept factorizations and the AMG hierarchies (the tensors stay):
-    the next solve of each pattern of point types makes them again, as a first solve does."""
+    """Drop the direct solve's kept factorizations, the AMG hierarchies and the rigid tips'
+    compliance blocks (the tensors stay): the next solve of each pattern of point types makes
+    them again, as a first solve does."""
     for m in MODEL_CACHE.values():
         m._factors.clear()
 
 
-def require_modeled(case) -> None:
-    """NotModeledError when ``case`` has what this linear model cannot hold: a rigid tip's
-    contact."""
-    case.require_no_contact("the Mass Tensor solver")
+def require_modeled(case, method: str = "direct") -> None:
+    """NotModeledError when ``case`` has what this model cannot hold: a tip that is not
+    frictionless (a tied one), or tips with an iterative ``method`` (the tips' contact is
+    condensed on the direct solve's factorization)."""
+    require_frictionless(case, "the Mass Tensor solver")
+    if case.indenters() and method != "direct":
+        raise NotModeledError(f"the Mass Tensor solver presses rigid tips with method "
+                              f"'direct' only (its contact is condensed on the direct solve's "
+                              f"factorization), not {method!r}")
+
+
+def contact_set(model, case, rule=None, penalty=None, tip_start=None) -> ContactSet:
+    """The contact points of ``case``'s tips on ``model``'s mesh (``solvers.contact``), kept with
+    the model per tips (pushes aside), material and contact options."""
+    key = (tuple(replace(a, push=0.0) for a in case.indenters()), case.material.E,
+           case.reference_contact_quadrature, case.reference_tip_start, rule, penalty, tip_start)
+    kept = model._contact_sets
+    if key not in kept:
+        if len(kept) >= 4:
+            kept.pop(next(iter(kept)))
+        kept[key] = ContactSet(case, rule=rule, penalty=penalty, tip_start=tip_start)
+    return kept[key]
 
 
 def solve(case, *, pushes=None, initial=None, method: str = "direct", stop_mm: float = 0.01,
           max_iter: int = 200000, callback=None, progress: bool = False,
-          step_scale: float | None = None, factorize=None) -> SolveResult:
+          step_scale: float | None = None, factorize=None, contact_quadrature=None,
+          contact_penalty: float | None = None, tip_start: str | None = None,
+          contact_tol_mm: float = 1e-10) -> SolveResult:
     """Mass Tensor solve of a Case (linear elasticity with the Case's E, nu, whatever its model).
 
     pushes: actuator name -> push (mm); initial (n, d) mm warm start; method "direct" (default),
@@ -80,10 +107,20 @@ def solve(case, *, pushes=None, initial=None, method: str = "direct", stop_mm: f
     reactions per Dirichlet region = sum over its prescribed directions of F(u) - f_ext (mN),
     strain_energy 1/2 u.F(u) (kPa mm^3), iterations, residual (largest free-direction force
     imbalance, mN), history={"max_step_mm": [...]}.
+
+    Rigid tips (frictionless indenters; method "direct"): the reference's discrete contact
+    penalty on the linear model, by Newton condensed on the skin near the tips (``contact``)
+    until a step moves no vertex by ``contact_tol_mm`` (mm); contact_quadrature,
+    contact_penalty and tip_start as ADMM takes them (each by default the case's own, as the
+    reference takes it: the same discrete problem as the linear P1 reference). Each tip is
+    reported in ``SolveResult.indenters`` as the reference reports it; the reactions and the
+    residual include the tips' forces; iterations counts the contactless solve and Newton's.
     """
     t0 = time.perf_counter()
     case.material.require_compressible("the Mass Tensor solver")
-    require_modeled(case)
+    require_modeled(case, method)
+    if not (np.isfinite(contact_tol_mm) and contact_tol_mm > 0):
+        raise CaseError(f"contact_tol_mm must be > 0 mm, got {contact_tol_mm!r}")
     case = case.with_pushes(pushes)   # idle patches held unless the Case frees them
     model = model_for(case)
     types = case_point_types(case)
@@ -96,27 +133,51 @@ def solve(case, *, pushes=None, initial=None, method: str = "direct", stop_mm: f
                 print(f"mass-tensor {method}: iteration {it}", flush=True)
             if _cb is not None:
                 _cb(it, u)
+    cset = contact_set(model, case, contact_quadrature, contact_penalty, tip_start) \
+        if case.indenters() else None
     sol = model.solve(types, f_ext=f, initial=initial, method=method, stop_mm=stop_mm,
                       max_iter=max_iter, step_scale=step_scale, callback=cb,
                       factorize=factorize)
     u = sol.u
+    steps, iterations, converged, residual = list(sol.max_step_mm), sol.iterations, \
+        sol.converged, sol.residual
+    indenters, tips = {}, {}
+    r_tips = 0.0
+    if cset is not None:
+        pushes_t = cset.pushes_of(case)
+        comp = model.compliance(types, factorize)
+        tip = solve_tips(cset, comp, pushes_t, u, tol_mm=contact_tol_mm, callback=cb,
+                         it0=sol.iterations)
+        u = tip.u
+        steps += tip.max_step_mm
+        iterations += tip.iterations
+        converged = converged and tip.converged
+        r_tips = cset.gradient(u, cset.origins(pushes_t)).reshape(n, d)
+        indenters = cset.report(u, pushes_t)
+        tips = {"contact_newton_iterations": tip.iterations, "contact_rounds": tip.rounds,
+                "contact_candidate_vertices": tip.candidates,
+                "contact_active_vertices": tip.active, "contact_columns": tip.columns}
     F = (model.matrix() @ u.reshape(-1)).reshape(n, d)   # model.forces(u), as one product
-    r = F - f
+    r = F - f + r_tips
+    if cset is not None:
+        residual = float(np.abs(np.einsum("nab,nb->na", types.projector(), r)).max(initial=0.0))
     reactions = region_reactions(case, r)
     wall = time.perf_counter() - t0
     state = deformation_state(case.mesh, u)
+    if indenters:
+        state = through_surface_state(state, {"indenters": indenters})
     return SolveResult(
-        u=u, converged=sol.converged, iterations=sol.iterations, residual=sol.residual,
+        u=u, converged=converged, iterations=iterations, residual=residual,
         wall_time_s=wall, solver="mass-tensor", probes=case.probe_values(u), reactions=reactions,
         strain_energy=0.5 * float(np.vdot(u, F)), load_steps=1, degree=1, case_name=case.name,
-        n_vertices=n, n_cells=case.mesh.n_cells, history={"max_step_mm": list(sol.max_step_mm)},
+        n_vertices=n, n_cells=case.mesh.n_cells, history={"max_step_mm": steps},
         valid=state.pop("valid"), invalid_reason=state.pop("invalid_reason"),
-        min_J=state.pop("min_J"), model="linear-elastic",
+        min_J=state.pop("min_J"), model="linear-elastic", indenters=indenters,
         model_note=(f"the Mass Tensor Method is a linear model: it solved linear elasticity "
                     f"with the case's E and nu, not its {case.material.model} material"
                     if case.material.model != "linear-elastic" else None),
         extra={"method": method, "stop_mm": float(stop_mm), "point_types": types.counts(),
-               **state})
+               **tips, **state})
 
 
 def region_reactions(case, r):

@@ -16,6 +16,7 @@ from tissue_reference.meshes.errors import SolverDivergedError
 
 from ..admm.amg import AmgPcg
 from ..spd import spd_splu
+from .condensed import Compliance
 from .tensors import blockdiag
 
 log = logging.getLogger("tissue.mass_tensor")
@@ -308,6 +309,19 @@ class IterationState:
                                "the projected tensors' factorization)", bad.reshape(n, d))
         # a sliding round's tangent planes: used once, not kept
         return factor if types.surface_of else self._keep(key, factor)
+
+    def compliance(self, types):
+        """The compliance G = P A^-1 P of ``types``' pattern (``condensed.Compliance``, on the
+        direct solve's factorization of A = P K P + I - P), from the model's store or made now:
+        its condensed block is kept with the factorization."""
+        Pm = blockdiag(types.projector())
+        factor = self._factor(types, Pm)
+        key = self._pattern(types, "compliance")
+        kept = self.model._factors.get(key)
+        if kept is None or kept.factor is not factor:
+            kept = self._keep(key, Compliance(factor, Pm, self.model.n_vertices,
+                                              self.model.gdim))
+        return kept
 
     def _direct(self, types, u):
         """One exact solve on u = u_c + P w: (P K P + I - P) w = P (f - K u_c), whose matrix is

@@ -71,6 +71,8 @@ class MassTensorModel:
         # (which directions are prescribed where), kept while the model is: a solve with new
         # prescribed values (another push) only back-substitutes; "amg": its hierarchy
         self._factors: dict = {}
+        # the rigid tips' contact points per tips and contact options (``driver.contact_set``)
+        self._contact_sets: dict = {}
         self._norms = None
 
     def vertex_norms(self) -> np.ndarray:
@@ -102,8 +104,9 @@ class MassTensorModel:
 
     def kept_bytes(self) -> int:
         """Bytes the model keeps for its next solves: the direct solve's factorizations (a
-        factorization's ``nbytes`` when it has one, else SuperLU's factor entries at 12 bytes)
-        and the "amg" hierarchies (``FreeVertexAmg.nbytes``); the tensors not counted."""
+        factorization's ``nbytes`` when it has one, else SuperLU's factor entries at 12 bytes),
+        the "amg" hierarchies (``FreeVertexAmg.nbytes``) and the rigid tips' compliance blocks
+        (``condensed.Compliance.nbytes``); the tensors not counted."""
         total = 0
         for kept in self._factors.values():
             nb = getattr(kept, "nbytes", None)
@@ -118,6 +121,14 @@ class MassTensorModel:
     def point_types(self) -> PointTypes:
         """A fresh all-free PointTypes for this mesh."""
         return PointTypes(self.n_vertices, self.gdim, self.points)
+
+    def compliance(self, types: PointTypes, factorize=None):
+        """The compliance of the free directions of ``types``, G = P A^-1 P (A = P K P + I - P,
+        the direct solve's matrix, factorized once per pattern of point types and kept;
+        ``factorize`` as for ``solve``): a ``condensed.Compliance``, kept with the
+        factorization, whose condensed block grows as a solve asks for more vertices."""
+        f = np.zeros((self.n_vertices, self.gdim))
+        return IterationState(self, f, 1.0, 1, None, None, factorize).compliance(types)
 
     # -- solve
     def solve(self, types: PointTypes, *, f_ext=None, initial=None, method: str = "direct",
