@@ -175,3 +175,32 @@ def test_the_rim_warning_reads_a_degree_2_fields_own_J(monkeypatch):
     lines = [w for w in r.warnings if "'A1'" in w]
     assert len(lines) == 1 and "compressed to J = 0.4" in lines[0]
     assert r.valid is True
+
+
+@pytest.mark.parametrize("name", ["admm", "mass-tensor"])
+def test_the_fast_solvers_say_a_glued_patch_is_past_its_radius_themselves(coarse, name):
+    """The fast solvers put the glued-patch warning in their own answer, as the reference does:
+    A1 pushed 10 mm (1.9 of its radius) is past the range, 2 mm is inside it, and a
+    linear-elastic tissue, whose answer scales with the push, has no such range."""
+    from tissue_reference.solvers.registry import solver
+
+    deep = solver(name).solve(coarse, pushes={"A1": 10.0})
+    assert len(deep.warnings) == 1
+    assert deep.warnings[0].startswith("glued patch 'A1' pushed 10 mm")
+    assert "no mesh-converged answer" in deep.warnings[0]
+    assert solver(name).solve(coarse, pushes={"A1": 2.0}).warnings == ()
+    linear = coarse.with_material(model="linear-elastic")
+    assert solver(name).solve(linear, pushes={"A1": 10.0}).warnings == ()
+
+
+def test_the_command_line_prints_the_fast_solvers_own_warning(coarse, tmp_path, capsys):
+    from tissue_reference.solvers.registry import solver
+
+    res = solver("mass-tensor").solve(coarse, pushes={"A1": 10.0})
+    out = tmp_path / "mt.json"
+    assert main(["solve", CASE, "--size", "14", "--solver", "mass-tensor", "--push", "A1=10",
+                 "-q", "--json", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert [ln for ln in err.splitlines() if ln.startswith("tissue solve: warning: ")] == \
+        [f"tissue solve: warning: {w}" for w in res.warnings]
+    assert json.loads(out.read_text())["warnings"] == list(res.warnings)

@@ -126,8 +126,7 @@ def run(args) -> int:
             print(f"tissue solve: warning: estimated discretization error up to {worst:.1%} of "
                   f"a probe's displacement (above {ESTIMATE_WARN:.0%}): raise --degree, or "
                   f"refine until it is within a tolerance (--accuracy 0.01)", file=sys.stderr)
-        for line in res.warnings or \
-                case.with_pushes(pushes).glued_patch_warnings(res.u):
+        for line in res.warnings:
             print(f"tissue solve: warning: {line}", file=sys.stderr)
         status = report_validity("solve", res)
     else:

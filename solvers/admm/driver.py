@@ -84,6 +84,8 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         (``meshes.tips.default_contact_rule`` and ``default_tip_start``; beta
         ``meshes.tips.DEFAULT_CONTACT_PENALTY``): the same discrete energy as the P1 reference.
         Each tip is reported in ``SolveResult.indenters`` as the reference reports it.
+    ``SolveResult.warnings``: one line per pushed glued patch past the range where its answer
+    converges or with its rim cells crushed (``Case.glued_patch_warnings``), as the reference's.
     Raises SolverDivergedError (iteration and element named) on NaN, inverted elements or
     residual growth.
     """
@@ -230,7 +232,8 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
                        strain_energy=float(ops.kin.V @ psi), case_name=case.name, n_vertices=n,
                        load_steps=int(load_steps) if dynamics is None else int(dynamics.steps),
                        n_cells=ops.m, history=hist, valid=valid, invalid_reason=invalid_reason,
-                       min_J=min_J, indenters=indenters, extra=extra)
+                       min_J=min_J, indenters=indenters, extra=extra,
+                       warnings=case.glued_patch_warnings(u2))
 
 
 MIN_LOAD_STEP = 1.0 / 64  # the shortest increment a cut-back makes, as a fraction of a step

@@ -106,7 +106,9 @@ def solve(case, *, pushes=None, initial=None, method: str = "direct", stop_mm: f
     (``MassTensorModel.solve``). Returns SolveResult(solver="mass-tensor"): u (n, d) mm, probes (mm),
     reactions per Dirichlet region = sum over its prescribed directions of F(u) - f_ext (mN),
     strain_energy 1/2 u.F(u) (kPa mm^3), iterations, residual (largest free-direction force
-    imbalance, mN), history={"max_step_mm": [...]}.
+    imbalance, mN), history={"max_step_mm": [...]}, warnings: one line per pushed glued patch
+    past the range where its answer converges or with its rim cells crushed
+    (``Case.glued_patch_warnings``, judged by the case's material, as the reference's).
 
     Rigid tips (frictionless indenters; method "direct"): the reference's discrete contact
     penalty on the linear model, by Newton condensed on the skin near the tips (``contact``)
@@ -173,6 +175,7 @@ def solve(case, *, pushes=None, initial=None, method: str = "direct", stop_mm: f
         n_vertices=n, n_cells=case.mesh.n_cells, history={"max_step_mm": steps},
         valid=state.pop("valid"), invalid_reason=state.pop("invalid_reason"),
         min_J=state.pop("min_J"), model="linear-elastic", indenters=indenters,
+        warnings=case.glued_patch_warnings(u),
         model_note=(f"the Mass Tensor Method is a linear model: it solved linear elasticity "
                     f"with the case's E and nu, not its {case.material.model} material"
                     if case.material.model != "linear-elastic" else None),
