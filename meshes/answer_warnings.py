@@ -1,7 +1,8 @@
 """What a caller of the Python API must not miss about an answer, said as Python warnings
 (``meshes.errors.TissueWarning``): an answer that is not valid, one past the loads where answers
 converge (its estimate is then no error bar), a warning the solve recorded, an estimated error
-above ESTIMATE_WARN of a probe's displacement. The command line prints the same facts itself.
+above ESTIMATE_WARN of a probe's displacement (``estimate_warning``). The command line prints the
+same lines, as its own warnings instead of Python's.
 """
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import numpy as np
 from .errors import TissueWarning
 
 __all__ = ["ESTIMATE_WARN", "FOLDED_ADVICE", "advice_for", "answer_concerns",
-           "relative_estimates", "warn_about"]
+           "estimate_warning", "relative_estimates", "warn_about"]
 
 ESTIMATE_WARN = 0.02
 """An estimated error above this fraction of a probe's displacement is worth a warning."""
@@ -43,23 +44,44 @@ def relative_estimates(res) -> dict:
     return out
 
 
+def estimate_warning(res) -> str | None:
+    """What the SolveResult ``res``'s estimated discretization errors say, where they say
+    something: at a load with no mesh-converged answer (``no_converged_value``) the largest
+    difference to degree + 1, relative to its probe's displacement, which is no error bar (the
+    lines on why follow it); else the largest estimated error where it is above ESTIMATE_WARN of
+    its probe's displacement. None without an estimate or below ESTIMATE_WARN."""
+    rel = relative_estimates(res) if hasattr(res, "probes") else {}
+    worst = max(rel.values(), default=None)
+    if worst is None:
+        return None
+    if getattr(res, "no_converged_value", ()):
+        return (f"the degree-{int(res.degree) + 1} answer differs from this one by up to "
+                f"{worst:.1%} of a probe's displacement, but at this load no mesh-converged "
+                f"answer is known (below): neither is an error bar, and refining will not "
+                f"settle it")
+    if worst > ESTIMATE_WARN:
+        return (f"estimated discretization error up to {worst:.1%} of a probe's displacement "
+                f"(above {ESTIMATE_WARN:.0%}): raise --degree, or refine until it is within a "
+                f"tolerance (--accuracy 0.01)")
+    return None
+
+
 def answer_concerns(res) -> list[str]:
-    """One line per fact about the SolveResult ``res`` that a caller must not miss."""
+    """One line per fact about the SolveResult ``res`` that a caller must not miss: whether it
+    is valid, what its estimates say (``estimate_warning``), its warnings, and why no
+    mesh-converged answer is known at its load."""
     out = []
     if getattr(res, "valid", None) is False:
         why = res.invalid_reason
         advice = advice_for(why)
         out.append(f"the answer is not valid: {why}" + (f"; {advice}" if advice else ""))
+    if line := estimate_warning(res):
+        out.append(line)
     out += [str(w) for w in getattr(res, "warnings", ()) or ()]
     why = getattr(res, "no_converged_value", ())
     if why:
         out += [f"no mesh-converged answer is known at this load: {w}" for w in
                 ([why] if isinstance(why, str) else why) if str(w) not in out]
-    rel = relative_estimates(res) if hasattr(res, "probes") else {}
-    worst = max(rel.values(), default=None)
-    if worst is not None and worst > ESTIMATE_WARN and not why:
-        out.append(f"estimated discretization error up to {worst:.1%} of a probe's displacement "
-                   f"(above {ESTIMATE_WARN:.0%}): raise the degree, or refine")
     return out
 
 

@@ -7,7 +7,11 @@ import numpy as np
 import pytest
 
 import tissue_reference.fem_reference as fr
-from tissue_reference.meshes.answer_warnings import FOLDED_ADVICE, answer_concerns
+from tissue_reference.meshes.answer_warnings import (
+    FOLDED_ADVICE,
+    answer_concerns,
+    estimate_warning,
+)
 from tissue_reference.meshes.case import load_case
 from tissue_reference.meshes.errors import TissueWarning
 from tissue_reference.meshes.results import SolveResult
@@ -66,6 +70,26 @@ def test_the_command_line_prints_its_own_lines_not_pythons(capsys):
     assert not [w for w in caught if issubclass(w.category, TissueWarning)]
     err = capsys.readouterr().err
     assert "tissue solve: warning: glued patch 'A1' pushed 10 mm" in err
+
+
+def test_the_estimates_conclusion_is_the_librarys():
+    """An estimate above 2 % of a probe's displacement warns, one below does not; at a load with
+    no mesh-converged answer any estimate is a difference between degrees, said as such."""
+    u = {"T1": np.array([0.0, 2.0, 0.0])}
+    big = _result({"probe_error_estimates": {"T1": 0.1}}, u)
+    assert estimate_warning(big) == (
+        "estimated discretization error up to 5.0% of a probe's displacement (above 2%): "
+        "raise --degree, or refine until it is within a tolerance (--accuracy 0.01)")
+    assert answer_concerns(big) == [estimate_warning(big)]
+    assert estimate_warning(_result({"probe_error_estimates": {"T1": 0.02}}, u)) is None
+    assert estimate_warning(_result({}, u)) is None
+    why = "glued patch 'A1' pushed 10 mm"
+    small = _result({"probe_error_estimates": {"T1": 0.02}, "no_converged_value": why,
+                     "degree": 2}, u)
+    assert estimate_warning(small).startswith("the degree-3 answer differs from this one by up "
+                                              "to 1.0% of a probe's displacement")
+    assert answer_concerns(small) == [estimate_warning(small),
+                                      f"no mesh-converged answer is known at this load: {why}"]
 
 
 def test_a_probe_that_did_not_move_with_no_error_is_no_concern():

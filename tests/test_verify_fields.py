@@ -16,7 +16,7 @@ from tissue_reference.meshes.case import Boundary, Case, Material, Probe, load_c
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.tissue.plugins import PluginError
 from tissue_reference.tissue.scoring import Field
-from tissue_reference.tissue.verify import verify
+from tissue_reference.tissue.verify import tolerance_failures, verify
 
 L = 10.0
 MAT = Material("neo-hookean", E=6.0, nu=0.45)
@@ -286,6 +286,23 @@ def test_admm_alone_and_linear_models_are_labelled(tmp_path):
         verify(ph, {"A1": 2.0}, solvers=("admm",), degree=2)
 
 
+def test_the_tolerance_verdict_is_the_librarys():
+    """A candidate fails a tolerance by its max vertex error above it, or by saying it did not
+    converge whatever its error; no tolerance, no verdict."""
+    out = {"solvers": {"a": {"max_vertex_error_mm": 0.004, "converged": True},
+                       "b": {"max_vertex_error_mm": 0.006},
+                       "c": {"max_vertex_error_mm": 1e-9, "converged": False},
+                       "d": {"max_vertex_error_mm": 0.01, "converged": False}}}
+    unstood = ("reported converged = false; an answer its own solver does not stand behind "
+               "fails --tol")
+    assert tolerance_failures(out, None) == []
+    assert tolerance_failures(out, 0.005) == [
+        ("b", "max vertex error 0.006 mm exceeds --tol 0.005 mm"),
+        ("d", "max vertex error 0.01 mm exceeds --tol 0.005 mm"),
+        ("c", unstood), ("d", unstood)]
+    assert [n for n, _ in tolerance_failures(out, 0.1)] == ["c", "d"]
+
+
 # --------------------------------------------------------------------------- command line
 def test_cli_scores_a_field_written_by_solve_as_zero(tmp_path, capsys):
     from tissue_reference.tissue.cli import main
@@ -309,6 +326,14 @@ def test_cli_scores_a_field_written_by_solve_as_zero(tmp_path, capsys):
                str(tmp_path / "u.csv"), "--tol", "0.005"])
     cap = capsys.readouterr()
     assert rc == 1 and "exceeds --tol 0.005 mm" in cap.err and "max 0.01 mm" in cap.out
+    # what it prints is the library's verdict on the same scores
+    js = tmp_path / "u.json"
+    assert main(["verify", case, "--size", "14", "--push", "A1=2", "--field",
+                 str(tmp_path / "u.csv"), "--tol", "0.005", "--json", str(js)]) == 1
+    why = tolerance_failures(json.loads(js.read_text()), 0.005)
+    assert [n for n, _ in why] == ["field"]
+    assert [ln for ln in capsys.readouterr().err.splitlines() if "--tol" in ln] == \
+        [f"tissue verify: error: {n}: {w}" for n, w in why]
 
 
 def test_cli_scores_a_plugin(capsys):

@@ -7,7 +7,11 @@ import sys
 import time
 from pathlib import Path
 
-from tissue_reference.meshes.answer_warnings import ESTIMATE_WARN, relative_estimates
+from tissue_reference.meshes.answer_warnings import (
+    ESTIMATE_WARN,
+    estimate_warning,
+    relative_estimates,
+)
 from tissue_reference.meshes.converged_range import unconverged_load
 from tissue_reference.meshes.errors import AccuracyNotReached, CaseError, ConvergenceError
 from tissue_reference.meshes.io import check_output_file
@@ -116,17 +120,7 @@ def run(args) -> int:
             print(f"  discretization: {disc['formulation']} P{disc['degree']}{p}, "
                   f"{disc['dofs']} dofs")
         print_answer(res)
-        worst = max(relative_estimates(res).values(), default=None)
-        if worst is not None and res.no_converged_value:
-            print(f"tissue solve: warning: the degree-{int(res.degree) + 1} answer differs from "
-                  f"this one by up to {worst:.1%} of a probe's displacement, but at this load no "
-                  f"mesh-converged answer is known (below): neither is an error bar, and "
-                  f"refining will not settle it", file=sys.stderr)
-        elif worst is not None and worst > ESTIMATE_WARN:
-            print(f"tissue solve: warning: estimated discretization error up to {worst:.1%} of "
-                  f"a probe's displacement (above {ESTIMATE_WARN:.0%}): raise --degree, or "
-                  f"refine until it is within a tolerance (--accuracy 0.01)", file=sys.stderr)
-        for line in res.warnings:
+        for line in filter(None, (estimate_warning(res), *res.warnings)):
             print(f"tissue solve: warning: {line}", file=sys.stderr)
         status = report_validity("solve", res)
     else:

@@ -19,7 +19,7 @@ from .common import (
     parse_pushes,
     real,
 )
-from .verify import DEFAULT_SOLVERS, FAST_SOLVERS, invalid_runs, verify
+from .verify import DEFAULT_SOLVERS, FAST_SOLVERS, invalid_runs, tolerance_failures, verify
 
 
 def _rel(x) -> str:
@@ -126,18 +126,9 @@ def run(args) -> int:
     for name, why in bad.items():
         print(f"tissue verify: error: {name}: the answer is not valid: {why} (outputs written, "
               f"marked valid = false)", file=sys.stderr)
-    over = {n: e["max_vertex_error_mm"] for n, e in res["solvers"].items()
-            if args.tol is not None and e["max_vertex_error_mm"] > args.tol}
-    for name, err in over.items():
-        print(f"tissue verify: error: {name}: max vertex error {err:.4g} mm exceeds --tol "
-              f"{args.tol:g} mm", file=sys.stderr)
-    # a solver that says it did not converge fails a tolerance, whatever its error
-    unconverged = [n for n, e in res["solvers"].items()
-                   if args.tol is not None and e.get("converged") is False]
-    for name in unconverged:
-        print(f"tissue verify: error: {name}: reported converged = false; an answer its own "
-              f"solver does not stand behind fails --tol", file=sys.stderr)
-    over = {**over, **dict.fromkeys(unconverged)}
+    over = tolerance_failures(res, args.tol)
+    for name, why in over:
+        print(f"tissue verify: error: {name}: {why}", file=sys.stderr)
     # scores against a reference with no converged answer behind it: exit status 1
     return 1 if bad or over or res["reference"].get("no_converged_value") else 0
 

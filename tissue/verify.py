@@ -56,7 +56,7 @@ from .scoring import Field, field_from_array, load_field, score_field, vertex_no
 from .verify_report import write_report
 
 __all__ = ["DEFAULT_SOLVERS", "FAST_SOLVERS", "VALIDITY_KEYS", "declared_law_case", "invalid_runs",
-           "reference_material_for", "verify"]
+           "reference_material_for", "tolerance_failures", "verify"]
 
 VALIDITY_KEYS = ("valid", "invalid_reason", "inverted_cells", "min_J", "max_displacement_mm")
 
@@ -443,6 +443,21 @@ def _score_field(field, case, refs, degree, formulation, outside):
                   "reference_discretization": _disc(res_ref),
                   "reference_wall_time_s": float(res_ref.wall_time_s)})
     return _with_estimate(entry, res_ref)
+
+
+def tolerance_failures(out: dict, tol: float | None) -> list[tuple[str, str]]:
+    """(solver, why) for each candidate of a ``verify`` result ``out`` that fails the tolerance
+    ``tol`` (mm; ``tissue verify --tol``): its max vertex error above ``tol``, then each one
+    that reported converged = false (an answer its own solver does not stand behind fails a
+    tolerance, whatever its error). [] when ``tol`` is None."""
+    if tol is None:
+        return []
+    runs = out["solvers"]
+    over = [(n, f"max vertex error {e['max_vertex_error_mm']:.4g} mm exceeds --tol {tol:g} mm")
+            for n, e in runs.items() if e["max_vertex_error_mm"] > tol]
+    unstood = ("reported converged = false; an answer its own solver does not stand behind "
+               "fails --tol")
+    return over + [(n, unstood) for n, e in runs.items() if e.get("converged") is False]
 
 
 def invalid_runs(out: dict) -> dict:
