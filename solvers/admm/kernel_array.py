@@ -251,11 +251,11 @@ class LawZStep:
     """The z-step of the laws the closed-form ``ZStep`` does not know (``mechanics.INVARIANT_LAWS``),
     on numpy blocks (d, d, m): from the previous F, ``rounds`` safeguarded Newton steps on the
     local objective phi(F) = psi(F) + rho/2 |F - Fhat|^2 with the law's exact Hessian A + rho I
-    (``mechanics.Law.tangent``; where that is not positive definite, so that the step does not
-    descend, A + (rho + |A|) I, which is), each with an Armijo backtracking that keeps det F > 0:
-    one step per ADMM iteration (warm start), more (up to ``rounds``) only for the elements
-    whose step backtracked. The element arrays are plain (d, d, m) blocks. At a fixed point the local gradient vanishes,
-    as with ``ZStep``."""
+    (psi, P and A from one ``mechanics.Law.evaluate`` per step; where A + rho I is not positive
+    definite, so that the step does not descend, A + (rho + |A|) I, which is), each with an
+    Armijo backtracking that keeps det F > 0: one step per ADMM iteration (warm start), more
+    (up to ``rounds``) only for the elements whose step backtracked. The element arrays are
+    plain (d, d, m) blocks. At a fixed point the local gradient vanishes, as with ``ZStep``."""
 
     small_step = ZStep.small_step
 
@@ -278,9 +278,11 @@ class LawZStep:
         E = np.empty((self.d, self.d, k))
         return E, E
 
-    def _phi(self, F, Fhat):
-        """phi (k,) of F (k, d, d) against Fhat (k, d, d); inf where det F <= 0."""
-        psi, _ = self.law.psi_J(F - np.eye(self.d))
+    def _phi(self, F, Fhat, psi=None):
+        """phi (k,) of F (k, d, d) against Fhat (k, d, d); inf where det F <= 0. ``psi``: the
+        law's energy at F where already known."""
+        if psi is None:
+            psi, _ = self.law.psi_J(F - np.eye(self.d))
         r = F - Fhat
         return psi + 0.5 * self.rho * np.einsum("kij,kij->k", r, r)
 
@@ -295,9 +297,9 @@ class LawZStep:
         active = np.arange(len(F))
         for _ in range(self.rounds):
             H = F[active] - eye
-            P, _ = self.law.stress(H)
+            # psi, P and A from one evaluation of the law's invariants and their derivatives
+            psi, _, P, A = self.law.evaluate(H)
             g = (P + rho * (F[active] - Fh[active])).reshape(len(active), -1)
-            A = self.law.tangent(H)
             A[:, np.arange(d * d), np.arange(d * d)] += rho
             step = -np.linalg.solve(A, g[:, :, None])[:, :, 0]
             slope = np.einsum("ki,ki->k", g, step)
@@ -308,7 +310,7 @@ class LawZStep:
                 Ab[:, np.arange(d * d), np.arange(d * d)] += shift[:, None]
                 step[bad] = -np.linalg.solve(Ab, g[bad][:, :, None])[:, :, 0]
                 slope[bad] = np.einsum("ki,ki->k", g[bad], step[bad])
-            phi0 = self._phi(F[active], Fh[active])
+            phi0 = self._phi(F[active], Fh[active], psi)
             tol = 1e-13 * np.abs(phi0)
             step = step.reshape(-1, d, d)
             alpha = np.ones(len(active))

@@ -20,6 +20,7 @@ checks use it whatever backend ran the ADMM iterations."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -35,6 +36,17 @@ INVARIANT_LAWS = ("mooney-rivlin", "yeoh", "stable-neo-hookean", "saint-venant-k
 """The laws written as an energy of the invariants (I1, I2, J) (``InvariantLaw``)."""
 ADMM_LAWS = KERNEL_LAWS + INVARIANT_LAWS
 """The strain-energy laws the ADMM solver implements; it refuses the others by name."""
+
+
+class LawValues(NamedTuple):
+    """What ``Law.evaluate`` returns at displacement gradients H (m, d, d): psi (m,) (kPa, inf
+    where det F <= 0), J (m,) det F (None for linear elasticity), P (m, d, d) the first Piola
+    stress (kPa), A (m, d*d, d*d) its tangent dP/dH (kPa); None for what was not asked for."""
+
+    psi: np.ndarray | None
+    J: np.ndarray | None
+    P: np.ndarray | None
+    A: np.ndarray | None
 
 
 @dataclass(frozen=True)
@@ -189,30 +201,33 @@ class InvariantLaw:
         h[:] = lam * np.einsum("mi,mj->mij", ax, ax) + pa[:, None, None] * axx
         return mu * (I1 - 2.0 * a + 3.0) + 0.5 * lam * (a - 3.0) ** 2, g, h
 
-    def psi_J(self, H):
-        _, _, J, _, I1, I2 = self._invariants(H)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            psi, _, _ = self.phi(I1, I2, J)
-        psi = np.where(J > 0, psi, np.inf)
-        return psi, J
-
     def _first(self, F, C, cof, I1):
         """dI/dF (m, 3, d, d) for (I1, I2, J)."""
         return np.stack([2.0 * F, 2.0 * (I1[:, None, None] * F - F @ C), cof], axis=1)
 
-    def stress(self, H):
-        """(P, J)."""
+    def evaluate(self, H, psi=True, stress=True, tangent=True) -> LawValues:
+        """``LawValues`` (psi, J, P, A) at H, each only where asked for, from one computation
+        of the invariants, of Phi's derivatives and of the invariants' first derivatives."""
         F, C, J, cof, I1, I2 = self._invariants(H)
-        _, g, _ = self.phi(I1, I2, J)
-        return np.einsum("ma,maij->mij", g, self._first(F, C, cof, I1)), J
+        if psi:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                e, g, h = self.phi(I1, I2, J)
+            e = np.where(J > 0, e, np.inf)
+        else:
+            e = None
+            _, g, h = self.phi(I1, I2, J)
+        if not (stress or tangent):
+            return LawValues(e, J, None, None)
+        dI = self._first(F, C, cof, I1)
+        P = np.einsum("ma,maij->mij", g, dI) if stress else None
+        A = self._tangent(F, C, J, cof, I1, g, h, dI) if tangent else None
+        return LawValues(e, J, P, A)
 
-    def tangent(self, H):
-        """A (m, d*d, d*d), rows (iJ), columns (kL): A_iJkL = d P_iJ / d H_kL."""
+    def _tangent(self, F, C, J, cof, I1, g, h, dI):
+        """A (m, d*d, d*d) from the invariants, Phi's gradient g and Hessian h and dI/dF."""
         d = self.d
-        m = len(H)
-        F, C, J, cof, I1, I2 = self._invariants(H)
-        _, g, h = self.phi(I1, I2, J)
-        dI = self._first(F, C, cof, I1).reshape(m, 3, d * d)
+        m = len(F)
+        dI = dI.reshape(m, 3, d * d)
         A = np.matmul(dI.transpose(0, 2, 1), np.matmul(h, dI))       # sum_ab h_ab dIa dIb
         eye = np.eye(d)
         B = F @ np.transpose(F, (0, 2, 1))
@@ -233,6 +248,20 @@ class InvariantLaw:
         A[:, np.arange(d * d), np.arange(d * d)] += 2.0 * g[:, 0, None]
         return A
 
+    def psi_J(self, H):
+        """(psi, J) (``evaluate``)."""
+        v = self.evaluate(H, stress=False, tangent=False)
+        return v.psi, v.J
+
+    def stress(self, H):
+        """(P, J) (``evaluate``)."""
+        v = self.evaluate(H, psi=False, tangent=False)
+        return v.P, v.J
+
+    def tangent(self, H):
+        """A (m, d*d, d*d), rows (iJ), columns (kL): A_iJkL = d P_iJ / d H_kL (``evaluate``)."""
+        return self.evaluate(H, psi=False, stress=False).A
+
 
 class Law:
     """Energy density psi (kPa), first Piola stress P = dpsi/dH (kPa) and A = dP/dH (kPa) of the
@@ -249,6 +278,19 @@ class Law:
         self.d = d
         self.kernel = self.model in KERNEL_LAWS
         self._invariant = None if self.kernel else InvariantLaw(material, d)
+
+    def evaluate(self, H, psi=True, stress=True, tangent=True) -> LawValues:
+        """``LawValues`` (psi, J, P, A) at H, each only where asked for: the invariant laws
+        compute their invariants and derivatives once for all three (``InvariantLaw.evaluate``);
+        the closed forms of Neo-Hookean and linear elasticity are evaluated one by one."""
+        if self._invariant is not None:
+            return self._invariant.evaluate(H, psi, stress, tangent)
+        e, J = self.psi_J(H) if psi else (None, None)
+        P, J = self.stress(H) if stress else (None, J)
+        A = self.tangent(H) if tangent else None
+        if J is None and not (psi or stress) and self.model != "linear-elastic":
+            J, _ = det_cof(H + np.eye(self.d))
+        return LawValues(e, J, P, A)
 
     def psi_J(self, H):
         d = self.d

@@ -210,13 +210,20 @@ class AdmmOperators:
             self._lu = self._factor_xstep()
         return self._lu
 
-    def reduced_tangent(self, u, diag=None, extra=None):
+    def law_values(self, u):
+        """The law's psi, P and A at u (``mechanics.LawValues``) from one evaluation, for
+        ``energy``, ``residual`` and ``reduced_tangent`` at the same u; None for the laws of the
+        compiled element pass, whose forces come from that pass."""
+        return None if self.law.kernel else self.law.evaluate(self.grad(u))
+
+    def reduced_tangent(self, u, diag=None, extra=None, values=None):
         """(Z^T (K(u) + diag(diag) + extra) Z as CSC, element matrices Ke): the tangent of the
         P1 energy on the reduced unknowns; ``extra`` (N, N) sparse, e.g. the contact's Hessian,
-        whose entries couple dofs of one cell. Without oblique sliding it is assembled straight
-        into a CSR pattern computed once (the matrix is symmetric, so its CSR arrays are its
-        CSC)."""
-        Ke = element_K(self.kin, self.law.tangent(self.grad(u)))
+        whose entries couple dofs of one cell; ``values``: ``law_values(u)`` where known.
+        Without oblique sliding it is assembled straight into a CSR pattern computed once (the
+        matrix is symmetric, so its CSR arrays are its CSC)."""
+        A = values.A if values is not None else self.law.tangent(self.grad(u))
+        Ke = element_K(self.kin, A)
         Z = self.red.Z
         if not self.red.separable:
             K = assemble(self.kin, Ke, self.N)
@@ -288,20 +295,24 @@ class AdmmOperators:
         fe = np.einsum("mab,mb->ma", Ke, v[self.kin.dofs])
         return np.bincount(self.kin.dofs.ravel(), weights=fe.ravel(), minlength=self.N)
 
-    def energy(self, u, fext, tips=None) -> tuple:
+    def energy(self, u, fext, tips=None, values=None) -> tuple:
         """(E, J): the P1 energy sum_e V_e psi_e - f_ext . u (uJ) at displacement u (mm), plus
         the rigid tips' contact energy where ``tips`` gives their ends; inf where a cell is
-        inverted. J: the cells' det F (None for linear elasticity)."""
-        psi, J = self.law.psi_J(self.grad(u))
+        inverted. J: the cells' det F (None for linear elasticity). ``values``:
+        ``law_values(u)`` where known."""
+        psi, J = (values.psi, values.J) if values is not None else self.law.psi_J(self.grad(u))
         e = float(self.kin.V @ psi) - float(fext @ u)
         if tips is not None and self.contact is not None:
             e += self.contact.energy(u, tips)
         return e, J
 
-    def _forces(self, u, fext):
+    def _forces(self, u, fext, values=None):
         """(internal minus external nodal forces at u, whether no cell of u is inverted): the
         compiled pass (``kernel_c.KernelForces``) where the kernel is built, else numpy's
-        stress and two sparse products (the same arithmetic)."""
+        stress (``values.P`` where given) and two sparse products (the same arithmetic)."""
+        if values is not None:
+            r = self.scatter(self.kin.V[:, None, None] * values.P) - fext
+            return r, values.J is None or bool(np.all(values.J > 0))
         if self._kernel_forces is None:
             self._kernel_forces = KernelForces(self) if use_kernel() and self.law.kernel \
                 else False
@@ -313,12 +324,12 @@ class AdmmOperators:
         r = self.scatter(self.kin.V[:, None, None] * P) - fext
         return r, J is None or bool(np.all(J > 0))
 
-    def residual(self, u, fext, tips=None) -> np.ndarray:
+    def residual(self, u, fext, tips=None, values=None) -> np.ndarray:
         """Internal minus external nodal forces (mN, full node-major) at displacement u (mm),
         plus the rigid tips' contact forces where ``tips`` gives their ends
         (``contact.ContactSet.origins``): the gradient of the P1 energy, zero on the free dofs
-        at equilibrium."""
-        r, _ = self._forces(u, fext)
+        at equilibrium. ``values``: ``law_values(u)`` where known."""
+        r, _ = self._forces(u, fext, values)
         if tips is not None and self.contact is not None:
             r = r + self.contact.gradient(u, tips)
         return r

@@ -81,18 +81,19 @@ def tangent_lift(ops, u, up, it, factorize=None, tips=None, rest=None):
     return cand
 
 
-def total_energy(ops, u, fext, inertia, tips=None):
-    e, J = ops.energy(u, fext, tips)
+def total_energy(ops, u, fext, inertia, tips=None, values=None):
+    e, J = ops.energy(u, fext, tips, values)
     if inertia is not None:
         mdt, ut = inertia
         e += 0.5 * float((u - ut) @ (mdt * (u - ut)))
     return e, J
 
 
-def energy_gradient(ops, u, fext, inertia, tips=None):
+def energy_gradient(ops, u, fext, inertia, tips=None, values=None):
     """Gradient (mN) of the total energy at u: internal forces minus f_ext, plus the tips'
-    contact forces (``tips``: their ends at the contact points) and inertia."""
-    r = ops.residual(u, fext, tips)
+    contact forces (``tips``: their ends at the contact points) and inertia; ``values``: the
+    law's ``ops.law_values(u)`` where known."""
+    r = ops.residual(u, fext, tips, values)
     if inertia is not None:
         mdt, ut = inertia
         r = r + mdt * (u - ut)
@@ -110,16 +111,19 @@ def newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback, fact
     k = 0
     exact = tips is None or ops.contact is None
     for k in range(1, max_iter + 1):
-        r = energy_gradient(ops, u, fext, inertia, tips)
+        # the law's energy, stress and tangent at u from one evaluation (numpy laws)
+        values = ops.law_values(u)
+        r = energy_gradient(ops, u, fext, inertia, tips, values)
         rr = ops.red.ZT @ r
         Kr, _ = ops.reduced_tangent(u, None if inertia is None else inertia[0],
-                                    _contact_hessian(ops, u, tips, exact))
+                                    _contact_hessian(ops, u, tips, exact), values)
         try:
             dq = -sym_splu(Kr, ops.factor_cache, factorize).solve(rr)
         except RuntimeError as exc:
             raise diverged_error(f"singular tangent in the Newton polish ({exc})", it0 + k, -1) from None
         du = Z @ dq
-        e0, _ = total_energy(ops, u, fext, inertia, tips)
+        e0, _ = total_energy(ops, u, fext, inertia, tips, values)
+        values = None
         r0 = float(np.linalg.norm(rr))
         alpha = 1.0
         for _ in range(40):
