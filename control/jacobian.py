@@ -93,6 +93,20 @@ class ControlJacobian:
 
 
 def target_rows(targets, gdim=3) -> list[str]:
+    """The row names of a Jacobian: per target its components, "T1.x", "T1.y", ...
+
+    Parameters
+    ----------
+    targets : sequence of str
+        Target (probe) names.
+    gdim : int
+        Components per target (2 or 3).
+
+    Returns
+    -------
+    list of str
+        gdim * len(targets) names.
+    """
     return [f"{t}.{'xyz'[c]}" for t in targets for c in range(gdim)]
 
 
@@ -112,7 +126,22 @@ def _names(case, actuators, targets):
 
 def probe_matrix(case, targets=None, *, n_dofs=None) -> sp.csr_matrix:
     """P1 interpolation (gdim * n_targets, n_dofs) at the Case's probes (barycentric weights of
-    ``case.probe_locations``); extra columns (degree-2 nodes) are zero."""
+    ``case.probe_locations``); extra columns (degree-2 nodes) are zero.
+
+    Parameters
+    ----------
+    case : Case
+        The Case with its probes.
+    targets : sequence of str or None
+        Probe names; None: every probe.
+    n_dofs : int or None
+        Columns; None: gdim * n_vertices.
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix
+        (gdim * n_targets, n_dofs).
+    """
     d = case.mesh.gdim
     n_dofs = d * case.mesh.n_vertices if n_dofs is None else int(n_dofs)
     locs = {loc.name: loc for loc in case.probe_locations}
@@ -133,7 +162,22 @@ def probe_matrix(case, targets=None, *, n_dofs=None) -> sp.csr_matrix:
 def point_matrix(mesh, points, *, n_dofs=None):
     """P1 interpolation (gdim * n_points, n_dofs) at arbitrary points (mm) and a mask of the
     points that lie inside the mesh (to 1e-9 in barycentric weights). Outside points get zero
-    rows."""
+    rows.
+
+    Parameters
+    ----------
+    mesh : MeshData
+        The mesh (mm).
+    points : array_like
+        (n_points, gdim) points (mm).
+    n_dofs : int or None
+        Columns; None: gdim * n_vertices.
+
+    Returns
+    -------
+    tuple
+        (P, inside): scipy CSR (gdim * n_points, n_dofs) and an (n_points,) bool mask.
+    """
     from scipy.spatial import cKDTree
 
     X, cells = mesh.points, mesh.cells
@@ -206,6 +250,33 @@ def dirichlet_jacobian(case, K, *, actuators=None, targets=None, P=None,
         default: the Case mesh's region vertices. It is used for the Case's boundary regions too.
     internal_dofs: trailing dofs of K that are not displacements (``Tangent.internal_dofs``: the
         mixed formulation's pressure); they stay free, which condenses them out exactly.
+
+    Parameters
+    ----------
+    case : Case
+        The Case at the state of K.
+    K : sparse matrix
+        Tangent stiffness (mN/mm, CSR, node-major), constrained dofs included.
+    actuators : sequence of str or None
+        Actuator names, one column each; None: every actuator of the case.
+    targets : sequence of str or None
+        Target (probe) names, gdim rows each; None: every probe.
+    P : sparse matrix or None
+        (gdim * n_targets, n_dofs) interpolation of the targets; None: P1 at the probes.
+    region_nodes : callable or None
+        region -> node ids of K; None: the Case mesh's region vertices.
+    internal_dofs : int
+        Trailing dofs of K that are not displacements (the mixed formulation's pressure).
+
+    Returns
+    -------
+    ControlJacobian
+        J (mm/mm), (gdim * n_targets, n_actuators).
+
+    Raises
+    ------
+    CaseError
+        For sliding on oblique planes, unknown actuators or targets, or a K of the wrong size.
     """
     t0 = time.perf_counter()
     acts, tg = _names(case, actuators, targets)
@@ -260,7 +331,26 @@ def admm_indenter_jacobian(case, u, *, actuators=None, targets=None,
     rigid tips (module docstring) at its converged state u (mm, (n, gdim)) of ``case`` (the
     case with the pushes of that state; its other actuators held). actuators: indenter names
     (default: every indenter), one column each; contact: the ADMM solve's contact options
-    (``solvers.admm.prepare``; default the case's)."""
+    (``solvers.admm.prepare``; default the case's).
+
+    Parameters
+    ----------
+    case : Case
+        The case with the pushes of the state.
+    u : ndarray
+        The ADMM model's converged state (mm, (n, gdim)).
+    actuators : sequence of str or None
+        Indenter names, one column each; None: every indenter.
+    targets : sequence of str or None
+        Target (probe) names; None: every probe.
+    contact : dict or None
+        The ADMM solve's contact options; None: the case's.
+
+    Returns
+    -------
+    ControlJacobian
+        J (mm/mm), (gdim * n_targets, n_actuators).
+    """
     t0 = time.perf_counter()
     tips = [a.name for a in case.indenters()]
     acts, tg = _names(case, tips if actuators is None else actuators, targets)
@@ -294,6 +384,30 @@ def force_jacobian(case, K, *, actuators=None, targets=None, P=None, control="po
              displacement of the patch along d_i).
     Also returned in ``extra``: "G" = J_m^T K^-1 J_c (mm per mN) and "C" = J_c^T K^-1 J_c.
     internal_dofs: as for :func:`dirichlet_jacobian`.
+
+    Parameters
+    ----------
+    case : Case
+        The Case at the state of K (actuator regions free).
+    K : sparse matrix
+        Tangent stiffness (mN/mm, CSR, node-major), constrained dofs included.
+    actuators : sequence of str or None
+        Actuator names, one column each; None: every actuator of the case.
+    targets : sequence of str or None
+        Target (probe) names, gdim rows each; None: every probe.
+    P : sparse matrix or None
+        (gdim * n_targets, n_dofs) interpolation of the targets; None: P1 at the probes.
+    control : str
+        "point" or "patch" (as above).
+    region_nodes : callable or None
+        region -> node ids of K; None: the Case mesh's region vertices.
+    internal_dofs : int
+        Trailing dofs of K that are not displacements.
+
+    Returns
+    -------
+    ControlJacobian
+        J_s (mm/mm); extra["G"] (mm/mN) and extra["C"] (mm/mN).
     """
     t0 = time.perf_counter()
     if control not in ("point", "patch"):
@@ -334,7 +448,20 @@ def force_jacobian(case, K, *, actuators=None, targets=None, P=None, control="po
 
 
 def full_pushes(case, pushes=None) -> dict:
-    """Every actuator of the Case with its push (mm); missing ones are held at 0."""
+    """Every actuator of the Case with its push (mm); missing ones are held at 0.
+
+    Parameters
+    ----------
+    case : Case
+        The Case.
+    pushes : dict or None
+        Actuator name -> push (mm); None: none.
+
+    Returns
+    -------
+    dict
+        Every actuator's name -> push (mm).
+    """
     pushes = dict(pushes or {})
     for a in pushes:
         case.actuator(a)
@@ -349,6 +476,33 @@ def fd_jacobian(plant, case, state_pushes=None, *, h=0.05, actuators=None, targe
     plant(case, pushes, initial_u) -> SolveResult with ``probes`` (name -> displacement, mm) and
     ``u``.
     h in mm. Raises ConvergenceError when a solve does not converge.
+
+    Parameters
+    ----------
+    plant : callable
+        plant(case, pushes, initial_u) -> SolveResult.
+    case : Case
+        The Case.
+    state_pushes : dict or None
+        Actuator name -> push (mm) of the state s; None: rest.
+    h : float
+        Finite-difference step (mm).
+    actuators : sequence of str or None
+        Actuator names, one column each; None: every actuator of the case.
+    targets : sequence of str or None
+        Target (probe) names, gdim rows each; None: every probe.
+    initial : ndarray or None
+        Warm start (mm, (n, gdim)) of the solves; None: rest.
+
+    Returns
+    -------
+    ControlJacobian
+        J (mm/mm).
+
+    Raises
+    ------
+    ConvergenceError
+        When a solve does not converge.
     """
     t0 = time.perf_counter()
     if not (np.isfinite(h) and h > 0):
@@ -372,7 +526,18 @@ def fd_jacobian(plant, case, state_pushes=None, *, h=0.05, actuators=None, targe
 
 
 def max_rel_error(J, J_ref) -> float:
-    """max |J - J_ref| / max |J_ref| (the matrix-relative error, dimensionless)."""
+    """max |J - J_ref| / max |J_ref| (the matrix-relative error, dimensionless).
+
+    Parameters
+    ----------
+    J, J_ref : ControlJacobian or ndarray
+        The Jacobian and the one it is compared with (same shape).
+
+    Returns
+    -------
+    float
+        The matrix-relative error.
+    """
     J, J_ref = np.asarray(J, float), np.asarray(J_ref, float)
     scale = np.abs(J_ref).max()
     return float(np.abs(J - J_ref).max() / scale) if scale > 0 else float(np.abs(J).max())
@@ -399,7 +564,22 @@ def _edge_nodes(case, node_points, pairs):
 
 def p2_interpolation(case, node_points, targets=None) -> sp.csr_matrix:
     """Degree-2 Lagrange interpolation (gdim * n_targets, gdim * n_nodes) at the Case's probes:
-    vertex shape functions l_i (2 l_i - 1), edge ones 4 l_i l_j (l: barycentric weights)."""
+    vertex shape functions l_i (2 l_i - 1), edge ones 4 l_i l_j (l: barycentric weights).
+
+    Parameters
+    ----------
+    case : Case
+        The Case with its probes.
+    node_points : ndarray
+        (n_nodes, gdim) degree-2 node coordinates (mm), vertices first.
+    targets : sequence of str or None
+        Probe names; None: every probe.
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix
+        (gdim * n_targets, gdim * n_nodes).
+    """
     d = case.mesh.gdim
     nn = len(node_points)
     locs = {loc.name: loc for loc in case.probe_locations}
@@ -425,7 +605,20 @@ def p2_interpolation(case, node_points, targets=None) -> sp.csr_matrix:
 
 def p2_region_nodes(case, node_points):
     """region -> node ids (vertices and edge nodes of the region's facets) for a degree-2 node
-    list; point/cell regions give their vertices only. Use as ``region_nodes``."""
+    list; point/cell regions give their vertices only. Use as ``region_nodes``.
+
+    Parameters
+    ----------
+    case : Case
+        The Case.
+    node_points : ndarray
+        (n_nodes, gdim) degree-2 node coordinates (mm), vertices first.
+
+    Returns
+    -------
+    callable
+        region name -> node ids.
+    """
     cache = {}
 
     def nodes(region):

@@ -60,7 +60,27 @@ class LoopSettings:
     """steps: MPC updates; dt_s: time per step (s); noise_mm: std of the measurement noise (mm);
     seed: RNG seed of the noise; reach_tol_mm: goal-reachability tolerance (mm); open_loop: also
     run the open-loop baseline; mpc: MPCSettings; task_mm: how far a seed task moves the target
-    along each controlled axis (mm; the seed's 5)."""
+    along each controlled axis (mm; the seed's 5).
+
+    Parameters
+    ----------
+    steps : int
+        MPC updates.
+    dt_s : float
+        Time per step (s).
+    noise_mm : float
+        Standard deviation of the measurement noise (mm).
+    seed : int
+        RNG seed of the noise.
+    reach_tol_mm : float
+        Goal-reachability tolerance (mm).
+    open_loop : bool
+        Also run the open-loop baseline.
+    mpc : MPCSettings
+        The controller's settings.
+    task_mm : float
+        How far a seed task moves the target along each controlled axis (mm).
+    """
 
     steps: int = 60
     dt_s: float = 1.0

@@ -103,7 +103,25 @@ class MPCSettings:
     step) and max_travel (mm, total push per actuator): optional limits; solver: a casadi conic
     plugin; weights: "absolute" (R = r I) or "gain" (R = r g^2 I, g the largest singular value of
     the weighted J_s: the loop's speed independent of the body's gain). Seed 000: Np = 5,
-    Q = 3 I, R = 2 I."""
+    Q = 3 I, R = 2 I.
+
+    Parameters
+    ----------
+    horizon : int
+        Prediction horizon Np (steps).
+    q : float
+        Weight of the target error (1/mm^2).
+    r : float
+        Weight of the push increments (1/mm^2).
+    max_step : float or None
+        Largest push increment per step (mm); None: no limit.
+    max_travel : float or None
+        Largest total push per actuator (mm); None: no limit.
+    solver : str
+        A casadi conic plugin (default "qpoases").
+    weights : str
+        "absolute" or "gain" (as above).
+    """
 
     horizon: int = 5
     q: float = 3.0

@@ -235,7 +235,24 @@ class LoopSetup:
 
     def run(self, target: str, task: int, settings, progress=None):
         """One closed loop (and its open-loop baseline) -> control.loop.LoopResult;
-        ``progress(line)`` gets a line per step."""
+        ``progress(line)`` gets a line per step.
+
+        Parameters
+        ----------
+        target : str
+            The probe to steer.
+        task : int
+            The seed's task number (which axes move, by ``settings.task_mm``).
+        settings : LoopSettings
+            Steps, time step (s), noise (mm), the MPC's settings.
+        progress : callable or None
+            progress(line) per step; None: silent.
+
+        Returns
+        -------
+        LoopResult
+            Targets (mm) and pushes (mm) per step, errors (mm), ITAE and the open loop.
+        """
         if self.fast_model:
             model = FastModel(self.model_case, target, press_widths=PRESS_WIDTHS)
         else:
@@ -285,7 +302,37 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
     ``model_E_factor``. When model and plant coincide the model reuses the plant's solutions.
     ``scenario`` names the mismatch in the metadata. ``model_update``: MODEL_UPDATES (an ADMM
     model on glued patches that is not the plant itself; other models always solve). A
-    ``model_case`` must be of ``case``'s body (``matching_case``)."""
+    ``model_case`` must be of ``case``'s body (``matching_case``).
+
+    Parameters
+    ----------
+    case : Case
+        The body, with its actuators and targets (probes).
+    plant : str
+        The plant's solver: "fem" or "admm".
+    model : str or None
+        The model's solver; None: the plant's.
+    model_E_factor : float
+        Factor on the model's Young's modulus (dimensionless).
+    model_case : Case or None
+        The model's Case (of ``case``'s body); None: ``case``.
+    plant_case : Case or None
+        The plant's Case; None: ``case``.
+    scenario : str or None
+        The mismatch's name in the metadata; None: none.
+    model_update : str
+        One of MODEL_UPDATES: "fast" or "solve".
+
+    Returns
+    -------
+    LoopSetup
+        The plant and the model, ready to ``run``.
+
+    Raises
+    ------
+    CaseError
+        For an unknown solver or update, or a ``model_case`` of another body.
+    """
     if not (np.isfinite(model_E_factor) and model_E_factor > 0):
         raise CaseError(f"model E factor must be > 0, got {model_E_factor}")
     E = case.material.E * model_E_factor

@@ -37,6 +37,41 @@ def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None,
     (``[reference.measured]``, ``fem_reference.measured``) is in ``extra["measured_accuracy"]``.
     An answer that is not valid, past the loads where answers converge, or with an estimated
     error above 2 % also warns (``meshes.errors.TissueWarning``; ``meshes.answer_warnings``).
+
+    Parameters
+    ----------
+    case : Case
+        The problem: mesh (mm), material (kPa), boundaries, probes and actuators.
+    degree : int or None
+        Lagrange degree of the displacement, 1, 2 or 3; None: the case's, else the default above.
+    pushes : dict or None
+        Actuator name -> push (mm) along its direction; None: every actuator at its case value.
+    initial : array_like or SolveResult or None
+        Warm start: (n_vertices, gdim) displacement (mm) or an earlier reference answer on this
+        mesh (``ReferenceSolver.solve``); None: the rest state.
+    dirichlet_override : tuple or None
+        (node-major Case dofs, values in mm at full load) added to the Case's prescriptions;
+        refused with ``estimate``.
+    progress : bool
+        Log each load step and Newton iteration.
+    estimate : bool or str
+        True, False or "auto": the estimated discretization error, as above.
+    **kw
+        The other options of ``ReferenceSolver`` (formulation, settings, linear_solver, ...).
+
+    Returns
+    -------
+    SolveResult
+        The answer: ``u`` (mm), ``probes`` (mm), ``reactions`` (mN), ``strain_energy`` (uJ), its
+        validity, warnings and, when asked, its error estimates (mm, mN).
+
+    Raises
+    ------
+    CaseError
+        For an ``estimate`` that is not True, False or "auto", ``estimate`` with
+        ``dirichlet_override``, or options the reference does not take.
+    ConvergenceError
+        When a load step still fails after the cut-backs.
     """
     if estimate not in (False, True, "auto"):
         raise CaseError(f"estimate must be True, False or 'auto', got {estimate!r}")

@@ -222,7 +222,42 @@ def run_study(path, *, size: float | None = None, degrees=(1,), levels: int = MI
               progress: bool = False, **options) -> list:
     """The study of a Case file at each degree in ``degrees``, on one mesh hierarchy: the case's
     mesh at ``size`` (mm) refined ``levels - 1`` times. Returns a list of ConvergenceStudy.
-    ``options`` go to ``refinement_study`` (and from there to ``ReferenceSolver``)."""
+    ``options`` go to ``refinement_study`` (and from there to ``ReferenceSolver``).
+
+    Parameters
+    ----------
+    path : str or Path
+        A Case TOML file or a shipped case's name.
+    size : float or None
+        Cell size (mm) of the coarsest (builtin) mesh; None: the file's.
+    degrees : sequence of int
+        Lagrange degrees, one study each.
+    levels : int
+        Meshes in the hierarchy (h halved per level).
+    pushes : dict or None
+        Actuator name -> push (mm); None: the case as loaded.
+    max_cells : int or None
+        Cells of the finest level above which the study is refused; None: no limit.
+    order_tol : float
+        Tolerance of the asymptotic-range test on the observed order.
+    progress : bool
+        Print a line per solve.
+    **options
+        Options of ``refinement_study`` and ``ReferenceSolver``.
+
+    Returns
+    -------
+    list of ConvergenceStudy
+        One per degree: per level h (mm), cells and unknowns; per probe (mm) and reaction (mN)
+        its QuantityConvergence.
+
+    Raises
+    ------
+    CaseError
+        For a bad case, fewer than 3 levels, or a finest mesh past ``max_cells``.
+    ConvergenceError
+        When a solve of the study does not converge.
+    """
     case, project = load_study_case(path, size=size)
     check_budget(case.mesh.n_cells, case.mesh.gdim, levels, max_cells)
     t0 = time.perf_counter()

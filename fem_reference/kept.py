@@ -93,7 +93,32 @@ def tangent_stiffness(case: Case, u=None, *, degree: int | None = None, pushes=N
                       formulation: str = "auto") -> Tangent:
     """Exact tangent K (scipy CSR, node-major, Case vertex numbering) at displacement ``u``
     (default: rest). Degree 2: pass the SolveResult of a degree-2 reference solve (or its full
-    nodal state ``res.node_u``); vertex values alone raise CaseError unless all zero."""
+    nodal state ``res.node_u``); vertex values alone raise CaseError unless all zero.
+
+    Parameters
+    ----------
+    case : Case
+        The problem (mesh, material, boundaries, probes).
+    u : array_like or SolveResult or None
+        The state: (n_vertices, gdim) displacement (mm), at degree 2 a degree-2 SolveResult or its
+        ``node_u``; None: rest.
+    degree : int or None
+        Lagrange degree of the displacement; None: the case's default (``ReferenceSolver``).
+    pushes : dict or None
+        Actuator name -> push (mm) at that state (the prescribed values, rigid tips' positions).
+    formulation : str
+        "displacement", "mixed" or "auto" (``ReferenceSolver``).
+
+    Returns
+    -------
+    Tangent
+        K (mN/mm, scipy CSR, node-major), its Dirichlet dofs and node points (mm).
+
+    Raises
+    ------
+    CaseError
+        At degree 2 for vertex values that are not all zero.
+    """
     s = solver_for(case, degree, formulation=formulation)
     if u is None:
         u = np.zeros((case.mesh.n_vertices, case.mesh.gdim))

@@ -10,11 +10,16 @@ from dataclasses import dataclass
 class NewtonSettings:
     """Newton and load-stepping controls.
 
-    rtol, atol: residual reduction within the final load step / absolute residual, the latter
+    Attributes
+    ----------
+    rtol, atol : float
+        residual reduction within the final load step / absolute residual, the latter
         relative to the force scale E h_min^2 (mN; dimensionless: a displacement-controlled
         solve then stops at the same state whatever E's magnitude);
-    atol_mm: Newton correction (inf-norm, mm) under which the final step is converged;
-    intermediate_rtol, intermediate_atol_mm: the same, for load steps before the last (their states
+    atol_mm : float
+        Newton correction (inf-norm, mm) under which the final step is converged;
+    intermediate_rtol, intermediate_atol_mm : float
+        the same, for load steps before the last (their states
         only start the next step, so they need not be converged to round-off). A solve that
         fails converges its last such state to the final step's tolerances before reporting it
         (``ConvergenceError.last_converged``). 1e-4 instead of 1e-6 took all four tips of the
@@ -22,29 +27,40 @@ class NewtonSettings:
         answer within 1e-9; 1e-3 took 56 instead of 33 from 10 to 12.5 mm
         (bench/bench_default_accuracy.py --case quarter --old newton: 1e-6 with the lagged
         factorization);
-    max_iterations: Newton iterations per load step before it counts as failed and is cut
+    max_iterations : int
+        Newton iterations per load step before it counts as failed and is cut
         back; past them Newton goes on while each correction is taken whole and at least halves
         the residual (``newton.CONTRACTION``: converging), up to twice as many. A step one or
         two corrections from converging is not thrown away (a tip pushed from 10 to 12.5 mm
         took 25 iterations to a residual of 1.7e-4 mN, then 27 more after the cut-back);
-    max_step_mm: largest prescribed-displacement increment of the first try;
-    grow: factor of the next load increment after a step that converged within 5 iterations
+    max_step_mm : float
+        largest prescribed-displacement increment of the first try;
+    min_fraction : float
+        smallest load increment, as a fraction of the whole load, that a cut-back may
+        reach before the solve fails (ConvergenceError);
+    grow : float
+        factor of the next load increment after a step that converged within 5 iterations
         (with indenters ``contact_grow``);
-    line_search: halvings of a Newton correction allowed when it inverts an element (non-finite
+    line_search : int
+        halvings of a Newton correction allowed when it inverts an element (non-finite
         residual: after the last one the step counts as failed) or, with indenters, raises the
         total energy (the last halving is taken regardless). 8: on the indenter half phantom
         (P2, 32k unknowns, A1 = 5 mm) 64 Newton iterations instead of 164 with 4, where each
         forced quarter-step that raised the energy set Newton wandering;
-    lag_max_its: "lagged" linear solver: GMRES iterations above which the tangent is refactorized.
-    predictor: start of each load step after the first: "none" (the last converged state;
+    lag_max_its : int
+        "lagged" linear solver: GMRES iterations above which the tangent is refactorized.
+    predictor : str
+        start of each load step after the first: "none" (the last converged state;
         Newton's first step from it, with the new boundary values, is the exact tangent predictor)
         or "secant" (linear extrapolation of the last two converged states: on the phantom at
         degree 2 it overshoots into inverted cells near the actuator rims, 6 factorizations
         instead of 3, 1.5-1.8x slower);
-    contact_curvature_after_halving: with indenters, the correction after a halved one is
+    contact_curvature_after_halving : str
+        with indenters, the correction after a halved one is
         computed with the tips' curvature terms dropped from the penalty's Hessian ("drop",
         fem_reference.contact) or with the exact tangent ("keep").
-    contact_curvature_below: with indenters, Newton's matrix leaves the tips' curvature terms
+    contact_curvature_below : float
+        with indenters, Newton's matrix leaves the tips' curvature terms
         out (a positive semi-definite contact term) while the residual is above this fraction of
         its value at the load step's start, and is the exact tangent below it, so the last
         iterations converge quadratically (math.inf: exact from the first iteration). Far from
@@ -53,9 +69,11 @@ class NewtonSettings:
         curvature carries the tangent and the matrix without it converges slowly: a whole step
         that leaves more than half the residual (``newton.CONTRACTION``) makes the rest of the
         load step exact (without that, all four tips stalled near 14 mm).
-    tip_step: with indenters, each load increment moves a tip by at most this fraction of its
+    tip_step : float
+        with indenters, each load increment moves a tip by at most this fraction of its
         radius (failed ones are cut back);
-    contact_intermediate_rtol: with indenters, the residual reduction of the load steps before
+    contact_intermediate_rtol : float
+        with indenters, the residual reduction of the load steps before
         the last, instead of ``intermediate_rtol``. A step's first correction, the tangent's
         predictor of the tips' increment, takes the residual of their fresh penetration down
         200-fold (the quarter indenter phantom, all four tips: 1.1e4 to 35-70 mN); the
@@ -69,9 +87,11 @@ class NewtonSettings:
         That quarter phantom pushed along 5 / 10 / 12.5 / 15 mm: 19 / 27 / 27 / 29 Newton
         iterations against 33 / 49 / 33 / 37 with 1e-4 and ``tip_step`` 0.2
         (bench/bench_default_accuracy.py --case quarter --old stepping);
-    contact_grow: with indenters, the factor of the next load increment after a step that
+    contact_grow : float
+        with indenters, the factor of the next load increment after a step that
         converged within 5 iterations (``grow`` without them);
-    descent_shift: with indenters, a Newton correction that is not a descent direction of the
+    descent_shift : float
+        with indenters, a Newton correction that is not a descent direction of the
         total energy, or whose tangent's factorization has negative pivots (tissue crushed
         against a tip: the corrections are huge), is solved again, first without the tips'
         curvature in the penalty's Hessian, then with mu |diag K| added to the tangent
@@ -80,7 +100,8 @@ class NewtonSettings:
         until a correction is taken whole. 0: never shift. On the whole indenter phantom (P2,
         59k unknowns, all four tips at 5 mm) it takes 392 Newton iterations down to 106
         (bench/bench_indenter_newton.py);
-    interpolate: with indenters, the energy line search's next step length is the minimizer
+    interpolate : bool
+        with indenters, the energy line search's next step length is the minimizer
         of the quadratic through the energy, its slope and the refused trial (kept within
         [0.1, 0.5] of the trial) instead of half the trial. Off by default: it took more Newton
         iterations than halving on the indenter phantoms (70 against 61 for A1 alone on the

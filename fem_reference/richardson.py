@@ -125,7 +125,38 @@ def assess(values, h, *, expected_order: float, order_tol: float = ORDER_TOL,
     """Observed orders, asymptotic-range test, Richardson value and GCI of a scalar sequence
     ``values`` (coarse to fine, unit ``unit``) on meshes of size ``h`` (mm) refined by ``ratio``.
     noise: differences at most this large (unit) are round-off (default NOISE_REL max |q|).
-    See the module docstring for the rules. Needs at least 3 values."""
+    See the module docstring for the rules. Needs at least 3 values.
+
+    Parameters
+    ----------
+    values : sequence of float
+        The quantity on each mesh, coarse to fine (``unit``).
+    h : sequence of float
+        The meshes' sizes (mm).
+    expected_order : float
+        The discretization's formal order (e.g. degree + 1 for displacements).
+    order_tol : float
+        How far the observed order may be from ``expected_order`` in the asymptotic range.
+    ratio : float
+        Refinement ratio between levels.
+    noise : float or None
+        Differences at most this large (``unit``) are round-off; None: NOISE_REL max |q|.
+    name : str
+        The quantity's name in messages.
+    unit : str
+        The quantity's unit (e.g. "mm", "mN").
+
+    Returns
+    -------
+    QuantityConvergence
+        Observed orders, ``asymptotic`` and its ``reason``, ``extrapolated`` and ``gci`` (unit)
+        with ``gci_rel``.
+
+    Raises
+    ------
+    CaseError
+        For fewer than 3 values.
+    """
     q = [float(v) for v in values]
     if len(q) < MIN_LEVELS:
         raise CaseError(f"{name}: an observed order needs at least {MIN_LEVELS} levels, "

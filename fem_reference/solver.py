@@ -81,46 +81,67 @@ install_log_filters()
 class ReferenceSolver:
     """Neo-Hookean / linear-elastic reference on one Case mesh; build once, solve many times.
 
-    Args:
-        case: the Case (mesh, material, boundaries, probes).
-        degree: Lagrange degree of the displacement, 1, 2 or 3 (the mixed formulation is
-            Taylor-Hood: pressure one degree lower, so degree >= 2); None: the case's
-            ``reference_degree``, else 2 for mixed, 1 for displacement (``default_degree``).
-        formulation: "displacement" (the energy of u alone), "mixed" (u-p perturbed Lagrangian,
-            see ``forms``: locking-free up to the incompressible limit nu = 0.5) or "auto" (mixed
-            from nu >= MIXED_FROM_NU).
-        quadrature_degree: override DEFAULT_QUADRATURE[degree].
-        settings: NewtonSettings.
-        comm: MPI communicator.
-        sliding_penalty: factor beta of the oblique-sliding penalty (beta * E / h_min per mm^2).
-        body_force: optional callable x -> UFL vector (mN/mm^3) of the reference coordinates,
-            added to gravity (used for manufactured solutions).
-        linear_solver: "direct" (MUMPS LDL^T of every Newton tangent), "lagged" (GMRES on the
-            exact tangent, preconditioned by the factor of an earlier tangent, which is
-            refactorized only when GMRES needs more than ``settings.lag_max_its`` iterations),
-            "iterative" (CG + GAMG with rigid-body near null space, MUMPS fallback; displacement
-            formulation only), "fieldsplit" (FGMRES with a Schur-complement fieldsplit
-            preconditioner: AMG on the displacement block, the scaled pressure mass matrix on the
-            Schur complement; MUMPS fallback; mixed formulation only) or "auto" ("lagged" above
-            LAGGED_ABOVE_DOFS dofs, "direct" below and with indenters; the mixed formulation
-            "fieldsplit" above FIELDSPLIT_ABOVE_DOFS).
-        curved: isoparametric (second-order) geometry from the mesh's curved edges (the builtin
-            curved bodies and any order-2 .msh carry them). None: curved at degree >= 2 when the
-            mesh has them (at degree 1 the straight cells the fast solvers use); False: straight.
-        contact_penalty: beta of the indenters' contact penalty k = beta E / h (kPa/mm, h the
-            cell size; see ``contact``: the penetration (p_c / E + 1/2) h / beta, mm, is the
-            method's error).
-        contact_quadrature: where the contact penalty is sampled: "nodal" (one point per
-            displacement node of the skin) or an int, a Gauss rule of that degree on each skin
-            facet, which also penalizes the facets' interiors; None: the case's (``[reference]
-            contact_quadrature``), else "nodal". The nodal rule is the more accurate for shallow
-            pushes, a Gauss rule holds the skin on a tip pushed deeper than about two of its
-            radii (``contact``).
-        tip_start: where each indenter starts: "nodes", touching the skin's displacement nodes,
-            or "surface", touching the skin's facets as the geometry curves them, which the
-            first contact with the meshed body generally lies between (``contact``); None: the
-            case's (``[reference] tip_start``), else "nodes" with the nodal contact rule and
-            "surface" with a Gauss rule (``default_tip_start``).
+    Parameters
+    ----------
+    case : Case
+        the Case (mesh, material, boundaries, probes).
+    degree : int or None
+        Lagrange degree of the displacement, 1, 2 or 3 (the mixed formulation is
+        Taylor-Hood: pressure one degree lower, so degree >= 2); None: the case's
+        ``reference_degree``, else 2 for mixed, 1 for displacement (``default_degree``).
+    formulation : str
+        "displacement" (the energy of u alone), "mixed" (u-p perturbed Lagrangian,
+        see ``forms``: locking-free up to the incompressible limit nu = 0.5) or "auto" (mixed
+        from nu >= MIXED_FROM_NU).
+    quadrature_degree : int or None
+        override DEFAULT_QUADRATURE[degree].
+    settings : NewtonSettings or None
+        NewtonSettings: Newton's and the load stepping's controls; None: the defaults.
+    comm : MPI communicator
+        MPI communicator (default ``MPI.COMM_WORLD``).
+    sliding_penalty : float
+        factor beta of the oblique-sliding penalty (beta * E / h_min per mm^2).
+    body_force : callable or None
+        optional callable x -> UFL vector (mN/mm^3) of the reference coordinates,
+        added to gravity (used for manufactured solutions).
+    linear_solver : str
+        "direct" (MUMPS LDL^T of every Newton tangent), "lagged" (GMRES on the
+        exact tangent, preconditioned by the factor of an earlier tangent, which is
+        refactorized only when GMRES needs more than ``settings.lag_max_its`` iterations),
+        "iterative" (CG + GAMG with rigid-body near null space, MUMPS fallback; displacement
+        formulation only), "fieldsplit" (FGMRES with a Schur-complement fieldsplit
+        preconditioner: AMG on the displacement block, the scaled pressure mass matrix on the
+        Schur complement; MUMPS fallback; mixed formulation only) or "auto" ("lagged" above
+        LAGGED_ABOVE_DOFS dofs, "direct" below and with indenters; the mixed formulation
+        "fieldsplit" above FIELDSPLIT_ABOVE_DOFS).
+    curved : bool or None
+        isoparametric (second-order) geometry from the mesh's curved edges (the builtin
+        curved bodies and any order-2 .msh carry them). None: curved at degree >= 2 when the
+        mesh has them (at degree 1 the straight cells the fast solvers use); False: straight.
+    contact_penalty : float
+        beta of the indenters' contact penalty k = beta E / h (kPa/mm, h the
+        cell size; see ``contact``: the penetration (p_c / E + 1/2) h / beta, mm, is the
+        method's error).
+    contact_quadrature : str or int or None
+        where the contact penalty is sampled: "nodal" (one point per
+        displacement node of the skin) or an int, a Gauss rule of that degree on each skin
+        facet, which also penalizes the facets' interiors; None: the case's (``[reference]
+        contact_quadrature``), else "nodal". The nodal rule is the more accurate for shallow
+        pushes, a Gauss rule holds the skin on a tip pushed deeper than about two of its
+        radii (``contact``).
+    tip_start : str or None
+        where each indenter starts: "nodes", touching the skin's displacement nodes,
+        or "surface", touching the skin's facets as the geometry curves them, which the
+        first contact with the meshed body generally lies between (``contact``); None: the
+        case's (``[reference] tip_start``), else "nodes" with the nodal contact rule and
+        "surface" with a Gauss rule (``default_tip_start``).
+
+    Raises
+    ------
+    CaseError
+        For a degree other than 1, 2 or 3 (or 1 with the mixed formulation), nu = 0.5 without
+        the mixed formulation, ``curved=True`` on a mesh with no curved edges, or a linear
+        solver that does not fit the formulation or the material.
     """
 
     def __init__(self, case: Case, *, degree: int | None = None, formulation: str = "auto",
@@ -326,25 +347,52 @@ class ReferenceSolver:
               extra_terms=None, residual_line_search: bool = False) -> SolveResult:
         """Solve ``case`` (default: the one given at construction) with ``pushes`` applied.
 
-        pushes: actuator name -> push (mm) along its direction.
-        initial: warm start: (n_vertices, gdim) in the Case numbering (at degree 2 the edge
+        Parameters
+        ----------
+        pushes : dict or None
+            Actuator name -> push (mm) along its direction.
+        case : Case or None
+            The Case to solve, on the solver's mesh and with its material law; None: the one
+            given at construction.
+        initial : array_like or SolveResult or None
+            Warm start: (n_vertices, gdim) in the Case numbering (at degree 2 the edge
             nodes start at the mean of their end vertices), the full (n_nodes, gdim) degree-2
             nodal state in Tangent node order, or a previous SolveResult of a reference solve on
             this mesh (degree 2: its full nodal state); the load path starts from the case's
             prescribed values at fraction 0 scaled from there.
-        dirichlet_override: (dofs, values): extra per-vertex prescriptions (node-major Case dofs,
-            mm at full load), degree 1.
-        settings: this solve's Newton and load-stepping settings (NewtonSettings); None: the
+        dirichlet_override : tuple or None
+            (dofs, values): extra per-vertex prescriptions (node-major Case dofs, mm at full
+            load), degree 1.
+        progress : bool
+            Log each load step and Newton iteration.
+        cases_first : iterable or None
+            Accepted and not used: a solve starts from ``initial`` or from rest.
+        settings : NewtonSettings or None
+            This solve's Newton and load-stepping settings (NewtonSettings); None: the
             solver's own (``settings`` of the constructor). ``lag_max_its`` stays the solver's
             own: its linear solver was built with it.
-        extra_terms: terms Newton adds to the residual, the tangent and the line search's energy
+        extra_terms : object or None
+            Terms Newton adds to the residual, the tangent and the line search's energy
             (``Newton``: e.g. the inertia of an implicit-Euler time step, ``dynamics``); None:
             none.
-        residual_line_search: without indenters, take a Newton correction after a load step's
-            first only when it lowers the residual norm (``Contact.accepts``; a warm start's
-            line search, ``transfer.warm_settings``); False: every finite correction is taken.
-        Raises ConvergenceError (with ``last_converged`` SolveResult and the load fraction reached)
-        when a load step still fails after the cut-backs.
+        residual_line_search : bool
+            Without indenters, take a Newton correction after a load step's first only when it
+            lowers the residual norm (``Contact.accepts``; a warm start's line search,
+            ``transfer.warm_settings``); False: every finite correction is taken.
+
+        Returns
+        -------
+        SolveResult
+            The answer: ``u`` (mm), ``probes`` (mm), ``reactions`` (mN), ``strain_energy``
+            (uJ), Newton's iterations and residual (mN), validity and discretization.
+
+        Raises
+        ------
+        ConvergenceError
+            With ``last_converged`` SolveResult and the load fraction reached, when a load step
+            still fails after the cut-backs.
+        CaseError
+            When ``case`` is on another mesh or of another material law than the solver's.
         """
         t_start = time.perf_counter()
         self.timings.reset()   # per-solve counters
@@ -510,7 +558,21 @@ class ReferenceSolver:
         return self.state.gather_nodes(local_array)
 
     def tangent(self, u=None, *, pushes=None) -> Tangent:
-        """Exact tangent K at state ``u`` (default: the current one): ``outputs_tangent``."""
+        """Exact tangent K at state ``u`` (default: the current one): ``outputs_tangent``.
+
+        Parameters
+        ----------
+        u : array_like or SolveResult or None
+            The state: (n_vertices, gdim) displacement (mm), the full degree-2 nodal state
+            (n_nodes, gdim) or a reference SolveResult on this mesh; None: the current state.
+        pushes : dict or None
+            Actuator name -> push (mm) at that state (where the rigid tips sit).
+
+        Returns
+        -------
+        Tangent
+            K (mN/mm, scipy CSR, node-major), its Dirichlet dofs and node points (mm).
+        """
         return tangent(self, u, pushes=pushes)
 
     def internal_forces(self, u=None):

@@ -277,6 +277,30 @@ def load_case(path, *, mesh: MeshData | None = None, size: float | None = None,
     gmsh starts (default None: ``meshes.builders.MAX_CELLS``; math.inf: no limit). Any input
     either loads or raises CaseError (CaseReadError when a file cannot be read), one line per
     fault naming the file and the key.
+
+    Parameters
+    ----------
+    path : str or Path
+        A Case TOML file, or a shipped case's name (``meshes/cases/``).
+    mesh : MeshData or None
+        A mesh (mm) replacing the file's; None: the file's.
+    size : float or None
+        Cell size (mm) of a builtin mesh, over the file's; None: the file's.
+    max_cells : float or None
+        Estimated cell count above which a builtin mesh is refused; None:
+        ``meshes.builders.MAX_CELLS``; math.inf: no limit.
+
+    Returns
+    -------
+    Case
+        The validated Case (units mm, kPa, mN, kg/mm^3).
+
+    Raises
+    ------
+    CaseError
+        For any fault of the file (one line per fault, naming the file and the key).
+    CaseReadError
+        When a file cannot be read.
     """
     path = case_path(path)
     data = _read(path)

@@ -102,7 +102,42 @@ def _closest_barycentric(verts: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Case:
-    """One problem. ``mesh`` is a MeshData; the rest as in the module docstring."""
+    """One problem. ``mesh`` is a MeshData; the rest as in the module docstring.
+
+    Parameters
+    ----------
+    mesh : MeshData
+        Vertices (mm), cells and named regions.
+    material : Material
+        The material law and its moduli (kPa); default: ``Material()``.
+    boundaries : sequence of Boundary
+        Boundary conditions on named regions.
+    probes : sequence of Probe
+        Named points (mm) where displacements are reported.
+    actuators : sequence of Actuator
+        Glued patches and rigid tips, each pushed (mm) along its direction.
+    gravity : tuple or None
+        Gravitational acceleration (mm/s^2); None: none.
+    name : str
+        The case's name in reports.
+    source : str or None
+        Where it was read from (messages name it); None: built in Python.
+    reference_degree : int or None
+        The reference's default Lagrange degree (``[reference] degree``); None: its own default.
+    reference_contact_quadrature : str or int or None
+        The reference's default contact rule ("nodal" or a Gauss degree); None: "nodal".
+    reference_tip_start : str or None
+        Where rigid tips start by default: "nodes" or "surface"; None: by the contact rule.
+    reference_measured : tuple of dict
+        ``[reference.measured]`` rows: the default discretization's measured accuracy
+        (``fem_reference.measured``).
+
+    Raises
+    ------
+    CaseError
+        For unknown regions, bad values, conflicting prescriptions on one vertex, duplicate probe
+        or actuator names, or rigid-body freedom.
+    """
 
     mesh: MeshData
     material: Material = field(default_factory=Material)

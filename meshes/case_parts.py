@@ -86,6 +86,28 @@ class Material:
     linear-elastic: psi = mu eps:eps + lambda/2 tr(eps)^2 (``volumetric`` does not apply).
     Stable Neo-Hookean, St Venant-Kirchhoff and corotational are compressible laws: nu < 0.5,
     the displacement formulation.
+
+    Parameters
+    ----------
+    model : str
+        The strain-energy law (``MATERIAL_MODELS``), default "neo-hookean".
+    E : float or None
+        Young's modulus (kPa); None for mooney-rivlin and yeoh.
+    nu : float or None
+        Poisson's ratio (dimensionless, < 0.5; 0.5 incompressible); None for mooney-rivlin and yeoh.
+    density : float
+        kg/mm^3 (default 1e-6, water).
+    volumetric : str
+        G(J) of the volumetric energy: "quadratic" or "log".
+    c1, c2, c3 : float or None
+        Mooney-Rivlin (c1, c2) and Yeoh (c1, c2, c3) coefficients (kPa); None for other laws.
+    k : float or None
+        Bulk modulus kappa (kPa) of mooney-rivlin and yeoh; None for other laws.
+
+    Raises
+    ------
+    CaseError
+        For an unknown model, coefficients the law does not take, or values out of range.
     """
 
     model: str = "neo-hookean"

@@ -60,6 +60,71 @@ class SolveResult:
         formulation's pressure (kPa) at the Case vertices (a P1 Function in a state lifted to
         a richer degree); None for the displacement formulation.  The JSON form leaves these
         three out.
+
+    Attributes
+    ----------
+    u : ndarray
+        (n_vertices, gdim) displacement (mm) at the Case mesh's vertices.
+    converged : bool
+        Whether the solver met its stopping rule.
+    iterations : int
+        Newton iterations (fem) or the fast solver's own.
+    residual : float
+        The final residual (mN for the reference; the solver's own measure otherwise).
+    wall_time_s : float
+        Wall-clock time of the solve (s).
+    solver : str
+        Which solver computed it ("fem", "admm", "mass-tensor", a plugin's name).
+    probes : dict
+        Probe name -> (gdim,) displacement (mm).
+    reactions : dict
+        Dirichlet region -> (gdim,) force the support exerts on the body (mN).
+    strain_energy : float
+        uJ (= kPa mm^3 = mN mm).
+    load_steps : int
+        Load steps taken.
+    degree : int
+        Lagrange degree of the displacement.
+    case_name : str
+        The Case's name.
+    n_vertices, n_cells : int
+        Size of the Case mesh.
+    history : dict
+        Per-iteration records of the solver (e.g. residuals, ``admm_clock_s`` in s).
+    extra : dict
+        The solver's own figures (timings in s, counters, ``measured_accuracy``).
+    valid : bool or None
+        Whether the deformed mesh is a physical answer; None: not checked.
+    invalid_reason : str or None
+        Why not.
+    warnings : tuple of str
+        What the caller should know about the answer.
+    discretization : dict or None
+        The reference's discretization; None for another solver.
+    indenters : dict
+        Per rigid tip its push (mm), force (mN), contact area (mm^2) and penetration (mm).
+    probe_error_estimates : dict
+        Probe name -> estimated discretization error (mm); {} when not estimated.
+    reaction_error_estimates : dict
+        Dirichlet region -> estimated discretization error (mN); {} when not estimated.
+    estimate_note : str or None
+        Why an answer has no estimate.
+    reference : bool
+        Whether the reference computed it.
+    no_converged_value : tuple of str
+        Why no mesh-converged answer is known at this load; () when none is in the way.
+    min_J : float or None
+        Smallest J = det F of the final state (dimensionless).
+    model : str or None
+        The material model solved when it is not the case's, else None.
+    model_note : str or None
+        The model difference in words.
+    node_u : ndarray or None
+        (n_nodes, gdim) displacement (mm) at every node of a degree >= 2 reference answer.
+    node_points : ndarray or None
+        (n_nodes, gdim) reference coordinates (mm) of those nodes.
+    pressure : object
+        The mixed formulation's pressure (kPa) at the Case vertices; None for displacement.
     """
 
     u: np.ndarray

@@ -72,7 +72,35 @@ class SolverEntry:
               initial=None, progress: bool = False, **kw):
         """Solve ``case``; a SolveResult. ``degree`` and ``formulation`` are the reference's;
         a fast solver refuses anything but P1 displacement and gets the factorization hook
-        (``with_factorization``)."""
+        (``with_factorization``).
+
+        Parameters
+        ----------
+        case : Case
+            The problem.
+        degree : int or None
+            The reference's Lagrange degree; None: the case's default. A fast solver takes 1 or None.
+        formulation : str
+            The reference's "displacement", "mixed" or "auto"; a fast solver refuses "mixed".
+        pushes : dict or None
+            Actuator name -> push (mm).
+        initial : array_like or SolveResult or None
+            Warm start (mm, (n_vertices, gdim)) or an earlier answer.
+        progress : bool
+            Print the solver's progress.
+        **kw
+            The solver's own options (its module's ``solve`` keywords).
+
+        Returns
+        -------
+        SolveResult
+            The answer: ``u`` (mm), ``probes`` (mm), ``reactions`` (mN), ``strain_energy`` (uJ).
+
+        Raises
+        ------
+        CaseError
+            When a fast solver is asked for another degree or the mixed formulation.
+        """
         if self.reference:
             return self.load().solve(case, degree=degree, formulation=formulation,
                                      pushes=pushes, initial=initial, progress=progress, **kw)
@@ -85,7 +113,18 @@ class SolverEntry:
         load-stepping controls (``fem_reference.newton_settings.NewtonSettings``, which the
         command line leaves at their defaults), for a fast solver the defaults of its ``solve``
         keywords (null: the solver picks the value itself); ``given`` (what the caller chose)
-        goes over them."""
+        goes over them.
+
+        Parameters
+        ----------
+        **given
+            Settings the caller chose, by name.
+
+        Returns
+        -------
+        dict
+            Setting name -> value (JSON-ready).
+        """
         if self.reference:
             # lazy: fem_reference is imported only when the reference is used
             from tissue_reference.fem_reference.newton_settings import settings_json
@@ -102,7 +141,24 @@ class SolverEntry:
         """What this solver computes on ``case``, JSON-ready: ``discretization`` (formulation,
         degrees, cells; the reference's default degree resolved as ``fem_reference`` resolves
         it) and ``settings``: the reference's Newton controls (``options`` over them), a fast
-        solver's ``options`` (default: its ``settings()``)."""
+        solver's ``options`` (default: its ``settings()``).
+
+        Parameters
+        ----------
+        case : Case
+            The problem.
+        degree : int or None
+            The reference's Lagrange degree; None: the case's default.
+        formulation : str
+            The reference's "displacement", "mixed" or "auto".
+        options : dict or None
+            The settings chosen; None: the defaults.
+
+        Returns
+        -------
+        dict
+            {"solver": name, "discretization": {...}, "settings": {...}}, JSON-ready.
+        """
         if self.reference:
             # lazy: fem_reference is imported only when the reference is used
             from tissue_reference.fem_reference.discretization import (
@@ -145,7 +201,39 @@ class SolverEntry:
         """``steps`` implicit-Euler steps of ``dt`` (s) of ``case`` under ``pushes`` (name ->
         mm); a ``meshes.results.DynamicsResult``. ``degree``, ``formulation``, ``mass`` and
         ``ramp_steps`` are the reference's: a fast solver runs P1 with the lumped mass and the
-        Dirichlet values in full from the first step, and refuses anything else."""
+        Dirichlet values in full from the first step, and refuses anything else.
+
+        Parameters
+        ----------
+        case : Case
+            The problem; density in kg/mm^3.
+        dt : float
+            Time step (s).
+        steps : int
+            Number of implicit-Euler steps.
+        pushes : dict or None
+            Actuator name -> push (mm).
+        degree : int or None
+            The reference's Lagrange degree; None: the case's default.
+        formulation : str
+            The reference's "displacement", "mixed" or "auto".
+        mass : str
+            "lumped" or "consistent" (the reference's).
+        ramp_steps : int
+            Steps over which the reference ramps the Dirichlet values in; 0: in full from the first.
+        progress : bool
+            Print a line per step.
+
+        Returns
+        -------
+        DynamicsResult
+            The trajectory: displacements (mm) and probes (mm) at each time (s).
+
+        Raises
+        ------
+        CaseError
+            For a solver without dynamics or options it refuses (``check_dynamics``).
+        """
         self.check_dynamics(degree, formulation, mass, ramp_steps)
         modname, func = self.dynamics.split(":")
         run = getattr(importlib.import_module(modname), func)
@@ -172,27 +260,67 @@ _BY_NAME = {e.name: e for e in _ENTRIES}
 
 
 def entries() -> tuple:
-    """Every built-in solver, the reference first."""
+    """Every built-in solver, the reference first.
+
+    Returns
+    -------
+    tuple of SolverEntry
+        The reference's entry, then the fast solvers'.
+    """
     return _ENTRIES
 
 
 def names() -> tuple:
-    """The built-in solvers' names, the reference first."""
+    """The built-in solvers' names, the reference first.
+
+    Returns
+    -------
+    tuple of str
+        The names, e.g. ("fem", "admm", "mass-tensor").
+    """
     return tuple(_BY_NAME)
 
 
 def control_names() -> tuple:
-    """The solvers that play a control plant or model and a Jacobian's solver."""
+    """The solvers that play a control plant or model and a Jacobian's solver.
+
+    Returns
+    -------
+    tuple of str
+        Their names.
+    """
     return tuple(e.name for e in _ENTRIES if e.control)
 
 
 def dynamics_names() -> tuple:
-    """The solvers with implicit-Euler dynamics."""
+    """The solvers with implicit-Euler dynamics.
+
+    Returns
+    -------
+    tuple of str
+        Their names.
+    """
     return tuple(e.name for e in _ENTRIES if e.dynamics is not None)
 
 
 def solver(name: str) -> SolverEntry:
-    """The built-in solver ``name``; CaseError naming the known ones for another name."""
+    """The built-in solver ``name``; CaseError naming the known ones for another name.
+
+    Parameters
+    ----------
+    name : str
+        A built-in solver's name (``names()``).
+
+    Returns
+    -------
+    SolverEntry
+        Its entry.
+
+    Raises
+    ------
+    CaseError
+        For a name that is no built-in solver's.
+    """
     try:
         return _BY_NAME[name]
     except (KeyError, TypeError):
@@ -200,12 +328,29 @@ def solver(name: str) -> SolverEntry:
 
 
 def reference() -> SolverEntry:
-    """The reference's entry."""
+    """The reference's entry.
+
+    Returns
+    -------
+    SolverEntry
+        The reference's.
+    """
     return next(e for e in _ENTRIES if e.reference)
 
 
 def is_reference(name) -> bool:
     """Whether ``name`` (a solver's name as the JSON writes it, or anything else: a plugin, a
-    callable) names the reference."""
+    callable) names the reference.
+
+    Parameters
+    ----------
+    name : object
+        A solver's name, a plugin's, a callable or anything else.
+
+    Returns
+    -------
+    bool
+        True only for the reference's name.
+    """
     entry = _BY_NAME.get(name) if isinstance(name, str) else None
     return entry is not None and entry.reference

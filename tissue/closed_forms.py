@@ -128,7 +128,24 @@ def _radial_stretch(P, lt, piola):
 def thick_sphere(inner: float, outer: float, push: float, mu: float, kappa: float) -> dict:
     """Shell inner <= R <= outer, r(inner) = inner + push, P_rR(outer) = 0. Returns
     {"u_outer": radial displacement of the outer surface (mm), "P_inner": P_rR at the inner
-    surface (kPa)}; kappa = inf gives the incompressible closed form."""
+    surface (kPa)}; kappa = inf gives the incompressible closed form.
+
+    Parameters
+    ----------
+    inner, outer : float
+        Inner and outer radii (mm).
+    push : float
+        Radial displacement of the inner surface (mm).
+    mu : float
+        Shear modulus (kPa).
+    kappa : float
+        Bulk modulus (kPa); math.inf: incompressible.
+
+    Returns
+    -------
+    dict
+        {"u_outer": mm, "P_inner": kPa}.
+    """
     if not np.isfinite(kappa):
         return {"u_outer": incompressible_sphere_u(outer, inner, push), "P_inner": None}
     return _sphere_bvp(inner, outer, push, lambda lr, lt: neo_hookean_piola(lr, lt, mu, kappa))

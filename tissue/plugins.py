@@ -73,7 +73,13 @@ class PluginRun:
 
 
 def entry_point_solvers() -> dict:
-    """Name -> entry point of the installed packages' solvers (group ``tissue.solvers``)."""
+    """Name -> entry point of the installed packages' solvers (group ``tissue.solvers``).
+
+    Returns
+    -------
+    dict
+        Entry-point name -> ``importlib.metadata.EntryPoint``.
+    """
     from importlib.metadata import entry_points
 
     return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
@@ -81,7 +87,24 @@ def entry_point_solvers() -> dict:
 
 def resolve_solver(spec) -> SolverPlugin:
     """A SolverPlugin from a callable, ``"module:function"``, ``"file.py:function"`` or an
-    entry-point name."""
+    entry-point name.
+
+    Parameters
+    ----------
+    spec : callable or str
+        The solver: a callable ``solve(case, pushes, **options)`` returning displacements (mm),
+        ``"module:function"``, ``"path/to/file.py:function"`` or an entry-point name.
+
+    Returns
+    -------
+    SolverPlugin
+        Its name and function.
+
+    Raises
+    ------
+    PluginError
+        When the module, file, function or entry point cannot be found or loaded.
+    """
     if callable(spec):
         name = getattr(spec, "__qualname__", None) or getattr(spec, "__name__", None) \
             or type(spec).__name__
@@ -161,7 +184,29 @@ def _get(obj, key):
 def run_plugin(plugin: SolverPlugin, case, pushes: dict, options: dict | None = None) -> PluginRun:
     """Call ``plugin`` on ``case`` with ``pushes`` and check what it returns: an (n, gdim) finite
     array (or an object or mapping holding one as ``u``). Every failure is a PluginError naming
-    the plugin."""
+    the plugin.
+
+    Parameters
+    ----------
+    plugin : SolverPlugin
+        The solver (``resolve_solver``).
+    case : Case
+        The problem it solves.
+    pushes : dict
+        Actuator name -> push (mm).
+    options : dict or None
+        Extra keyword arguments for the solver; None: none.
+
+    Returns
+    -------
+    PluginRun
+        ``u`` (n, gdim) mm and the optional figures it reported (e.g. ``extra``).
+
+    Raises
+    ------
+    PluginError
+        When the solver raises or returns something unusable.
+    """
     options = dict(options or {})
     n, gdim = case.mesh.n_vertices, case.mesh.points.shape[1]
     t0 = time.perf_counter()

@@ -202,6 +202,52 @@ def verify(case, pushes=None, solvers=DEFAULT_SOLVERS, out_dir=None, *, json_fil
     outside: "error" or "skip" for field points outside the body (``tissue.scoring``).
     Returns {"reference": {...}, "solvers": {name: {...}}, "skipped": {...}}; writes
     ``json_file`` and ``out_dir``/report.html + PNGs when given.
+
+    Parameters
+    ----------
+    case : Case
+        The problem; every solver and the reference solve it on its mesh.
+    pushes : dict or None
+        Actuator name -> push (mm); None: the case as loaded.
+    solvers : sequence
+        Built-in fast solvers' names, callables, ``"module:function"``, ``"file.py:function"`` or
+        entry-point names (default ``DEFAULT_SOLVERS``).
+    out_dir : str or Path or None
+        Folder for report.html and its PNGs; None: no report.
+    json_file : str or Path or None
+        Where to write the result as JSON; None: nowhere.
+    options : dict or None
+        Solver name -> extra keyword arguments.
+    reference_solve : callable or None
+        reference_solve(case) -> SolveResult in place of the reference solve; None: the reference.
+    progress : bool
+        Print a line per solve.
+    estimate : bool
+        Also estimate each reference's discretization error (mm).
+    field : str or Path or Field or array_like or None
+        A field to score: a file, a Field or an (n, gdim) array (mm) in the Case's vertex order.
+    degree : int or None
+        The reference's Lagrange degree for plugins and fields; None: the case's default.
+    formulation : str
+        The reference's "displacement", "mixed" or "auto" for plugins and fields.
+    field_name : str or None
+        The field file's point field to take; None: its displacement.
+    outside : str
+        "error" or "skip" for field points outside the body.
+
+    Returns
+    -------
+    dict
+        {"reference": {...}, "solvers": {name: {...}}, "skipped": {...}}: per candidate its errors
+        against the reference (mm), reactions (mN), validity and timings (s).
+
+    Raises
+    ------
+    CaseError
+        For unknown solvers or options, a solver given twice, or a degree or formulation with no
+        plugin or field to apply to.
+    PluginError
+        For a plugin that cannot be found or returns something unusable.
     """
     pushes = dict(pushes or {})
     options = dict(options or {})
@@ -449,7 +495,20 @@ def tolerance_failures(out: dict, tol: float | None) -> list[tuple[str, str]]:
     """(solver, why) for each candidate of a ``verify`` result ``out`` that fails the tolerance
     ``tol`` (mm; ``tissue verify --tol``): its max vertex error above ``tol``, then each one
     that reported converged = false (an answer its own solver does not stand behind fails a
-    tolerance, whatever its error). [] when ``tol`` is None."""
+    tolerance, whatever its error). [] when ``tol`` is None.
+
+    Parameters
+    ----------
+    out : dict
+        A ``verify`` result.
+    tol : float or None
+        Largest vertex error allowed (mm); None: no tolerance.
+
+    Returns
+    -------
+    list of tuple of str
+        (solver, why) per failing candidate; [] when all pass or ``tol`` is None.
+    """
     if tol is None:
         return []
     runs = out["solvers"]
@@ -462,7 +521,18 @@ def tolerance_failures(out: dict, tol: float | None) -> list[tuple[str, str]]:
 
 def invalid_runs(out: dict) -> dict:
     """Run name -> reason, for the reference runs and fast solvers of a ``verify`` result whose
-    final state is not valid (inverted cells, runaway growth)."""
+    final state is not valid (inverted cells, runaway growth).
+
+    Parameters
+    ----------
+    out : dict
+        A ``verify`` result.
+
+    Returns
+    -------
+    dict
+        Run name -> reason ({} when every run is valid).
+    """
     bad = {f"reference {m}": r.get("invalid_reason") for m, r in out["reference"]["runs"].items()
            if r.get("valid") is False}
     bad.update({n: e.get("invalid_reason") for n, e in out["solvers"].items()

@@ -88,6 +88,75 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     converges or with its rim cells crushed (``Case.glued_patch_warnings``), as the reference's.
     Raises SolverDivergedError (iteration and element named) on NaN, inverted elements or
     residual growth.
+
+    Parameters
+    ----------
+    case : Case
+        The problem: P1 mesh (mm), material (kPa), boundaries, probes and actuators.
+    pushes : dict or None
+        Actuator name -> push (mm).
+    initial : array_like or SolveResult or None
+        Warm start (mm, (n_vertices, gdim)) or an earlier answer, as above; None: rest.
+    tol_mm : float
+        Stopping tolerance (mm) on the primal and dual residuals.
+    max_iter : int or None
+        ADMM iterations per load step (per time step); None: 20 with the polish, else 20000.
+    rho : float or None
+        ADMM penalty stiffness (kPa); None: the P-wave modulus lambda + 2 mu.
+    polish : bool or str
+        True: the Newton polish; "chord": the chord polish; False: ADMM alone (as above).
+    polish_tol_mm : float or None
+        Largest polish step (mm) that ends it; None: tol_mm / 100 (Newton) or tol_mm (chord).
+    polish_max_iter : int
+        Newton polish iterations per load step.
+    dynamics : ImplicitEuler or None
+        ImplicitEuler(dt in s, steps) for dynamics; None: quasi-static equilibrium.
+    callback : callable or None
+        callback(it, u) after every iteration, u (mm, (n, gdim)).
+    load_steps : int or None
+        Quasi-static increments; None: from ``step_mm`` and ``tip_step``.
+    step_mm : float
+        Largest prescribed-displacement change of one load step (mm).
+    intermediate_tol_mm : float
+        Stopping tolerance (mm) of the load steps before the last.
+    lift : bool or str
+        True, False or "auto": how the interior follows each boundary increment (as above).
+    handoff_mm : float or None
+        Residual (mm) at which ADMM hands over to the polish; None: 0.01 (Newton), 0.1 (chord).
+    tip_step : float
+        Largest move of a rigid tip in one load step, as a fraction of its radius.
+    progress : bool
+        Print a line per load step.
+    factorize : callable or None
+        factorize(A, cache) -> an object with ``solve(b)``; None: SuperLU.
+    device : str
+        "cpu" (default), "gpu" or "array-cpu" (``backends``).
+    contact_quadrature : str or int or None
+        The rigid tips' contact rule: "nodal" or a Gauss degree; None: the case's.
+    contact_penalty : float or None
+        beta of the contact penalty k = beta E / h (kPa/mm); None: the case's default.
+    tip_start : str or None
+        Where each tip starts: "nodes" or "surface"; None: the case's default.
+    initial_pushes : dict or None
+        Name -> push (mm) that a bare-array warm start was solved at (tips start there).
+    anderson : int
+        Past iterates of the Anderson acceleration; 0: plain ADMM.
+
+    Returns
+    -------
+    SolveResult
+        solver "admm": ``u`` (mm), ``probes`` (mm), ``reactions`` (mN), ``strain_energy`` (uJ),
+        the iteration counts in ``extra``, ``history["admm_clock_s"]`` (s), ``warnings``.
+
+    Raises
+    ------
+    SolverDivergedError
+        On NaN, inverted elements or residual growth (iteration and element named).
+    CaseError
+        For a ``tol_mm`` or ``max_iter`` out of range, a ``polish`` other than True, False or
+    "chord", a chord polish with rigid tips or dynamics, or pushes too large to lift.
+    GpuUnavailableError
+        For ``device="gpu"`` without CuPy or a GPU.
     """
     t0 = time.perf_counter()
     require_device(device)

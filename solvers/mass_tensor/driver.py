@@ -117,6 +117,49 @@ def solve(case, *, pushes=None, initial=None, method: str = "direct", stop_mm: f
     reference takes it: the same discrete problem as the linear P1 reference). Each tip is
     reported in ``SolveResult.indenters`` as the reference reports it; the reactions and the
     residual include the tips' forces; iterations counts the contactless solve and Newton's.
+
+    Parameters
+    ----------
+    case : Case
+        The problem: P1 mesh (mm), E (kPa) and nu, boundaries, probes and actuators.
+    pushes : dict or None
+        Actuator name -> push (mm).
+    initial : array_like or None
+        (n, d) warm start (mm); None: rest.
+    method : str
+        "direct" (default), "amg", "pcg" or "descent" (``model.METHODS``).
+    stop_mm : float
+        Stopping rule of the iterations and of the surface-sliding rounds (mm).
+    max_iter : int
+        Total iterations at most (converged=False when reached).
+    callback : callable or None
+        callback(it, u) every iteration, u (mm).
+    progress : bool
+        Print the iterations' progress.
+    step_scale : float or None
+        Fixed descent step of the iterative methods (the package docstring); None: their own.
+    factorize : callable or None
+        The direct solve's factorization hook (``MassTensorModel.solve``); None: SuperLU.
+    contact_quadrature : str or int or None
+        The rigid tips' contact rule ("nodal" or a Gauss degree); None: the case's.
+    contact_penalty : float or None
+        beta of the contact penalty k = beta E / h (kPa/mm); None: the case's default.
+    tip_start : str or None
+        Where each tip starts: "nodes" or "surface"; None: the case's default.
+    contact_tol_mm : float
+        Largest vertex move (mm) of a contact Newton step that ends it.
+
+    Returns
+    -------
+    SolveResult
+        solver "mass-tensor", as described above: ``u`` (mm), ``probes`` (mm), ``reactions``
+        (mN), ``strain_energy`` (uJ), ``residual`` (mN).
+
+    Raises
+    ------
+    CaseError
+        For a method it does not know or options that do not fit the case (e.g. rigid tips with a
+        method other than "direct").
     """
     t0 = time.perf_counter()
     case.material.require_compressible("the Mass Tensor solver")
