@@ -14,7 +14,7 @@ import importlib
 import inspect
 from dataclasses import dataclass
 
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.meshes.errors import CaseError, NotModeledError
 
 __all__ = ["SolverEntry", "control_names", "dynamics_names", "entries", "is_reference", "names",
            "reference", "solver"]
@@ -32,7 +32,9 @@ class SolverEntry:
     hook (CHOLMOD through PETSc is given where the caller gives none); control: it plays a
     control loop's plant or model and a Jacobian's solver; dynamics: "module:function" of its
     implicit-Euler dynamics, None without; devices: where it runs (one with more than "cpu"
-    takes ``device=``); summary: one line for help texts."""
+    takes ``device=``); laws: the strain-energy laws it takes (None: every law;
+    ``check_law``); law_refusal: what it solves instead and how to go on, said when it refuses
+    a law; summary: one line for help texts."""
 
     name: str
     module: str
@@ -42,6 +44,8 @@ class SolverEntry:
     control: bool = False
     dynamics: str | None = None
     devices: tuple = ("cpu",)
+    laws: tuple | None = None
+    law_refusal: str = ""
     summary: str = ""
 
     def load(self):
@@ -56,6 +60,15 @@ class SolverEntry:
             raise CaseError(f"solver {self.name!r} is a P1 displacement solver: --degree and "
                             f"--formulation mixed apply to the reference (--solver "
                             f"{reference().name})")
+
+    def check_law(self, material):
+        """Raise NotModeledError (a CaseError) naming ``material``'s law when this solver does
+        not take it (``laws``), with what it solves instead and how to go on."""
+        if self.laws is None or material.model in self.laws:
+            return
+        why = self.law_refusal.format(E=material.E, nu=material.nu)
+        raise NotModeledError(f"solver {self.name!r} does not solve the {material.model} law "
+                              f"(it takes {' and '.join(self.laws)}): {why}")
 
     def with_factorization(self, options: dict) -> dict:
         """``options`` with CHOLMOD through PETSc (``fem_reference.cholmod_factor``) as the
@@ -253,7 +266,16 @@ _ENTRIES = (
                 dynamics="tissue_reference.solvers.trajectory:admm_trajectory",
                 devices=("cpu", "gpu"),
                 summary="ADMM, the fast solver (P1)"),
+    # a linear model: linear elasticity exactly; Neo-Hookean (seed 001's use of it as a fast
+    # approximation of tissue) solved as linear elasticity of the same E and nu, and said so
+    # in the answer's model_note; every other law refused by name
     SolverEntry("mass-tensor", "tissue_reference.solvers.mass_tensor", factorized=True,
+                laws=("linear-elastic", "neo-hookean"),
+                law_refusal=("the Mass Tensor method is linear elasticity with the case's E and "
+                             "nu (E = {E:.6g} kPa, nu = {nu:.6g}), which does not represent that "
+                             "law; solve the linear model with --material linear-elastic "
+                             "(case.with_law(\"linear-elastic\")), or the law with "
+                             "another solver: --solver admm or fem solve every law"),
                 summary="the Mass Tensor Method (P1)"),
 )
 _BY_NAME = {e.name: e for e in _ENTRIES}

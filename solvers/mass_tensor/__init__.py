@@ -1,5 +1,11 @@
 """Mass Tensor Method (seed 001 section 2.4; Cotin, Delingette & Ayache 2000), numpy/scipy only.
 
+Laws (``require_law``; the registry's ``laws`` of "mass-tensor"): a linear-elastic Case, and a
+Neo-Hookean one (seed 001's fast approximation of tissue) solved as linear elasticity of its E
+and nu with the answer's ``model_note`` saying so; a Case of any other law is refused by name
+(NotModeledError, a CaseError), with ``--material linear-elastic`` or another solver (admm,
+fem: every law) as the way on.
+
 Equation: linear elasticity, P1 simplices, K u = f (stiffness K in mN/mm, u in mm, f in mN),
 psi = mu eps:eps + lambda/2 tr(eps)^2 (mu, lambda in kPa = mN/mm^2). The stiffness is stored the
 Cotin way, as one d x d tensor per vertex and one per edge, precomputed once:
@@ -117,7 +123,7 @@ MTSolution), ``driver`` (Case-level ``solve``).
 """
 from __future__ import annotations
 
-from .driver import case_point_types, forget_factorizations, require_modeled, solve
+from .driver import case_point_types, forget_factorizations, require_law, require_modeled, solve
 from .model import METHODS, MassTensorModel, MTSolution
 from .point_types import PointTypes
 from .surfaces import Plane, TriSurface
@@ -132,6 +138,7 @@ __all__ = [
     "TriSurface",
     "case_point_types",
     "forget_factorizations",
+    "require_law",
     "require_modeled",
     "solve",
     "stiffness_tensors",

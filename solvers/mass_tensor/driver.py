@@ -15,6 +15,7 @@ from tissue_reference.meshes.results import SolveResult
 from tissue_reference.meshes.tips import through_surface_state
 
 from ..contact import ContactSet, require_frictionless
+from ..registry import solver as registry_solver
 from .contact import solve_tips
 from .model import MassTensorModel
 from .point_types import PointTypes
@@ -67,10 +68,19 @@ def forget_factorizations() -> None:
         m._factors.clear()
 
 
+def require_law(case) -> None:
+    """NotModeledError (a CaseError) naming ``case``'s law when the Mass Tensor method does not
+    take it: it takes linear elasticity, and Neo-Hookean as linear elasticity of the same E and
+    nu (seed 001's fast approximation of tissue, said in the answer's ``model_note``); every
+    other law is refused with how to go on (the registry's ``laws`` of "mass-tensor")."""
+    registry_solver("mass-tensor").check_law(case.material)
+
+
 def require_modeled(case, method: str = "direct") -> None:
-    """NotModeledError when ``case`` has what this model cannot hold: a tip that is not
-    frictionless (a tied one), or tips with an iterative ``method`` (the tips' contact is
-    condensed on the direct solve's factorization)."""
+    """NotModeledError when ``case`` has what this model cannot hold: a law it does not take
+    (``require_law``), a tip that is not frictionless (a tied one), or tips with an iterative
+    ``method`` (the tips' contact is condensed on the direct solve's factorization)."""
+    require_law(case)
     require_frictionless(case, "the Mass Tensor solver")
     if case.indenters() and method != "direct":
         raise NotModeledError(f"the Mass Tensor solver presses rigid tips with method "
@@ -96,7 +106,9 @@ def solve(case, *, pushes=None, initial=None, method: str = "direct", stop_mm: f
           step_scale: float | None = None, factorize=None, contact_quadrature=None,
           contact_penalty: float | None = None, tip_start: str | None = None,
           contact_tol_mm: float = 1e-10) -> SolveResult:
-    """Mass Tensor solve of a Case (linear elasticity with the Case's E, nu, whatever its model).
+    """Mass Tensor solve of a Case: linear elasticity with the Case's E, nu, on a linear-elastic
+    or Neo-Hookean Case (the latter said in ``model_note``); another law raises NotModeledError
+    naming it (``require_law``).
 
     pushes: actuator name -> push (mm); initial (n, d) mm warm start; method "direct" (default),
     "amg" | "pcg" | "descent" (``model.METHODS``); stop_mm: stopping rule of the iterations and
@@ -162,6 +174,7 @@ def solve(case, *, pushes=None, initial=None, method: str = "direct", stop_mm: f
         method other than "direct").
     """
     t0 = time.perf_counter()
+    require_law(case)
     case.material.require_compressible("the Mass Tensor solver")
     require_modeled(case, method)
     if not (np.isfinite(contact_tol_mm) and contact_tol_mm > 0):
