@@ -84,6 +84,10 @@ steps before the last end once their residual has fallen 100-fold
 (``NewtonSettings.contact_intermediate_rtol``), mostly after their first correction, the
 tangent's predictor of the tips' increment: the corrections after it are cut short while the
 contact set moves, and only the last step's state is the answer.
+A load step that moves the tips but no Dirichlet value tests its first correction on the
+energy too (with the tips where the step puts them): the tangent at the step's start does not
+see a tip that has moved away, and a tip retracted from a pressed skin would otherwise have its
+first correction spring the skin back through it, taken whole.
 Newton's matrix leaves the tips' curvature term out of the penalty's Hessian
 (``tangent_without_curvature``, positive semi-definite) while the residual is far above its
 converged size (``NewtonSettings.contact_curvature_below``) and after a halved correction; the
@@ -290,7 +294,7 @@ class Contact:
         """Newton's line search: is the correction just tried (the solver's current state)
         taken, or shortened? With indenters: taken when it lowers the total energy (uJ; the
         residual norm r_new < r_old (mN) in the mixed formulation, a saddle point), or when
-        ``forced`` (the first correction of a load step, which also moves the Dirichlet values,
+        ``forced`` (the first correction of a load step that also moves the Dirichlet values,
         and the shortest step). A node sliding along a curved tip leaves it by s^2 / (2 R) at
         second order, which the stiff penalty turns into a large residual, so the residual norm
         would refuse steps that the energy takes. Without indenters every correction is taken,

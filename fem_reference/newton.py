@@ -190,6 +190,16 @@ class Newton:
         floor = 0.5 ** s.line_search  # the shortest step, taken regardless
         converging = False  # the last correction was taken whole and halved the residual
         rnorm = self.assemble_residual(bcs, extra_terms)
+        # the first correction is taken whole only when it also moves the Dirichlet values (the
+        # start state's energy is then not that of the problem being solved); where they stay,
+        # only the tips moved, and the start state's energy, with the tips where they are now,
+        # is the one the first trial must lower (a tip that retracts: the tangent, blind to the
+        # tip, springs the skin back through it)
+        first = 1
+        if energy and math.isfinite(rnorm) and not self.lifting_needed():
+            first = 0
+            self.contact.accepts(rnorm, rnorm, True,
+                                 self.contact.total_energy(self._extra_energy(extra_terms)))
         for it in range(1, 2 * s.max_iterations + 1):
             if trace is not None:
                 trace.append(rnorm)
@@ -209,9 +219,9 @@ class Newton:
             drop = self.K_halved_form is not None and (
                 (halved and s.contact_curvature_after_halving == "drop")
                 or (not exact and rnorm > s.contact_curvature_below * r0))
-            # the first correction of a load step also moves the Dirichlet values: not tested
+            # a first correction that also moves the Dirichlet values is not tested
             ok, slope, drop, shift = self._correction(s, bcs, eta, drop, shift,
-                                                      energy and it > 1, extra_terms)
+                                                      energy and it > first, extra_terms)
             if not ok:
                 return False, it, rnorm
             # the largest displacement correction (mm; the pressure's, in kPa, is not compared)
@@ -219,7 +229,7 @@ class Newton:
                 float(np.abs(du.x.array[self.umap]).max(initial=0.0)), op=MPI.MAX)
             if not math.isfinite(step):
                 return False, it, float("nan")
-            if energy and it > 1 and step <= atol_mm and shift == 0.0:
+            if energy and it > first and step <= atol_mm and shift == 0.0:
                 # converged whatever the energy line search would make of a correction this
                 # short: at round-off the energy cannot tell the trial from the state, and would
                 # cut it forever (a tip that has left the skin at rest: |R| ~ 1e-11, |du| ~
@@ -232,7 +242,7 @@ class Newton:
             alpha = 1.0
             while True:
                 u.x.array[:] = u_old + alpha * du.x.array
-                forced = it == 1 or alpha <= floor
+                forced = it == first or alpha <= floor
                 # with the energy line search a trial is tested on its energy first: one that
                 # the energy refuses needs no residual (an assembly of the residual vector
                 # instead of the energy's scalar; most trials where the contact set moves)

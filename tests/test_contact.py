@@ -181,6 +181,21 @@ def test_warm_start_moves_the_tip_from_where_the_initial_state_left_it(block):
     assert np.abs(warm.u - cold.u).max() < 1e-6
 
 
+@pytest.mark.parametrize("degree", [1, 2])
+def test_a_retracting_tip_releases_the_skin_to_rest(block, degree):
+    """Pressed 1.5 mm, then pulled back to 0.5 mm above its start from that state: the tip has
+    left the skin, which (no other load) returns to rest, with no force and no contact."""
+    case = quarter_case(block, sphere(2.0), model="neo-hookean")
+    pressed = fr.solve(case, pushes={"I": 1.5}, degree=degree)
+    assert pressed.indenters["I"]["contact_area"] > 0 and pressed.indenters["I"]["force"] > 0
+    back = fr.solve(case, pushes={"I": -0.5}, degree=degree, initial=pressed)
+    ind = back.indenters["I"]
+    assert back.converged and back.valid
+    assert np.abs(back.u).max() < 1e-9
+    assert ind["push"] == pytest.approx(-0.5, abs=1e-12)
+    assert ind["force"] == 0.0 and ind["contact_area"] == 0.0
+
+
 @pytest.mark.parametrize("kw,match", [
     ({"tip": "cone", "radius": 1.0}, "tip = one of"),
     ({"tip": "sphere", "radius": -1.0}, "radius > 0"),
