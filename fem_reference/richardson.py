@@ -238,7 +238,8 @@ class VectorConvergence:
         return d
 
 
-def vector_convergence(name, unit, values, h, expected, order_tol, floor, noise) -> VectorConvergence:
+def vector_convergence(name, unit, values, h, expected, order_tol, floor, noise, *,
+                       ratio: float = RATIO) -> VectorConvergence:
     v = np.asarray(values, dtype=np.float64)
     fine = np.abs(v[-1])
     k = int(np.argmax(fine))
@@ -246,5 +247,5 @@ def vector_convergence(name, unit, values, h, expected, order_tol, floor, noise)
     for c in range(v.shape[1]):
         if c == k or (fine[c] >= floor * fine[k] and fine[k] > noise):
             comps[COMPONENTS[c]] = assess(v[:, c], h, expected_order=expected, order_tol=order_tol,
-                                          noise=noise, name=f"{name} {COMPONENTS[c]}", unit=unit)
+                                          ratio=ratio, noise=noise, name=f"{name} {COMPONENTS[c]}", unit=unit)
     return VectorConvergence(name, unit, v, COMPONENTS[k], comps)

@@ -1,6 +1,8 @@
-"""``tissue converge CASE [--size MM] [--levels 3] [--degrees 1 2] [--push A1=5] [--json FILE]
-[--out DIR] [--max-cells N]``: mesh-convergence study of the reference on nested uniform
-refinements of the case mesh (``fem_reference.convergence``). Lengths mm, forces mN."""
+"""``tissue converge CASE [--size MM] [--levels 3] [--degrees 1 2] [--push A1=5]
+[--levels-by uniform|remesh] [--ratio R] [--json FILE] [--out DIR] [--max-cells N]``:
+mesh-convergence study of the reference on nested uniform refinements of the case mesh, or on
+its builtin remeshed with every cell size divided by sqrt 2 per level
+(``fem_reference.convergence``). Lengths mm, forces mN."""
 from __future__ import annotations
 
 import sys
@@ -8,7 +10,7 @@ import tomllib
 from pathlib import Path
 
 from tissue_reference.meshes.builders import BODY_DIMENSIONS, estimate_cells
-from tissue_reference.meshes.case import Material
+from tissue_reference.meshes.case import TIP_STARTS, Material
 from tissue_reference.meshes.case_file import case_path
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.io import check_output_file
@@ -18,6 +20,7 @@ from .common import (
     announce_build,
     builtin_of,
     check_outputs,
+    contact_rule,
     integer,
     parse_pushes,
     real,
@@ -52,8 +55,12 @@ def run(args) -> int:
             check_output_file(Path(args.out) / name, "--out")
     pushes = parse_pushes(args.push)
     limit = args.max_cells or MAX_CELLS
+    remesh = args.levels_by == "remesh"
+    if args.ratio is not None and not remesh:
+        raise CaseError(f"--ratio {args.ratio:g}: uniform refinement halves h; a ratio applies "
+                        f"to --levels-by remesh")
     b = builtin_of(args.case, args.size)
-    if b is not None:
+    if b is not None and not remesh:
         # the finest mesh's estimate, before a costly coarsest mesh is built (a cheap one is
         # built and counted exactly by run_study)
         try:
@@ -70,22 +77,32 @@ def run(args) -> int:
                 f"{limit:,} (--max-cells): use a larger --size, fewer --levels or raise the "
                 f"limit")
         announce_build("converge", *b, args.max_cells)
+    # remeshed levels: run_study estimates every level's cells before building any
+    solver_options = {k: v for k, v in (("contact_quadrature", args.contact_quadrature),
+                                        ("tip_start", args.tip_start)) if v is not None}
     studies = run_study(args.case, size=args.size, degrees=args.degrees, levels=args.levels,
                         pushes=pushes, max_cells=args.max_cells or MAX_CELLS,
-                        progress=not args.quiet, formulation=args.formulation)
+                        progress=not args.quiet, formulation=args.formulation,
+                        levels_by=args.levels_by, ratio=args.ratio, **solver_options)
+    ratio = studies[0].ratio
     material = _material_of(args.case)
     form = resolve_formulation(args.formulation, material)
     out = {"case": studies[0].case_name, "source": str(args.case),
            "size_mm": b[1] if b is not None else None,
            "pushes_mm": pushes, "material": material_json(material), "formulation": form,
-           "degrees": list(args.degrees), "levels": args.levels, "refinement_ratio": 2,
-           "h_definition": "mean edge length of the coarsest mesh, halved per level (mm)",
+           "degrees": list(args.degrees), "levels": args.levels, "levels_by": args.levels_by,
+           "refinement_ratio": ratio,
+           "h_definition": (f"mean edge length of the coarsest mesh, divided by {ratio:.6g} per "
+                            f"level as the cell sizes are (mm; each level's measured mean edge: "
+                            f"mean_edge_mm)" if remesh else
+                            "mean edge length of the coarsest mesh, halved per level (mm)"),
            "max_cells": limit,
            "solver_settings": settings_json(),
-           # every level straight-sided (fem_reference.convergence): geometry order 1
+           # uniform levels straight-sided unless every level carries curved edges
+           # (fem_reference.convergence); the solver's geometry order as solved
            "studies": [{**study_to_json(st), "formulation": form,
                         "pressure_degree": st.degree - 1 if form == "mixed" else None,
-                        "geometry_order": 1} for st in studies]}
+                        "geometry_order": st.geometry_order} for st in studies]}
     for st in studies:
         print(format_study(st))
         print()
@@ -102,7 +119,8 @@ def run(args) -> int:
 
 def add_parser(sub):
     p = sub.add_parser("converge", help="mesh-convergence study of the reference (nested "
-                                        "uniform refinement, observed orders, GCI)")
+                                        "uniform refinement or remeshed levels, observed "
+                                        "orders, GCI)")
     p.add_argument("case", type=case_path,
                    help="case TOML file, or a shipped case's name (e.g. phantom)")
     p.add_argument("--size", type=real("positive", "mm"), default=None,
@@ -110,8 +128,17 @@ def add_parser(sub):
                         "default: the case's own mesh)")
     p.add_argument("--levels", type=integer(3, 12, "at least 3 meshes: an observed order "
                                                   "takes three"), default=3,
-                   help="number of meshes: the coarsest and levels-1 uniform refinements "
-                        "(>= 3; 4 or more to confirm the observed order)")
+                   help="number of meshes: the coarsest and levels-1 uniform refinements or "
+                        "remeshed levels (>= 3; 4 or more to confirm the observed order)")
+    p.add_argument("--levels-by", choices=("uniform", "remesh"), default="uniform",
+                   help="uniform: each level splits every cell of the previous (h halved); "
+                        "remesh (a builtin mesh only): level k is the builtin built again with "
+                        "every cell size of the case's [mesh] table (size, site_size, "
+                        "path_size, rim_size, base_rim_size) divided by --ratio^k, as the "
+                        "indenter phantom's refinement studies are")
+    p.add_argument("--ratio", type=real("positive"), default=None,
+                   help="--levels-by remesh: the factor the cell sizes shrink by per level "
+                        "(default sqrt 2: about 2.8x the cells per level in 3D)")
     p.add_argument("--degrees", type=int, nargs="+", default=[1], choices=(1, 2, 3),
                    help="Lagrange degrees to study, one refinement study each")
     p.add_argument("--push", action="append", metavar="NAME=MM", default=None,
@@ -119,9 +146,18 @@ def add_parser(sub):
     p.add_argument("--formulation", choices=("auto", "displacement", "mixed"), default="auto",
                    help="reference formulation (auto: mixed u-p for nu >= 0.49, which needs "
                         "--degrees 2 or 3)")
+    p.add_argument("--contact-quadrature", type=contact_rule, default=None, metavar="RULE",
+                   help="where indenters' contact is sampled: 'nodal' (the skin's nodes) or a "
+                        "Gauss degree on the skin's facets; default: the case's [reference] "
+                        "contact_quadrature, else nodal")
+    p.add_argument("--tip-start", choices=TIP_STARTS, default=None,
+                   help="where indenters start: touching the skin's nodes or its curved facets; "
+                        "default: the case's [reference] tip_start, else nodes with the nodal "
+                        "contact rule and surface with a Gauss rule")
     p.add_argument("--max-cells", type=integer(1), default=None,
                    help="refuse a study whose finest mesh would exceed this many cells "
-                        "(default 400,000; each refinement multiplies cells by 8 in 3D)")
+                        "(default 400,000; each uniform refinement multiplies cells by 8 in 3D; "
+                        "remeshed levels are estimated before any is built)")
     p.add_argument("--out", help="folder for convergence.png, convergence.json and report.html "
                                  "(the study's tables with units, and the plot)")
     p.add_argument("--json", help="JSON file")
