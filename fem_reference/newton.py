@@ -229,6 +229,11 @@ class Newton:
                 float(np.abs(du.x.array[self.umap]).max(initial=0.0)), op=MPI.MAX)
             if not math.isfinite(step):
                 return False, it, float("nan")
+            if it == 1 and first == 0 and step <= s.intermediate_atol_mm:
+                # a first correction this short carries no skin through a tip, and near
+                # round-off the energy cannot judge it: taken whole, as one that moves the
+                # Dirichlet values is
+                first = 1
             if energy and it > first and step <= atol_mm and shift == 0.0:
                 # converged whatever the energy line search would make of a correction this
                 # short: at round-off the energy cannot tell the trial from the state, and would
