@@ -243,6 +243,14 @@ class ContactSet:
         _, g, nrm = self._state(u, o)
         return (self.S.T @ (-(self.Wk * penalty_phi(-g, self.eps)[1])[:, None] * nrm)).reshape(-1)
 
+    def active(self, u, o) -> np.ndarray:
+        """The points in contact (phi' > 0, those ``hessian`` spreads) at u with the tips' ends
+        at o, as sorted indices."""
+        if not self.P:
+            return np.zeros(0, np.int64)
+        _, g, _ = self._state(u, o)
+        return np.flatnonzero(penalty_phi(-g, self.eps)[1] > 0)
+
     def point_terms(self, y, o, at=slice(None)):
         """At the points ``at`` (indices or a slice) placed at y (k, gdim) mm, their tips' ends
         at o (k, gdim): (e, f, g, nrm, d1, d2): their energies W k phi(-g) (k,) uJ, the forces

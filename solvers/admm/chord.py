@@ -19,13 +19,25 @@ the last one taken, is replaced by the plain chord iterate and the history resta
 whose correction grew past ``GROWTH`` times the smallest one so far, or a non-finite one, ends
 the polish unconverged: the caller finishes with the exact-tangent Newton polish from the best
 iterate (``driver``). Stops when the largest vertex correction is below ``tol_mm``.
-Quasi-static only and without rigid tips: the contact's penalty stiffness is not in the rest
-tangent (those solves use the Newton polish). Units: mm, mN.
+
+Rigid tips (``tips``: their ends at the contact points): the residual includes the contact
+forces, and the chord matrix is the tangent at rest plus the contact Hessian without the tips'
+curvature (``ContactSet.hessian(..., curvature=False)``: positive semi-definite, so the matrix
+stays positive definite) of the points in contact at the state it is factorized at; with no
+point in contact it is the kept rest factorization. It is factorized anew (counted in
+``stats["refactorizations"]``) at the start state where points are in contact, whenever the
+set of points in contact at the chord's state changes (the history restarts), and, from the
+best iterate, when the steps stop contracting (no correction below the smallest since the last
+factorization for ``STALL`` steps, or one past ``GROWTH`` times it); at most
+``MAX_REFACTORIZATIONS`` times a polish, after which the steps go on with the last matrix and
+the rules above end the polish unconverged. Quasi-static only (no inertia in the matrix).
+Units: mm, mN.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from .factor import sym_splu
 from .loop import Anderson
 
 GROWTH = 10.0
@@ -33,38 +45,157 @@ GROWTH = 10.0
 (diverging: the Newton polish takes over)."""
 
 
+STALL = 3
+"""With rigid tips: this many chord corrections in a row none smaller than the smallest since the
+last factorization refactorize the chord matrix at the best iterate."""
+
+MAX_REFACTORIZATIONS = 20
+"""With rigid tips: the most factorizations of the chord matrix with contact in one polish."""
+
+
+def _residual(ops, u, fext, tips, check=True):
+    """The residual at u with the tips' contact forces (``tips``: their ends, or None); None
+    where ``check`` and a cell of u is inverted."""
+    r = ops.residual_if_valid(u, fext) if check else ops.residual(u, fext)
+    if r is not None and tips is not None:
+        r = r + ops.contact.gradient(u, tips)
+    return r
+
+
+def _backtrack(ops, ub, q, f, rf, fext, tips, halvings: int = 40):
+    """The step length alpha (1, 1/2, ...) along the chord correction f from q that keeps every
+    cell valid and decreases the energy with the tips (Armijo, slope rf . f); None where none
+    does."""
+    Z = ops.red.Z
+    e0, _ = ops.energy(ub + Z @ q, fext, tips)
+    slope = float(rf @ f)
+    alpha = 1.0
+    for _ in range(halvings):
+        e1, J = ops.energy(ub + Z @ (q + alpha * f), fext, tips)
+        if (J is None or np.all(J > 0)) and np.isfinite(e1) \
+                and e1 <= e0 + 1e-4 * alpha * slope + 1e-12 * abs(e0):
+            return alpha
+        alpha *= 0.5
+    return None
+
+
+class _ContactChord:
+    """The chord matrix with rigid tips (module docstring): the rest factorization where no point
+    is in contact, else the rest tangent plus the contact Hessian without the tips' curvature of
+    the points in contact, factorized by ``sym_splu`` with ``factorize``."""
+
+    def __init__(self, ops, tips, rest, factorize):
+        self.ops, self.tips, self.rest, self.factorize = ops, tips, rest, factorize
+        self.on = None
+        self.factor = rest
+        self.count = 0
+
+    def refactor(self, u, same=True) -> bool:
+        """The matrix at u; False (the matrix kept) past MAX_REFACTORIZATIONS, or where no point
+        is in contact at u nor was before and not ``same`` (the rest matrix again)."""
+        ops = self.ops
+        on = ops.contact.active(u, self.tips)
+        if not len(on):
+            if not same and self.on is not None and not len(self.on):
+                return False
+            self.on, self.factor = on, self.rest
+            return True
+        if self.count >= MAX_REFACTORIZATIONS:
+            return False
+        Hc = ops.contact.hessian(u, self.tips, curvature=False)
+        Kr, _ = ops.reduced_tangent(np.zeros(ops.N), extra=Hc)
+        self.factor = sym_splu(Kr, ops.factor_cache, self.factorize)
+        self.on = on
+        self.count += 1
+        return True
+
+
 def chord(ops, u, fext, factor, *, tol_mm: float, max_iter: int, anderson: int = 5,
-          it0: int = 0, hist=None, callback=None):
+          it0: int = 0, hist=None, callback=None, tips=None, factorize=None, stats=None):
     """Chord steps with the factorization ``factor`` (its ``solve(b)``) of the reduced tangent
     at rest, Anderson-mixed over ``anderson`` iterates (``loop.Anderson``, whose own safeguard
     drops an extrapolation whose correction grew), from u (mm, (N,)) with its prescribed part as
-    it is. Returns (u, iterations, converged): the last iterate, or the one with the smallest
-    correction if the steps diverged (module docstring)."""
+    it is. ``tips``: the rigid tips' ends at the contact points (None: no contact), the chord
+    matrix then refactorized with the points in contact (module docstring; ``factorize`` the
+    factorization hook, the count added to ``stats["refactorizations"]``). Returns (u,
+    iterations, converged): the last iterate, or the one with the smallest correction if the
+    steps diverged (module docstring)."""
     Z, ZT = ops.red.Z, ops.red.ZT
+    if tips is not None and getattr(ops, "contact", None) is None:
+        tips = None
     ub = u - Z @ (ZT @ u)
     mix = Anderson(anderson)
     mix.x = q = ZT @ u
     best_q, best_step = q, np.inf
-    for k in range(1, int(max_iter) + 1):
-        r = ops.residual_if_valid(ub + Z @ q, fext)
-        if r is None:
-            if mix.accelerated:
-                mix.refuse()   # an extrapolation that inverts an element: the plain step
-                q = mix.x
-            r = ops.residual(ub + Z @ q, fext)
-        f = -factor.solve(ZT @ r)   # the chord correction
-        g = q + f
-        step = ops.step_norm(f)
-        if hist is not None:
-            hist["newton_step_mm"].append(step)
-        if not np.isfinite(step) or step > GROWTH * best_step:
-            return ub + Z @ best_q, k, False
-        if step < best_step:
-            best_q, best_step = g, step
-        if callback is not None:
-            callback(it0 + k, (ub + Z @ g).reshape(-1, ops.d))
-        if step < tol_mm and ops.valid(ub + Z @ g):
-            return ub + Z @ g, k, True
-        mix.step(g)   # an extrapolation is tested with the next residual
-        q = mix.x
-    return ub + Z @ best_q, int(max_iter), False
+    cm = None
+    if tips is not None:
+        cm = _ContactChord(ops, tips, factor, factorize)
+        cm.refactor(u)
+    since, stalled = np.inf, 0   # the smallest correction since the last factorization
+
+    def restart(q_new, same=True):
+        """The chord matrix at q_new, the history restarted there; False where none is made."""
+        nonlocal mix, since, stalled
+        if not cm.refactor(ub + Z @ q_new, same):
+            return False
+        mix = Anderson(anderson)
+        mix.x = q_new
+        since, stalled = np.inf, 0
+        return True
+
+    try:
+        for k in range(1, int(max_iter) + 1):
+            r = _residual(ops, ub + Z @ q, fext, tips)
+            if r is None:
+                if mix.accelerated:
+                    mix.refuse()   # an extrapolation that inverts an element: the plain step
+                    q = mix.x
+                r = _residual(ops, ub + Z @ q, fext, tips, check=False)
+            if cm is not None:
+                on_q = ops.contact.active(ub + Z @ q, tips)
+                if not np.array_equal(on_q, cm.on):
+                    restart(q)   # the points in contact changed: the matrix of the new set
+            rf = ZT @ r
+            f = -(cm.factor if cm is not None else factor).solve(rf)   # the chord correction
+            g = q + f
+            step = ops.step_norm(f)
+            if hist is not None:
+                hist["newton_step_mm"].append(step)
+            if not np.isfinite(step) or step > GROWTH * best_step:
+                if cm is not None and np.isfinite(best_step) and restart(best_q, False):
+                    q = best_q   # diverging: the matrix at the best iterate, from there
+                    continue
+                return ub + Z @ best_q, k, False
+            crossing = cm is not None and not np.array_equal(
+                on_q, ops.contact.active(ub + Z @ g, tips))
+            if crossing:
+                # the correction moves points into or out of contact, where the chord matrix
+                # does not hold: backtracked on the energy (a descent direction: the matrix is
+                # positive definite), the history restarted after it
+                alpha = _backtrack(ops, ub, q, f, rf, fext, tips)
+                if alpha is None:
+                    return ub + Z @ best_q, k, False
+                g = q + alpha * f
+            if step < best_step:
+                best_q, best_step = g, step
+            if step < since:
+                since, stalled = step, 0
+            else:
+                stalled += 1
+            if callback is not None:
+                callback(it0 + k, (ub + Z @ g).reshape(-1, ops.d))
+            if step < tol_mm and ops.valid(ub + Z @ g):
+                return ub + Z @ g, k, True
+            if cm is not None and stalled >= STALL and restart(best_q, False):
+                q = best_q   # not contracting: the matrix at the best iterate, from there
+                continue
+            if crossing:
+                mix = Anderson(anderson)
+                mix.x = q = g
+                continue
+            mix.step(g)   # an extrapolation is tested with the next residual
+            q = mix.x
+        return ub + Z @ best_q, int(max_iter), False
+    finally:
+        if stats is not None and cm is not None:
+            stats["refactorizations"] = stats.get("refactorizations", 0) + cm.count

@@ -56,8 +56,10 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         (default 0.1 mm), the whole change is tried in one load step first (the load steps
         below where it fails: listed in ``extra["polish_restarts"]``), and where the chord
         steps diverge the Newton polish takes over from their best iterate (listed in
-        ``extra["chord_fallbacks"]``). Quasi-static solves
-        without rigid tips only (others are refused by name).
+        ``extra["chord_fallbacks"]``). With rigid tips the chord matrix adds the contact
+        Hessian (without the tips' curvature) of the points in contact, factorized anew as
+        they change or the steps stop contracting (``chord``; counted in
+        ``extra["chord_refactorizations"]``). Quasi-static solves only (dynamics is refused).
     dynamics: ImplicitEuler(dt, steps) for dynamics; None for quasi-static equilibrium.
     load_steps: quasi-static increments (default: the prescribed change from the start state
         divided in steps of at most ``step_mm``, mm, that move no tip by more than ``tip_step``
@@ -154,7 +156,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         On NaN, inverted elements or residual growth (iteration and element named).
     CaseError
         For a ``tol_mm`` or ``max_iter`` out of range, a ``polish`` other than True, False or
-    "chord", a chord polish with rigid tips or dynamics, or pushes too large to lift.
+    "chord", a chord polish in dynamics, or pushes too large to lift.
     GpuUnavailableError
         For ``device="gpu"`` without CuPy or a GPU.
     """
@@ -175,10 +177,9 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
         polish_tol_mm = tol_mm if use_chord else tol_mm / 100.0
     if handoff_mm is None:
         handoff_mm = 0.1 if use_chord else 1e-2
-    if use_chord and (case.indenters() or dynamics is not None):
+    if use_chord and dynamics is not None:
         raise CaseError(f"{case.source or case.name}: polish='chord' is for quasi-static solves "
-                        f"without rigid tips (its tangent at rest has no contact stiffness and "
-                        f"no inertia): use polish=True")
+                        f"(its tangent at rest has no inertia): use polish=True")
     dt = dynamics.dt if dynamics is not None else None
 
     contact = {k: v for k, v in (("rule", contact_quadrature), ("penalty", contact_penalty),
@@ -217,12 +218,14 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
 
     fallbacks = []
     chord_steps = [0]
+    chord_stats = {"refactorizations": 0}
 
     def newton_step(u_j, f, inertia, it0, tol=polish_tol_mm, s=1.0):
         k = 0
         if use_chord:
             u_j, k, ok = chord(ops, u_j, f, rest_pair()[1], tol_mm=tol, max_iter=polish_max_iter,
-                               it0=it0, hist=hist, callback=callback)
+                               it0=it0, hist=hist, callback=callback, tips=tips_at(s),
+                               factorize=factorize, stats=chord_stats)
             chord_steps[0] += k
             if ok:
                 return u_j, k
@@ -290,6 +293,7 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
              "rho_kPa": ops.rho, "setup_s": ops.setup_s, "tol_mm": tol_mm,
              "polish_restarts": restarts, "lift_solves": lifts,
              **({"polish": "chord", "chord_iterations": chord_steps[0],
+                 "chord_refactorizations": chord_stats["refactorizations"],
                  "chord_fallbacks": fallbacks} if use_chord else {}),
              **state, **extra, "device": device}
     if be.cg_iterations is not None:
