@@ -11,7 +11,7 @@ from tissue_reference.meshes.case import UNCOUPLED_LAWS, Case, Material
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.tips import default_contact_rule, default_tip_start
 
-__all__ = ["DEFAULT_QUADRATURE", "FORMULATIONS", "MIXED_FROM_NU", "Discretization",
+__all__ = ["DEFAULT_QUADRATURE", "FORMULATIONS", "MIXED_FROM_NU", "SPLIT_LAWS", "Discretization",
            "default_degree", "resolve_formulation"]
 
 # Quadrature degree per Lagrange degree. P1: F is constant per cell, degree 1 integrates the
@@ -23,6 +23,9 @@ FORMULATIONS = ("auto", "displacement", "mixed")
 # "auto" picks the mixed u-p formulation from this Poisson ratio up: displacement elements lock
 # (P1) or show pressure oscillations in their reactions (P2) as nu -> 0.5.
 MIXED_FROM_NU = 0.49
+SPLIT_LAWS = (*UNCOUPLED_LAWS, "linear-elastic")
+"""The laws whose volumetric energy the mixed u-p formulation splits off: the only laws it
+takes (the others couple it: compressible laws)."""
 
 
 def resolve_formulation(formulation: str, material: Material) -> str:
@@ -30,7 +33,7 @@ def resolve_formulation(formulation: str, material: Material) -> str:
     for nu >= MIXED_FROM_NU, displacement below."""
     if formulation not in FORMULATIONS:
         raise CaseError(f"formulation must be one of {list(FORMULATIONS)}, got {formulation!r}")
-    split = material.model in UNCOUPLED_LAWS or material.model == "linear-elastic"
+    split = material.model in SPLIT_LAWS
     if formulation == "auto":
         return "mixed" if split and material.nu >= MIXED_FROM_NU else "displacement"
     if formulation == "mixed" and not split:

@@ -45,10 +45,10 @@ from functools import cached_property
 
 import numpy as np
 
+from tissue_reference.fem_reference.discretization import SPLIT_LAWS
 from tissue_reference.meshes.builders import box, cook_membrane, shell_octant
 from tissue_reference.meshes.case import (
     MATERIAL_MODELS,
-    UNCOUPLED_LAWS,
     Boundary,
     Case,
     Material,
@@ -64,14 +64,9 @@ from .plugins import resolve_solver, run_plugin
 from .suite_report import write_scorecard
 from .verify import FAST_SOLVERS
 
-__all__ = ["PROBLEMS", "SPLIT_LAWS", "Problem", "law_material", "run_suite"]
+__all__ = ["PROBLEMS", "Problem", "law_material", "run_suite"]
 
 E_TISSUE = 6.0   # kPa
-
-
-SPLIT_LAWS = (*UNCOUPLED_LAWS, "linear-elastic")
-"""The laws whose volumetric energy the mixed u-p formulation splits off (the nearly
-incompressible shell's reference needs it)."""
 
 
 def law_material(model: str, E: float, nu: float) -> Material:
@@ -121,9 +116,10 @@ class Problem:
         if not callable(self.law_answer):
             return self.law_answer or f"{self.name} has no answer on other laws"
         m = self.case.material
-        if (model == "linear-elastic" or model not in UNCOUPLED_LAWS) and (
-                m.nu >= 0.5 or (self.reference.get("formulation") == "mixed"
-                                and model not in SPLIT_LAWS)):
+        # nu = 0.5 has no compressible or linear-elastic material; a mixed reference needs a
+        # law that the mixed formulation splits (the rule of ``resolve_formulation``)
+        if ((m.nu >= 0.5 and (model == "linear-elastic" or model not in SPLIT_LAWS))
+                or (self.reference.get("formulation") == "mixed" and model not in SPLIT_LAWS)):
             return (f"{self.name} needs the mixed u-p formulation, which the {model} law does "
                     f"not split (a compressible law)")
         material = law_material(model, m.E, m.nu)
