@@ -294,11 +294,11 @@ def test_the_shifted_tangent_and_the_fitted_step_lengths_reach_the_same_answer()
     case = load_case(CASES / "phantom-indenter-quarter.toml",
                      mesh=build("phantom-quarter", 8.0, site_size=3.2))
     pushes = {a.name: 5.0 for a in case.actuators}
-    # the exact tangent from each load step's start and short tip steps, each converged to
-    # 1e-6, where the crushed tissue makes it indefinite (Newton's matrix without the tips'
-    # curvature far from the answer, the default, avoids that here, and so does the path of
-    # load steps converged to the default 1e-4)
-    exact = {"contact_curvature_below": math.inf, "tip_step": 0.1, "intermediate_rtol": 1e-6}
+    # the exact tangent from each load step's start and tip steps of a whole radius, each
+    # converged to 1e-6, where the crushed tissue makes it indefinite (Newton's matrix without
+    # the tips' curvature far from the answer, the default, avoids that here, and so do the
+    # default steps of 0.1 radius, each first correction tested on the energy)
+    exact = {"contact_curvature_below": math.inf, "tip_step": 1.0, "intermediate_rtol": 1e-6}
     a = fr.solve(case, pushes=pushes, degree=2, contact_quadrature="nodal",
                  settings=fr.NewtonSettings(descent_shift=0.0, **exact))
     assert a.converged and a.valid
