@@ -68,10 +68,10 @@ def test_chord_steps_find_a_linear_maps_fixed_point_with_a_wrong_factor():
         def valid(self, u):   # linear: no cell to invert
             return True
 
-        def residual(self, u, fext):
+        def residual(self, u, fext, tips=None):
             return A @ u - b
 
-        def residual_if_valid(self, u, fext):
+        def residual_if_valid(self, u, fext, tips=None):
             return self.residual(u, fext)
 
         def step_norm(self, dq):

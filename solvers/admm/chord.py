@@ -53,15 +53,6 @@ MAX_REFACTORIZATIONS = 20
 """With rigid tips: the most factorizations of the chord matrix with contact in one polish."""
 
 
-def _residual(ops, u, fext, tips, check=True):
-    """The residual at u with the tips' contact forces (``tips``: their ends, or None); None
-    where ``check`` and a cell of u is inverted."""
-    r = ops.residual_if_valid(u, fext) if check else ops.residual(u, fext)
-    if r is not None and tips is not None:
-        r = r + ops.contact.gradient(u, tips)
-    return r
-
-
 def _backtrack(ops, ub, q, f, rf, fext, tips, halvings: int = 40):
     """The step length alpha (1, 1/2, ...) along the chord correction f from q that keeps every
     cell valid and decreases the energy with the tips (Armijo, slope rf . f); None where none
@@ -145,12 +136,12 @@ def chord(ops, u, fext, factor, *, tol_mm: float, max_iter: int, anderson: int =
 
     try:
         for k in range(1, int(max_iter) + 1):
-            r = _residual(ops, ub + Z @ q, fext, tips)
+            r = ops.residual_if_valid(ub + Z @ q, fext, tips)
             if r is None:
                 if mix.accelerated:
                     mix.refuse()   # an extrapolation that inverts an element: the plain step
                     q = mix.x
-                r = _residual(ops, ub + Z @ q, fext, tips, check=False)
+                r = ops.residual(ub + Z @ q, fext, tips)
             if cm is not None:
                 on_q = ops.contact.active(ub + Z @ q, tips)
                 if not np.array_equal(on_q, cm.on):

@@ -330,15 +330,19 @@ class AdmmOperators:
         (``contact.ContactSet.origins``): the gradient of the P1 energy, zero on the free dofs
         at equilibrium. ``values``: ``law_values(u)`` where known."""
         r, _ = self._forces(u, fext, values)
+        return self._with_contact(r, u, tips)
+
+    def residual_if_valid(self, u, fext, tips=None):
+        """``residual(u, fext, tips)``, or None where a cell of u is inverted (det F <= 0, the
+        test of ``valid``): one pass serves both."""
+        r, ok = self._forces(u, fext)
+        return self._with_contact(r, u, tips) if ok else None
+
+    def _with_contact(self, r, u, tips):
+        """r plus the rigid tips' contact forces at u where ``tips`` gives their ends."""
         if tips is not None and self.contact is not None:
             r = r + self.contact.gradient(u, tips)
         return r
-
-    def residual_if_valid(self, u, fext):
-        """``residual(u, fext)`` (no tips), or None where a cell of u is inverted (det F <= 0,
-        the test of ``valid``): one pass serves both."""
-        r, ok = self._forces(u, fext)
-        return r if ok else None
 
     def residuals(self, U, fext) -> np.ndarray:
         """``residual`` of each column of U ((N, k) mm) at once, (N, k) mN: one sparse product
