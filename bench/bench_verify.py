@@ -9,12 +9,14 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from functools import partial
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tissue_reference.meshes.case import load_case
-from tissue_reference.tissue.verify import verify
+from tissue_reference.tissue.verify_report import write_report
+from tissue_reference.verification.verify import verify
 
 ROOT = Path(__file__).resolve().parents[1]
 PUSHES = {"A1": 15.0, "A2": 15.0, "A3": 15.0, "A4": 15.0}
@@ -37,9 +39,9 @@ def main(argv=None):
         runs.append(("phantom (seed 001: linear-elastic, E = 48 kPa, nu = 0.45)",
                      base.with_material(model="linear-elastic", E=48.0, nu=0.45), mts))
     for title, case, solvers in runs:
-        out = None if args.out is None else Path(args.out) / solvers[0]
+        report = None if args.out is None else partial(write_report, Path(args.out) / solvers[0])
         js = None if args.json is None else Path(args.json).with_suffix(f".{solvers[0]}.json")
-        res = verify(case, PUSHES, solvers=solvers, out_dir=out, json_file=js)
+        res = verify(case, PUSHES, solvers=solvers, report=report, json_file=js)
         print(f"\n{title}: {case.mesh.n_vertices} vertices, {case.mesh.n_cells} tets, "
               f"pushes {PUSHES} mm")
         for model, r in res["reference"]["runs"].items():

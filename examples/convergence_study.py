@@ -19,7 +19,7 @@ from __future__ import annotations
 from tissue_reference.fem_reference.convergence import run_study
 from tissue_reference.fem_reference.richardson import assess
 from tissue_reference.meshes.case import load_case
-from tissue_reference.tissue.closed_forms import thick_sphere
+from tissue_reference.verification.closed_forms import thick_sphere
 
 
 def main():

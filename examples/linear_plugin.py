@@ -1,7 +1,7 @@
 """An example solver that is not part of the toolkit: small-strain linear elasticity on the
 case mesh's linear simplices (P1), assembled with numpy and solved with scipy, in about fifty
-lines. It follows the solver protocol of ``tissue.plugins``: ``solve(case, pushes, **options)``
-returns the displacement at every vertex (mm, one row per vertex of ``case.mesh``).
+lines. It follows the solver protocol of ``verification.plugins``: ``solve(case, pushes,
+**options)`` returns the displacement at every vertex (mm, one row per vertex of ``case.mesh``).
 
 Score it against the reference from the command line::
 
@@ -9,7 +9,7 @@ Score it against the reference from the command line::
 
 or from Python::
 
-    from tissue_reference.tissue.verify import verify
+    from tissue_reference.verification.verify import verify
     from examples.linear_plugin import solve
     verify(case, {"A1": 2.0}, solvers=[solve])
 

@@ -3,10 +3,10 @@
 Any code that writes its answer to a file can be scored: a VTU / VTK / XDMF with its own points
 and cells (any mesh of the same body), or an NPY / CSV in the case mesh's vertex order. Here the
 "other code" is a coarse solve (the phantom meshed at 14 mm), written as a VTU into a temporary
-folder; ``tissue.verify.verify(case, pushes, field=path)`` scores it against the reference on a
-finer mesh (8 mm). The points do not coincide, so the reference is interpolated to the field's
-points (``tissue.scoring``): max and RMS point error, volume L2, H1 and energy norms of the
-difference (absolute and relative), and each probe's error.
+folder; ``verification.verify.verify(case, pushes, field=path)`` scores it against the
+reference on a finer mesh (8 mm). The points do not coincide, so the reference is interpolated to
+the field's points (``verification.scoring``): max and RMS point error, volume L2, H1 and energy
+norms of the difference (absolute and relative), and each probe's error.
 
 The same from the command line: ``tissue verify phantom --size 8 --push A1=2 --field u.vtu``
 
@@ -22,7 +22,7 @@ from pathlib import Path
 import tissue_reference.fem_reference as fr
 from tissue_reference.meshes.case import load_case
 from tissue_reference.meshes.writers import write_mesh
-from tissue_reference.tissue.verify import verify
+from tissue_reference.verification.verify import verify
 
 
 def main():

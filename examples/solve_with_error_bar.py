@@ -4,7 +4,7 @@ The shipped case ``thick-sphere`` is a thick Neo-Hookean shell (radii 10 and 20 
 whose inner surface is pushed 2 mm outward. ``fem_reference.solve(..., estimate=True)`` solves it
 (P2 on curved cells, the case's default) and then once more at degree 3 on the same mesh: the
 difference is each probe's and each reaction's estimated error. Because this problem has an
-independent answer (the radial equilibrium ODE, ``tissue.closed_forms.thick_sphere``), the
+independent answer (the radial equilibrium ODE, ``verification.closed_forms.thick_sphere``), the
 script also prints the true error beside the estimate. A shipped case that measured its default
 against converged answers states that too, in ``extra["measured_accuracy"]``.
 
@@ -18,7 +18,7 @@ import numpy as np
 
 import tissue_reference.fem_reference as fr
 from tissue_reference.meshes.case import load_case
-from tissue_reference.tissue.closed_forms import thick_sphere
+from tissue_reference.verification.closed_forms import thick_sphere
 
 
 def main():

@@ -2,8 +2,9 @@
 
 ``examples/linear_plugin.py`` is such a solver: small-strain linear elasticity in numpy, following
 the plugin protocol (``solve(case, pushes, **options)`` returns the (n, 3) vertex displacement,
-mm). ``tissue.verify.verify`` solves the reference on the same mesh and scores the plugin: max and
-RMS vertex error, probe errors, volume norms, and its speed against the reference's.
+mm). ``verification.verify.verify`` solves the reference on the same mesh and scores the
+plugin: max and RMS vertex error, probe errors, volume norms, and its speed against the
+reference's.
 
 The plugin returns a bare array, so it states no material law and is scored against the case's
 own (Neo-Hookean): its error then holds the law difference. Wrapped to declare
@@ -20,8 +21,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from tissue_reference.meshes.case import load_case
-from tissue_reference.tissue.plugins import resolve_solver
-from tissue_reference.tissue.verify import verify
+from tissue_reference.verification.plugins import resolve_solver
+from tissue_reference.verification.verify import verify
 
 PLUGIN = f"{Path(__file__).with_name('linear_plugin.py')}:solve"   # "file.py:function"
 

@@ -1,9 +1,9 @@
 """A solver of another material law, scored against the reference of the law it declares.
 
 A plugin solver says which law it solves in its answer's ``extra["model"]`` (any law of
-docs/laws.md). ``tissue.verify.verify`` then scores it against the reference of that law with the
-case's E and nu, and reports the distance between the two laws' references apart, as the law
-difference: a solver of another law is not charged with it as solver error.
+docs/laws.md). ``verification.verify.verify`` then scores it against the reference of that
+law with the case's E and nu, and reports the distance between the two laws' references apart,
+as the law difference: a solver of another law is not charged with it as solver error.
 
 The solver here solves one problem exactly: a 10 mm block (Neo-Hookean in its case) pulled 2 mm
 along x between sliding faces, whose answer is homogeneous, F = diag(s, t, t). For the Stable
@@ -20,7 +20,7 @@ import numpy as np
 
 from tissue_reference.meshes.builders import box
 from tissue_reference.meshes.case import Boundary, Case, Material, Probe
-from tissue_reference.tissue.verify import verify
+from tissue_reference.verification.verify import verify
 
 
 def stable_neo_hookean_block(case, pushes):

@@ -172,7 +172,7 @@ def test_verify_scores_admm_its_chord_polish_and_the_mass_tensor_on_tips(
     """ADMM with the Newton and the chord polish against the P1 reference; the Mass Tensor method
     against the linear reference of the same E and nu (the same contact), its iterative methods
     skipped: its tips need the direct solve."""
-    from tissue_reference.tissue.verify import verify
+    from tissue_reference.verification.verify import verify
 
     out = verify(tip_case(block), {"I": 1.0},
                  solvers=["admm", "mass-tensor", "mass-tensor-amg", "admm-chord"])

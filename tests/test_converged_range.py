@@ -139,7 +139,7 @@ def test_a_refinement_study_extrapolates_nothing_past_the_range(tmp_path, capsys
 
 
 def test_verifying_a_field_at_such_a_load_says_the_reference_is_no_converged_answer(coarse):
-    from tissue_reference.tissue.verify import verify
+    from tissue_reference.verification.verify import verify
 
     zero = np.zeros_like(coarse.mesh.points)
     deep = verify(coarse, {"A1": 10.0}, solvers=(), field=zero)

@@ -374,7 +374,7 @@ def test_a_p2_study_of_the_thick_sphere_converges_at_order_three_to_the_radial_o
     faceted surface held the order near 2 (2.17 measured), out of the asymptotic range."""
     from tissue_reference.fem_reference.convergence import run_study
     from tissue_reference.meshes.case import load_case
-    from tissue_reference.tissue.closed_forms import thick_sphere
+    from tissue_reference.verification.closed_forms import thick_sphere
 
     m = load_case("thick-sphere").material
     exact = thick_sphere(10.0, 20.0, 2.0, m.mu, m.kappa)["u_outer"]

@@ -71,7 +71,7 @@ def test_a_folder_of_a_cases_name_does_not_hide_it(elsewhere):
 
 
 def test_a_solver_file_loads_once_and_imports_its_neighbours(elsewhere):
-    from tissue_reference.tissue.plugins import resolve_solver
+    from tissue_reference.verification.plugins import resolve_solver
 
     (elsewhere / "helper.py").write_text("SCALE = 2.0\n")
     (elsewhere / "uses_helper.py").write_text(

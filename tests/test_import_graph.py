@@ -17,14 +17,29 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tools"))
 import import_graph
 
-TREES = ("meshes", "fem_reference", "solvers", "control", "implant", "tissue", "tissue_reference",
-         "tests", "bench", "tools", "examples")
+TREES = ("meshes", "fem_reference", "solvers", "control", "implant", "verification", "tissue",
+         "tissue_reference", "tests", "bench", "tools", "examples")
 
 
 def test_no_import_cycle_among_the_modules():
     graph = import_graph.build()
     assert len(graph.modules) > 100          # the layers were found
     assert graph.cycles() == []
+
+
+def test_imports_point_down_the_layers():
+    """A layer imports only the layers before it in ``import_graph.LAYERS``: the verification
+    layer none of the command line (``tissue``), which calls it; the library none of either."""
+    graph = import_graph.build()
+    order = {name: k for k, name in enumerate(import_graph.LAYERS)}
+
+    def layer(module):
+        parts = module.split(".")
+        return parts[1] if len(parts) > 1 and parts[1] in order else None
+
+    up = sorted((a, b) for a, out in graph.edges.items() for b in out
+                if layer(a) and layer(b) and order[layer(b)] > order[layer(a)])
+    assert up == []
 
 
 def test_the_cycle_check_sees_a_cycle_hidden_in_a_function(tmp_path):

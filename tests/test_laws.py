@@ -290,7 +290,7 @@ def test_verify_scores_a_plugin_on_the_law_it_declares(tmp_path, capsys):
     law's reference (error ~0) on a neo-hookean case, with the law difference beside it: the
     distance between the two laws' exact answers at the block's far corner, 10 sqrt(2) |t - t'|
     mm; a law it cannot be scored on is said, and the case's law used."""
-    from tissue_reference.tissue.verify import verify
+    from tissue_reference.verification.verify import verify
 
     case = _stretched_block(Material("neo-hookean", E=6.0, nu=0.45))
     snh = {"E": 6.0, "nu": 0.45}

@@ -9,8 +9,8 @@ from tissue_reference.meshes.case import Boundary, Case, Material, load_case
 from tissue_reference.meshes.errors import CaseError, NotModeledError
 from tissue_reference.solvers import mass_tensor as mt
 from tissue_reference.solvers.registry import solver
-from tissue_reference.tissue.suite import law_material, run_suite
-from tissue_reference.tissue.verify import verify
+from tissue_reference.verification.suite import law_material, run_suite
+from tissue_reference.verification.verify import verify
 
 REFUSED = ("mooney-rivlin", "yeoh", "stable-neo-hookean", "saint-venant-kirchhoff",
            "corotational")

@@ -20,7 +20,7 @@ from tissue_reference.meshes.writers import (
     write_point_data,
 )
 from tissue_reference.tissue.cli import main
-from tissue_reference.tissue.scoring import load_field
+from tissue_reference.verification.scoring import load_field
 
 BOX = CLI_BOX.format(model="linear-elastic")
 

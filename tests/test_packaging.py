@@ -17,7 +17,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 NS = "tissue_reference"
-LAYERS = ("meshes", "fem_reference", "solvers", "control", "implant", "tissue")
+LAYERS = ("meshes", "fem_reference", "solvers", "control", "implant", "verification",
+          "tissue")
 DATA = ["meshes/cases/phantom.toml", "meshes/case.schema.json", "solvers/admm_kernel.c",
         "solvers/admm_kernel.h", "tissue/schemas/solve.schema.json",
         "tissue/schemas/common.schema.json"]
@@ -28,7 +29,8 @@ import importlib, importlib.util, pkgutil, sys
 from pathlib import Path
 import numpy as np
 mode, where = sys.argv[1], Path(sys.argv[2]).resolve()
-LAYERS = ("meshes", "fem_reference", "solvers", "control", "implant", "tissue")
+LAYERS = ("meshes", "fem_reference", "solvers", "control", "implant", "verification",
+          "tissue")
 import tissue_reference
 if mode == "fakes":   # the fake packages are what a plain "import control" would get
     for name in LAYERS:
@@ -253,7 +255,7 @@ SOLVERS = {"admm": "solvers.admm"}
 def f(monkeypatch, name):
     """Example::
 
-        from tissue.verify import verify
+        from verification.verify import verify
     """
     monkeypatch.setattr("fem_reference.solver.solve", None)
     monkeypatch.setattr(meshes.builders, "x", __import__("meshes.case").case)
@@ -283,7 +285,7 @@ SOLVERS = {"admm": "tissue_reference.solvers.admm"}
 def f(monkeypatch, name):
     """Example::
 
-        from tissue_reference.tissue.verify import verify
+        from tissue_reference.verification.verify import verify
     """
     monkeypatch.setattr("tissue_reference.fem_reference.solver.solve", None)
     monkeypatch.setattr(meshes.builders, "x", __import__("tissue_reference.meshes.case").meshes.case)

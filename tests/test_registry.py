@@ -17,7 +17,8 @@ from tissue_reference.solvers import SOLVERS, registry
 from tissue_reference.solvers.registry import is_reference, reference, solver
 
 ROOT = Path(__file__).resolve().parents[1]
-LAYERS = ("meshes", "fem_reference", "solvers", "control", "implant", "tissue")
+LAYERS = ("meshes", "fem_reference", "solvers", "control", "implant", "verification",
+          "tissue")
 
 ADMM_SETTINGS = {"tol_mm": 1e-4, "max_iter": None, "rho": None, "polish": True,
                  "polish_tol_mm": None, "polish_max_iter": 25, "load_steps": None,

@@ -2,6 +2,8 @@
 as such (not "None"), a comparison that needs no registration says so (not a blank cell), a
 solver that is not ours is labelled with the model it states (not the case's), and a verify
 report with --estimate shows the reference's own error beside the scores."""
+from functools import partial
+
 import numpy as np
 import pytest
 
@@ -9,7 +11,8 @@ from tissue_reference.meshes.builders import box
 from tissue_reference.meshes.case import Boundary, Case, Material, Probe
 from tissue_reference.tissue.implant_report import distance_rows
 from tissue_reference.tissue.suite_report import result_cell
-from tissue_reference.tissue.verify import verify
+from tissue_reference.tissue.verify_report import write_report
+from tissue_reference.verification.verify import verify
 
 
 @pytest.fixture(scope="module")
@@ -51,8 +54,8 @@ def silent_solver(case, pushes, **_):
 
 def test_a_plugin_is_labelled_with_the_model_it_states_and_the_report_shows_the_refs_error(
         pulled, tmp_path):
-    out = verify(pulled, {"A": 0.2}, solvers=[linear_solver, silent_solver], out_dir=tmp_path,
-                 estimate=True)
+    out = verify(pulled, {"A": 0.2}, solvers=[linear_solver, silent_solver],
+                 report=partial(write_report, tmp_path), estimate=True)
     scores = {name.rpartition(":")[2]: e for name, e in out["solvers"].items()}
     assert scores["linear_solver"]["model"] == "linear-elastic"
     assert scores["silent_solver"]["model"].startswith("not stated")

@@ -11,7 +11,8 @@ import numpy as np
 from tissue_reference.meshes.results import SolveResult
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("meshes", "fem_reference", "solvers", "control", "implant", "tissue")
+PACKAGES = ("meshes", "fem_reference", "solvers", "control", "implant", "verification",
+            "tissue")
 TYPED = ("valid", "invalid_reason", "warnings", "discretization", "indenters",
          "probe_error_estimates", "reaction_error_estimates", "estimate_note",
          "no_converged_value", "min_J", "model", "model_note", "node_u", "node_points", "pressure")

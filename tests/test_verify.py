@@ -1,13 +1,15 @@
 """``tissue verify``: each fast solver against the degree-1 reference on a small phantom."""
 import json
 import sys
+from functools import partial
 
 import numpy as np
 import pytest
 
 from tissue_reference.meshes.case import load_case
 from tissue_reference.meshes.errors import CaseError
-from tissue_reference.tissue.verify import verify
+from tissue_reference.tissue.verify_report import write_report
+from tissue_reference.verification.verify import verify
 
 CASE = "meshes/cases/phantom.toml"
 PUSHES = {"A1": 2.0, "A3": 2.0}
@@ -21,8 +23,8 @@ def small_case():
 @pytest.fixture(scope="module")
 def run(small_case, tmp_path_factory):
     out = tmp_path_factory.mktemp("verify")
-    res = verify(small_case, PUSHES, solvers=("admm", "mass-tensor"), out_dir=out / "report",
-                 json_file=out / "verify.json",
+    res = verify(small_case, PUSHES, solvers=("admm", "mass-tensor"),
+                 report=partial(write_report, out / "report"), json_file=out / "verify.json",
                  options={"mass-tensor": {"stop_mm": 1e-9}})
     return res, out
 
@@ -181,24 +183,17 @@ def test_cli_bad_push_reports_error_exit_code(tmp_path, capsys):
     assert "NAME=MM" in capsys.readouterr().err
 
 
-def test_plot_trace_error_is_the_distance_to_the_reference(small_case, monkeypatch):
+def test_plot_trace_error_is_the_distance_to_the_reference(small_case, tmp_path):
     # the traced error of the last iteration equals the reported max vertex error (same run
     # settings, deterministic solver)
-    import tissue_reference.tissue.verify as tv
-
     seen = {}
-    real = tv.write_report
 
-    def spy(out_dir, case, out, traces):
+    def spy(case, out, traces):
         seen.update(traces)
-        return real(out_dir, case, out, traces)
+        return write_report(tmp_path, case, out, traces)
 
-    monkeypatch.setattr(tv, "write_report", spy)
-    import tempfile
-
-    with tempfile.TemporaryDirectory() as d:
-        res = verify(small_case, PUSHES, solvers=("mass-tensor-pcg",), out_dir=d,
-                     options={"mass-tensor-pcg": {"stop_mm": 0.05}})
+    res = verify(small_case, PUSHES, solvers=("mass-tensor-pcg",), report=spy,
+                 options={"mass-tensor-pcg": {"stop_mm": 0.05}})
     tr = seen["mass-tensor-pcg"]
     got = res["solvers"]["mass-tensor-pcg"]
     assert len(tr["iteration"]) == got["iterations"]

@@ -1,4 +1,5 @@
-"""Scoring fields and solvers that are not ours (``tissue.scoring``, ``tissue.plugins``).
+"""Scoring fields and solvers that are not ours (``verification.scoring``,
+``verification.plugins``).
 
 Known answers: a box under an affine boundary displacement has the affine field as its exact
 solution (the P1 reference reproduces it to round-off), so a field = affine + a known perturbation
@@ -14,9 +15,9 @@ import pytest
 from tissue_reference.meshes.builders import box
 from tissue_reference.meshes.case import Boundary, Case, Material, Probe, load_case
 from tissue_reference.meshes.errors import CaseError
-from tissue_reference.tissue.plugins import PluginError
-from tissue_reference.tissue.scoring import Field
-from tissue_reference.tissue.verify import tolerance_failures, verify
+from tissue_reference.verification.plugins import PluginError
+from tissue_reference.verification.scoring import Field
+from tissue_reference.verification.verify import tolerance_failures, verify
 
 L = 10.0
 MAT = Material("neo-hookean", E=6.0, nu=0.45)
@@ -185,7 +186,7 @@ def test_an_independent_linear_solver_matches_the_linear_reference():
 
 
 def test_plugins_by_import_path_and_entry_point(case, monkeypatch):
-    import tissue_reference.tissue.plugins as tp
+    import tissue_reference.verification.plugins as tp
 
     out = verify(case, {}, solvers=["examples.linear_plugin:solve"], degree=1)
     assert "examples.linear_plugin:solve" in out["solvers"]

@@ -1,15 +1,16 @@
 """``tissue suite [--solvers fem admm ... module:function] [--problems NAME ...] [--law LAW]
-[--strict] [--out DIR] [--json FILE]``: the verification suite (``tissue.suite``): problems with known
-answers, each solver scored on one scorecard."""
+[--strict] [--out DIR] [--json FILE]``: the verification suite (``verification.suite``):
+problems with known answers, each solver scored on one scorecard."""
 from __future__ import annotations
 
 import sys
 
 from tissue_reference.meshes.case import MATERIAL_MODELS
 from tissue_reference.solvers.registry import is_reference
+from tissue_reference.verification.suite import PROBLEMS, run_suite
 
 from .common import check_outputs
-from .suite import PROBLEMS, run_suite
+from .suite_report import write_scorecard
 
 DEFAULT = ("fem", "admm", "admm-plain", "mass-tensor")
 
@@ -17,8 +18,10 @@ DEFAULT = ("fem", "admm", "admm-plain", "mass-tensor")
 def run(args) -> int:
     check_outputs(args, files=("json",), dirs=("out",))
     solvers = list(args.solvers or DEFAULT) + list(args.solver or [])
-    out = run_suite(tuple(solvers), args.problems, json_file=args.json, out_dir=args.out,
+    out = run_suite(tuple(solvers), args.problems, json_file=args.json,
                     progress=not args.quiet, law=args.law)
+    if args.out is not None:
+        out["report"] = str(write_scorecard(out, args.out))
     if args.law is not None:
         print(f"law: {args.law} (every problem's material, same small-strain E and nu)")
     names = list(out["summary"])

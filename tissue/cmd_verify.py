@@ -1,13 +1,22 @@
 """``tissue verify CASE [--size MM] [--push A1=15 ...] [--solvers admm admm-plain mass-tensor
 my_module:solve ...] [--field FILE] [--degree N] [--formulation F] [--estimate] [--tol MM]
 [--out DIR] [--json FILE]``: fast solvers, anyone's solver, or a displacement field against the
-reference on the same Case (``tissue.verify``)."""
+reference on the same Case (``verification.verify``)."""
 from __future__ import annotations
 
 import json
 import sys
+from functools import partial
+from pathlib import Path
 
 from tissue_reference.meshes.errors import CaseError
+from tissue_reference.verification.verify import (
+    DEFAULT_SOLVERS,
+    FAST_SOLVERS,
+    invalid_runs,
+    tolerance_failures,
+    verify,
+)
 
 from .common import (
     add_case_args,
@@ -19,7 +28,7 @@ from .common import (
     parse_pushes,
     real,
 )
-from .verify import DEFAULT_SOLVERS, FAST_SOLVERS, invalid_runs, tolerance_failures, verify
+from .verify_report import write_report
 
 
 def _rel(x) -> str:
@@ -106,7 +115,8 @@ def run(args) -> int:
     for name, setting in args.option or ():
         key, value = _option(name, setting, names)
         options.setdefault(name, {})[key] = value
-    res = verify(case, pushes, solvers=tuple(names), out_dir=args.out, json_file=args.json,
+    report = partial(write_report, Path(args.out)) if args.out is not None else None
+    res = verify(case, pushes, solvers=tuple(names), report=report, json_file=args.json,
                  options=options, progress=False, estimate=args.estimate, field=args.field,
                  field_name=args.field_name, degree=args.degree, formulation=args.formulation,
                  outside="skip" if args.skip_outside else "error")

@@ -37,7 +37,7 @@ from tissue_reference.solvers.registry import names, solver
 __all__ = ["PROGRESS_FROM_CELLS", "SOLVER_NAMES", "add_case_args", "add_discretization_args",
            "body_diameter", "case_from_args", "check_outputs", "check_prescribed",
            "check_pushes", "integer", "material_spec",
-           "parse_pushes", "real", "report_validity", "run_solver", "with_factorization"]
+           "parse_pushes", "real", "report_validity", "run_solver"]
 
 SOLVER_NAMES = names()
 PROGRESS_FROM_CELLS = 100_000
@@ -332,15 +332,6 @@ def run_solver(name: str, case: Case, *, degree: int | None = None, formulation:
     are P1 displacement solvers and refuse anything else."""
     return solver(name).solve(case, degree=degree, formulation=formulation, pushes=pushes,
                               initial=initial, progress=progress, **kw)
-
-
-def with_factorization(name: str, options: dict) -> dict:
-    """``options`` of the built-in solver ``name`` with CHOLMOD through PETSc
-    (``fem_reference.cholmod_factor``) as its ``factorize`` hook, where it takes one and none was
-    given (``SolverEntry.with_factorization``); ``options`` unchanged for another name."""
-    if name not in SOLVER_NAMES:
-        return options
-    return solver(name).with_factorization(options)
 
 
 def report_validity(command: str, res, what: str = "the answer") -> int:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import html
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -19,10 +20,11 @@ from tissue_reference.meshes.html_page import Raw, image, page, table, write_pag
 from tissue_reference.meshes.io import save_figure
 from tissue_reference.meshes.mesh import quality
 from tissue_reference.meshes.results import write_json
-from tissue_reference.tissue.verify import verify
+from tissue_reference.verification.verify import verify
 
 from .common import check_pushes
 from .solve_outputs import solver_settings, write_outputs
+from .verify_report import write_report
 from .views import render
 
 CASE = "phantom-indenter-quarter"
@@ -203,7 +205,7 @@ def run_demo(out: Path, *, pushes_mm=PUSHES_MM, size=None, degree=None, verify_s
              progress: bool = True) -> dict:
     """The demo, written under ``out``: the reference series of the tip phantom's quarter
     (``reference_series``), the fast solvers verified against the P1 reference on the tip
-    phantom meshed for control (``tissue.verify``, all tips ``verify_push`` mm), summary.json
+    phantom meshed for control (``verification.verify``, all tips ``verify_push`` mm), summary.json
     and report.html. Returns the summary. Bad input (a push no tip can take, a mesh above
     ``max_cells``) raises CaseError before any solve."""
     limit = max_cells if max_cells is not None else MAX_CELLS
@@ -229,7 +231,8 @@ def run_demo(out: Path, *, pushes_mm=PUSHES_MM, size=None, degree=None, verify_s
         pushes = {a.name: verify_push for a in vcase.actuators}
         _say(f"verification: {', '.join(solvers)} against the P1 reference on {vcase.name}, "
              f"all tips {verify_push:g} mm")
-        summary["verify"] = verify(vcase, pushes, solvers=solvers, out_dir=out / "verify",
+        summary["verify"] = verify(vcase, pushes, solvers=solvers,
+                                   report=partial(write_report, out / "verify"),
                                    json_file=out / "verify" / "verify.json")
     summary["wall_time_s"] = time.perf_counter() - t0
     write_json(summary, out / "summary.json")

@@ -1,12 +1,12 @@
 """The project's import graph, read from the source (AST), not by importing anything.
 
-Every module of the layers (meshes, fem_reference, solvers, control, implant, tissue and the
-``tissue_reference`` package itself) is a node; an edge a -> b is an import in a of b or of a name
-b defines (``from .x import y`` where y is a module counts as an import of that module). Imports
-inside functions count like module-level ones (they hide a cycle, they do not remove it); those
-under ``if TYPE_CHECKING:`` are left out (they never run). A package's ``__init__`` is its own
-node: importing ``a.b.c`` imports ``a.b`` first, but that edge is Python's, not the project's,
-and is left out.
+Every module of the layers (meshes, fem_reference, solvers, control, implant, verification,
+tissue and the ``tissue_reference`` package itself) is a node; an edge a -> b is an import in a of
+b or of a name b defines (``from .x import y`` where y is a module counts as an import of that
+module). Imports inside functions count like module-level ones (they hide a cycle, they do not
+remove it); those under ``if TYPE_CHECKING:`` are left out (they never run). A package's
+``__init__`` is its own node: importing ``a.b.c`` imports ``a.b`` first, but that edge is
+Python's, not the project's, and is left out.
 
     python tools/import_graph.py              # cycles, in-function imports, counts
     python tools/import_graph.py --cycles     # exit 1 when there is an import cycle
@@ -21,7 +21,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 NS = "tissue_reference"
-LAYERS = ("meshes", "fem_reference", "solvers", "control", "implant", "tissue")
+LAYERS = ("meshes", "fem_reference", "solvers", "control", "implant", "verification",
+          "tissue")
 
 
 @dataclass

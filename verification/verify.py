@@ -14,10 +14,10 @@ Three kinds of candidate, each scored against the reference it should match:
   request. The Mass Tensor Method is a linear model: on a Neo-Hookean case it is scored
   against the linear-elastic reference of the same E and nu and labelled ``model:
   linear-elastic`` (its distance to the Neo-Hookean truth is not what it claims to solve);
-- solvers that are not ours (``tissue.plugins``: a callable, ``"module:function"`` or an entry
+- solvers that are not ours (``verification.plugins``: a callable, ``"module:function"`` or an entry
   point of group ``tissue.solvers``), returning the displacement at every vertex;
-- a displacement field (``field=``: a file or a ``tissue.scoring.Field``), on the Case's mesh
-  in any vertex order or on another mesh of the same body (``tissue.scoring``).
+- a displacement field (``field=``: a file or a ``verification.scoring.Field``), on the Case's mesh
+  in any vertex order or on another mesh of the same body (``verification.scoring``).
 
 Plugins and fields are scored against the reference of the Case's own material (a plugin that
 declares another law of ``meshes.case.MATERIAL_MODELS`` in its ``extra["model"]``, against that
@@ -26,13 +26,14 @@ the law difference, reported beside its score as ``law_difference_mm`` and a not
 discretization options of ``tissue solve`` (``degree``, ``formulation``; default the same as
 there), so a field written by ``tissue solve --out`` scores ~0. Per candidate: the error at every
 probe and over all vertices (max and RMS of |u - u_ref|, mm) and the volume norms of
-``tissue.scoring`` (L2, H1 seminorm, energy norm: for a solver, of the P1 interpolant of the
+``verification.scoring`` (L2, H1 seminorm, energy norm: for a solver, of the P1 interpolant of the
 difference at the Case mesh's vertices, ``scoring.vertex_norms``, built-in or not); iterations,
 wall time (s) and the speed ratio to the matching reference solve (built-ins: both timed on a
 second, warm call, the reference's first call reported as ``first_call_wall_time_s``); for a
 plugin also its ``history`` and ``extra`` (less ``model``, reported as the model it solves),
 NumPy arrays and scalars as lists and numbers; an ``extra`` value JSON cannot hold is a
-PluginError naming it. ``out_dir`` gets report.html with the tables and convergence plots.
+PluginError naming it. ``report`` (the command line's ``tissue.verify_report.write_report``,
+bound to its folder) gets the result and each candidate's convergence trace to write a report.
 
 Python:  ``verify(case, {"A1": 15.0}, solvers=["admm", my_solver], field="u.vtu")``.
 """
@@ -50,11 +51,10 @@ from tissue_reference.meshes.errors import CaseError, NotModeledError
 from tissue_reference.meshes.mesh import deformation_state
 from tissue_reference.meshes.results import material_json, write_json
 from tissue_reference.solvers import SOLVERS, get_solver, solver_module
+from tissue_reference.solvers.registry import solver as registry_solver
 
-from .common import with_factorization
 from .plugins import json_safe, resolve_solver, run_plugin
 from .scoring import Field, field_from_array, load_field, score_field, vertex_norms
-from .verify_report import write_report
 
 __all__ = ["DEFAULT_SOLVERS", "FAST_SOLVERS", "VALIDITY_KEYS", "declared_law_case", "invalid_runs",
            "reference_material_for", "tolerance_failures", "verify"]
@@ -184,7 +184,7 @@ def _check_options(options, builtins, plugins):
                             f"{sorted(accepted)}")
 
 
-def verify(case, pushes=None, solvers=DEFAULT_SOLVERS, out_dir=None, *, json_file=None,
+def verify(case, pushes=None, solvers=DEFAULT_SOLVERS, *, report=None, json_file=None,
            options=None, reference_solve=None, progress: bool = False,
            estimate: bool = False, field=None, degree: int | None = None,
            formulation: str = "auto", field_name: str | None = None,
@@ -200,9 +200,9 @@ def verify(case, pushes=None, solvers=DEFAULT_SOLVERS, out_dir=None, *, json_fil
     solve (tests). estimate: also estimate each reference's own discretization error
     (``fem_reference.estimate``), reported beside each candidate's error as
     ``discretization_error_estimate_mm``. field_name: the field file's point field to take;
-    outside: "error" or "skip" for field points outside the body (``tissue.scoring``).
+    outside: "error" or "skip" for field points outside the body (``verification.scoring``).
     Returns {"reference": {...}, "solvers": {name: {...}}, "skipped": {...}}; writes
-    ``json_file`` and ``out_dir``/report.html + PNGs when given.
+    ``json_file`` and calls ``report`` when given.
 
     Parameters
     ----------
@@ -213,8 +213,12 @@ def verify(case, pushes=None, solvers=DEFAULT_SOLVERS, out_dir=None, *, json_fil
     solvers : sequence
         Built-in fast solvers' names, callables, ``"module:function"``, ``"file.py:function"`` or
         entry-point names (default ``DEFAULT_SOLVERS``).
-    out_dir : str or Path or None
-        Folder for report.html and its PNGs; None: no report.
+    report : callable or None
+        report(case, result, traces) -> path of the report it wrote, called with the result
+        (before ``json_file`` is written) and each candidate's convergence trace (name -> lists
+        "iteration" or "entry", "max_error_mm", "max_step_mm"); the path is the result's
+        "report". The command line passes ``tissue.verify_report.write_report`` bound to its
+        folder (report.html and its PNGs). None: no report.
     json_file : str or Path or None
         Where to write the result as JSON; None: nowhere.
     options : dict or None
@@ -305,8 +309,8 @@ def verify(case, pushes=None, solvers=DEFAULT_SOLVERS, out_dir=None, *, json_fil
             traces[plugin.name] = trace
     if field is not None:
         out["solvers"]["field"] = _score_field(field, case, refs, degree, formulation, outside)
-    if out_dir is not None:
-        out["report"] = str(write_report(Path(out_dir), case, out, traces))
+    if report is not None:
+        out["report"] = str(report(case, out, traces))
     if json_file is not None:
         write_json(out, json_file)
     return out
@@ -343,7 +347,7 @@ def _score_builtin(name, case, pushes, opts, refs, out):
         return None, None
     rcase, res_ref = refs.get(reference_material_for(case, name), 1, "displacement")
     model = rcase.material.model
-    kw = with_factorization(key, {**defaults, **opts})
+    kw = registry_solver(key).with_factorization({**defaults, **opts})
     # run 1 (traced): error to the reference and largest displacement at every iteration
     trace = {"iteration": [], "max_error_mm": [], "max_step_mm": []}
     state = {"prev": None}

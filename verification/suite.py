@@ -6,7 +6,7 @@ Problems (``PROBLEMS``; units mm, kPa):
 
 - ``uniaxial-stretch``: a Neo-Hookean block stretched 20 % between sliding faces, lateral faces
   free; the lateral contraction at a corner against the closed form (a scalar root of
-  P_22 = 0, ``tissue.closed_forms``). Any P1 solver is exact here (homogeneous deformation).
+  P_22 = 0, ``verification.closed_forms``). Any P1 solver is exact here (homogeneous deformation).
 - ``shear-patch``: the patch test: affine simple shear (gamma = 0.3) prescribed on every face;
   the displacement at an interior point is exactly gamma y for any homogeneous material, linear
   or not.
@@ -22,7 +22,7 @@ Problems (``PROBLEMS``; units mm, kPa):
 
 On another law (``run_suite(law=...)``, ``tissue suite --law``) every problem's material becomes
 that law with the same small-strain E and nu (``law_material``) and its answer that law's
-(``tissue.closed_forms``: the uniaxial root and the shell's ODE from the law's energy in
+(``verification.closed_forms``: the uniaxial root and the shell's ODE from the law's energy in
 principal stretches); the shear patch is exact for every law. A problem with no answer for the
 law is left out with the reason (``not_applicable`` in the scorecard): Cook's panel (a published
 linear-elastic value), the nearly incompressible shell for the laws without the mixed
@@ -61,7 +61,6 @@ from tissue_reference.solvers.registry import solver as registry_solver
 
 from . import closed_forms as cf
 from .plugins import resolve_solver, run_plugin
-from .suite_report import write_scorecard
 from .verify import FAST_SOLVERS
 
 __all__ = ["PROBLEMS", "Problem", "law_material", "run_suite"]
@@ -258,15 +257,16 @@ def _name(solver) -> str:
     return resolve_solver(solver).name
 
 
-def run_suite(solvers=("fem",), problems=None, *, json_file=None, out_dir=None,
-              progress: bool = False, law: str | None = None) -> dict:
+def run_suite(solvers=("fem",), problems=None, *, json_file=None, progress: bool = False,
+              law: str | None = None) -> dict:
     """Run every problem (``problems``: names, default all) with every solver ("fem" for the
     reference, built-in fast-solver names, plugins) and score it. Returns {"problems": [...],
     "summary": {solver: {"passed", "failed", "refused"}}}; each problem lists its expected
     value, source, tolerance and per solver {value_mm, error_rel, passed, wall_time_s,
     iterations} or {refused: message}. ``law``: every problem on that strain-energy law
     (``Problem.on_law``); "law" and "not_applicable" (problem -> why it has no answer on it)
-    are then in the result."""
+    are then in the result. ``json_file``: where to write the result as JSON; the scorecard
+    page of a result is the command line's (``tissue.suite_report.write_scorecard``)."""
     chosen = PROBLEMS if problems is None else [_problem(n) for n in problems]
     skipped = {}
     if law is not None:
@@ -309,8 +309,6 @@ def run_suite(solvers=("fem",), problems=None, *, json_file=None, out_dir=None,
         out["problems"].append(row)
     if json_file is not None:
         write_json(out, json_file)
-    if out_dir is not None:
-        out["report"] = str(write_scorecard(out, out_dir))
     return out
 
 
