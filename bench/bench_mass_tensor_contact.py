@@ -22,6 +22,7 @@ import time
 import warnings
 
 import numpy as np
+from _timing import best  # this folder's
 
 from tissue_reference.fem_reference import cholmod_factor
 from tissue_reference.fem_reference import solve as reference_solve
@@ -29,18 +30,6 @@ from tissue_reference.meshes.answer_warnings import TissueWarning
 from tissue_reference.meshes.case import load_case
 from tissue_reference.solvers import mass_tensor as mt
 from tissue_reference.solvers.mass_tensor import driver
-
-
-def _best(f, repeat, before=None):
-    """(result, best time of ``repeat`` calls of f); ``before()`` runs untimed before each."""
-    best, out = np.inf, None
-    for _ in range(repeat):
-        if before is not None:
-            before()
-        t0 = time.perf_counter()
-        out = f()
-        best = min(best, time.perf_counter() - t0)
-    return out, best
 
 
 def _dist(a, b) -> float:
@@ -73,7 +62,7 @@ def main():
         t0 = time.perf_counter()
         reference_solve(c, pushes=pushes, degree=1)                    # compiles the forms
         first = time.perf_counter() - t0
-        res, t = _best(lambda c=c: reference_solve(c, pushes=pushes, degree=1), a.repeat)
+        res, t = best(lambda c=c: reference_solve(c, pushes=pushes, degree=1), a.repeat)
         refs[name] = (res, t)
         print(f"{name:34s} {t:7.3f} s (first call {first:6.2f} s), {res.iterations} Newton "
               f"its, {res.load_steps} load steps  forces {_forces(res)}", flush=True)
@@ -81,9 +70,9 @@ def main():
     def solve(p):
         return mt.solve(case, pushes=p, factorize=cholmod_factor)
 
-    cold, t_cold = _best(lambda: solve(pushes), a.repeat, before=driver.MODEL_CACHE.clear)
-    warm, t_warm = _best(lambda: solve(pushes), a.repeat)
-    nxt, t_next = _best(lambda: solve(other), 1)
+    cold, t_cold = best(lambda: solve(pushes), a.repeat, before=driver.MODEL_CACHE.clear)
+    warm, t_warm = best(lambda: solve(pushes), a.repeat)
+    nxt, t_next = best(lambda: solve(other), 1)
     ref_other = reference_solve(lin, pushes=other, degree=1)
     ex = cold.extra
     print(f"Mass Tensor cold {t_cold:7.3f} s  warm {t_warm:7.3f} s  (Newton its "

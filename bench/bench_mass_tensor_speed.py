@@ -23,10 +23,10 @@ once: a cold solve does not rebuild them; their time is printed on its own ("mes
 from __future__ import annotations
 
 import argparse
-import time
 import warnings
 
 import numpy as np
+from _timing import best  # this folder's
 
 from tissue_reference.fem_reference import cholmod_factor
 from tissue_reference.fem_reference import solve as reference_solve
@@ -37,18 +37,6 @@ from tissue_reference.solvers import mass_tensor as mt
 from tissue_reference.solvers.mass_tensor import driver
 
 
-def _best(f, repeat, before=None):
-    """(result, best time of ``repeat`` calls of f); ``before()`` runs untimed before each."""
-    best, out = np.inf, None
-    for _ in range(repeat):
-        if before is not None:
-            before()
-        t0 = time.perf_counter()
-        out = f()
-        best = min(best, time.perf_counter() - t0)
-    return out, best
-
-
 def kept_mib() -> float:
     """MiB the cached Mass Tensor model keeps for its solves (``MassTensorModel.kept_bytes``)."""
     return sum(m.kept_bytes() for m in driver.MODEL_CACHE.values()) / 2 ** 20
@@ -56,20 +44,20 @@ def kept_mib() -> float:
 
 def row(size: float, repeat: int, pushes=(4.0, 3.5)) -> None:
     case = load_case("phantom", size=size).with_material(model="linear-elastic")
-    _, t_topo = _best(lambda: edge_topology(case.mesh.cells, case.mesh.n_vertices), repeat)
+    _, t_topo = best(lambda: edge_topology(case.mesh.cells, case.mesh.n_vertices), repeat)
     edges = len(case.mesh.edge_topology.edges)   # the mesh's, made once and kept
     ref_t, refs = [], {}
     for p in pushes:
         reference_solve(case, pushes={"A1": p}, degree=1)            # first call: compiles
-        refs[p], t = _best(lambda p=p: reference_solve(case, pushes={"A1": p}, degree=1), repeat)
+        refs[p], t = best(lambda p=p: reference_solve(case, pushes={"A1": p}, degree=1), repeat)
         ref_t.append(t)
 
     def cold(**kw):   # best of `repeat` first solves, each from an empty model cache
-        return _best(lambda: mt.solve(case, pushes={"A1": pushes[0]}, **kw), repeat,
+        return best(lambda: mt.solve(case, pushes={"A1": pushes[0]}, **kw), repeat,
                      before=driver.MODEL_CACHE.clear)
 
     def warm(**kw):   # the next push, on the model the last cold solve left
-        return _best(lambda: mt.solve(case, pushes={"A1": pushes[1]}, **kw), repeat)
+        return best(lambda: mt.solve(case, pushes={"A1": pushes[1]}, **kw), repeat)
 
     cold_d, t_cold = cold(factorize=cholmod_factor)
     warm_d, t_warm = warm(factorize=cholmod_factor)

@@ -16,8 +16,9 @@ g the tip's gap (``meshes.tips``) with the tip where its push puts it. ``Contact
 points of a Case's indenters (built once per Case structure: the pushes are not part of it), the
 energy, its gradient, its exact Hessian (with the tips' curvature, or without it: positive
 semi-definite), the derivative of the contact forces by the pushes and the report of each tip as
-the reference writes it; ``point_terms`` / ``point_hessians`` give the same per point, for a
-solver that works on a subset of them.
+the reference writes it; ``point_terms`` / ``point_hessians`` give the same per point, and
+``spread`` assembles the Hessian of some of them on a block of vertices, for a solver that works
+on a subset of them.
 
 Units: mm, kPa, mN.
 """
@@ -292,16 +293,39 @@ class ContactSet:
         on, Hp = self._point_hessians(u, o, curvature)
         if not len(on):
             return sp.csr_matrix((N, N))
+        return self.spread(Hp, self.pv[on], self.pN[on], self.n).tocsr()
+
+    def spread(self, Hp, vertices, shapes, n: int) -> sp.coo_matrix:
+        """The points' Hessians spread over their facets' vertices: the (n d, n d) matrix (node-
+        major) with the entries N_a N_b H_ij at (d v_a + i, d v_b + j) for each pair of vertices
+        a, b of each point's facet (duplicates not yet summed).
+
+        Parameters
+        ----------
+        Hp : numpy.ndarray
+            (k, d, d) d^2 Pi_c / dy_p^2 at k points (mN/mm), as ``point_hessians`` gives them.
+        vertices : numpy.ndarray
+            (k, nv) each point's facet vertices, numbered in the matrix's space: the mesh's
+            (``pv`` of the points) or a block's of n vertices.
+        shapes : numpy.ndarray
+            (k, nv) the facet's P1 shape functions at each point (no unit; ``pN`` of the points).
+        n : int
+            The vertices of the matrix's space.
+
+        Returns
+        -------
+        scipy.sparse.coo_matrix
+            (n d, n d) d^2 Pi_c / du^2 of those points (mN/mm), entries in the order of the
+            points: ``tocsr()`` / ``toarray()`` sum them.
+        """
         d = self.d
-        pv, pN = self.pv[on], self.pN[on]
-        # entries (a i, b j) = N_a N_b H_ij for each pair of vertices a, b of a point's facet
-        vals = np.einsum("ka,kb,kij->kaibj", pN, pN, Hp)
-        rows = np.broadcast_to((d * pv)[:, :, None, None, None]
+        vals = np.einsum("ka,kb,kij->kaibj", shapes, shapes, Hp)
+        rows = np.broadcast_to((d * vertices)[:, :, None, None, None]
                                + np.arange(d)[None, None, :, None, None], vals.shape)
-        cols = np.broadcast_to((d * pv)[:, None, None, :, None]
+        cols = np.broadcast_to((d * vertices)[:, None, None, :, None]
                                + np.arange(d)[None, None, None, None, :], vals.shape)
-        return sp.csr_matrix((vals.reshape(-1), (rows.reshape(-1), cols.reshape(-1))),
-                             shape=(N, N))
+        return sp.coo_matrix((vals.reshape(-1), (rows.reshape(-1), cols.reshape(-1))),
+                             shape=(n * d, n * d))
 
     def push_derivative(self, u, o) -> np.ndarray:
         """d (dPi_c / du) / d push_t (mN/mm, (N, n_tips)): how the contact forces change as each

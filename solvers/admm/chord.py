@@ -37,8 +37,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..line_search import backtrack
 from .factor import sym_splu
 from .loop import Anderson
+from .polish import LINE_SEARCH_TRIES, valid_energy
 
 GROWTH = 10.0
 """A chord correction this many times larger than the smallest one so far ends the polish
@@ -51,23 +53,6 @@ last factorization refactorize the chord matrix at the best iterate."""
 
 MAX_REFACTORIZATIONS = 20
 """With rigid tips: the most factorizations of the chord matrix with contact in one polish."""
-
-
-def _backtrack(ops, ub, q, f, rf, fext, tips, halvings: int = 40):
-    """The step length alpha (1, 1/2, ...) along the chord correction f from q that keeps every
-    cell valid and decreases the energy with the tips (Armijo, slope rf . f); None where none
-    does."""
-    Z = ops.red.Z
-    e0, _ = ops.energy(ub + Z @ q, fext, tips)
-    slope = float(rf @ f)
-    alpha = 1.0
-    for _ in range(halvings):
-        e1, J = ops.energy(ub + Z @ (q + alpha * f), fext, tips)
-        if (J is None or np.all(J > 0)) and np.isfinite(e1) \
-                and e1 <= e0 + 1e-4 * alpha * slope + 1e-12 * abs(e0):
-            return alpha
-        alpha *= 0.5
-    return None
 
 
 class _ContactChord:
@@ -161,12 +146,17 @@ def chord(ops, u, fext, factor, *, tol_mm: float, max_iter: int, anderson: int =
                 on_q, ops.contact.active(ub + Z @ g, tips))
             if crossing:
                 # the correction moves points into or out of contact, where the chord matrix
-                # does not hold: backtracked on the energy (a descent direction: the matrix is
-                # positive definite), the history restarted after it
-                alpha = _backtrack(ops, ub, q, f, rf, fext, tips)
-                if alpha is None:
+                # does not hold: backtracked on the energy, every cell kept valid (Armijo with
+                # the slope rf . f: a descent direction, the matrix is positive definite), the
+                # history restarted after it
+                e0, _ = ops.energy(ub + Z @ q, fext, tips)
+                taken = backtrack(
+                    lambda alpha, q=q, f=f: (
+                        valid_energy(ops, ub + Z @ (q + alpha * f), fext, None, tips), None),
+                    e0, float(rf @ f), tries=LINE_SEARCH_TRIES)
+                if taken is None:
                     return ub + Z @ best_q, k, False
-                g = q + alpha * f
+                g = q + taken.t * f
             if step < best_step:
                 best_q, best_step = g, step
             if step < since:

@@ -6,9 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..line_search import backtrack
 from .factor import sym_splu
 from .loop import check_J, diverged_error
 from .operators import vertex_norm_max
+
+LINE_SEARCH_TRIES = 40
+"""Steps the polishes' line searches try (1, 1/2, ..., 2^-39) before giving up."""
 
 REST_TANGENT_KEPT_DOFS = 100_000
 """The tangent at rest (without contact) is factorized once and kept with the operators up to this
@@ -89,6 +93,13 @@ def total_energy(ops, u, fext, inertia, tips=None, values=None):
     return e, J
 
 
+def valid_energy(ops, u, fext, inertia, tips=None):
+    """The total energy (uJ) at u (``total_energy``), None where an element is inverted (J <= 0):
+    a line search's trial (``solvers.line_search.backtrack``)."""
+    e, J = total_energy(ops, u, fext, inertia, tips)
+    return e if J is None or np.all(J > 0) else None
+
+
 def energy_gradient(ops, u, fext, inertia, tips=None, values=None):
     """Gradient (mN) of the total energy at u: internal forces minus f_ext, plus the tips'
     contact forces (``tips``: their ends at the contact points) and inertia; ``values``: the
@@ -125,24 +136,25 @@ def newton(ops, u, fext, inertia, *, tol_mm, max_iter, it0, hist, callback, fact
         e0, _ = total_energy(ops, u, fext, inertia, tips, values)
         values = None
         r0 = float(np.linalg.norm(rr))
-        alpha = 1.0
-        for _ in range(40):
-            e1, J1 = total_energy(ops, u + alpha * du, fext, inertia, tips)
-            if J1 is None or np.all(J1 > 0):
-                # merit: energy decrease, or (tangent indefinite) free residual decrease
-                if e1 <= e0 + 1e-4 * alpha * float(rr @ dq) + 1e-12 * abs(e0):
-                    break
-                r1 = float(np.linalg.norm(
-                    ops.red.ZT @ energy_gradient(ops, u + alpha * du, fext, inertia, tips)))
-                if r1 < (1.0 - 1e-4 * alpha) * r0:
-                    break
-            alpha *= 0.5
-        else:
+
+        def trial(alpha, u=u, du=du):
+            x = u + alpha * du
+            return valid_energy(ops, x, fext, inertia, tips), x
+
+        def residual_falls(alpha, x, r0=r0):
+            # merit where the energy does not fall (tangent indefinite): the free residual's
+            # decrease
+            r1 = float(np.linalg.norm(ops.red.ZT @ energy_gradient(ops, x, fext, inertia, tips)))
+            return r1 < (1.0 - 1e-4 * alpha) * r0
+
+        taken = backtrack(trial, e0, float(rr @ dq), tries=LINE_SEARCH_TRIES,
+                          fallback=residual_falls)
+        if taken is None:
             H = ops.grad(u + du)
             check_J(ops, H, it0 + k, "the Newton polish")
             raise diverged_error("Newton polish line search found no energy decrease", it0 + k,
-                            int(np.argmax(np.abs(rr))) // d)
-        u = u + alpha * du
+                                 int(np.argmax(np.abs(rr))) // d)
+        alpha, u = taken.t, taken.state
         exact = alpha == 1.0
         step = vertex_norm_max(alpha * du, d)
         hist["max_step_mm"].append(step)

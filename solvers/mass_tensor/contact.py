@@ -28,8 +28,9 @@ u = u_0 - G lam, M(lam) = 1/2 lam' G lam + Pi_c(u_0 - G lam) (+ the contactless 
 G on the free directions), wherever H is positive semi-definite: the iterations start without
 the tips' curvature term of the Hessian (``ContactSet.point_hessians``), take it once a full
 step leaves the points in contact as they were (the last iterations converge quadratically),
-and halve a step until M falls (``accepts``; a step with the curvature that does not descend is
-taken again without it). They stop once a step moves no candidate vertex by ``tol_mm`` or more.
+and halve a step until M falls (``solvers.line_search.backtrack``; a step with the curvature
+that does not descend is taken again without it). They stop once a step moves no candidate
+vertex by ``tol_mm`` or more.
 
 Candidates. C starts as the vertices of the contact points whose gap at the contactless answer
 is below REACH_RADII of their tip's radius; the solution on C is exact for the whole skin when
@@ -46,9 +47,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 
 from tissue_reference.meshes.errors import SolverDivergedError
+
+from ..line_search import backtrack
 
 REACH_RADII = 0.1
 """Candidate vertices: those of the contact points whose gap to their tip is below this fraction
@@ -56,10 +58,10 @@ of the tip's radius at the contactless answer, and after each Newton solve at it
 MAX_ROUNDS = 20
 """Newton solves on growing candidate sets at most (each adds the points found penetrating
 outside the last set)."""
-ARMIJO = 1e-4
-"""A Newton step's sufficient decrease: M(lam + t dlam) <= M(lam) + ARMIJO t M'(lam) dlam (up
-to round-off)."""
 MAX_HALVINGS = 30
+"""Steps a Newton iteration's line search tries (1, 1/2, ..., 2^-29): the first with M(lam + t
+dlam) <= M(lam) + ARMIJO t M'(lam) dlam up to 1e-13 of the larger |M| is taken
+(``solvers.line_search``)."""
 
 
 @dataclass
@@ -123,26 +125,13 @@ class _Condensed:
         place[act] = np.arange(len(act))
         Hp = self.cset.point_hessians(s["y"][on], self.o[on], s["nrm"][on], s["d1"][on],
                                       s["d2"][on], self.at[on], curvature)
-        Np, lp = self.N[on], place[self.loc[on]]
-        vals = np.einsum("ka,kb,kij->kaibj", Np, Np, Hp)
-        rows = np.broadcast_to((d * lp)[:, :, None, None, None]
-                               + np.arange(d)[None, None, :, None, None], vals.shape)
-        cols = np.broadcast_to((d * lp)[:, None, None, :, None]
-                               + np.arange(d)[None, None, None, None, :], vals.shape)
-        H = sp.coo_matrix((vals.reshape(-1), (rows.reshape(-1), cols.reshape(-1))),
-                          shape=(len(Ad), len(Ad))).toarray()
+        H = self.cset.spread(Hp, place[self.loc[on]], self.N[on], len(act)).toarray()
         lamN = s["lam"].copy()
         lamN[Ad] = 0.0
         r = s["b"] - s["lam"]
         rhs = r[Ad] + H @ (self.G[Ad] @ lamN)
         dlam[Ad] = np.linalg.solve(np.eye(len(Ad)) + H @ self.G[np.ix_(Ad, Ad)], rhs)
         return dlam, act
-
-
-def accepts(M_new: float, M: float, slope: float, t: float) -> bool:
-    """Sufficient decrease of the energy along a step of length t (``ARMIJO``), up to the
-    round-off of M."""
-    return M_new <= M + ARMIJO * t * slope + 1e-13 * max(abs(M), abs(M_new), 1e-300)
 
 
 def _newton(cond, lam, tol_mm, max_iter, it0, steps, callback, full):
@@ -159,22 +148,23 @@ def _newton(cond, lam, tol_mm, max_iter, it0, steps, callback, full):
             dlam, act = cond.step(s, curvature)
             Gd = cond.G @ dlam
             slope = -float((s["b"] - s["lam"]) @ Gd)
-        t = 1.0
-        for _ in range(MAX_HALVINGS):
-            trial = cond.state(s["lam"] + t * dlam)
-            if accepts(trial["M"], s["M"], slope, t):
-                break
-            t *= 0.5
-        else:
+
+        def trial(t, lam=s["lam"], dlam=dlam):
+            at = cond.state(lam + t * dlam)
+            return at["M"], at
+
+        taken = backtrack(trial, s["M"], slope, tries=MAX_HALVINGS, round_off=1e-13,
+                          round_off_of_both=True)
+        if taken is None:
             if curvature:   # the exact tangent's step did not descend: again without it
                 curvature = False
                 continue
             raise SolverDivergedError(
                 f"mass-tensor contact: Newton iteration {it0 + it + 1} found no step that lowers "
                 f"the energy ({MAX_HALVINGS} halvings)")
+        t, s = taken.t, taken.state
         move = float(np.max(np.linalg.norm((t * Gd).reshape(-1, cond.d), axis=1), initial=0.0))
         steps.append(move)
-        s = trial
         if callback is not None:
             callback(it0 + it + 1, full(s["lam"]))
         if not np.isfinite(move):
