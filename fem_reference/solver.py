@@ -38,7 +38,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from tissue_reference.meshes.case import Case, Material
-from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.meshes.errors import CaseError, ConvergenceError, NotModeledError
 from tissue_reference.meshes.results import SolveResult
 from tissue_reference.meshes.tips import default_contact_rule, default_tip_start
 
@@ -150,6 +150,10 @@ class ReferenceSolver:
                  linear_solver: str = "auto", curved: bool | None = None,
                  contact_penalty: float = DEFAULT_CONTACT_PENALTY,
                  contact_quadrature: str | int | None = None, tip_start: str | None = None):
+        if case.material.model == "ogden":
+            raise NotModeledError("the reference does not solve the ogden law yet (a function of "
+                                  "the principal stretches, which UFL cannot eigen-decompose); "
+                                  "the ADMM solver does: tissue solve --solver admm")
         self.formulation = resolve_formulation(formulation, case.material)
         if degree is None:
             degree = default_degree(case, self.formulation)
