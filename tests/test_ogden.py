@@ -3,8 +3,11 @@ code: the closed-form Cauchy stresses of uniaxial stretch and of simple shear (p
 stretches by hand), Ogden with alpha = 2 against the Neo-Hookean law's own code, alpha = [2, -2]
 against Mooney-Rivlin's, the tangent against central differences of the stress at random F and
 at equal stretches (rest, uniaxial, equibiaxial), the small-strain limit (linear elasticity with
-mu0 = sum mu_i, kappa = k), its case-file table and its stability checks, and ADMM on the
-stretched block. Units: mm, kPa, mN."""
+mu0 = sum mu_i, kappa = k), its case-file table and its stability checks, ADMM and the
+reference (quadrature-point Functions, P1 displacement and P2/P1 mixed) on the stretched block
+against the closed-form uniaxial answer, the reference's exported tangent against differences
+of its residual, and ADMM + polish against the reference on the phantom, under a rigid sphere
+and in plane strain. Units: mm, kPa, mN."""
 import math
 
 import numpy as np
@@ -251,3 +254,123 @@ def test_admm_stretches_the_block_to_the_closed_form_uniaxial_answer():
     res = admm.solve(_stretched_block(OGDEN))
     assert res.converged
     np.testing.assert_allclose(res.probes["corner"][1:], 10.0 * (t - 1.0), rtol=0, atol=1e-9)
+
+
+# ------------------------------------------------------------------ the reference
+def _lateral_stress(t, stretch=1.2, k=K, volumetric="quadratic"):
+    """The closed-form lateral Cauchy stress of diag(stretch, t, t) (the isochoric Kirchhoff
+    stress of each term over J, plus the pressure dpsi_vol/dJ of k/2 G(J)^2)."""
+    ls = np.array([stretch, t, t])
+    J = ls.prod()
+    lb = J ** (-1 / 3) * ls
+    iso = sum(2 * m / a * (lb[1] ** a - (lb ** a).sum() / 3) for m, a in zip(MU, ALPHA)) / J
+    return iso + (k * (J - 1) if volumetric == "quadratic" else k * math.log(J) / J)
+
+
+def _axial_piola(t, stretch=1.2, k=K, volumetric="quadratic"):
+    """P_11 = J sigma_11 / stretch of diag(stretch, t, t), closed form."""
+    ls = np.array([stretch, t, t])
+    J = ls.prod()
+    lb = J ** (-1 / 3) * ls
+    iso = sum(2 * m / a * (lb[0] ** a - (lb ** a).sum() / 3) for m, a in zip(MU, ALPHA)) / J
+    vol = k * (J - 1) if volumetric == "quadratic" else k * math.log(J) / J
+    return J * (iso + vol) / stretch
+
+
+@pytest.mark.parametrize("k,volumetric", [(K, "quadratic"), (1500.0, "log")])
+def test_reference_stretches_the_block_to_the_closed_form_uniaxial_answer(k, volumetric):
+    """The reference's block stretched 20 %: P1 displacement at k = 40 kPa, and the mixed u-p
+    formulation (P2/P1, picked for nu = 0.4995) at k = 1500 kPa with G = ln J: the corner's
+    lateral motion and the face force against the closed form's traction-free root."""
+    from test_laws import _stretched_block
+
+    from tissue_reference.fem_reference import solve
+
+    material = Material("ogden", ogden_mu=MU, ogden_alpha=ALPHA, k=k, volumetric=volumetric)
+    t = brentq(lambda s: _lateral_stress(s, k=k, volumetric=volumetric), 0.5, 1.2, xtol=1e-15)
+    res = solve(_stretched_block(material))
+    assert res.converged
+    assert res.discretization["formulation"] == ("mixed" if material.nu >= 0.49
+                                                 else "displacement")
+    np.testing.assert_allclose(res.probes["corner"][1:], 10.0 * (t - 1.0), rtol=0, atol=1e-9)
+    force = _axial_piola(t, k=k, volumetric=volumetric) * 100.0
+    assert res.reactions["xmax"][0] == pytest.approx(force, rel=1e-8)
+
+
+def test_reference_tangent_is_the_derivative_of_its_residual():
+    """The reference's exported tangent (outputs read the quadrature Functions after refreshing
+    them) against central differences of its exported residual at a stretched, sheared state."""
+    from test_laws import _stretched_block
+
+    from tissue_reference.fem_reference.outputs_tangent import internal_forces, tangent
+    from tissue_reference.fem_reference.solver import ReferenceSolver
+
+    case = _stretched_block(OGDEN)
+    solver = ReferenceSolver(case, degree=1, formulation="displacement")
+    X = case.mesh.points
+    u = 0.1 * X @ np.array([[0.2, 0.05, 0.0], [0.1, -0.05, 0.02], [0.0, 0.03, -0.04]])
+    K_ = tangent(solver, u).K
+    du = np.random.default_rng(5).normal(size=u.shape)
+    h = 1e-6
+    fd = (internal_forces(solver, u + h * du) - internal_forces(solver, u - h * du)) / (2 * h)
+    got = K_ @ du.reshape(-1)
+    np.testing.assert_allclose(got, fd, rtol=0, atol=1e-6 * np.abs(fd).max())
+    solver.close()
+
+
+def test_admm_with_its_polish_equals_the_reference_on_the_phantom():
+    """A1 pushed 2 mm on the coarse phantom: ADMM + Newton polish (numpy law) against the
+    reference's P1 displacement solve (quadrature Functions of the same spectral law, PETSc
+    Newton): 1e-8 mm."""
+    import dataclasses
+
+    from tissue_reference.fem_reference import solve
+    from tissue_reference.meshes.builders import build
+    from tissue_reference.meshes.case import load_case
+    from tissue_reference.meshes.case_file import case_path
+    from tissue_reference.solvers import admm
+
+    phantom = load_case(case_path("phantom"), mesh=build("phantom", 10.0))
+    case = dataclasses.replace(phantom, material=Material("ogden", ogden_mu=(0.7, 0.3),
+                                                          ogden_alpha=(4.0, -2.0), k=20.0))
+    ref = solve(case, degree=1, formulation="displacement", pushes={"A1": 2.0})
+    res = admm.solve(case, pushes={"A1": 2.0})
+    assert ref.converged and res.converged
+    assert np.abs(np.asarray(res.u) - np.asarray(ref.u)).max() < 1e-8
+
+
+def test_admm_with_its_polish_equals_the_reference_under_a_rigid_sphere():
+    """A sphere pressed 1 mm into the quarter block (cells of 0.5 mm under the tip): the
+    reference's Newton with its energy line search (the total energy reads the refreshed
+    quadrature Functions) and ADMM + polish reach the same P1 answer, 1e-8 mm, the same force
+    and strain energy."""
+    from test_admm_contact import TIGHT, same_contact, tip_case
+
+    import tissue_reference.fem_reference as fr
+    from tissue_reference.meshes.builders import indent_block
+    from tissue_reference.solvers import admm
+
+    case = tip_case(indent_block(0.5)).with_law("ogden", {"mu": [1.5, 0.5], "alpha": [4.0, -2.0],
+                                                          "k": 20.0})
+    ref = fr.solve(case, degree=1, pushes={"I": 1.0}, settings=TIGHT)
+    res = admm.solve(case, pushes={"I": 1.0})
+    assert ref.converged and res.converged and res.valid
+    assert res.indenters["I"]["force"] > 0.5
+    same_contact(res, ref)
+
+
+def test_plane_strain_reference_equals_admm():
+    """2D (plane strain, F33 = 1: the third stretch 1 in the spectral law) on the rectangle
+    stretched and sheared by its right edge: the reference and ADMM + polish, 1e-8 mm."""
+    from tissue_reference.fem_reference import solve
+    from tissue_reference.meshes.builders import rectangle
+    from tissue_reference.meshes.case import Boundary, Case
+    from tissue_reference.solvers import admm
+
+    case = Case(mesh=rectangle(2.0), material=OGDEN,
+                boundaries=(Boundary("xmin", "fixed"),
+                            Boundary("xmax", "displacement", value=[1.5, 0.8])))
+    ref = solve(case, degree=1, formulation="displacement")
+    res = admm.solve(case)
+    assert ref.converged and res.converged
+    assert np.abs(np.asarray(res.u) - np.asarray(ref.u)).max() < 1e-8
