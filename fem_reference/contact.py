@@ -182,7 +182,7 @@ class Contact:
         self.quadrature = quadrature
         self.comm, self.dm, self.gdim, self.formulation = comm, dm, gdim, formulation
         self._u_field = u
-        self._total, self._energy = None, 0.0
+        self._total, self._energy, self._refresh = None, 0.0, None
         self.key = contact_key(case)
         self.indenters: list[Indenter] = []
         self.energy = 0
@@ -261,9 +261,13 @@ class Contact:
                        * max(1.0, settings.max_step_mm / limit))
         return span
 
-    def line_search_energy(self, total):
+    def line_search_energy(self, total, refresh=None):
         """Compile the solver's total energy (UFL, uJ) for ``accepts`` (with indenters, in the
-        displacement formulation, whose answer minimizes it)."""
+        displacement formulation, whose answer minimizes it). ``refresh``: called with no
+        argument before each assembly of it (``ReferenceSolver.refresh_fields``: the
+        quadrature-point Functions of the Ogden law); None: the energy reads the unknown
+        alone."""
+        self._refresh = refresh
         if self.indenters and self.formulation == "displacement":
             self._total = compile_form(total)
 
@@ -279,6 +283,8 @@ class Contact:
         of the terms Newton adds to the solver's, e.g. the inertia of a dynamics time step,
         ``Newton.iterate``'s ``extra_terms``); kept as ``trial_energy``. Energy line search
         only (``energy_search``)."""
+        if self._refresh is not None:
+            self._refresh()
         energy = self.comm.allreduce(dolfinx.fem.assemble_scalar(self._total), op=MPI.SUM)
         energy += extra_energy
         self.trial_energy = energy

@@ -22,6 +22,9 @@ Linear elasticity:  psi = mu eps:eps + lambda/2 (tr eps)^2,  eps = sym(grad u).
 In 2D (plane strain) F is the 2x2 in-plane block and F33 = 1, so tr C gains + 1 (and tr C^2 too;
 Eg33 = 0).
 The coefficients c1, c2, c3 reach the forms as ``coefficients`` (UFL values by name).
+Ogden:  psi = sum_i 2 mu_i / alpha_i^2 (sum_a lb_a^alpha_i - 3) + kappa/2 G(J)^2 is a function
+of the principal stretches, which UFL cannot give: its isochoric part lives on quadrature-point
+Functions (``ogden_fields``), its volumetric part is ``volume_change`` here.
 
 Mixed (u-p, perturbed Lagrangian) form of the uncoupled energies (Neo-Hookean, Mooney-Rivlin,
 Yeoh: an isochoric part W(Ibar1, Ibar2) and kappa/2 G(J)^2) and of linear elasticity, with p the
@@ -76,6 +79,9 @@ def isochoric_energy(F, model: str, mu, coefficients=None):
         return c["c1"] * x + c["c2"] * (J ** (-4.0 / 3.0) * I2 - 3), J
     if model == "yeoh":
         return c["c1"] * x + c["c2"] * x ** 2 + c["c3"] * x ** 3, J
+    if model == "ogden":
+        raise ValueError("the Ogden law's isochoric energy is no UFL expression: it lives on "
+                         "quadrature-point Functions (fem_reference.ogden_fields)")
     raise ValueError(f"{model!r} is not an uncoupled law")
 
 

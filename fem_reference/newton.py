@@ -44,10 +44,16 @@ class Newton:
     of the residual is a force (mN) proportional to E and the relative tolerance means the same
     for every E; the absolute one is ``atol`` E h_min^2. ``umap``: the unknown's dof of each
     displacement dof (the corrections' size is measured on the displacement). ``timings``: the
-    owner's per-solve counters."""
+    owner's per-solve counters.
+
+    ``refresh``: called with no argument before every assembly of the residual or the tangent,
+    so that coefficients the forms read besides the unknown (the Ogden law's quadrature-point
+    Functions, ``ogden_fields``) are those of the unknown's current value
+    (``ReferenceSolver.refresh_fields``); None: the forms read the unknown alone."""
 
     def __init__(self, *, x, du, A, b, R_form, K_form, K_halved_form, E, h_min: float, linear,
-                 contact, umap, comm, timings: Timings):
+                 contact, umap, comm, timings: Timings, refresh=None):
+        self.refresh = refresh
         self.x, self.du, self.A, self.b = x, du, A, b
         self.R_form, self.K_form, self.K_halved_form = R_form, K_form, K_halved_form
         self.E, self.h_min, self.linear, self.contact = E, float(h_min), linear, contact
@@ -76,6 +82,8 @@ class Newton:
         values differ from u's, ``lifting_needed``), plus ``extra_terms``' residual (class
         docstring) where given; returns |b| (mN)."""
         t0 = time.perf_counter()
+        if self.refresh is not None:
+            self.refresh()
         b = self.b
         with b.localForm() as bl:
             bl.set(0.0)
@@ -95,6 +103,8 @@ class Newton:
         terms (``K_halved_form``, fem_reference.contact), plus ``extra_terms``' tangent (class
         docstring) where given."""
         t0 = time.perf_counter()
+        if self.refresh is not None:
+            self.refresh()
         self.A.zeroEntries()
         form = self.K_halved_form if drop and self.K_halved_form is not None else self.K_form
         dolfinx.fem.petsc.assemble_matrix(self.A, form, bcs=bcs,

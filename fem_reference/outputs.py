@@ -64,6 +64,7 @@ def probe_values(solver, case: Case, u_vertices) -> dict:
 def reactions(solver, case: Case) -> dict:
     """Force (mN) the supports exert on the body, per Dirichlet region: sum of the internal-minus-
     external residual over the region's dofs (owned dofs only, summed over ranks)."""
+    solver.refresh_fields()
     r = dolfinx.fem.petsc.assemble_vector(solver.R_int_form)
     r.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
     with r.localForm() as rl:  # owned + ghosts; only the owned entries are summed below
@@ -105,6 +106,7 @@ def solve_result(solver, case, converged, iters, residual, wall, steps, history,
     and the load fraction ``lam`` reached."""
     solver.state.sync()
     u_v = solver.state.vertex_field()
+    solver.refresh_fields()
     energy = solver.comm.allreduce(dolfinx.fem.assemble_scalar(solver.W_form))
     state = {"node_u": None, "node_points": None, "pressure": None}
     if solver.degree >= 2 and solver.comm.size == 1:

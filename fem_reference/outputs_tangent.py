@@ -48,6 +48,7 @@ def internal_forces(solver, u=None) -> np.ndarray:
         raise CaseError("internal_forces export runs in serial")
     if u is not None:
         solver.state.set_state(u, exact=True)
+    solver.refresh_fields()
     r = dolfinx.fem.petsc.assemble_vector(solver.R_int_form)
     out = np.empty(len(r.array))
     out[solver.state.w_out()] = r.array
@@ -69,6 +70,7 @@ def tangent(solver, u=None, *, pushes=None) -> Tangent:
         solver.state.set_state(u, exact=True)
     case = solver.case.with_pushes(pushes or {})
     solver.load.value = 1.0
+    solver.refresh_fields()
     A = dolfinx.fem.petsc.assemble_matrix(solver.K_form)
     A.assemble()
     indptr, indices, data = A.getValuesCSR()

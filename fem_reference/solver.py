@@ -53,12 +53,13 @@ from .discretization import (
 )
 from .dolfinx_mesh import DolfinxMesh, to_dolfinx
 from .factor import has_cholmod
-from .forms import mixed_energy_density, strain_energy_density
+from .forms import mixed_energy_density, strain_energy_density, volume_measure
 from .jit import compile_form
 from .linalg import FIELDSPLIT_ABOVE_DOFS, LAGGED_ABOVE_DOFS, LinearSolver
 from .logs import install_log_filters
 from .newton import Newton
 from .newton_settings import NewtonSettings, Timings
+from .ogden_fields import OgdenFields
 from .outputs import discretization, solve_result
 from .outputs_state import NodalState
 from .outputs_tangent import Tangent, internal_forces, tangent
@@ -196,7 +197,18 @@ class ReferenceSolver:
         md = {"quadrature_degree": self.qdeg}
         dx = ufl.Measure("dx", domain=mesh, metadata=md)
         ds = ufl.Measure("ds", domain=mesh, subdomain_data=self.dm.facet_tags, metadata=md)
-        if self.formulation == "mixed":
+        # the Ogden law's isochoric part: quadrature-point Functions refreshed before every
+        # assembly (``refresh_fields``; ``ogden_fields``), its volumetric part UFL
+        self.fields = OgdenFields(mesh, self.x, u, self.qdeg, case.material) \
+            if case.material.model == "ogden" else None
+        if self.fields is not None:
+            vol = volume_measure(u, "ogden", case.material.volumetric)
+            if self.formulation == "mixed":
+                psi = -self.p_ufl * vol - self.inv_kappa / 2 * self.p_ufl ** 2
+                self._vol_form = vol
+            else:
+                psi = E / (3 * (1 - 2 * nu)) / 2 * vol ** 2
+        elif self.formulation == "mixed":
             psi, vol = mixed_energy_density(u, self.p_ufl, case.material.model, mu, self.inv_kappa,
                                             case.material.volumetric, self.coefficients)
             self._vol_form = vol
@@ -209,6 +221,8 @@ class ReferenceSolver:
         self.body = dolfinx.fem.Constant(mesh, PETSc.ScalarType(
             tuple(case.material.density * np.asarray(g, float))))
         internal = psi * dx
+        if self.fields is not None:
+            internal = internal + self.fields.energy()
         external = ufl.inner(self.body, u) * dx
         if body_force is not None:
             external = external + ufl.inner(body_force(ufl.SpatialCoordinate(mesh)), u) * dx
@@ -248,12 +262,17 @@ class ReferenceSolver:
         penalty = penalty + self.contact.energy
         self.energy_internal = internal
         total = internal - self.load * external + penalty
-        self.contact.line_search_energy(total)
+        self.contact.line_search_energy(total, self.refresh_fields)
         v = ufl.TestFunction(self.W)
         w = ufl.TrialFunction(self.W)
         self.R_ufl = ufl.derivative(total, self.x, v)
         self.R_int_ufl = ufl.derivative(internal - self.load * external, self.x, v)
         self.K_ufl = ufl.derivative(self.R_ufl, self.x, w)
+        if self.fields is not None:   # what the quadrature Functions contribute (not derived)
+            vu, wu = (ufl.split(v)[0], ufl.split(w)[0]) if self.formulation == "mixed" else (v, w)
+            self.R_ufl = self.R_ufl + self.fields.residual(vu)
+            self.R_int_ufl = self.R_int_ufl + self.fields.residual(vu)
+            self.K_ufl = self.K_ufl + self.fields.tangent(vu, wu)
         self.R_form = compile_form(self.R_ufl)
         self.R_int_form = compile_form(self.R_int_ufl)
         self.K_form = compile_form(self.K_ufl)
@@ -315,8 +334,18 @@ class ReferenceSolver:
         self.newton = Newton(x=self.x, du=self.du, A=self.A, b=self.b, R_form=self.R_form,
                              K_form=self.K_form, K_halved_form=self.K_halved_form, E=self.E,
                              h_min=float(self.dm.h_min), linear=self.linear, contact=self.contact,
-                             umap=self._umap, comm=comm, timings=self.timings)
+                             umap=self._umap, comm=comm, timings=self.timings,
+                             refresh=self.refresh_fields)
         self.timings.setup = time.perf_counter() - t0
+
+    def refresh_fields(self) -> None:
+        """Bring the forms' quadrature-point Functions (the Ogden law's isochoric psi, P and A,
+        ``ogden_fields``) to the unknown's current value; nothing for the other laws, whose
+        forms read the unknown alone. Whatever assembles ``R_form``, ``R_int_form``, ``K_form``,
+        ``K_halved_form`` or ``W_form`` calls it first (Newton's assembly and the contact line
+        search through the hook they were given, the outputs directly)."""
+        if self.fields is not None:
+            self.fields.update()
 
     def close(self) -> None:
         """Free the solver's matrices, vectors and factorizations now; it cannot solve again.
@@ -410,7 +439,10 @@ class ReferenceSolver:
         self.nu.value = case.material.nu
         self.inv_kappa.value = _inv_kappa(case.material)
         for name, value in case.material.coefficients.items():
-            self.coefficients[name].value = value
+            if name in self.coefficients:   # (Ogden's mu_i: on its quadrature Functions)
+                self.coefficients[name].value = value
+        if self.fields is not None:
+            self.fields.set_material(case.material)
         s = settings or self.settings
         warm = initial is not None
         if warm:

@@ -314,7 +314,7 @@ def load_case(path, *, mesh: MeshData | None = None, size: float | None = None,
         mesh = _mesh(data, Path(path).parent, src, size, max_cells)
     _raise(_mesh_errors(data, mesh, src))
     try:  # the schema let through only keys these classes take
-        case = Case(mesh=mesh, material=Material(**data.get("material", {})),
+        case = Case(mesh=mesh, material=Material.from_table(data.get("material", {})),
                     boundaries=[Boundary(**{k: tuple(v) if k == "components" else v
                                             for k, v in b.items()})
                                 for b in data.get("boundary", [])],

@@ -17,6 +17,7 @@ __all__ = [
     "CONTACT_TYPES",
     "E_RANGE_KPA",
     "MATERIAL_MODELS",
+    "OGDEN_FIELDS",
     "TIP_SHAPES",
     "UNCOUPLED_LAWS",
     "VOLUMETRIC_LAWS",
@@ -34,14 +35,20 @@ E_RANGE_KPA = (1e-9, 1e12)
 """Young's moduli accepted (kPa): from far softer than any tissue to harder than diamond
 (1.2e9 kPa); outside it the residuals of a solve under- or overflow."""
 MATERIAL_MODELS = ("neo-hookean", "linear-elastic", "stable-neo-hookean",
-                   "saint-venant-kirchhoff", "corotational", "mooney-rivlin", "yeoh")
+                   "saint-venant-kirchhoff", "corotational", "mooney-rivlin", "yeoh", "ogden")
 """The strain-energy laws (``Material``; formulas and checks: docs/laws.md)."""
-UNCOUPLED_LAWS = ("neo-hookean", "mooney-rivlin", "yeoh")
-"""Laws of an isochoric energy of Ibar1, Ibar2 (of J^(-2/3) C) plus kappa/2 G(J)^2: they take the
-``volumetric`` choice and the mixed u-p formulation, so nearly incompressible ones do not lock."""
-COEFFICIENT_LAWS = {"mooney-rivlin": ("c1", "c2", "k"), "yeoh": ("c1", "c2", "c3", "k")}
-"""Laws given by their coefficients (kPa) instead of E and nu, which follow from them: the
-small-strain shear modulus mu0 (2 (c1 + c2), 2 c1) and the bulk modulus k."""
+UNCOUPLED_LAWS = ("neo-hookean", "mooney-rivlin", "yeoh", "ogden")
+"""Laws of an isochoric energy of J^(-2/3) C (of its invariants Ibar1, Ibar2; Ogden's of its
+eigenvalues) plus kappa/2 G(J)^2: they take the ``volumetric`` choice and the mixed u-p
+formulation, so nearly incompressible ones do not lock."""
+COEFFICIENT_LAWS = {"mooney-rivlin": ("c1", "c2", "k"), "yeoh": ("c1", "c2", "c3", "k"),
+                    "ogden": ("mu", "alpha", "k")}
+"""Laws given by their coefficients (kPa; Ogden's exponents alpha dimensionless) instead of E and
+nu, which follow from them: the small-strain shear modulus mu0 (2 (c1 + c2), 2 c1, sum mu_i) and
+the bulk modulus k. The names are the case file's ([material] keys)."""
+OGDEN_FIELDS = {"mu": "ogden_mu", "alpha": "ogden_alpha"}
+"""The case file's Ogden keys and the ``Material`` fields that hold them (``Material.mu`` is the
+small-strain shear modulus of every law)."""
 VOLUMETRIC_LAWS = ("quadratic", "log")
 """The uncoupled laws' volumetric energies kappa/2 G(J)^2: G = J - 1 (seed 000 eq. 14) or ln J."""
 ACTUATOR_TYPES = ("patch", "indenter")
@@ -73,8 +80,14 @@ class Material:
       c1, c2 >= 0 (polyconvex: stable under every deformation), c1 + c2 > 0.
     yeoh (``c1``, ``c2``, ``c3``, ``k``): psi = sum_i c_i (Ibar1 - 3)^i + k/2 G(J)^2; c1 > 0,
       c3 >= 0 and c1 + 2 c2 x + 3 c3 x^2 > 0 for every x >= 0 (dpsi/dIbar1 > 0: stable).
-      For both, E and nu are not given: they follow from mu0 = 2 (c1 + c2) (resp. 2 c1) and
-      kappa = k (``volumetric`` as for neo-hookean).
+    ogden (``mu`` = [mu_1, ...], ``alpha`` = [alpha_1, ...], ``k``; Abaqus' convention): psi =
+      sum_i 2 mu_i / alpha_i^2 (lb1^alpha_i + lb2^alpha_i + lb3^alpha_i - 3) + k/2 G(J)^2 with
+      lb_j = J^(-1/3) lambda_j the isochoric principal stretches; mu_i > 0 (each term's
+      coefficient 2 mu_i / alpha_i^2 and its small-strain shear modulus mu_i: stable), alpha_i
+      != 0, lists of one length. The fields are ``ogden_mu`` and ``ogden_alpha`` (tuples; the
+      case file's keys mu and alpha: ``from_table``).
+      For these three, E and nu are not given: they follow from mu0 = 2 (c1 + c2) (resp. 2 c1,
+      sum mu_i) and kappa = k (``volumetric`` as for neo-hookean).
     stable-neo-hookean (``E``, ``nu``; Smith, de Goes and Kim 2018): psi = mu/2 (tr C - 3)
       + lambda'/2 (J - 1 - mu/lambda')^2 - mu^2 / (2 lambda'), lambda' = lambda + mu: the rest
       state carries no energy and the small-strain limit is linear elasticity's.
@@ -92,9 +105,10 @@ class Material:
     model : str
         The strain-energy law (``MATERIAL_MODELS``), default "neo-hookean".
     E : float or None
-        Young's modulus (kPa); None for mooney-rivlin and yeoh.
+        Young's modulus (kPa); None for mooney-rivlin, yeoh and ogden.
     nu : float or None
-        Poisson's ratio (dimensionless, < 0.5; 0.5 incompressible); None for mooney-rivlin and yeoh.
+        Poisson's ratio (dimensionless, < 0.5; 0.5 incompressible); None for mooney-rivlin,
+        yeoh and ogden.
     density : float
         kg/mm^3 (default 1e-6, water).
     volumetric : str
@@ -102,7 +116,10 @@ class Material:
     c1, c2, c3 : float or None
         Mooney-Rivlin (c1, c2) and Yeoh (c1, c2, c3) coefficients (kPa); None for other laws.
     k : float or None
-        Bulk modulus kappa (kPa) of mooney-rivlin and yeoh; None for other laws.
+        Bulk modulus kappa (kPa) of mooney-rivlin, yeoh and ogden; None for other laws.
+    ogden_mu, ogden_alpha : tuple of float or None
+        Ogden's coefficients mu_i (kPa) and exponents alpha_i (the case file's ``mu`` and
+        ``alpha``); None for other laws.
 
     Raises
     ------
@@ -119,13 +136,32 @@ class Material:
     c2: float | None = None
     c3: float | None = None
     k: float | None = None
+    ogden_mu: tuple | None = None
+    ogden_alpha: tuple | None = None
+
+    @classmethod
+    def from_table(cls, table: dict) -> Material:
+        """The Material of a case file's ``[material]`` table (its keys ``mu`` and ``alpha`` are
+        the fields ``ogden_mu`` and ``ogden_alpha``: ``OGDEN_FIELDS``).
+
+        Parameters
+        ----------
+        table : dict
+            The table's keys and values.
+
+        Returns
+        -------
+        Material
+            The material, checked.
+        """
+        return cls(**{OGDEN_FIELDS.get(k, k): v for k, v in table.items()})
 
     def __post_init__(self):
         if self.model not in MATERIAL_MODELS:
             raise CaseError(f"unknown material model {self.model!r}; models: {list(MATERIAL_MODELS)}")
         coeffs = COEFFICIENT_LAWS.get(self.model, ())
-        extra = [n for n in ("c1", "c2", "c3", "k") if getattr(self, n) is not None
-                 and n not in coeffs]
+        extra = [n for n in ("c1", "c2", "c3", "k", "mu", "alpha")
+                 if getattr(self, OGDEN_FIELDS.get(n, n)) is not None and n not in coeffs]
         if extra:
             takes = ", ".join(coeffs) if coeffs else "E, nu"
             raise CaseError(f"material model {self.model!r} takes {takes}; {', '.join(extra)} "
@@ -159,17 +195,21 @@ class Material:
 
     def _coefficients(self, names):
         """Check a coefficient law's parameters (kPa) and set E and nu from mu0 and k."""
-        missing = [n for n in names if getattr(self, n) is None]
+        missing = [n for n in names if getattr(self, OGDEN_FIELDS.get(n, n)) is None]
         if missing:
             raise CaseError(f"material model {self.model!r} needs {', '.join(names)} (kPa); "
                             f"missing: {', '.join(missing)}")
         for n in names:
+            if n in OGDEN_FIELDS:
+                continue
             v = getattr(self, n)
             if not (_real(v) and math.isfinite(v)):
                 raise CaseError(f"material {n} must be a finite number (kPa), got {n}={v!r}")
         c1, c2, k = self.c1, self.c2, self.k
         c3 = self.c3 or 0.0
-        if self.model == "mooney-rivlin":
+        if self.model == "ogden":
+            mu0 = self._ogden_terms()
+        elif self.model == "mooney-rivlin":
             if c1 < 0 or c2 < 0 or c1 + c2 <= 0:
                 raise CaseError(f"mooney-rivlin: c1 = {c1!r}, c2 = {c2!r} kPa: the law is stable "
                                 f"under every deformation (polyconvex) with c1 >= 0, c2 >= 0 and "
@@ -195,13 +235,47 @@ class Material:
         object.__setattr__(self, "E", E)
         object.__setattr__(self, "nu", nu)
 
+    def _ogden_terms(self) -> float:
+        """Check Ogden's lists (finite, one nonzero length, mu_i > 0, alpha_i != 0), store
+        them as tuples of floats, and return mu0 = sum mu_i (kPa)."""
+        lists = {}
+        for key, name in OGDEN_FIELDS.items():
+            v = getattr(self, name)
+            v = (v,) if _real(v) else v
+            if not (isinstance(v, (list, tuple)) and all(_real(x) and math.isfinite(x)
+                                                          for x in v)):
+                raise CaseError(f"ogden: {key} must be a list of finite numbers, got "
+                                f"{key}={getattr(self, name)!r}")
+            lists[key] = tuple(float(x) for x in v)
+        mu, alpha = lists["mu"], lists["alpha"]
+        if not mu or len(mu) != len(alpha):
+            raise CaseError(f"ogden: mu = {list(mu)} kPa and alpha = {list(alpha)} must be "
+                            f"lists of one nonzero length (a term mu_i, alpha_i each)")
+        bad = [i + 1 for i, (m, a) in enumerate(zip(mu, alpha)) if not (m > 0 and a != 0)]
+        if bad:
+            raise CaseError(f"ogden: mu = {list(mu)} kPa, alpha = {list(alpha)}: term(s) "
+                            f"{', '.join(map(str, bad))} unstable: each term 2 mu_i / "
+                            f"alpha_i^2 (sum lb^alpha_i - 3) needs mu_i > 0 (its coefficient "
+                            f"and its small-strain shear modulus) and alpha_i != 0 "
+                            f"(docs/laws.md)")
+        object.__setattr__(self, "ogden_mu", mu)
+        object.__setattr__(self, "ogden_alpha", alpha)
+        return math.fsum(mu)
+
     @property
     def coefficients(self) -> dict:
-        """The law's own coefficients (kPa) by name ({} for the laws of E and nu)."""
+        """The law's own coefficients (kPa) by name ({} for the laws of E and nu); Ogden's are
+        mu_1, mu_2, ... and k (its exponents: ``ogden_alpha``)."""
+        if self.model == "ogden":
+            return {**{f"mu_{i + 1}": m for i, m in enumerate(self.ogden_mu)}, "k": float(self.k)}
         return {n: float(getattr(self, n)) for n in COEFFICIENT_LAWS.get(self.model, ())}
 
     def scaled(self, factor: float) -> Material:
-        """This material with every modulus times ``factor`` (nu unchanged)."""
+        """This material with every modulus times ``factor`` (nu unchanged; Ogden's exponents
+        too)."""
+        if self.model == "ogden":
+            return replace(self, E=None, nu=None, k=self.k * factor,
+                           ogden_mu=tuple(m * factor for m in self.ogden_mu))
         if self.model in COEFFICIENT_LAWS:
             return replace(self, E=None, nu=None, **{n: v * factor for n, v in
                                                       self.coefficients.items()})

@@ -165,7 +165,7 @@ def with_free_actuators(case) -> Case:
 
 def with_material(case, **changes) -> Case:
     """``case`` with its material's fields changed; a law given by its coefficients (mooney-
-    rivlin, yeoh) takes a new E as every coefficient scaled by the same factor."""
+    rivlin, yeoh, ogden) takes a new E as every coefficient scaled by the same factor."""
     m = case.material
     if m.model in COEFFICIENT_LAWS and changes.get("model", m.model) == m.model \
             and changes.get("E") is not None:
@@ -201,7 +201,7 @@ def with_law(case, model: str, params: dict | None = None) -> Case:
     if model in UNCOUPLED_LAWS and m.model in UNCOUPLED_LAWS:
         fields["volumetric"] = m.volumetric
     fields.update(params)
-    return replace(case, material=Material(model, **fields))
+    return replace(case, material=Material.from_table({"model": model, **fields}))
 
 
 def with_mesh(case, mesh: MeshData) -> Case:

@@ -21,6 +21,8 @@ def material_json(material) -> dict:
         out["volumetric"] = material.volumetric
     if material.coefficients:
         out["coefficients_kPa"] = material.coefficients
+    if material.model == "ogden":
+        out["alpha"] = list(material.ogden_alpha)
     return out
 
 

@@ -79,11 +79,13 @@ def test_schema_enums_follow_the_code():
 
 def test_schema_defaults_are_the_code_defaults():
     from tissue_reference.meshes.case import Boundary, Material
+    from tissue_reference.meshes.case_parts import OGDEN_FIELDS
 
     material = case_schema()["properties"]["material"]["properties"]
     defaults = {k: v["default"] for k, v in material.items() if "default" in v}
     assert defaults == {k: v for k, v in vars(Material()).items() if v is not None}
-    assert set(material) == set(vars(Material()))   # every field described
+    # every field described (Ogden's lists under the case file's keys mu and alpha)
+    assert {OGDEN_FIELDS.get(k, k) for k in material} == set(vars(Material()))
     assert case_schema()["$defs"]["boundary"]["properties"]["type"]["default"] == \
         Boundary("r").type
 
@@ -179,7 +181,7 @@ MISTAKES = [
      "FILE: name: expected a non-empty string, found ['phantom'] (a list)"),
     ("scalar as table", "material = 6.0\n" + BOX.replace("[material]\nE = 6.0\nnu = 0.45\n", ""),
      ("FILE: [material]: expected a table with keys model, E, nu, density, volumetric, c1, c2, c3, "
-      "k, found 6.0 (a number)")),
+      "k, mu, alpha, found 6.0 (a number)")),
     ("table as scalar", PHANTOM.replace("E = 6.0 ", "E = {value = 6.0}"),
      ("FILE: [material].E: expected a finite number in [1e-09, 1e+12], found {value = 6.0} "
       "(a table)")),
@@ -254,7 +256,7 @@ def test_all_faults_are_reported_one_line_each(tmp_path):
     assert got.splitlines() == [
         "FILE: [material].E: expected a finite number in [1e-09, 1e+12], found -1.0",
         ("FILE: [material].nuu: expected a key of [material] (model, E, nu, density, "
-         "volumetric, c1, c2, c3, k), found unknown key 'nuu' (did you mean 'nu'?)")]
+         "volumetric, c1, c2, c3, k, mu, alpha), found unknown key 'nuu' (did you mean 'nu'?)")]
 
 
 def test_probe_on_the_true_curved_surface_is_accepted_and_one_a_cell_outside_is_not(tmp_path):

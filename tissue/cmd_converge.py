@@ -34,7 +34,7 @@ OUT_FILES = ("convergence.png", "convergence.json", "report.html")
 def _material_of(path) -> Material:
     """The material of a case file (read after the study has loaded the same file)."""
     data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    return Material(**data.get("material", {}))
+    return Material.from_table(data.get("material", {}))
 
 
 def run(args) -> int:

@@ -203,13 +203,15 @@ def add_case_args(p: argparse.ArgumentParser):
     p.add_argument("--material", type=material_spec, default=None, metavar="LAW[:NAME=VALUE,...]",
                    help="the tissue's strain-energy law instead of the case's (docs/laws.md), "
                         "e.g. stable-neo-hookean (the case's E and nu), neo-hookean:E=8, "
-                        "mooney-rivlin:c1=1,c2=0.5,k=30 (kPa)")
+                        "mooney-rivlin:c1=1,c2=0.5,k=30 (kPa), ogden:mu=1.5/0.2,alpha=2/-2,k=30 "
+                        "(lists separated by /)")
     add_max_cells(p)
 
 
 def material_spec(text: str) -> tuple[str, dict]:
     """argparse type of --material: "LAW" or "LAW:NAME=VALUE,..." -> (law, parameters); values
-    are numbers (kPa; density kg/mm^3) except ``volumetric``'s."""
+    are numbers (kPa; density kg/mm^3) except ``volumetric``'s, and lists of numbers separated
+    by "/" (Ogden's mu and alpha)."""
     model, _, rest = text.partition(":")
     params = {}
     for item in filter(None, (x.strip() for x in rest.split(","))):
@@ -219,8 +221,8 @@ def material_spec(text: str) -> tuple[str, dict]:
                                              f"not NAME=VALUE)")
         name, value = name.strip(), value.strip()
         if name != "volumetric":
-            try:
-                value = float(value)
+            try:   # a list (Ogden's mu and alpha) separated by "/"
+                value = [float(v) for v in value.split("/")] if "/" in value else float(value)
             except ValueError:
                 raise argparse.ArgumentTypeError(f"{name} must be a number, got {value!r} in "
                                                  f"{text!r}") from None

@@ -65,6 +65,10 @@ def law_energy(material, l1, l2, l3):
         iso = c["c1"] * x1 + c["c2"] * (J ** (-4.0 / 3.0) * I2 - 3)
     elif model == "yeoh":
         iso = c["c1"] * x1 + c["c2"] * x1 ** 2 + c["c3"] * x1 ** 3
+    elif model == "ogden":
+        lb = [J ** (-1.0 / 3.0) * lam for lam in (l1, l2, l3)]
+        iso = sum(2 * m / (a * a) * (sum(x ** a for x in lb) - 3)
+                  for m, a in zip(material.ogden_mu, material.ogden_alpha))
     else:
         raise ValueError(f"no closed form for the law {model!r}")
     return iso + kappa / 2 * G ** 2

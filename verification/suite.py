@@ -71,12 +71,15 @@ E_TISSUE = 6.0   # kPa
 def law_material(model: str, E: float, nu: float) -> Material:
     """The law ``model`` with the small-strain moduli E (kPa) and nu: Mooney-Rivlin splits
     mu0 = E / (2 (1 + nu)) as c1 = 0.35 mu0, c2 = 0.15 mu0; Yeoh has c1 = mu0 / 2,
-    c2 = -0.05 mu0, c3 = 0.01 mu0 (inside its stable range); both k = E / (3 (1 - 2 nu))."""
+    c2 = -0.05 mu0, c3 = 0.01 mu0 (inside its stable range); Ogden mu = [0.7 mu0, 0.3 mu0],
+    alpha = [4, -2] (sum mu_i = mu0); all k = E / (3 (1 - 2 nu))."""
     mu0, k = E / (2 * (1 + nu)), E / (3 * (1 - 2 * nu))
     if model == "mooney-rivlin":
         return Material(model, c1=0.35 * mu0, c2=0.15 * mu0, k=k)
     if model == "yeoh":
         return Material(model, c1=0.5 * mu0, c2=-0.05 * mu0, c3=0.01 * mu0, k=k)
+    if model == "ogden":
+        return Material(model, ogden_mu=(0.7 * mu0, 0.3 * mu0), ogden_alpha=(4.0, -2.0), k=k)
     return Material(model, E=E, nu=nu)
 
 

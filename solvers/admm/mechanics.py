@@ -1,7 +1,7 @@
 """P1 mechanics of the ADMM solver: element kinematics (shape-function gradients, volumes), the
 material laws (Neo-Hookean, seed eq. 14, linear elasticity, and the other laws of
-``fem_reference.forms``: Mooney-Rivlin, Yeoh, stable Neo-Hookean, St Venant-Kirchhoff; 2D is
-plane strain), and the P1 strain energy, internal forces and exact tangent of a displacement
+``fem_reference.forms``: Mooney-Rivlin, Yeoh, stable Neo-Hookean, St Venant-Kirchhoff,
+corotational, Ogden; 2D is plane strain), and the P1 strain energy, internal forces and exact tangent of a displacement
 (mm, kPa, mN).
 
 The laws besides Neo-Hookean and linear elasticity are written once, as an energy Phi(I1, I2, J)
@@ -13,7 +13,10 @@ derivatives; the chain rule through
     d2I2 = 2 (2 F_iJ F_kL + I1 d_ik d_JL - d_ik C_LJ - F_iL F_kJ - (F F^T)_ik d_JL),
     d2J  = (cof_iJ cof_kL - cof_iL cof_kJ) / J
 
-gives the stress P = dpsi/dF and its tangent A_iJkL = dP_iJ / dF_kL (``InvariantLaw``).
+gives the stress P = dpsi/dF and its tangent A_iJkL = dP_iJ / dF_kL (``InvariantLaw``). The
+Ogden law, a function of the principal stretches, takes its isochoric part from the spectral
+formulas of ``fem_reference.ogden`` (which the reference uses too) and adds kappa/2 (J - 1)^2
+(``OgdenLaw``).
 
 Everything here is host (numpy/scipy) code: the Newton polish, the tangent lift and the final
 checks use it whatever backend ran the ADMM iterations."""
@@ -26,6 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from tissue_reference.fem_reference.invariants import principal_stretch_sum
+from tissue_reference.fem_reference.ogden import OgdenIsochoric
 from tissue_reference.meshes.errors import CaseError
 
 KERNEL_LAWS = ("neo-hookean", "linear-elastic")
@@ -34,7 +38,9 @@ KERNEL_LAWS = ("neo-hookean", "linear-elastic")
 INVARIANT_LAWS = ("mooney-rivlin", "yeoh", "stable-neo-hookean", "saint-venant-kirchhoff",
                   "corotational")
 """The laws written as an energy of the invariants (I1, I2, J) (``InvariantLaw``)."""
-ADMM_LAWS = KERNEL_LAWS + INVARIANT_LAWS
+SPECTRAL_LAWS = ("ogden",)
+"""The laws written as a function of the principal stretches (``OgdenLaw``)."""
+ADMM_LAWS = KERNEL_LAWS + INVARIANT_LAWS + SPECTRAL_LAWS
 """The strain-energy laws the ADMM solver implements; it refuses the others by name."""
 
 
@@ -263,10 +269,59 @@ class InvariantLaw:
         return self.evaluate(H, psi=False, stress=False).A
 
 
+class OgdenLaw:
+    """The Ogden law: the isochoric energy of ``fem_reference.ogden.OgdenIsochoric`` (from the
+    eigen-decomposition of C, exact at equal principal stretches) plus seed 000's volumetric
+    energy kappa/2 (J - 1)^2, kappa = k; the same interface as ``InvariantLaw`` on displacement
+    gradients H (m, d, d)."""
+
+    def __init__(self, material, d):
+        self.model = material.model
+        self.kappa = material.kappa
+        self.iso = OgdenIsochoric(material.ogden_mu, material.ogden_alpha)
+        self.d = d
+
+    def evaluate(self, H, psi=True, stress=True, tangent=True) -> LawValues:
+        """``LawValues`` (psi, J, P, A) at H, each only where asked for, from one
+        eigen-decomposition per point; psi is inf where det F <= 0."""
+        d, k = self.d, self.kappa
+        F = H + np.eye(d)
+        J, cof = det_cof(F)
+        iso = self.iso.evaluate(F, psi, stress, tangent)
+        e = P = A = None
+        if psi:
+            e = np.where(J > 0, iso.psi + 0.5 * k * (J - 1.0) ** 2, np.inf)
+        if stress:
+            P = iso.P + (k * (J - 1.0))[:, None, None] * cof
+        if tangent:
+            m = len(F)
+            c = cof.reshape(m, d * d)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                cc = cof[:, :, :, None, None] * cof[:, None, None, :, :]
+                d2J = (cc - cc.transpose(0, 1, 4, 3, 2)) / J[:, None, None, None, None]
+            A = iso.A + k * (c[:, :, None] * c[:, None, :]) \
+                + (k * (J - 1.0))[:, None, None] * d2J.reshape(m, d * d, d * d)
+        return LawValues(e, J, P, A)
+
+    def psi_J(self, H):
+        """(psi, J) (``evaluate``)."""
+        v = self.evaluate(H, stress=False, tangent=False)
+        return v.psi, v.J
+
+    def stress(self, H):
+        """(P, J) (``evaluate``)."""
+        v = self.evaluate(H, psi=False, tangent=False)
+        return v.P, v.J
+
+    def tangent(self, H):
+        """A (m, d*d, d*d), rows (iJ), columns (kL): A_iJkL = d P_iJ / d H_kL (``evaluate``)."""
+        return self.evaluate(H, psi=False, stress=False).A
+
+
 class Law:
     """Energy density psi (kPa), first Piola stress P = dpsi/dH (kPa) and A = dP/dH (kPa) of the
     displacement gradient H (m, d, d): Neo-Hookean and linear elasticity in closed form, the
-    other laws of ``ADMM_LAWS`` through ``InvariantLaw``. ``kernel``: whether the compiled element
+    other laws of ``ADMM_LAWS`` through ``InvariantLaw`` (Ogden: ``OgdenLaw``). ``kernel``: whether the compiled element
     pass and the closed-form z-steps implement this law (``KERNEL_LAWS``)."""
 
     def __init__(self, material, d):
@@ -277,7 +332,8 @@ class Law:
         self.mu, self.kappa, self.lmbda = material.mu, material.kappa, material.lmbda
         self.d = d
         self.kernel = self.model in KERNEL_LAWS
-        self._invariant = None if self.kernel else InvariantLaw(material, d)
+        self._invariant = None if self.kernel else \
+            (OgdenLaw if self.model in SPECTRAL_LAWS else InvariantLaw)(material, d)
 
     def evaluate(self, H, psi=True, stress=True, tangent=True) -> LawValues:
         """``LawValues`` (psi, J, P, A) at H, each only where asked for: the invariant laws
