@@ -118,7 +118,26 @@ def det_cof(F):
     return J, cof
 
 
-class InvariantLaw:
+class _EvaluatedLaw:
+    """The views of a law's ``evaluate`` (psi, J, P, A at displacement gradients H (m, d, d))
+    that the local steps and the polish ask for one at a time."""
+
+    def psi_J(self, H):
+        """(psi, J) (``evaluate``)."""
+        v = self.evaluate(H, stress=False, tangent=False)
+        return v.psi, v.J
+
+    def stress(self, H):
+        """(P, J) (``evaluate``)."""
+        v = self.evaluate(H, psi=False, tangent=False)
+        return v.P, v.J
+
+    def tangent(self, H):
+        """A (m, d*d, d*d), rows (iJ), columns (kL): A_iJkL = d P_iJ / d H_kL (``evaluate``)."""
+        return self.evaluate(H, psi=False, stress=False).A
+
+
+class InvariantLaw(_EvaluatedLaw):
     """A law as an energy Phi(I1, I2, J) of the invariants of C (module docstring): ``phi`` gives
     Phi (m,), its gradient (m, 3) and Hessian (m, 3, 3) in (I1, I2, J); ``psi_J``, ``stress``
     and ``tangent`` follow by the chain rule, on displacement gradients H (m, d, d)."""
@@ -254,22 +273,8 @@ class InvariantLaw:
         A[:, np.arange(d * d), np.arange(d * d)] += 2.0 * g[:, 0, None]
         return A
 
-    def psi_J(self, H):
-        """(psi, J) (``evaluate``)."""
-        v = self.evaluate(H, stress=False, tangent=False)
-        return v.psi, v.J
 
-    def stress(self, H):
-        """(P, J) (``evaluate``)."""
-        v = self.evaluate(H, psi=False, tangent=False)
-        return v.P, v.J
-
-    def tangent(self, H):
-        """A (m, d*d, d*d), rows (iJ), columns (kL): A_iJkL = d P_iJ / d H_kL (``evaluate``)."""
-        return self.evaluate(H, psi=False, stress=False).A
-
-
-class OgdenLaw:
+class OgdenLaw(_EvaluatedLaw):
     """The Ogden law: the isochoric energy of ``fem_reference.ogden.OgdenIsochoric`` (from the
     eigen-decomposition of C, exact at equal principal stretches) plus seed 000's volumetric
     energy kappa/2 (J - 1)^2, kappa = k; the same interface as ``InvariantLaw`` on displacement
@@ -302,20 +307,6 @@ class OgdenLaw:
             A = iso.A + k * (c[:, :, None] * c[:, None, :]) \
                 + (k * (J - 1.0))[:, None, None] * d2J.reshape(m, d * d, d * d)
         return LawValues(e, J, P, A)
-
-    def psi_J(self, H):
-        """(psi, J) (``evaluate``)."""
-        v = self.evaluate(H, stress=False, tangent=False)
-        return v.psi, v.J
-
-    def stress(self, H):
-        """(P, J) (``evaluate``)."""
-        v = self.evaluate(H, psi=False, tangent=False)
-        return v.P, v.J
-
-    def tangent(self, H):
-        """A (m, d*d, d*d), rows (iJ), columns (kL): A_iJkL = d P_iJ / d H_kL (``evaluate``)."""
-        return self.evaluate(H, psi=False, stress=False).A
 
 
 class Law:
