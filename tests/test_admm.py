@@ -12,7 +12,7 @@ from tissue_reference.meshes.case import Boundary, Case, Material, load_case
 from tissue_reference.meshes.errors import SolverDivergedError
 from tissue_reference.meshes.mesh import cell_volumes
 from tissue_reference.solvers import admm
-from tissue_reference.solvers.admm import amg, driver, operators
+from tissue_reference.solvers.admm import amg, operators, polisher
 
 CASE_TOML = "meshes/cases/phantom.toml"
 
@@ -256,7 +256,7 @@ def test_polish_restart_starts_from_this_steps_boundary_values(small_box, monkey
     lift that state still has the previous step's boundary values, which Newton (free dofs only)
     would keep: the restart must carry it to this step's values first."""
     case = _box_case(small_box)
-    real = driver.newton
+    real = polisher.newton
     calls = {"n": 0}
 
     def newton_failing_once(*a, **kw):
@@ -265,7 +265,7 @@ def test_polish_restart_starts_from_this_steps_boundary_values(small_box, monkey
             raise SolverDivergedError("forced: left Newton's basin")
         return real(*a, **kw)
 
-    monkeypatch.setattr(driver, "newton", newton_failing_once)
+    monkeypatch.setattr(polisher, "newton", newton_failing_once)
     res = admm.solve(case, lift=False, load_steps=1, max_iter=5)
     assert len(res.extra["polish_restarts"]) == 1 and res.converged
     c = case.constraints

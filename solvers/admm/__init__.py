@@ -88,7 +88,9 @@ Modules: ``mechanics`` (kinematics, material laws, energy, forces, tangent), ``c
 tips), ``factor`` and ``amg``
 (x-step and tangent solvers), ``kernel_c`` and ``kernel_array`` (the element pass per
 backend), ``backends`` (devices), ``loop`` (iterations, stopping, history), ``polish``
-(Newton, lifts), ``dynamics`` (implicit Euler), ``driver`` (``solve``).
+(Newton, lifts), ``chord`` (the chord polish), ``polisher`` (the polish a solve runs: Newton,
+or chord steps with Newton where they fail), ``dynamics`` (implicit Euler), ``options`` (a
+solve's options, checked), ``driver`` (``solve``: operators, load or time steps, the result).
 
 Tunables (PCG_MIN and XSTEP_TOL in ``operators``, CHUNK in ``kernel_array``, USE_CKERNEL in
 ``kernel_c``, ARRAY_XSTEP_RTOL in ``backends``, ...) are set on the module that defines them.

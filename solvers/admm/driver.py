@@ -4,8 +4,8 @@ then the Newton polish), or implicit-Euler dynamics (``dynamics``); the result w
 energy, deformation state and the iteration history."""
 from __future__ import annotations
 
-import functools
 import time
+from typing import NamedTuple
 
 import numpy as np
 
@@ -15,12 +15,13 @@ from tissue_reference.meshes.results import SolveResult
 from tissue_reference.meshes.tips import through_surface_state
 
 from .backends import backend, require_device
-from .chord import chord
 from .dynamics import ImplicitEuler, implicit_euler
 from .loop import check_J, run_admm
 from .mechanics import as_u
 from .operators import particular, prepare, vertex_norm_max
-from .polish import energy_gradient, newton, rest_factor, tangent_lift
+from .options import SolveOptions
+from .polish import energy_gradient, tangent_lift
+from .polisher import Polisher
 
 
 def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: int | None = None,
@@ -162,153 +163,245 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     """
     t0 = time.perf_counter()
     require_device(device)
-    case0 = case  # same mesh: its cached probe locations serve the pushed Case too
-    case = case.with_pushes(pushes)   # idle patches held unless the Case frees them
-    if not (np.isfinite(tol_mm) and tol_mm > 0):
-        raise CaseError(f"tol_mm must be > 0 mm, got {tol_mm!r}")
-    if max_iter is None:
-        max_iter = 20 if polish else 20000
-    if int(max_iter) < 1:
-        raise CaseError(f"max_iter must be >= 1, got {max_iter!r}")
-    if polish not in (True, False, "chord"):
-        raise CaseError(f"polish must be True, False or 'chord', got {polish!r}")
-    use_chord = polish == "chord"
-    if polish_tol_mm is None:
-        polish_tol_mm = tol_mm if use_chord else tol_mm / 100.0
-    if handoff_mm is None:
-        handoff_mm = 0.1 if use_chord else 1e-2
-    if use_chord and dynamics is not None:
-        raise CaseError(f"{case.source or case.name}: polish='chord' is for quasi-static solves "
-                        f"(its tangent at rest has no inertia): use polish=True")
-    dt = dynamics.dt if dynamics is not None else None
+    pushed = case.with_pushes(pushes)   # idle patches held unless the Case frees them
+    opts = SolveOptions(
+        tol_mm=tol_mm, max_iter=max_iter, rho=rho, polish=polish, polish_tol_mm=polish_tol_mm,
+        polish_max_iter=polish_max_iter, dynamics=dynamics, callback=callback,
+        load_steps=load_steps, step_mm=step_mm, intermediate_tol_mm=intermediate_tol_mm,
+        lift=lift, handoff_mm=handoff_mm, tip_step=tip_step, progress=progress,
+        factorize=factorize, device=device, contact_quadrature=contact_quadrature,
+        contact_penalty=contact_penalty, tip_start=tip_start, anderson=anderson,
+    ).resolved(pushed)
+    run = SolveRun(pushed, opts, initial, initial_pushes)
+    march = run.quasi_static() if dynamics is None else run.implicit_euler()
+    # the unpushed Case has the same mesh: its cached probe locations serve the pushed one too
+    return run.result(march, t0, probe_case=case)
 
-    contact = {k: v for k, v in (("rule", contact_quadrature), ("penalty", contact_penalty),
-                                 ("tip_start", tip_start)) if v is not None}
-    ops = prepare(case, rho=rho, dt=dt, factor=device == "cpu", contact=contact)
-    cset = ops.contact
-    push1 = cset.pushes_of(case) if cset is not None else None
-    push0 = None if cset is None else _start_pushes(cset, initial, initial_pushes)
-    if isinstance(initial, SolveResult):
-        initial = initial.u
-    be = backend(ops, device)
-    up = particular(case, ops)
-    fext = case.external_forces(1.0)
-    n, d = ops.n, ops.d
-    if initial is None:
-        u = np.zeros(ops.N)
-    else:
-        u = as_u(case, initial).copy()
-        check_J(ops, ops.grad(u), 0, "the initial (warm-start) state")
-    hist = {"primal": [], "dual": [], "max_step_mm": [], "newton_step_mm": [],
-            "admm_clock_s": []}
 
-    def tips_at(s):
-        """The tips' ends at the contact points at load fraction s (None without tips)."""
-        return None if cset is None else cset.origins(push0 + s * (push1 - push0))
+class March(NamedTuple):
+    """What the load steps or the time steps of a solve reached."""
 
-    def admm_step(up_j, rhs_extra, u_j, it0, tol=tol_mm, s=1.0):
-        return run_admm(ops, up_j, rhs_extra, u_j, tol_mm=max(tol, handoff_mm) if polish else tol,
-                     max_iter=int(max_iter), callback=callback, it0=it0, progress=progress,
-                     hist=hist, be=be, tips=tips_at(s), anderson=anderson)
+    u: np.ndarray
+    """Node-major displacement (mm) at the end."""
+    load_steps: int | None
+    """Load steps taken (quasi-static); the ``load_steps`` option in dynamics (unused)."""
+    admm_iterations: int
+    newton_iterations: int
+    converged: bool
+    lifts: int
+    """Tangent lifts solved."""
+    extra: dict
+    """What the time steps add to ``SolveResult.extra`` (empty for quasi-static solves)."""
 
-    @functools.cache
-    def rest_pair():
-        """The tangent at rest and its factorization, once per solve (kept with ops when small)."""
-        return rest_factor(ops, factorize)
 
-    fallbacks = []
-    chord_steps = [0]
-    chord_stats = {"refactorizations": 0}
+class SolveRun:
+    """One solve's operators, backend, start state and iteration history, with its ADMM steps
+    and its polish (``polisher.Polisher``), the load or time steps that use them and the
+    SolveResult they give.
 
-    def newton_step(u_j, f, inertia, it0, tol=polish_tol_mm, s=1.0):
-        k = 0
-        if use_chord:
-            u_j, k, ok = chord(ops, u_j, f, rest_pair()[1], tol_mm=tol, max_iter=polish_max_iter,
-                               it0=it0, hist=hist, callback=callback, tips=tips_at(s),
-                               factorize=factorize, stats=chord_stats)
-            chord_steps[0] += k
-            if ok:
-                return u_j, k
-            fallbacks.append(f"load fraction {s:.4g}: chord steps did not converge in {k}; "
-                             f"Newton polish from their best iterate")
-        u_j, kn = newton(ops, u_j, f, inertia, tol_mm=tol, max_iter=polish_max_iter, it0=it0 + k,
-                         hist=hist, callback=callback, factorize=factorize, tips=tips_at(s))
-        return u_j, k + kn
+    Parameters
+    ----------
+    case : Case
+        The Case with its pushes applied (``Case.with_pushes``).
+    opts : SolveOptions
+        The resolved options (``SolveOptions.resolved``).
+    initial : array_like or SolveResult or None
+        Warm start (mm, (n_vertices, gdim)) or an earlier answer (its ``u``, and with indenters
+        its tips' pushes); None: rest.
+    initial_pushes : dict or None
+        Name -> push (mm) that a bare-array warm start was solved at (tips start there).
+    """
 
-    restarts = []
-    extra = {}
-    if dynamics is None:
-        def stepped(u0, steps, cut_back=True):
-            return _load_steps(
-                case, ops, u0, up, fext, admm_step=admm_step, newton_step=newton_step,
-                polish=bool(polish), polish_tol_mm=polish_tol_mm, load_steps=steps,
-                step_mm=step_mm, intermediate_tol_mm=intermediate_tol_mm, tol_mm=tol_mm,
-                lift=lift, factorize=factorize, hist=hist, restarts=restarts,
-                tip_travel=0.0 if cset is None else float(np.max(
-                    np.abs(push1 - push0) / np.array([t.shape.radius for t in cset.tips])
-                    * step_mm / tip_step, initial=0.0)),
-                tips_at=tips_at, cut_back=cut_back, rest=rest_pair if use_chord else None)
+    def __init__(self, case, opts: SolveOptions, initial, initial_pushes):
+        self.case, self.opts = case, opts
+        self.ops = ops = prepare(case, rho=opts.rho, dt=opts.dt, factor=opts.device == "cpu",
+                                 contact=opts.contact)
+        self.cset = cset = ops.contact
+        self.push1 = cset.pushes_of(case) if cset is not None else None
+        self.push0 = None if cset is None else _start_pushes(cset, initial, initial_pushes)
+        if isinstance(initial, SolveResult):
+            initial = initial.u
+        self.be = backend(ops, opts.device)
+        self.up = particular(case, ops)
+        self.fext = case.external_forces(1.0)
+        if initial is None:
+            self.u0 = np.zeros(ops.N)
+        else:
+            self.u0 = as_u(case, initial).copy()
+            check_J(ops, ops.grad(self.u0), 0, "the initial (warm-start) state")
+        self.hist = {"primal": [], "dual": [], "max_step_mm": [], "newton_step_mm": [],
+                     "admm_clock_s": []}
+        self.restarts = []   # polish restarts and cut-backs (``extra["polish_restarts"]``)
+        self.polisher = Polisher(ops, opts, self.hist, self.tips_at)
 
+    def tips_at(self, s: float):
+        """The tips' ends at the contact points at load fraction ``s`` (None without tips).
+
+        Parameters
+        ----------
+        s : float
+            Load fraction, 0 (the start pushes) to 1 (the Case's pushes).
+
+        Returns
+        -------
+        ndarray or None
+            The tips' origins (mm) at pushes push0 + s (push1 - push0); None without tips.
+        """
+        if self.cset is None:
+            return None
+        return self.cset.origins(self.push0 + s * (self.push1 - self.push0))
+
+    def admm_step(self, up_j, rhs_extra, u_j, it0, tol=None, s=1.0):
+        """ADMM iterations (``loop.run_admm``) from ``u_j`` with the prescribed values ``up_j``.
+
+        Parameters
+        ----------
+        up_j : ndarray
+            Node-major particular displacement (mm) carrying this step's prescribed values.
+        rhs_extra : ndarray
+            Node-major forces (mN) added to the x-step's right-hand side.
+        u_j : ndarray
+            Node-major displacement (mm) to start from.
+        it0 : int
+            Iterations before this step.
+        tol : float or None
+            The step's tolerance (mm), raised to the polish's hand-over (``admm_tol``); None:
+            ``opts.tol_mm``.
+        s : float
+            Load fraction, where the rigid tips are (``tips_at``).
+
+        Returns
+        -------
+        tuple
+            (u, mm node-major; iterations; converged).
+        """
+        opts = self.opts
+        tol = opts.tol_mm if tol is None else tol
+        return run_admm(self.ops, up_j, rhs_extra, u_j, tol_mm=opts.admm_tol(tol),
+                        max_iter=opts.max_iter, callback=opts.callback, it0=it0,
+                        progress=opts.progress, hist=self.hist, be=self.be,
+                        tips=self.tips_at(s), anderson=opts.anderson)
+
+    def quasi_static(self) -> March:
+        """Quasi-static equilibrium in load steps (``_load_steps``); the chord polish tries the
+        whole change in one load step first (its lift from rest is a back-substitution; a later
+        step's lift would factorize) and takes the load steps of ``step_mm`` where that fails.
+
+        Returns
+        -------
+        March
+            The end state (mm), load steps taken, iteration counts, whether it converged and
+            the tangent lifts.
+        """
+        opts = self.opts
         one = None
-        if use_chord and load_steps is None:
-            # the chord polish tries the whole change in one load step (its lift from rest is a
-            # back-substitution; a later step's lift would factorize), and takes the load
-            # steps of ``step_mm`` where that fails
+        if opts.use_chord and opts.load_steps is None:
             try:
-                one = stepped(u, 1, cut_back=False)
+                one = self._load_steps(1, cut_back=False)
                 if not one[4]:
                     raise SolverDivergedError("not converged")
             except SolverDivergedError as exc:
-                restarts.append(f"one load step: {exc}; load steps of {step_mm:g} mm")
+                self.restarts.append(f"one load step: {exc}; load steps of {opts.step_mm:g} mm")
                 one = None
-        u, load_steps, admm_it, newton_it, converged, lifts = one or stepped(u, load_steps)
-        if use_chord:   # every iteration, the failed one-step attempt's included; the chord
+        u, taken, admm_it, newton_it, converged, lifts = one or self._load_steps(opts.load_steps)
+        if opts.use_chord:   # every iteration, the failed one-step attempt's included; the chord
             # steps apart from the Newton polish's
-            admm_it = len(hist["primal"])
-            newton_it = len(hist["newton_step_mm"]) - chord_steps[0]
-    else:
-        lifts = 0
+            admm_it = len(self.hist["primal"])
+            newton_it = len(self.hist["newton_step_mm"]) - self.polisher.chord_steps
+        return March(u, taken, admm_it, newton_it, converged, lifts, {})
+
+    def _load_steps(self, steps, cut_back=True):
+        """``_load_steps`` from the start state with this solve's steps and options: ``steps``
+        load steps (None: from ``step_mm`` and ``tip_step``), cut back unless ``cut_back`` is
+        False. Returns its tuple."""
+        opts, cset = self.opts, self.cset
+        tip_travel = 0.0 if cset is None else float(np.max(
+            np.abs(self.push1 - self.push0) / np.array([t.shape.radius for t in cset.tips])
+            * opts.step_mm / opts.tip_step, initial=0.0))
+        return _load_steps(
+            self.case, self.ops, self.u0, self.up, self.fext, admm_step=self.admm_step,
+            newton_step=self.polisher.step, opts=opts, load_steps=steps, hist=self.hist,
+            restarts=self.restarts, tip_travel=tip_travel, tips_at=self.tips_at,
+            cut_back=cut_back, rest=self.polisher.rest if opts.use_chord else None)
+
+    def implicit_euler(self) -> March:
+        """The implicit-Euler time steps of ``opts.dynamics`` (``dynamics.implicit_euler``).
+
+        Returns
+        -------
+        March
+            The end state (mm), iteration counts, whether every step converged, and in
+            ``extra`` dt (s), the steps, the probes' trajectory (mm) and the end velocity
+            (mm/s, (n, gdim)).
+        """
+        opts, ops = self.opts, self.ops
         u, v, traj, admm_it, newton_it, converged = implicit_euler(
-            case, ops, dynamics, u, up, fext, admm_step=admm_step, newton_step=newton_step,
-            polish=polish, polish_tol_mm=polish_tol_mm, hist=hist)
-        extra = {"dt_s": dt, "steps": int(dynamics.steps), "probe_trajectory": traj,
-                 "velocity": v.reshape(n, d)}
-    H = ops.grad(u)
-    check_J(ops, H, admm_it + newton_it, "the final state")
-    # the numpy laws' energy and stress at u from one evaluation
-    values = None if ops.law.kernel else ops.law.evaluate(H, tangent=False)
-    r = energy_gradient(ops, u, fext, None, tips_at(1.0), values)
-    free_res = float(np.abs(ops.red.ZT @ r).max(initial=0.0))
-    reactions = region_reactions(case, r)
-    psi = values.psi if values is not None else ops.law.psi_J(H)[0]
-    state = deformation_state(case.mesh, u.reshape(n, d))
-    indenters = {}
-    if cset is not None:
-        indenters = cset.report(u, push1)
-        state = through_surface_state(state, {"indenters": indenters})
-    valid, invalid_reason = state.pop("valid"), state.pop("invalid_reason")
-    min_J = state.pop("min_J")
-    extra = {"admm_iterations": int(admm_it), "newton_iterations": int(newton_it),
-             "load_steps": int(load_steps) if dynamics is None else 0,
-             "rho_kPa": ops.rho, "setup_s": ops.setup_s, "tol_mm": tol_mm,
-             "polish_restarts": restarts, "lift_solves": lifts,
-             **({"polish": "chord", "chord_iterations": chord_steps[0],
-                 "chord_refactorizations": chord_stats["refactorizations"],
-                 "chord_fallbacks": fallbacks} if use_chord else {}),
-             **state, **extra, "device": device}
-    if be.cg_iterations is not None:
-        extra["xstep_cg_iterations"] = int(be.cg_iterations)
-    hist["admm_clock_s"] = [c - t0 for c in hist["admm_clock_s"]]
-    u2 = u.reshape(n, d)
-    return SolveResult(u=u2, converged=bool(converged),
-                       iterations=int(admm_it + newton_it + chord_steps[0]),
-                       residual=free_res, wall_time_s=time.perf_counter() - t0, solver="admm",
-                       probes=case0.probe_values(u2), reactions=reactions,
-                       strain_energy=float(ops.kin.V @ psi), case_name=case.name, n_vertices=n,
-                       load_steps=int(load_steps) if dynamics is None else int(dynamics.steps),
-                       n_cells=ops.m, history=hist, valid=valid, invalid_reason=invalid_reason,
-                       min_J=min_J, indenters=indenters, extra=extra,
-                       warnings=case.glued_patch_warnings(u2))
+            self.case, ops, opts.dynamics, self.u0, self.up, self.fext,
+            admm_step=self.admm_step, newton_step=self.polisher.step, polish=opts.polish,
+            polish_tol_mm=opts.polish_tol_mm, hist=self.hist)
+        extra = {"dt_s": opts.dt, "steps": int(opts.dynamics.steps), "probe_trajectory": traj,
+                 "velocity": v.reshape(ops.n, ops.d)}
+        return March(u, opts.load_steps, admm_it, newton_it, converged, 0, extra)
+
+    def result(self, march: March, t0: float, probe_case=None) -> SolveResult:
+        """The SolveResult of the state ``march`` reached.
+
+        Parameters
+        ----------
+        march : March
+            What ``quasi_static`` or ``implicit_euler`` returned.
+        t0 : float
+            ``time.perf_counter()`` (s) at the solve's start: the wall time and the history's
+            ADMM clock count from it.
+        probe_case : Case or None
+            The Case whose probe locations are read (same mesh); None: the solved Case.
+
+        Returns
+        -------
+        SolveResult
+            solver "admm": ``u`` (mm), ``probes`` (mm), ``reactions`` (mN), ``strain_energy``
+            (uJ), the iteration counts in ``extra``, ``history["admm_clock_s"]`` (s).
+        """
+        case, ops, opts = self.case, self.ops, self.opts
+        n, d = ops.n, ops.d
+        u = march.u
+        its = march.admm_iterations + march.newton_iterations
+        H = ops.grad(u)
+        check_J(ops, H, its, "the final state")
+        # the numpy laws' energy and stress at u from one evaluation
+        values = None if ops.law.kernel else ops.law.evaluate(H, tangent=False)
+        r = energy_gradient(ops, u, self.fext, None, self.tips_at(1.0), values)
+        psi = values.psi if values is not None else ops.law.psi_J(H)[0]
+        state = deformation_state(case.mesh, u.reshape(n, d))
+        indenters = {}
+        if self.cset is not None:
+            indenters = self.cset.report(u, self.push1)
+            state = through_surface_state(state, {"indenters": indenters})
+        valid, invalid_reason = state.pop("valid"), state.pop("invalid_reason")
+        min_J = state.pop("min_J")
+        quasi_static = opts.dynamics is None
+        load_steps = int(march.load_steps) if quasi_static else int(opts.dynamics.steps)
+        extra = {"admm_iterations": int(march.admm_iterations),
+                 "newton_iterations": int(march.newton_iterations),
+                 "load_steps": load_steps if quasi_static else 0,
+                 "rho_kPa": ops.rho, "setup_s": ops.setup_s, "tol_mm": opts.tol_mm,
+                 "polish_restarts": self.restarts, "lift_solves": march.lifts,
+                 **self.polisher.extra(), **state, **march.extra, "device": opts.device}
+        if self.be.cg_iterations is not None:
+            extra["xstep_cg_iterations"] = int(self.be.cg_iterations)
+        self.hist["admm_clock_s"] = [c - t0 for c in self.hist["admm_clock_s"]]
+        u2 = u.reshape(n, d)
+        return SolveResult(u=u2, converged=bool(march.converged),
+                           iterations=int(its + self.polisher.chord_steps),
+                           residual=float(np.abs(ops.red.ZT @ r).max(initial=0.0)),
+                           wall_time_s=time.perf_counter() - t0, solver="admm",
+                           probes=(probe_case or case).probe_values(u2),
+                           reactions=region_reactions(case, r),
+                           strain_energy=float(ops.kin.V @ psi), case_name=case.name,
+                           n_vertices=n, load_steps=load_steps, n_cells=ops.m,
+                           history=self.hist, valid=valid, invalid_reason=invalid_reason,
+                           min_J=min_J, indenters=indenters, extra=extra,
+                           warnings=case.glued_patch_warnings(u2))
 
 
 MIN_LOAD_STEP = 1.0 / 64  # the shortest increment a cut-back makes, as a fraction of a step
@@ -326,8 +419,7 @@ def _start_pushes(cset, initial, pushes=None) -> np.ndarray:
     return out
 
 
-def _load_steps(case, ops, u, up, fext, *, admm_step, newton_step, polish, polish_tol_mm,
-                load_steps, step_mm, intermediate_tol_mm, tol_mm, lift, factorize, hist,
+def _load_steps(case, ops, u, up, fext, *, admm_step, newton_step, opts, load_steps, hist,
                 restarts, tip_travel=0.0, tips_at=lambda s: None, cut_back=True, rest=None):
     """Quasi-static equilibrium: the prescribed change from the start state (and the tips'
     travel, ``tip_travel``: scaled so that step_mm is the most a step may move a tip) split in
@@ -338,7 +430,11 @@ def _load_steps(case, ops, u, up, fext, *, admm_step, newton_step, polish, polis
     from the last converged state, half as long (down to MIN_LOAD_STEP of a step; without
     ``cut_back`` the steps end there, unconverged). Returns (u,
     load steps taken, ADMM iterations, Newton iterations, converged, tangent lifts); polish
-    restarts and cut-backs are appended to ``restarts``."""
+    restarts and cut-backs are appended to ``restarts``. ``opts`` (SolveOptions): the polish,
+    its tolerance, step_mm, the tolerances, the lift and the factorization hook."""
+    polish, polish_tol_mm, step_mm = bool(opts.polish), opts.polish_tol_mm, opts.step_mm
+    tol_mm, intermediate_tol_mm = opts.tol_mm, opts.intermediate_tol_mm
+    lift, factorize = opts.lift, opts.factorize
     d = ops.d
     admm_it = newton_it = lifts = 0
     converged = True
