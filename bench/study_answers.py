@@ -76,8 +76,8 @@ def study_level(load: str, pushes, study: str, case_name: str, rule,
     is level 0 of the half's studies), so it is compared without solving it again; None where
     it is not, or where the study lacks a push. The unknowns and cells are counted on the
     default's mesh and must be the level's."""
+    from tissue_reference.fem_reference.discretization import default_degree, resolve_formulation
     from tissue_reference.fem_reference.dof_counts import entity_counts, predicted_dofs
-    from tissue_reference.fem_reference.solver import default_degree, resolve_formulation
     from tissue_reference.meshes.case import load_case, tip_start_for
 
     loads = json.loads(DATA.read_text())["loads"]

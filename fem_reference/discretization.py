@@ -12,7 +12,7 @@ from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.tips import default_contact_rule, default_tip_start
 
 __all__ = ["DEFAULT_QUADRATURE", "FORMULATIONS", "MIXED_FROM_NU", "SPLIT_LAWS", "Discretization",
-           "default_degree", "resolve_formulation"]
+           "checked_degree", "default_degree", "geometry_order", "resolve_formulation"]
 
 # Quadrature degree per Lagrange degree. P1: F is constant per cell, degree 1 integrates the
 # energy and the body-force term exactly. P2: F is linear; psi is not polynomial, degree 4 is
@@ -49,6 +49,76 @@ def default_degree(case: Case, formulation: str) -> int:
     if case.reference_degree is not None:
         return int(case.reference_degree)
     return 2 if formulation == "mixed" else 1
+
+
+def checked_degree(case: Case, formulation: str, degree: int | None, *,
+                   requested: str = "auto") -> int:
+    """The displacement degree of a solve, checked against its formulation.
+
+    Parameters
+    ----------
+    case : Case
+        The Case (its material's nu; its ``reference_degree`` when ``degree`` is None).
+    formulation : str
+        The resolved formulation, "displacement" or "mixed" (``resolve_formulation``).
+    degree : int or None
+        The degree asked for; None: ``default_degree``.
+    requested : str
+        The formulation asked for ("auto", "displacement" or "mixed"): with "auto" the error
+        for a mixed formulation at degree 1 says why it was picked.
+
+    Returns
+    -------
+    int
+        The Lagrange degree of the displacement, 1, 2 or 3.
+
+    Raises
+    ------
+    CaseError
+        For a degree other than 1, 2 or 3, degree 1 with the mixed formulation (Taylor-Hood),
+        or nu = 0.5 with the displacement formulation.
+    """
+    if degree is None:
+        degree = default_degree(case, formulation)
+    if degree not in (1, 2, 3):
+        raise CaseError(f"degree must be 1, 2 or 3, got {degree!r}")
+    if formulation == "mixed" and degree < 2:
+        why = "" if requested == "mixed" else \
+            f" (picked for nu = {case.material.nu} >= {MIXED_FROM_NU}: P1 displacement " \
+            f"elements lock there; formulation='displacement' accepts that)"
+        raise CaseError(f"the mixed u-p formulation is Taylor-Hood (P2/P1, P3/P2) and needs "
+                        f"degree=2 or 3, got degree={degree}{why}")
+    if formulation == "displacement" and case.material.nu >= 0.5:
+        raise CaseError("an incompressible material (nu = 0.5) needs the mixed formulation")
+    return degree
+
+
+def geometry_order(mesh, curved: bool | None, degree: int) -> int:
+    """The order of the cells' geometry: 2 (isoparametric, from the mesh's curved edges) or 1.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        The Case's mesh (``geometry_order`` 2 when it carries curved edges).
+    curved : bool or None
+        True: curved cells (the mesh must have curved edges); None: curved at degree >= 2
+        when the mesh has them; False: straight.
+    degree : int
+        The displacement's Lagrange degree.
+
+    Returns
+    -------
+    int
+        2 for curved (second-order) cells, 1 for straight ones.
+
+    Raises
+    ------
+    CaseError
+        For ``curved=True`` on a mesh with no curved edges.
+    """
+    if curved and mesh.geometry_order == 1:
+        raise CaseError("curved=True: this mesh has no curved (second-order) edges")
+    return 2 if mesh.geometry_order == 2 and (curved or (curved is None and degree >= 2)) else 1
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,8 @@ import dolfinx.fem
 from dolfinx.la import orthonormalize
 from petsc4py import PETSc
 
+from tissue_reference.meshes.errors import CaseError
+
 from .factor import quiet_c_output
 from .mumps import grown_mumps_workspace, mumps_failure, set_mumps_workspace, solve_mumps
 from .newton_settings import NewtonSettings, Timings
@@ -26,6 +28,55 @@ LAGGED_ABOVE_DOFS = 1000
 # linear_solver="auto" with the mixed formulation: above this many dofs Newton solves the
 # saddle-point tangent by fieldsplit FGMRES (``saddle``) instead of the lagged MUMPS factor.
 FIELDSPLIT_ABOVE_DOFS = 100_000
+LINEAR_SOLVERS = ("direct", "lagged", "iterative", "fieldsplit")
+
+
+def choose_linear_solver(linear_solver: str, formulation: str, n_dofs: int,
+                         indenters: bool) -> str:
+    """The linear solver of Newton's tangents, "auto" resolved and checked against the
+    formulation.
+
+    Parameters
+    ----------
+    linear_solver : str
+        "auto", "direct", "lagged", "iterative" or "fieldsplit" (``ReferenceSolver``).
+    formulation : str
+        "displacement" or "mixed".
+    n_dofs : int
+        The unknowns of the whole problem (global).
+    indenters : bool
+        Whether rigid tips press: "auto" then factorizes every tangent.
+
+    Returns
+    -------
+    str
+        "direct", "lagged", "iterative" or "fieldsplit".
+
+    Raises
+    ------
+    CaseError
+        For an unknown name, "iterative" with the mixed formulation or "fieldsplit" with the
+        displacement one.
+    """
+    if linear_solver == "auto":
+        # with indenters the tips' contact set moves between Newton iterations: an earlier
+        # tangent's factor preconditions the next one poorly (GMRES runs to its restart and
+        # the tangent is factorized anyway), so each is factorized (MUMPS LDL^T)
+        lagged = n_dofs > LAGGED_ABOVE_DOFS and not indenters
+        linear_solver = "lagged" if lagged else "direct"
+        if formulation == "mixed" and n_dofs > FIELDSPLIT_ABOVE_DOFS:
+            linear_solver = "fieldsplit"
+    if linear_solver not in LINEAR_SOLVERS:
+        raise CaseError(f"linear_solver must be 'auto', 'direct', 'lagged', 'iterative' or "
+                        f"'fieldsplit', got {linear_solver!r}")
+    if linear_solver == "iterative" and formulation == "mixed":
+        raise CaseError("linear_solver='iterative' (CG + GAMG) needs a positive definite "
+                        "tangent: use 'direct', 'lagged' or 'fieldsplit' with the mixed "
+                        "formulation")
+    if linear_solver == "fieldsplit" and formulation != "mixed":
+        raise CaseError("linear_solver='fieldsplit' splits the mixed formulation's "
+                        "displacement and pressure: use 'iterative' for the displacement one")
+    return linear_solver
 
 
 class LinearSolver:

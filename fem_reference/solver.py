@@ -48,14 +48,15 @@ from .discretization import (
     DEFAULT_QUADRATURE,
     FORMULATIONS,
     MIXED_FROM_NU,
-    default_degree,
+    checked_degree,
+    geometry_order,
     resolve_formulation,
 )
 from .dolfinx_mesh import DolfinxMesh, to_dolfinx
 from .factor import has_cholmod
 from .forms import mixed_energy_density, strain_energy_density, volume_measure
 from .jit import compile_form
-from .linalg import FIELDSPLIT_ABOVE_DOFS, LAGGED_ABOVE_DOFS, LinearSolver
+from .linalg import LinearSolver, choose_linear_solver
 from .logs import install_log_filters
 from .newton import Newton
 from .newton_settings import NewtonSettings, Timings
@@ -152,77 +153,133 @@ class ReferenceSolver:
                  contact_penalty: float = DEFAULT_CONTACT_PENALTY,
                  contact_quadrature: str | int | None = None, tip_start: str | None = None):
         self.formulation = resolve_formulation(formulation, case.material)
-        if degree is None:
-            degree = default_degree(case, self.formulation)
-        if degree not in (1, 2, 3):
-            raise CaseError(f"degree must be 1, 2 or 3, got {degree!r}")
-        if self.formulation == "mixed" and degree < 2:
-            why = "" if formulation == "mixed" else \
-                f" (picked for nu = {case.material.nu} >= {MIXED_FROM_NU}: P1 displacement " \
-                f"elements lock there; formulation='displacement' accepts that)"
-            raise CaseError(f"the mixed u-p formulation is Taylor-Hood (P2/P1, P3/P2) and needs "
-                            f"degree=2 or 3, got degree={degree}{why}")
-        if self.formulation == "displacement" and case.material.nu >= 0.5:
-            raise CaseError("an incompressible material (nu = 0.5) needs the mixed formulation")
+        degree = checked_degree(case, self.formulation, degree, requested=formulation)
         t0 = time.perf_counter()
         self.case = case
         self.degree = degree
         self.comm = comm
         self.settings = settings or NewtonSettings()
         self.qdeg = quadrature_degree or DEFAULT_QUADRATURE[degree]
-        if curved and case.mesh.geometry_order == 1:
-            raise CaseError("curved=True: this mesh has no curved (second-order) edges")
-        self.geometry_order = 2 if case.mesh.geometry_order == 2 and \
-            (curved or (curved is None and degree >= 2)) else 1
+        self.geometry_order = geometry_order(case.mesh, curved, degree)
         self.dm: DolfinxMesh = to_dolfinx(case.mesh, comm, geometry_order=self.geometry_order)
-        mesh = self.dm.mesh
         self.gdim = case.mesh.gdim
-        self._spaces(mesh, degree)
-        # material and loads as Constants: a changed E or load scale needs no recompilation
-        self.E = dolfinx.fem.Constant(mesh, PETSc.ScalarType(case.material.E))
-        self.nu = dolfinx.fem.Constant(mesh, PETSc.ScalarType(case.material.nu))
-        self.inv_kappa = dolfinx.fem.Constant(mesh, PETSc.ScalarType(_inv_kappa(case.material)))
-        # a law's own coefficients (Mooney-Rivlin's, Yeoh's; kPa), Constants like E
-        self.coefficients = {n: dolfinx.fem.Constant(mesh, PETSc.ScalarType(v))
-                             for n, v in case.material.coefficients.items()}
-        self.load = dolfinx.fem.Constant(mesh, PETSc.ScalarType(1.0))
+        self._spaces(self.dm.mesh, degree)
+        self._constants(case.material)
         # the fields' numbering: dolfinx's nodes <-> the Case's vertices, states in and out
         self.state = NodalState(V=self.V, Q=self.Q, x=self.x, u=self.u, p=self.p, umap=self._umap,
                                 pmap=getattr(self, "_pmap", None), dm=self.dm,
                                 n_vertices=case.mesh.n_vertices, degree=degree, comm=comm,
                                 material=case.material, inv_kappa=self.inv_kappa, qdeg=self.qdeg)
+        md = {"quadrature_degree": self.qdeg}
+        dx = ufl.Measure("dx", domain=self.dm.mesh, metadata=md)
+        ds = ufl.Measure("ds", domain=self.dm.mesh, subdomain_data=self.dm.facet_tags,
+                         metadata=md)
+        internal = self._internal_energy(case.material, dx)
+        external = self._external_work(case, body_force, dx, ds)
+        penalty, oblique = self._sliding_penalty(case, sliding_penalty, ds)
+        # the Dirichlet conditions and the nodes of each facet region (``boundary``)
+        self.boundary = Boundary(Wu=self.Wu, V=self.V, dm=self.dm, gdim=self.gdim,
+                                 oblique=oblique, degree=degree,
+                                 node_vertex=self.state.node_vertex,
+                                 n_vertices=case.mesh.n_vertices,
+                                 n_unknowns=len(self.x.x.array), umap=self._umap)
+        self.contact = self._contact(case, contact_penalty, contact_quadrature, tip_start)
+        self._compile_forms(internal, external, penalty + self.contact.energy)
+        n_dofs = self.W.dofmap.index_map.size_global * self.W.dofmap.index_map_bs
+        self.linear_solver = choose_linear_solver(linear_solver, self.formulation, n_dofs,
+                                                  bool(self.contact.indenters))
+        self._linear_solve()
+        self.newton = self._newton()
+        self.timings.setup = time.perf_counter() - t0
+
+    def _constants(self, material: Material) -> None:
+        """The material and the load scale as Constants: a changed E or load scale needs no
+        recompilation. Sets ``E`` and ``nu`` (kPa, -), ``inv_kappa`` (1/kPa), ``coefficients``
+        (a law's own coefficients by name: Mooney-Rivlin's, Yeoh's; kPa) and ``load`` (the
+        load fraction of the external loads, 1).
+
+        Parameters
+        ----------
+        material : Material
+            The Case's material (E kPa, nu, the law's coefficients kPa).
+        """
+        mesh = self.dm.mesh
+        self.E = dolfinx.fem.Constant(mesh, PETSc.ScalarType(material.E))
+        self.nu = dolfinx.fem.Constant(mesh, PETSc.ScalarType(material.nu))
+        self.inv_kappa = dolfinx.fem.Constant(mesh, PETSc.ScalarType(_inv_kappa(material)))
+        self.coefficients = {n: dolfinx.fem.Constant(mesh, PETSc.ScalarType(v))
+                             for n, v in material.coefficients.items()}
+        self.load = dolfinx.fem.Constant(mesh, PETSc.ScalarType(1.0))
+
+    def _internal_energy(self, material: Material, dx):
+        """The strain energy as a UFL form: the law's energy density (``forms``) of the
+        displacement formulation, or the mixed formulation's perturbed Lagrangian in u and p.
+        The Ogden law's isochoric part is quadrature-point Functions refreshed before every
+        assembly (``refresh_fields``; ``ogden_fields``), its volumetric part UFL. Sets
+        ``fields`` (the Ogden law's Functions, else None) and, mixed, ``_vol_form`` (the
+        volumetric strain measure the pressure multiplies).
+
+        Parameters
+        ----------
+        material : Material
+            The Case's material (the law, its volumetric energy and coefficients).
+        dx : ufl.Measure
+            The cells' measure at the solver's quadrature degree.
+
+        Returns
+        -------
+        ufl.Form
+            The strain energy (uJ) over the reference configuration.
+        """
         E, nu = self.E, self.nu
         mu = E / (2 * (1 + nu))
         u = self.u_ufl
-        md = {"quadrature_degree": self.qdeg}
-        dx = ufl.Measure("dx", domain=mesh, metadata=md)
-        ds = ufl.Measure("ds", domain=mesh, subdomain_data=self.dm.facet_tags, metadata=md)
-        # the Ogden law's isochoric part: quadrature-point Functions refreshed before every
-        # assembly (``refresh_fields``; ``ogden_fields``), its volumetric part UFL
-        self.fields = OgdenFields(mesh, self.x, u, self.qdeg, case.material) \
-            if case.material.model == "ogden" else None
+        self.fields = OgdenFields(self.dm.mesh, self.x, u, self.qdeg, material) \
+            if material.model == "ogden" else None
         if self.fields is not None:
-            vol = volume_measure(u, "ogden", case.material.volumetric)
+            vol = volume_measure(u, "ogden", material.volumetric)
             if self.formulation == "mixed":
                 psi = -self.p_ufl * vol - self.inv_kappa / 2 * self.p_ufl ** 2
                 self._vol_form = vol
             else:
                 psi = E / (3 * (1 - 2 * nu)) / 2 * vol ** 2
         elif self.formulation == "mixed":
-            psi, vol = mixed_energy_density(u, self.p_ufl, case.material.model, mu, self.inv_kappa,
-                                            case.material.volumetric, self.coefficients)
+            psi, vol = mixed_energy_density(u, self.p_ufl, material.model, mu, self.inv_kappa,
+                                            material.volumetric, self.coefficients)
             self._vol_form = vol
         else:
             kappa = E / (3 * (1 - 2 * nu))
             lmbda = E * nu / ((1 + nu) * (1 - 2 * nu))
-            psi, _ = strain_energy_density(u, case.material.model, mu, kappa, lmbda,
-                                           case.material.volumetric, self.coefficients)
-        g = case.gravity if case.gravity is not None else (0.0,) * self.gdim
-        self.body = dolfinx.fem.Constant(mesh, PETSc.ScalarType(
-            tuple(case.material.density * np.asarray(g, float))))
+            psi, _ = strain_energy_density(u, material.model, mu, kappa, lmbda,
+                                           material.volumetric, self.coefficients)
         internal = psi * dx
         if self.fields is not None:
             internal = internal + self.fields.energy()
+        return internal
+
+    def _external_work(self, case: Case, body_force, dx, ds):
+        """The work of the external loads at full load: gravity (and ``body_force``) over the
+        cells, the traction regions' tractions over their facets. Sets ``body`` (density times
+        gravity, mN/mm^3) and ``tractions`` (region -> its traction Constant, kPa).
+
+        Parameters
+        ----------
+        case : Case
+            The Case (gravity mm/s^2, density, traction boundaries).
+        body_force : callable or None
+            x -> UFL vector (mN/mm^3) of the reference coordinates, added to gravity.
+        dx, ds : ufl.Measure
+            The cells' and the tagged facets' measures.
+
+        Returns
+        -------
+        ufl.Form
+            The external work (uJ) of the unknown displacement.
+        """
+        mesh, u = self.dm.mesh, self.u_ufl
+        g = case.gravity if case.gravity is not None else (0.0,) * self.gdim
+        self.body = dolfinx.fem.Constant(mesh, PETSc.ScalarType(
+            tuple(case.material.density * np.asarray(g, float))))
         external = ufl.inner(self.body, u) * dx
         if body_force is not None:
             external = external + ufl.inner(body_force(ufl.SpatialCoordinate(mesh)), u) * dx
@@ -232,6 +289,26 @@ class ReferenceSolver:
                 t = dolfinx.fem.Constant(mesh, PETSc.ScalarType(tuple(map(float, b.value))))
                 self.tractions[b.region] = t
                 external = external + ufl.inner(t, u) * ds(self.dm.region_tags[b.region])
+        return external
+
+    def _sliding_penalty(self, case: Case, sliding_penalty: float, ds):
+        """The penalty that holds the sliding regions whose normal is not an axis on their
+        plane, u.n = g (g scaled by the load).
+
+        Parameters
+        ----------
+        case : Case
+            The Case (its sliding boundaries, E in kPa).
+        sliding_penalty : float
+            beta of the penalty beta * E / h_min (kPa/mm).
+        ds : ufl.Measure
+            The tagged facets' measure.
+
+        Returns
+        -------
+        tuple
+            (the penalty energy, uJ, a UFL form or 0; the oblique regions' names).
+        """
         penalty = 0
         oblique = []   # sliding regions whose normal is not an axis: held by a penalty
         for b in case.boundaries:
@@ -241,25 +318,58 @@ class ReferenceSolver:
                 if np.count_nonzero(np.abs(n) > 1e-12) > 1:
                     oblique.append(b.region)
                     nn = ufl.as_vector(n.tolist())
-                    gval = dolfinx.fem.Constant(mesh, PETSc.ScalarType(float(b.value or 0.0)))
+                    gval = dolfinx.fem.Constant(self.dm.mesh,
+                                                PETSc.ScalarType(float(b.value or 0.0)))
                     beta = sliding_penalty * case.material.E / self.dm.h_min
-                    penalty = penalty + beta / 2 * (ufl.dot(u, nn) - self.load * gval) ** 2 * \
-                        ds(self.dm.region_tags[b.region])
-        # the Dirichlet conditions and the nodes of each facet region (``boundary``)
-        self.boundary = Boundary(Wu=self.Wu, V=self.V, dm=self.dm, gdim=self.gdim,
-                                 oblique=oblique, degree=degree,
-                                 node_vertex=self.state.node_vertex,
-                                 n_vertices=case.mesh.n_vertices,
-                                 n_unknowns=len(self.x.x.array), umap=self._umap)
+                    penalty = penalty + beta / 2 * (ufl.dot(self.u_ufl, nn) - self.load * gval) \
+                        ** 2 * ds(self.dm.region_tags[b.region])
+        return penalty, oblique
+
+    def _contact(self, case: Case, contact_penalty: float, contact_quadrature, tip_start):
+        """The rigid indenters' contact (``contact.Contact``), with the contact rule and tip
+        start the case's where not given (``default_contact_rule``, ``default_tip_start``).
+
+        Parameters
+        ----------
+        case : Case
+            The Case (its indenters).
+        contact_penalty : float
+            beta of the contact penalty k = beta E / h (kPa/mm).
+        contact_quadrature : str or int or None
+            "nodal" or a Gauss degree; None: the case's.
+        tip_start : str or None
+            "nodes" or "surface"; None: the case's for the rule.
+
+        Returns
+        -------
+        Contact
+            The indenters' contact: its energy (uJ), ramps and reports.
+        """
         if contact_quadrature is None:
             contact_quadrature = default_contact_rule(case)
-        self.contact = Contact(case, comm=comm, dm=self.dm, gdim=self.gdim,  # rigid indenters
-                               degree=degree, V=self.V, u=self.u, u_ufl=self.u_ufl, E=self.E,
-                               formulation=self.formulation, penalty=contact_penalty,
-                               quadrature=contact_quadrature,
-                               tip_start=tip_start or default_tip_start(case,
-                                                                        contact_quadrature))
-        penalty = penalty + self.contact.energy
+        return Contact(case, comm=self.comm, dm=self.dm, gdim=self.gdim, degree=self.degree,
+                       V=self.V, u=self.u, u_ufl=self.u_ufl, E=self.E,
+                       formulation=self.formulation, penalty=contact_penalty,
+                       quadrature=contact_quadrature,
+                       tip_start=tip_start or default_tip_start(case, contact_quadrature))
+
+    def _compile_forms(self, internal, external, penalty) -> None:
+        """Newton's residual and tangent and the outputs' forms, compiled once: ``R_form`` (the
+        total energy's residual), ``R_int_form`` (without the penalties), ``K_form`` (its
+        tangent), ``K_halved_form`` (with indenters: the tangent without the tips' curvature,
+        far from the answer and after a halved correction; ``fem_reference.contact``; else None)
+        and ``W_form`` (the strain energy). Also sets ``energy_internal`` and the UFL forms
+        ``R_ufl``, ``R_int_ufl`` and ``K_ufl``, and gives the contact its line search's energy.
+
+        Parameters
+        ----------
+        internal : ufl.Form
+            The strain energy (uJ).
+        external : ufl.Form
+            The external work at full load (uJ), scaled by ``load``.
+        penalty : ufl.Form or int
+            The sliding and contact penalties' energy (uJ).
+        """
         self.energy_internal = internal
         total = internal - self.load * external + penalty
         self.contact.line_search_energy(total, self.refresh_fields)
@@ -276,8 +386,6 @@ class ReferenceSolver:
         self.R_form = compile_form(self.R_ufl)
         self.R_int_form = compile_form(self.R_int_ufl)
         self.K_form = compile_form(self.K_ufl)
-        # with indenters: Newton's matrix without the tips' curvature, far from the answer
-        # and after a halved correction (fem_reference.contact)
         self.K_halved_form = None
         soft = self.contact.tangent_without_curvature(v, w)
         if soft is not None:
@@ -285,26 +393,12 @@ class ReferenceSolver:
                 self.K_ufl - ufl.derivative(ufl.derivative(self.contact.normal_energy, self.x, v),
                                             self.x, w) + soft)
         self.W_form = compile_form(internal)
-        n_dofs = self.W.dofmap.index_map.size_global * self.W.dofmap.index_map_bs
-        if linear_solver == "auto":
-            # with indenters the tips' contact set moves between Newton iterations: an earlier
-            # tangent's factor preconditions the next one poorly (GMRES runs to its restart and
-            # the tangent is factorized anyway), so each is factorized (MUMPS LDL^T)
-            lagged = n_dofs > LAGGED_ABOVE_DOFS and not self.contact.indenters
-            linear_solver = "lagged" if lagged else "direct"
-            if self.formulation == "mixed" and n_dofs > FIELDSPLIT_ABOVE_DOFS:
-                linear_solver = "fieldsplit"
-        if linear_solver not in ("direct", "lagged", "iterative", "fieldsplit"):
-            raise CaseError(f"linear_solver must be 'auto', 'direct', 'lagged', 'iterative' or "
-                            f"'fieldsplit', got {linear_solver!r}")
-        if linear_solver == "iterative" and self.formulation == "mixed":
-            raise CaseError("linear_solver='iterative' (CG + GAMG) needs a positive definite "
-                            "tangent: use 'direct', 'lagged' or 'fieldsplit' with the mixed "
-                            "formulation")
-        if linear_solver == "fieldsplit" and self.formulation != "mixed":
-            raise CaseError("linear_solver='fieldsplit' splits the mixed formulation's "
-                            "displacement and pressure: use 'iterative' for the displacement one")
-        self.linear_solver = linear_solver
+
+    def _linear_solve(self) -> None:
+        """The tangent matrix ``A``, the residual vector ``b`` and Newton's linear solves
+        (``linear``: ``linalg.LinearSolver`` in the mode ``linear_solver``), with the per-solve
+        counters ``timings`` they share."""
+        comm, linear_solver = self.comm, self.linear_solver
         # The tangent A is assembled as BAIJ (node blocks: about 2x faster insertion than AIJ)
         # and converted to SBAIJ, the upper half MUMPS's LDL^T reads, whenever it is factorized.
         # GAMG ("iterative") and the mixed space (no common block size) use AIJ.
@@ -325,18 +419,24 @@ class ReferenceSolver:
         # the mixed formulation's saddle-point tangent and MPI runs always use.
         pkg = "cholmod" if linear_solver == "lagged" and comm.size == 1 and has_cholmod() \
             and self.formulation == "displacement" else "mumps"
-        # Newton's linear solves (``linalg``): the factorizations, Krylov solves and their state
         self.timings = Timings()   # per-solve counters, shared with the parts below
         self.linear = LinearSolver(self.A, self.b, self.du, mode=linear_solver, comm=comm,
                                    lag_max_its=self.settings.lag_max_its, V=self.V, package=pkg,
                                    fieldsplit=fieldsplit, timings=self.timings)
-        # Newton's iterations at a fixed load and the assembly they iterate on (``newton``)
-        self.newton = Newton(x=self.x, du=self.du, A=self.A, b=self.b, R_form=self.R_form,
-                             K_form=self.K_form, K_halved_form=self.K_halved_form, E=self.E,
-                             h_min=float(self.dm.h_min), linear=self.linear, contact=self.contact,
-                             umap=self._umap, comm=comm, timings=self.timings,
-                             refresh=self.refresh_fields)
-        self.timings.setup = time.perf_counter() - t0
+
+    def _newton(self) -> Newton:
+        """Newton's iterations at a fixed load and the assembly they iterate on (``newton``).
+
+        Returns
+        -------
+        Newton
+            On the solver's unknown, forms, linear solves and contact.
+        """
+        return Newton(x=self.x, du=self.du, A=self.A, b=self.b, R_form=self.R_form,
+                      K_form=self.K_form, K_halved_form=self.K_halved_form, E=self.E,
+                      h_min=float(self.dm.h_min), linear=self.linear, contact=self.contact,
+                      umap=self._umap, comm=self.comm, timings=self.timings,
+                      refresh=self.refresh_fields)
 
     def refresh_fields(self) -> None:
         """Bring the forms' quadrature-point Functions (the Ogden law's isochoric psi, P and A,
