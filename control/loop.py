@@ -145,10 +145,16 @@ class LinearizedModel:
         return J
 
 
+SSE_GOAL_MM = 0.05
+"""The steady-state error (mm) a closed loop must end within to have settled on its goal
+(Table I's criterion; ``LoopResult.settled``)."""
+
+
 @dataclass(frozen=True)
 class LoopResult:
     """time_s (steps + 1,), s; target (steps + 1, gdim) plant positions, mm; error_mm (steps + 1,);
     pushes (steps + 1, n_act) cumulative pushes, mm; itae (mm s^2); steady_state_error_mm;
+    ``settled``: within SSE_GOAL_MM of the goal at the end;
     max_retraction_mm (largest decrease of any push, >= 0); mpc_ms per step; open_loop: dict of the
     baseline (same keys, or None); goal (gdim,) absolute target position, mm; mask.
     ``extra["outside_range"]``: why the closed loop's pushes left the range where the plant's or
@@ -173,6 +179,12 @@ class LoopResult:
     wall_time_s: float = 0.0
     extra: dict = field(default_factory=dict)
 
+    @property
+    def settled(self) -> bool:
+        """Whether the loop ended within SSE_GOAL_MM (mm) of its goal: its steady-state error
+        is at most that."""
+        return bool(self.steady_state_error_mm <= SSE_GOAL_MM)
+
     def to_json_dict(self, meta: dict | None = None) -> dict:
         """The keys of ``tissue mpc --json``; ``meta`` (case, plant, model, mismatch, settings:
         ``control.plants.loop_metadata``) first."""
@@ -182,6 +194,7 @@ class LoopResult:
                 "controlled": self.mask.tolist(),
                 "steps": int(len(self.time_s) - 1), "itae": float(self.itae),
                 "steady_state_error_mm": float(self.steady_state_error_mm),
+                "settled": self.settled, "sse_goal_mm": SSE_GOAL_MM,
                 "max_retraction_mm": float(self.max_retraction_mm),
                 "mpc_step_median_ms": float(np.median(self.mpc_ms)) if len(self.mpc_ms) else 0.0,
                 "open_loop": open_loop_json(ol),

@@ -28,7 +28,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from tissue_reference.control.controllability import UnreachableGoalError
-from tissue_reference.control.loop import LoopStopped, plot_response
+from tissue_reference.control.loop import SSE_GOAL_MM, LoopStopped, plot_response
 from tissue_reference.meshes.errors import CaseError, CaseReadError, ConvergenceError, TissueWarning
 from tissue_reference.meshes.html_page import Raw, image, kv_table, page, table, write_page
 from tissue_reference.meshes.io import atomic_path, save_figure
@@ -39,7 +39,6 @@ __all__ = ["LOOP_BLAS_THREADS", "SSE_GOAL_MM", "STEP_LINE_S", "finished_rows", "
            "write_scenarios_page", "write_table1"]
 
 
-SSE_GOAL_MM = 0.05   # the closed-loop steady-state error every scenario must meet (mm)
 LOOP_BLAS_THREADS = 1
 """BLAS and OpenMP threads of every loop, in this process or a worker: the thread count
 changes the factorizations' round-off, and at a marginal load round-off can decide whether a

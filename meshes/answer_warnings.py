@@ -13,7 +13,7 @@ import numpy as np
 from .errors import TissueWarning
 
 __all__ = ["ESTIMATE_WARN", "FOLDED_ADVICE", "advice_for", "answer_concerns",
-           "estimate_warning", "relative_estimates", "warn_about"]
+           "estimate_warning", "probes_above_estimate_warn", "relative_estimates", "warn_about"]
 
 ESTIMATE_WARN = 0.02
 """An estimated error above this fraction of a probe's displacement is worth a warning."""
@@ -42,6 +42,26 @@ def relative_estimates(res) -> dict:
             size = float(np.linalg.norm(v))
             out[k] = pe[k] / size if size > 0 else (0.0 if pe[k] == 0 else float("inf"))
     return out
+
+
+def probes_above_estimate_warn(res) -> list[str]:
+    """The probes whose estimated error is an error bar above ESTIMATE_WARN of their
+    displacement.
+
+    Parameters
+    ----------
+    res : SolveResult
+        An answer, with or without error estimates (``probe_error_estimates``, mm).
+
+    Returns
+    -------
+    list of str
+        Probe names, in the answer's order; none at a load with no mesh-converged answer
+        (``no_converged_value``: the estimate is no error bar there) or without estimates.
+    """
+    if getattr(res, "no_converged_value", ()):
+        return []
+    return [k for k, rel in relative_estimates(res).items() if rel > ESTIMATE_WARN]
 
 
 def estimate_warning(res) -> str | None:

@@ -10,6 +10,7 @@ from pathlib import Path
 from tissue_reference.meshes.answer_warnings import (
     ESTIMATE_WARN,
     estimate_warning,
+    probes_above_estimate_warn,
     relative_estimates,
 )
 from tissue_reference.meshes.converged_range import unconverged_load
@@ -157,6 +158,7 @@ def print_answer(res):
     re_ = res.reaction_error_estimates
     rels = relative_estimates(res)
     bar = not res.no_converged_value   # an estimate is an error bar only then
+    above = probes_above_estimate_warn(res)
     for k, v in res.probes.items():
         line = f"  probe {k}: u = [{', '.join(f'{x:+.4f}' for x in v)}] mm"
         if k in rels:
@@ -166,8 +168,8 @@ def print_answer(res):
                         f"no error bar)"
             else:
                 line += f"  +- {pe[k]:.2g} mm ({rel:.1%})"
-                if rel > ESTIMATE_WARN:
-                    line += "  WARNING: estimated error above 2 %"
+                if k in above:
+                    line += f"  WARNING: estimated error above {ESTIMATE_WARN * 100:g} %"
         print(line)
     for k, v in res.reactions.items():
         line = f"  reaction {k}: [{', '.join(f'{x:+.2f}' for x in v)}] mN"

@@ -53,10 +53,10 @@ def plot_errors(d: dict, path) -> Path:
 def _status(d: dict) -> Raw:
     st = d.get("status")
     if st in ("completed", "outside range"):
-        ok = d["steady_state_error_mm"] <= 0.05 and st == "completed"
+        ok = d["settled"] and st == "completed"   # the loop's verdict (LoopResult.settled)
         cls, text = ("valid" if ok else "invalid"), (
             f"<b>Completed</b>: steady-state error {d['steady_state_error_mm']:.3g} mm "
-            f"({'within' if d['steady_state_error_mm'] <= 0.05 else 'above'} 0.05 mm), ITAE "
+            f"({'within' if d['settled'] else 'above'} {d['sse_goal_mm']:g} mm), ITAE "
             f"{d['itae']:.4g} mm·s², largest retraction {d['max_retraction_mm']:.3g} mm")
         if st == "outside range":
             text += ("<br><b>Outside the range where answers converge</b>: " +

@@ -14,53 +14,12 @@ from .dynamics import ImplicitEuler
 
 @dataclass(frozen=True)
 class SolveOptions:
-    """The options of one ADMM solve, as ``solve`` takes them (its docstring has the details).
-
-    Attributes
-    ----------
-    tol_mm : float
-        Stopping tolerance (mm) on the primal and dual residuals.
-    max_iter : int or None
-        ADMM iterations per load step (per time step); None: 20 with the polish, else 20000.
-    rho : float or None
-        ADMM penalty stiffness (kPa); None: the P-wave modulus lambda + 2 mu.
-    polish : bool or str
-        True: the Newton polish; "chord": the chord polish; False: ADMM alone.
-    polish_tol_mm : float or None
-        Largest polish step (mm) that ends it; None: tol_mm / 100 (Newton) or tol_mm (chord).
-    polish_max_iter : int
-        Polish iterations per load step.
-    dynamics : ImplicitEuler or None
-        ImplicitEuler(dt in s, steps) for dynamics; None: quasi-static equilibrium.
-    callback : callable or None
-        callback(it, u) after every iteration, u (mm, (n, gdim)).
-    load_steps : int or None
-        Quasi-static increments; None: from ``step_mm`` and ``tip_step``.
-    step_mm : float
-        Largest prescribed-displacement change of one load step (mm).
-    intermediate_tol_mm : float
-        Stopping tolerance (mm) of the load steps before the last.
-    lift : bool or str
-        True, False or "auto": how the interior follows each boundary increment.
-    handoff_mm : float or None
-        Residual (mm) at which ADMM hands over to the polish; None: 0.01 (Newton), 0.1 (chord).
-    tip_step : float
-        Largest move of a rigid tip in one load step, as a fraction of its radius.
-    progress : bool
-        Print a line per load step.
-    factorize : callable or None
-        factorize(A, cache) -> an object with ``solve(b)``; None: SuperLU.
-    device : str
-        "cpu", "gpu" or "array-cpu" (``backends``).
-    contact_quadrature : str or int or None
-        The rigid tips' contact rule: "nodal" or a Gauss degree; None: the case's.
-    contact_penalty : float or None
-        beta of the contact penalty k = beta E / h (kPa/mm); None: the case's default.
-    tip_start : str or None
-        Where each tip starts: "nodes" or "surface"; None: the case's default.
-    anderson : int
-        Past iterates of the Anderson acceleration; 0: plain ADMM.
-    """
+    """The options of one ADMM solve: each attribute is the keyword parameter of ``solve`` of
+    the same name, with its default, meaning and unit (mm, kPa, s) as ``solve``'s Parameters
+    section gives them (tol_mm, max_iter, rho, polish, polish_tol_mm, polish_max_iter,
+    dynamics, callback, load_steps, step_mm, intermediate_tol_mm, lift, handoff_mm, tip_step,
+    progress, factorize, device, contact_quadrature, contact_penalty, tip_start, anderson).
+    ``resolved`` checks them and fills in the defaults that depend on the polish."""
 
     tol_mm: float = 1e-4
     max_iter: int | None = None
