@@ -21,6 +21,8 @@ the tips' first load steps grew to 0.2 of their radius (``tip_step = 0.1``):
   tight    the default with the load steps before the last converged to 1e-6 of their first
            residual instead of 1e-4 (``intermediate_rtol``; the default until a failed solve
            converged its last state as an answer)
+  bent     the default with the line search's trials also bent along the tips
+           (``follow_tips``: a node pressed into a tip keeps its linearized gap)
 
 Models: ``--model half`` (meshes/cases/phantom-indenter-half.toml, forces doubled) or ``whole``
 (phantom-indenter.toml); ``--load one`` pushes A1, ``four`` all four actuators; the mesh is the
@@ -63,6 +65,7 @@ SETTINGS = {
     "step1": {"tip_step": 1.0},
     "secant": {"predictor": "secant"},
     "tight": {"intermediate_rtol": 1e-6},
+    "bent": {"follow_tips": True},
 }
 
 

@@ -29,6 +29,7 @@ from tissue_reference.meshes.tips import (
     START_SAMPLES,
     SURFACE_SAMPLES,
     TipShape,
+    curvilinear_shift,
     facet_samples,
     first_touch,
     indenter_site,
@@ -216,6 +217,13 @@ class Indenter:
         if not np.isfinite(t):
             raise no_node_under(a, self.site)
         return self.site + t * self.d
+
+    def curvilinear_shift(self, y0: np.ndarray, y1: np.ndarray) -> np.ndarray:
+        """``meshes.tips.curvilinear_shift`` for this tip where the load step puts it: the
+        shift (k, gdim) (mm) that bends the straight Newton trial y1 of contact-surface nodes
+        at y0 (each (k, gdim), mm) along the tip."""
+        o = self.q.value - self.shape.edge * self.d
+        return curvilinear_shift(y0, y1, o, self.d, self.shape.flat, self.shape.edge)
 
     def push_now(self) -> float:
         """The tip's current position (mm along its direction from its start)."""

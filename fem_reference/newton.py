@@ -186,6 +186,21 @@ class Newton:
             return extra_terms.energy()
         return 0.0
 
+    def _bend(self, u, start, straight: float, extra_terms) -> float:
+        """The trial bent along the tips (``Contact.follow_tips``) when its total energy is
+        below ``straight``'s (uJ, that of the straight trial ``u`` holds), else the straight
+        one: skin that a retracting tip releases leaves it along the straight line. Returns
+        the energy of the trial left in ``u``."""
+        straight_u = u.x.array.copy()
+        if not self.contact.follow_tips(u.x.array, start, self.umap):
+            return straight
+        u.x.scatter_forward()
+        bent = self.contact.total_energy(self._extra_energy(extra_terms))
+        if bent < straight:
+            return bent
+        u.x.array[:] = straight_u
+        return self.contact.total_energy(self._extra_energy(extra_terms))
+
     def _iterate(self, s, bcs, progress, label, rtol, atol_mm, trace, extra_terms,
                  residual_line_search):
         rtol = s.rtol if rtol is None else rtol
@@ -262,7 +277,11 @@ class Newton:
                 # the energy refuses needs no residual (an assembly of the residual vector
                 # instead of the energy's scalar; most trials where the contact set moves)
                 trial = self.contact.total_energy(self._extra_energy(extra_terms)) \
-                    if energy and not forced else None
+                    if energy and (s.follow_tips or not forced) else None
+                if energy and s.follow_tips:
+                    trial = self._bend(u, u_old, trial, extra_terms)
+                    if forced:
+                        trial = None
                 if trial is not None and not self.contact.lowers(trial):
                     finite = math.isfinite(trial)
                 else:

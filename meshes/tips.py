@@ -33,8 +33,8 @@ import numpy as np
 from .case import Actuator, Case, tip_start_for
 from .errors import CaseError
 
-__all__ = ["DEFAULT_CONTACT_PENALTY", "SLIP_FRACTION", "START_SAMPLES", "SURFACE_SAMPLES",
-           "TipShape", "default_contact_rule", "default_tip_start", "facet_samples",
+__all__ = ["DEFAULT_CONTACT_PENALTY", "SHORT_STEP", "SLIP_FRACTION", "START_SAMPLES",
+           "SURFACE_SAMPLES", "TipShape", "curvilinear_shift", "default_contact_rule", "default_tip_start", "facet_samples",
            "first_touch", "gap_and_normal", "gap_hessian", "indenter_site", "passed_through",
            "through_surface_state"]
 
@@ -96,6 +96,50 @@ def gap_and_normal(y, o, d, flat, edge, xp=np):
     ``flat``, ``edge`` (scalars or (k,)); n = grad_y g (module docstring). ``xp``: the array
     module (numpy or CuPy)."""
     return _gap_parts(y, o, d, flat, edge, xp)[5:]
+
+
+SHORT_STEP = 0.5
+"""``curvilinear_shift`` bends steps up to this fraction of a tip's edge radius: the shift is
+then at most about a quarter of the step (s^2 / (2 R) for a slide s)."""
+
+
+def curvilinear_shift(y0, y1, o, d, flat, edge) -> np.ndarray:
+    """The shift that bends a straight step of points along a tip (numpy).
+
+    A point pressed on a convex tip slides along a curve, but a Newton correction moves it on a
+    straight line, which leaves the tip's surface by about s^2 / (2 R) after a slide s; the
+    shift puts the gap back to the one the step's linearization predicts (a second-order
+    correction of the step: O(|y1 - y0|^2)).
+
+    Parameters
+    ----------
+    y0 : ndarray
+        (k, gdim) positions (mm) where the step starts.
+    y1 : ndarray
+        (k, gdim) positions (mm) after the straight step.
+    o, d : array_like
+        The centre of the tip's rounded end and its direction (``gap_and_normal``).
+    flat, edge : float
+        The tip's flat and edge radii (mm).
+
+    Returns
+    -------
+    ndarray
+        (k, gdim) (mm): for a point inside the tip at y0 (g < 0) whose linearized gap
+        g_lin = g(y0) + n(y0).(y1 - y0) is still negative, g_lin - g(y1) along the normal at y1
+        (after it the gap is g_lin to first order in the shift; exactly on a sphere); zero for
+        points entering or leaving the tip, for those outside it, and for steps longer than
+        SHORT_STEP of the edge radius, where the linearization says nothing of the gap (a
+        skin springing back from a retracted tip moves a radius at once).
+    """
+    y0 = np.asarray(y0, float)
+    y1 = np.asarray(y1, float)
+    g0, n0 = gap_and_normal(y0, o, d, flat, edge)
+    g_lin = g0 + np.einsum("ki,ki->k", n0, y1 - y0)
+    g1, n1 = gap_and_normal(y1, o, d, flat, edge)
+    short = np.linalg.norm(y1 - y0, axis=1) <= SHORT_STEP * edge
+    pressed = (g0 < 0.0) & (g_lin < 0.0) & short
+    return np.where(pressed[:, None], (g_lin - g1)[:, None] * n1, 0.0)
 
 
 def gap_hessian(y, o, d, flat, edge) -> np.ndarray:

@@ -244,8 +244,8 @@ def test_a_failed_push_keeps_the_last_converged_state_with_its_tip(block):
 
 def test_newton_without_the_tips_curvature_reaches_the_same_answer(block):
     """Leaving the tip's curvature out of Newton's matrix (far from the answer, after a halved
-    correction, or neither: the exact tangent throughout) and the tips' first step length
-    change the path, not the answer: a sphere pressed into the block gives the same force and
+    correction, or neither: the exact tangent throughout), the tips' first step length and
+    line-search trials bent along the tip change the path, not the answer: a sphere pressed into the block gives the same force and
     field every way, and the exported tangent stays exact (its J_s is checked against finite
     differences in tests/test_indenter_jacobian.py)."""
     case = quarter_case(block, sphere(2.0), model="neo-hookean")
@@ -255,6 +255,8 @@ def test_newton_without_the_tips_curvature_reaches_the_same_answer(block):
                     "exact": fr.NewtonSettings(contact_curvature_below=math.inf,
                                                contact_curvature_after_halving="keep"),
                     "long": fr.NewtonSettings(tip_step=0.2),
+                    # line-search trials also bent along the tip
+                    "bent": fr.NewtonSettings(follow_tips=True),
                     # the same answer converged a thousand times tighter
                     "tight": fr.NewtonSettings(rtol=1e-13, atol=1e-14, atol_mm=1e-13)}.items():
         res = fr.solve(case, pushes={"I": 1.5}, settings=st)
