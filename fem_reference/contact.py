@@ -99,10 +99,9 @@ contact node inside a tip where the correction starts, and still inside by its l
 g(y0) + n(y0).(y1 - y0), is moved along the tip's normal at its trial position to that
 linearized gap (O(|du|^2), so Newton keeps its quadratic convergence; the discrete problem is
 unchanged), and the line search tries the bent or the straight trial, whichever has the lower
-energy. Quarter indenter phantom, P2, four tips from rest: 37 -> 31 Newton iterations at 10 mm,
-52 -> 46 at 12.5 mm, 19 at 5 mm either way (bench/bench_indenter_newton.py --settings default
-bent). It is not the default because a tip retracted from pressed skin at P2 then stalls: the
-bent trial lowers the energy while keeping on the tip the skin that should spring away.
+energy (skin that a retracting tip releases leaves it along the straight line). Quarter indenter
+phantom, P2, four tips from rest: 37 -> 31 Newton iterations at 10 mm, 52 -> 47 at 12.5 mm, 19
+at 5 mm either way (bench/bench_indenter_newton.py --settings default bent).
 Newton's matrix leaves the tips' curvature term out of the penalty's Hessian
 (``tangent_without_curvature``, positive semi-definite) while the residual is far above its
 converged size (``NewtonSettings.contact_curvature_below``) and after a halved correction; the

@@ -112,9 +112,10 @@ class NewtonSettings:
         gap its linearization predicts instead of leaving the curved tip along the straight
         correction (``Contact.follow_tips``; the discrete problem is unchanged). Off by default:
         on the quarter indenter phantom (P2, all four tips from rest) it takes 31 instead of 37
-        Newton iterations at 10 mm and 46 instead of 52 at 12.5 mm, 19 either way at 5 mm, but
-        a tip retracted from pressed skin (tests/test_contact.py, P2) no longer converges: the
-        bent trial keeps on the tip the skin that should spring away from it.
+        Newton iterations at 10 mm and 47 instead of 52 at 12.5 mm, 19 either way at 5 mm, where
+        its second energy per trial costs time (bench/bench_indenter_newton.py --settings default
+        bent); a tip retracted from pressed skin takes 96 iterations either way. It has not yet
+        run through the suite's other contact cases and control loops.
     """
 
     rtol: float = 1e-10
