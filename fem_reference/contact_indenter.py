@@ -222,8 +222,8 @@ class Indenter:
         """``meshes.tips.curvilinear_shift`` for this tip where the load step puts it: the
         shift (k, gdim) (mm) that bends the straight Newton trial y1 of contact-surface nodes
         at y0 (each (k, gdim), mm) along the tip."""
-        o = self.q.value - self.shape.edge * self.d
-        return curvilinear_shift(y0, y1, o, self.d, self.shape.flat, self.shape.edge)
+        return curvilinear_shift(y0, y1, self._origin(), self.d, self.shape.flat,
+                                 self.shape.edge)
 
     def push_now(self) -> float:
         """The tip's current position (mm along its direction from its start)."""

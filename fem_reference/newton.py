@@ -280,9 +280,7 @@ class Newton:
                     if energy and (s.follow_tips or not forced) else None
                 if energy and s.follow_tips:
                     trial = self._bend(u, u_old, trial, extra_terms)
-                    if forced:
-                        trial = None
-                if trial is not None and not self.contact.lowers(trial):
+                if trial is not None and not forced and not self.contact.lowers(trial):
                     finite = math.isfinite(trial)
                 else:
                     rnew = self.assemble_residual(bcs, extra_terms)
