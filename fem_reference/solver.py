@@ -9,7 +9,7 @@ numbering and identical on all ranks.
     res = ref.solve(pushes={"A1": 15.0})      # SolveResult
     tan = ref.tangent(res)                    # exact tangent K as scipy CSR
 
-This module holds the solver's forms, spaces and load stepping (``ReferenceSolver.solve``).
+This module holds the solver's spaces and load stepping (``ReferenceSolver.solve``).
 The solver owns one object per concern, each in a module of its own: ``state``
 (``outputs_state.NodalState``: the fields' numbering, states in and out), ``boundary``
 (``boundary.Boundary``: Dirichlet conditions), ``contact`` (``contact.Contact``: rigid tips),
@@ -17,10 +17,12 @@ The solver owns one object per concern, each in a module of its own: ``state``
 formulation's fieldsplit in ``saddle``) and ``newton`` (``newton.Newton``: iterations at a fixed
 load and the assembly they iterate on; settings in ``newton_settings``). What it hands out is
 ``outputs`` (the SolveResult, probes, reactions, discretization) and ``outputs_tangent`` (the
-exact tangent and internal forces), functions of a solver. The energies are ``forms``; the
-defaults (degree, formulation, quadrature) ``discretization``'s. ``kept`` keeps solvers for
-reuse and ``answer`` composes the one-call ``solve``; ``petsc_memory`` frees a solver's PETSc
-memory (``close``).
+exact tangent and internal forces), functions of a solver. The energy densities are ``forms``;
+``energy_forms`` assembles them, with the loads and penalties, into the Constants, the total
+energy and the compiled residual and tangent the solver iterates on; the defaults (degree,
+formulation, quadrature) are ``discretization``'s. ``kept`` keeps solvers for reuse and
+``answer`` composes the one-call ``solve``; ``petsc_memory`` frees a solver's PETSc memory
+(``close``).
 """
 from __future__ import annotations
 
@@ -37,7 +39,7 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from tissue_reference.meshes.case import Case, Material
+from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.results import SolveResult
 from tissue_reference.meshes.tips import default_contact_rule, default_tip_start
@@ -53,14 +55,19 @@ from .discretization import (
     resolve_formulation,
 )
 from .dolfinx_mesh import DolfinxMesh, to_dolfinx
+from .energy_forms import (
+    compile_forms,
+    external_work,
+    internal_energy,
+    material_constants,
+    measures,
+    oblique_sliding_penalty,
+)
 from .factor import has_cholmod
-from .forms import mixed_energy_density, strain_energy_density, volume_measure
-from .jit import compile_form
 from .linalg import LinearSolver, choose_linear_solver
 from .logs import install_log_filters
 from .newton import Newton
 from .newton_settings import NewtonSettings, Timings
-from .ogden_fields import OgdenFields
 from .outputs import discretization, solve_result
 from .outputs_state import NodalState
 from .outputs_tangent import Tangent, internal_forces, tangent
@@ -164,19 +171,29 @@ class ReferenceSolver:
         self.dm: DolfinxMesh = to_dolfinx(case.mesh, comm, geometry_order=self.geometry_order)
         self.gdim = case.mesh.gdim
         self._spaces(self.dm.mesh, degree)
-        self._constants(case.material)
+        # the material and the load scale as Constants: a changed E or load needs no
+        # recompilation (``energy_forms``)
+        self.constants = material_constants(self.dm.mesh, case.material)
+        self.E, self.nu = self.constants.E, self.constants.nu
+        self.inv_kappa, self.coefficients = self.constants.inv_kappa, self.constants.coefficients
+        self.load = self.constants.load
         # the fields' numbering: dolfinx's nodes <-> the Case's vertices, states in and out
         self.state = NodalState(V=self.V, Q=self.Q, x=self.x, u=self.u, p=self.p, umap=self._umap,
                                 pmap=getattr(self, "_pmap", None), dm=self.dm,
                                 n_vertices=case.mesh.n_vertices, degree=degree, comm=comm,
                                 material=case.material, inv_kappa=self.inv_kappa, qdeg=self.qdeg)
-        md = {"quadrature_degree": self.qdeg}
-        dx = ufl.Measure("dx", domain=self.dm.mesh, metadata=md)
-        ds = ufl.Measure("ds", domain=self.dm.mesh, subdomain_data=self.dm.facet_tags,
-                         metadata=md)
-        internal = self._internal_energy(case.material, dx)
-        external = self._external_work(case, body_force, dx, ds)
-        penalty, oblique = self._sliding_penalty(case, sliding_penalty, ds)
+        # the energy's parts (``energy_forms``; the laws' densities: ``forms``)
+        mesh, tags = self.dm.mesh, self.dm.region_tags
+        dx, ds = measures(mesh, self.dm.facet_tags, self.qdeg)
+        internal, self.fields, self._vol_form = internal_energy(
+            case.material, self.formulation, self.constants, mesh=mesh, x=self.x, u=self.u_ufl,
+            p=getattr(self, "p_ufl", None), quadrature_degree=self.qdeg, dx=dx)
+        external, self.body, self.tractions = external_work(
+            case, mesh=mesh, u=self.u_ufl, gdim=self.gdim, region_tags=tags,
+            body_force=body_force, dx=dx, ds=ds)
+        penalty, oblique = oblique_sliding_penalty(case, sliding_penalty, mesh=mesh,
+                                                   u=self.u_ufl, load=self.load,
+                                                   h_min=self.dm.h_min, region_tags=tags, ds=ds)
         # the Dirichlet conditions and the nodes of each facet region (``boundary``)
         self.boundary = Boundary(Wu=self.Wu, V=self.V, dm=self.dm, gdim=self.gdim,
                                  oblique=oblique, degree=degree,
@@ -184,146 +201,20 @@ class ReferenceSolver:
                                  n_vertices=case.mesh.n_vertices,
                                  n_unknowns=len(self.x.x.array), umap=self._umap)
         self.contact = self._contact(case, contact_penalty, contact_quadrature, tip_start)
-        self._compile_forms(internal, external, penalty + self.contact.energy)
+        # Newton's residual and tangent and the outputs' forms, compiled once
+        f = compile_forms(internal, external, penalty + self.contact.energy, x=self.x, W=self.W,
+                          load=self.load, formulation=self.formulation, fields=self.fields,
+                          contact=self.contact, refresh=self.refresh_fields)
+        self.energy_internal, self.R_ufl, self.R_int_ufl, self.K_ufl = \
+            f.energy_internal, f.R_ufl, f.R_int_ufl, f.K_ufl
+        self.R_form, self.R_int_form, self.K_form = f.R_form, f.R_int_form, f.K_form
+        self.K_halved_form, self.W_form = f.K_halved_form, f.W_form
         n_dofs = self.W.dofmap.index_map.size_global * self.W.dofmap.index_map_bs
         self.linear_solver = choose_linear_solver(linear_solver, self.formulation, n_dofs,
                                                   bool(self.contact.indenters))
         self._linear_solve()
         self.newton = self._newton()
         self.timings.setup = time.perf_counter() - t0
-
-    def _constants(self, material: Material) -> None:
-        """The material and the load scale as Constants: a changed E or load scale needs no
-        recompilation. Sets ``E`` and ``nu`` (kPa, -), ``inv_kappa`` (1/kPa), ``coefficients``
-        (a law's own coefficients by name: Mooney-Rivlin's, Yeoh's; kPa) and ``load`` (the
-        load fraction of the external loads, 1).
-
-        Parameters
-        ----------
-        material : Material
-            The Case's material (E kPa, nu, the law's coefficients kPa).
-        """
-        mesh = self.dm.mesh
-        self.E = dolfinx.fem.Constant(mesh, PETSc.ScalarType(material.E))
-        self.nu = dolfinx.fem.Constant(mesh, PETSc.ScalarType(material.nu))
-        self.inv_kappa = dolfinx.fem.Constant(mesh, PETSc.ScalarType(_inv_kappa(material)))
-        self.coefficients = {n: dolfinx.fem.Constant(mesh, PETSc.ScalarType(v))
-                             for n, v in material.coefficients.items()}
-        self.load = dolfinx.fem.Constant(mesh, PETSc.ScalarType(1.0))
-
-    def _internal_energy(self, material: Material, dx):
-        """The strain energy as a UFL form: the law's energy density (``forms``) of the
-        displacement formulation, or the mixed formulation's perturbed Lagrangian in u and p.
-        The Ogden law's isochoric part is quadrature-point Functions refreshed before every
-        assembly (``refresh_fields``; ``ogden_fields``), its volumetric part UFL. Sets
-        ``fields`` (the Ogden law's Functions, else None) and, mixed, ``_vol_form`` (the
-        volumetric strain measure the pressure multiplies).
-
-        Parameters
-        ----------
-        material : Material
-            The Case's material (the law, its volumetric energy and coefficients).
-        dx : ufl.Measure
-            The cells' measure at the solver's quadrature degree.
-
-        Returns
-        -------
-        ufl.Form
-            The strain energy (uJ) over the reference configuration.
-        """
-        E, nu = self.E, self.nu
-        mu = E / (2 * (1 + nu))
-        u = self.u_ufl
-        self.fields = OgdenFields(self.dm.mesh, self.x, u, self.qdeg, material) \
-            if material.model == "ogden" else None
-        if self.fields is not None:
-            vol = volume_measure(u, "ogden", material.volumetric)
-            if self.formulation == "mixed":
-                psi = -self.p_ufl * vol - self.inv_kappa / 2 * self.p_ufl ** 2
-                self._vol_form = vol
-            else:
-                psi = E / (3 * (1 - 2 * nu)) / 2 * vol ** 2
-        elif self.formulation == "mixed":
-            psi, vol = mixed_energy_density(u, self.p_ufl, material.model, mu, self.inv_kappa,
-                                            material.volumetric, self.coefficients)
-            self._vol_form = vol
-        else:
-            kappa = E / (3 * (1 - 2 * nu))
-            lmbda = E * nu / ((1 + nu) * (1 - 2 * nu))
-            psi, _ = strain_energy_density(u, material.model, mu, kappa, lmbda,
-                                           material.volumetric, self.coefficients)
-        internal = psi * dx
-        if self.fields is not None:
-            internal = internal + self.fields.energy()
-        return internal
-
-    def _external_work(self, case: Case, body_force, dx, ds):
-        """The work of the external loads at full load: gravity (and ``body_force``) over the
-        cells, the traction regions' tractions over their facets. Sets ``body`` (density times
-        gravity, mN/mm^3) and ``tractions`` (region -> its traction Constant, kPa).
-
-        Parameters
-        ----------
-        case : Case
-            The Case (gravity mm/s^2, density, traction boundaries).
-        body_force : callable or None
-            x -> UFL vector (mN/mm^3) of the reference coordinates, added to gravity.
-        dx, ds : ufl.Measure
-            The cells' and the tagged facets' measures.
-
-        Returns
-        -------
-        ufl.Form
-            The external work (uJ) of the unknown displacement.
-        """
-        mesh, u = self.dm.mesh, self.u_ufl
-        g = case.gravity if case.gravity is not None else (0.0,) * self.gdim
-        self.body = dolfinx.fem.Constant(mesh, PETSc.ScalarType(
-            tuple(case.material.density * np.asarray(g, float))))
-        external = ufl.inner(self.body, u) * dx
-        if body_force is not None:
-            external = external + ufl.inner(body_force(ufl.SpatialCoordinate(mesh)), u) * dx
-        self.tractions = {}
-        for b in case.boundaries:
-            if b.type == "traction":
-                t = dolfinx.fem.Constant(mesh, PETSc.ScalarType(tuple(map(float, b.value))))
-                self.tractions[b.region] = t
-                external = external + ufl.inner(t, u) * ds(self.dm.region_tags[b.region])
-        return external
-
-    def _sliding_penalty(self, case: Case, sliding_penalty: float, ds):
-        """The penalty that holds the sliding regions whose normal is not an axis on their
-        plane, u.n = g (g scaled by the load).
-
-        Parameters
-        ----------
-        case : Case
-            The Case (its sliding boundaries, E in kPa).
-        sliding_penalty : float
-            beta of the penalty beta * E / h_min (kPa/mm).
-        ds : ufl.Measure
-            The tagged facets' measure.
-
-        Returns
-        -------
-        tuple
-            (the penalty energy, uJ, a UFL form or 0; the oblique regions' names).
-        """
-        penalty = 0
-        oblique = []   # sliding regions whose normal is not an axis: held by a penalty
-        for b in case.boundaries:
-            if b.type == "sliding":
-                n = np.asarray(b.normal, float)
-                n = n / np.linalg.norm(n)
-                if np.count_nonzero(np.abs(n) > 1e-12) > 1:
-                    oblique.append(b.region)
-                    nn = ufl.as_vector(n.tolist())
-                    gval = dolfinx.fem.Constant(self.dm.mesh,
-                                                PETSc.ScalarType(float(b.value or 0.0)))
-                    beta = sliding_penalty * case.material.E / self.dm.h_min
-                    penalty = penalty + beta / 2 * (ufl.dot(self.u_ufl, nn) - self.load * gval) \
-                        ** 2 * ds(self.dm.region_tags[b.region])
-        return penalty, oblique
 
     def _contact(self, case: Case, contact_penalty: float, contact_quadrature, tip_start):
         """The rigid indenters' contact (``contact.Contact``), with the contact rule and tip
@@ -352,47 +243,6 @@ class ReferenceSolver:
                        formulation=self.formulation, penalty=contact_penalty,
                        quadrature=contact_quadrature,
                        tip_start=tip_start or default_tip_start(case, contact_quadrature))
-
-    def _compile_forms(self, internal, external, penalty) -> None:
-        """Newton's residual and tangent and the outputs' forms, compiled once: ``R_form`` (the
-        total energy's residual), ``R_int_form`` (without the penalties), ``K_form`` (its
-        tangent), ``K_halved_form`` (with indenters: the tangent without the tips' curvature,
-        far from the answer and after a halved correction; ``fem_reference.contact``; else None)
-        and ``W_form`` (the strain energy). Also sets ``energy_internal`` and the UFL forms
-        ``R_ufl``, ``R_int_ufl`` and ``K_ufl``, and gives the contact its line search's energy.
-
-        Parameters
-        ----------
-        internal : ufl.Form
-            The strain energy (uJ).
-        external : ufl.Form
-            The external work at full load (uJ), scaled by ``load``.
-        penalty : ufl.Form or int
-            The sliding and contact penalties' energy (uJ).
-        """
-        self.energy_internal = internal
-        total = internal - self.load * external + penalty
-        self.contact.line_search_energy(total, self.refresh_fields)
-        v = ufl.TestFunction(self.W)
-        w = ufl.TrialFunction(self.W)
-        self.R_ufl = ufl.derivative(total, self.x, v)
-        self.R_int_ufl = ufl.derivative(internal - self.load * external, self.x, v)
-        self.K_ufl = ufl.derivative(self.R_ufl, self.x, w)
-        if self.fields is not None:   # what the quadrature Functions contribute (not derived)
-            vu, wu = (ufl.split(v)[0], ufl.split(w)[0]) if self.formulation == "mixed" else (v, w)
-            self.R_ufl = self.R_ufl + self.fields.residual(vu)
-            self.R_int_ufl = self.R_int_ufl + self.fields.residual(vu)
-            self.K_ufl = self.K_ufl + self.fields.tangent(vu, wu)
-        self.R_form = compile_form(self.R_ufl)
-        self.R_int_form = compile_form(self.R_int_ufl)
-        self.K_form = compile_form(self.K_ufl)
-        self.K_halved_form = None
-        soft = self.contact.tangent_without_curvature(v, w)
-        if soft is not None:
-            self.K_halved_form = compile_form(
-                self.K_ufl - ufl.derivative(ufl.derivative(self.contact.normal_energy, self.x, v),
-                                            self.x, w) + soft)
-        self.W_form = compile_form(internal)
 
     def _linear_solve(self) -> None:
         """The tangent matrix ``A``, the residual vector ``b`` and Newton's linear solves
@@ -535,12 +385,7 @@ class ReferenceSolver:
                             f"({case.material.model}, volumetric {case.material.volumetric!r}) "
                             f"differs from the solver's ({self.case.material.model}, volumetric "
                             f"{self.case.material.volumetric!r}): build a solver for it")
-        self.E.value = case.material.E
-        self.nu.value = case.material.nu
-        self.inv_kappa.value = _inv_kappa(case.material)
-        for name, value in case.material.coefficients.items():
-            if name in self.coefficients:   # (Ogden's mu_i: on its quadrature Functions)
-                self.coefficients[name].value = value
+        self.constants.set(case.material)
         if self.fields is not None:
             self.fields.set_material(case.material)
         s = settings or self.settings
@@ -744,7 +589,3 @@ class ReferenceSolver:
             self._umap = np.arange(len(self.u.x.array), dtype=np.int64)
         self.du = dolfinx.fem.Function(self.W)
 
-
-def _inv_kappa(material: Material) -> float:
-    """1/kappa (1/kPa) of the material, exactly 0 for nu = 0.5."""
-    return 3.0 * (1.0 - 2.0 * material.nu) / material.E
