@@ -24,8 +24,8 @@ import time
 
 import numpy as np
 
-from tissue_reference.meshes.case import load_case
 from tissue_reference.meshes.mesh import MeshData
+from tissue_reference.model.case import load_case
 from tissue_reference.solvers import admm
 
 CASE_TOML = "meshes/cases/phantom.toml"

@@ -26,9 +26,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from tissue_reference.errors import ConvergenceError
 from tissue_reference.fem_reference.adapt import AccuracyNotReached, solve_to_accuracy
 from tissue_reference.fem_reference.dof_counts import entity_counts, predicted_dofs, refined_counts
-from tissue_reference.meshes.errors import ConvergenceError
 
 CASE = ROOT / "meshes/cases/phantom.toml"
 

@@ -23,9 +23,9 @@ import tracemalloc
 
 import numpy as np
 
+from tissue_reference.errors import SolverDivergedError
 from tissue_reference.meshes.builders import phantom
-from tissue_reference.meshes.case import load_case
-from tissue_reference.meshes.errors import SolverDivergedError
+from tissue_reference.model.case import load_case
 from tissue_reference.solvers import admm
 from tissue_reference.solvers.admm import operators
 

@@ -26,7 +26,7 @@ import time
 import numpy as np
 
 import tissue_reference.fem_reference as fr
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 from tissue_reference.solvers import admm
 
 ACTS = ("A1", "A2", "A3", "A4")

@@ -41,7 +41,7 @@ import tracemalloc
 import numpy as np
 
 from tissue_reference.meshes.builders import CELLS_PER_VOLUME, box, structured_box
-from tissue_reference.meshes.case import Boundary, Case, Material
+from tissue_reference.model.case import Boundary, Case, Material
 from tissue_reference.solvers import admm
 from tissue_reference.solvers.admm import kernel_c, operators
 

@@ -27,9 +27,9 @@ RADIUS = 8.0   # mm, the wide tips
 
 def refined_case(level: int, passes: int, band: float):
     from tissue_reference.meshes.builders import PHANTOM, build
-    from tissue_reference.meshes.case import load_case
     from tissue_reference.meshes.refine import projector_for
     from tissue_reference.meshes.refine_local import refine_local
+    from tissue_reference.model.case import load_case
 
     size, site = level_sizes(level)
     mesh = build("phantom-half", size, site_size=site, path_size=0.5 * site)

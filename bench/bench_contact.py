@@ -29,7 +29,7 @@ E, NU, R, D = 6.0, 0.45, 10.0, 0.1
 
 
 def hertz_case(mesh):
-    from tissue_reference.meshes.case import Actuator, Boundary, Case, Material
+    from tissue_reference.model.case import Actuator, Boundary, Case, Material
 
     tip = Actuator("I", "tip", (0.0, 0.0, -1.0), type="indenter", tip="sphere", radius=R,
                    point=(0.0, 0.0, 0.0), contact_region="top")
@@ -67,8 +67,8 @@ def hertz(sizes, betas):
 
 def phantom(size, pushes):
     import tissue_reference.fem_reference as fr
-    from tissue_reference.meshes.case import load_case
-    from tissue_reference.meshes.errors import ConvergenceError
+    from tissue_reference.errors import ConvergenceError
+    from tissue_reference.model.case import load_case
 
     cases = ROOT / "meshes" / "cases"
     tips = load_case(cases / "phantom-indenter.toml", size=size)

@@ -24,7 +24,7 @@ def run(rule, target: str, task: int, task_mm: float, progress: bool) -> str:
     from tissue_reference.control.loop import LoopSettings, LoopStopped
     from tissue_reference.control.mpc import MPCSettings
     from tissue_reference.control.scenarios import scenario_loop
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     case = load_case(ROOT / "meshes/cases/phantom.toml", size=10.0)
     plant = load_case(ROOT / "meshes/cases/phantom-indenter-control.toml")

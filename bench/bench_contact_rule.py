@@ -32,7 +32,7 @@ E_STAR = E / (1 - NU ** 2)
 
 
 def _quarter(mesh, actuator, model):
-    from tissue_reference.meshes.case import Boundary, Case, Material
+    from tissue_reference.model.case import Boundary, Case, Material
 
     return Case(mesh, Material(model, E, NU),
                 boundaries=[Boundary("bottom", "fixed"),
@@ -42,7 +42,7 @@ def _quarter(mesh, actuator, model):
 
 
 def _sphere(R):
-    from tissue_reference.meshes.case import Actuator
+    from tissue_reference.model.case import Actuator
 
     return Actuator("I", "tip", (0.0, 0.0, -1.0), type="indenter", tip="sphere", radius=R,
                     point=(0.0, 0.0, 0.0), contact_region="top")
@@ -124,9 +124,9 @@ def past_stop(solver, depth_R: float, radius: float) -> list[tuple[float, str]]:
 
 def depth(size, radius, depths, rules, eigen: bool) -> list[dict]:
     import tissue_reference.fem_reference as fr
+    from tissue_reference.errors import ConvergenceError
     from tissue_reference.fem_reference.field_jacobian import cell_min_J
     from tissue_reference.meshes.builders import indent_block
-    from tissue_reference.meshes.errors import ConvergenceError
 
     mesh = indent_block(size)
     case = _quarter(mesh, _sphere(radius), "neo-hookean")

@@ -31,7 +31,7 @@ from tissue_reference.control.jacobian import (
 )
 from tissue_reference.control.loop import LinearizedModel, LoopSettings, run_closed_loop
 from tissue_reference.control.plants import plant_for, tangent_for
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 
 CASE = "meshes/cases/phantom.toml"
 

@@ -136,10 +136,10 @@ def solve(load: str, pushes, degree: int | None, rule, case_name: str = "indente
 def _solve(load, pushes, degree, rule, case_name, mesh, builder, start, old_newton,
            linear_solver, settings) -> list[dict]:
     import tissue_reference.fem_reference as fr
+    from tissue_reference.errors import ConvergenceError
     from tissue_reference.fem_reference.dof_counts import entity_counts, predicted_dofs
     from tissue_reference.meshes.builders import build
-    from tissue_reference.meshes.case import load_case
-    from tissue_reference.meshes.errors import ConvergenceError
+    from tissue_reference.model.case import load_case
 
     case = load_case(CASES[case_name])
     spec = tomllib.loads(CASES[case_name].read_text())["mesh"]
@@ -216,7 +216,7 @@ def answers(path: Path | None, load: str, pushes, asked: dict, solve_them) -> li
     discretization are refused, not compared."""
     if path is None:
         return solve_them()
-    from tissue_reference.meshes.results import write_json
+    from tissue_reference.model.results import write_json
 
     kept = json.loads(path.read_text()) if path.exists() else {"asked": asked}
     if kept.get("asked") != asked:
@@ -233,7 +233,7 @@ def answers(path: Path | None, load: str, pushes, asked: dict, solve_them) -> li
 
 
 def main():
-    from tissue_reference.meshes.case import TIP_STARTS
+    from tissue_reference.model.case import TIP_STARTS
     from tissue_reference.tissue.common import contact_rule
 
     ap = argparse.ArgumentParser(description=__doc__,

@@ -22,7 +22,7 @@ import numpy as np
 
 from tissue_reference.fem_reference import cholmod_factor
 from tissue_reference.fem_reference.dynamics import simulate
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 from tissue_reference.solvers import admm
 from tissue_reference.solvers.trajectory import admm_trajectory
 

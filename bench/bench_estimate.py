@@ -37,8 +37,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import tissue_reference.fem_reference as fr
 from tissue_reference.fem_reference.estimate import error_estimate
 from tissue_reference.meshes.builders import cook_membrane, shell_octant
-from tissue_reference.meshes.case import Boundary, Case, Material, Probe, load_case
 from tissue_reference.meshes.refine import refine_uniform
+from tissue_reference.model.case import Boundary, Case, Material, Probe, load_case
 
 A, B, UA = 10.0, 20.0, 2.0
 ROWS: list = []
@@ -192,7 +192,7 @@ def bench_phantom(fine_p3: bool):
 def bench_cost(size):
     """The phantom at ``size`` (mm): P1 answers at the README's load (4 x 15 mm) and at
     4 x 5 mm, P2 answers at 4 x 5 mm, each with its estimate."""
-    from tissue_reference.meshes.errors import ConvergenceError
+    from tissue_reference.errors import ConvergenceError
 
     case = load_case(Path(__file__).resolve().parents[1] / "meshes/cases/phantom.toml",
                      size=size)

@@ -56,7 +56,7 @@ def first_solves(push: float, rounds: int) -> None:
 
 
 def views(rounds: int) -> None:
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
     from tissue_reference.tissue.views import render, start_views
 
     case = load_case("phantom")

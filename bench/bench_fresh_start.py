@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 
 import tissue_reference.fem_reference as fr
+from tissue_reference.errors import ConvergenceError, TissueWarning
 from tissue_reference.fem_reference.kept import forget_solvers
 from tissue_reference.fem_reference.linalg import LinearSolver
 from tissue_reference.fem_reference.solver import ReferenceSolver
-from tissue_reference.meshes.case import load_case
-from tissue_reference.meshes.errors import ConvergenceError, TissueWarning
+from tissue_reference.model.case import load_case
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE = ROOT / "meshes" / "cases" / "phantom.toml"

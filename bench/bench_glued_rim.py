@@ -36,9 +36,9 @@ RIMS = [round(2.4 / 2.0 ** (k / 2), 4) for k in range(5)]
 def run(case_path: Path, rims, degree: int, push: float, size: float | None,
         volumetric: str | None = None) -> list[dict]:
     import tissue_reference.fem_reference as fr
+    from tissue_reference.errors import ConvergenceError
     from tissue_reference.meshes.builders import build
-    from tissue_reference.meshes.case import load_case
-    from tissue_reference.meshes.errors import ConvergenceError
+    from tissue_reference.model.case import load_case
 
     case = load_case(case_path)
     if volumetric is not None:
@@ -142,7 +142,7 @@ def main():
     rows = run(args.case, args.rims, args.degree, args.push, args.size, args.volumetric)
     out = report(rows, args.push, rows[0]["volumetric"] if rows else "quadratic")
     if args.json:
-        from tissue_reference.meshes.results import write_json
+        from tissue_reference.model.results import write_json
         write_json(out, args.json)
 
 

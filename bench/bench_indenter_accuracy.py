@@ -40,8 +40,8 @@ def main():
 
     from tissue_reference.fem_reference.adapt import AccuracyNotReached, solve_to_accuracy
     from tissue_reference.meshes.builders import build
-    from tissue_reference.meshes.case import load_case
     from tissue_reference.meshes.refine import projector_for
+    from tissue_reference.model.case import load_case
 
     for push in args.pushes:
         # the half case's body at --size with its 3.2 mm sites, without its refined paths

@@ -69,7 +69,7 @@ def level_case(load: str, k: int, path: float | None = None, radius: float | Non
                base_rim: float | None = None, path_reach: float | None = None):
     """The case of level ``k`` of the study of ``load`` (``run_level``'s options)."""
     from tissue_reference.meshes.builders import build
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     name, builder = CASES[load]
     size, site, path_mm, base_rim_mm = level_lengths(k, path, base_rim)
@@ -95,8 +95,8 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
               idle_tips: bool = True, base_rim: float | None = None,
               path_reach: float | None = None, tip_start: str = "nodes") -> dict:
     import tissue_reference.fem_reference as fr
-    from tissue_reference.meshes.errors import ConvergenceError
-    from tissue_reference.meshes.results import write_json
+    from tissue_reference.errors import ConvergenceError
+    from tissue_reference.model.results import write_json
 
     size, site, path_mm, base_rim_mm = level_lengths(k, path, base_rim)
     case = level_case(load, k, path, radius, volumetric, idle_tips, base_rim, path_reach)
@@ -149,7 +149,7 @@ def run_level(load: str, k: int, pushes, degree: int, out: Path, progress: bool 
 def write_study_levels(load: str, name: str, out: Path) -> None:
     """Write the levels of the study ``name`` of the test data as level files under ``out``,
     beside levels run there; refuse when the study's settings differ from theirs."""
-    from tissue_reference.meshes.results import write_json
+    from tissue_reference.model.results import write_json
 
     studies = json.loads(DATA.read_text())["loads"]
     if name not in studies:
@@ -236,7 +236,7 @@ def _supersede(name: str, level: int, study: dict, run: dict, out: Path) -> None
 
 def summarize(load: str, out: Path) -> None:
     from tissue_reference.fem_reference.richardson import assess
-    from tissue_reference.meshes.results import write_json
+    from tissue_reference.model.results import write_json
 
     docs = sorted((json.loads(f.read_text()) for f in out.glob(f"{load}-level*.json")),
                   key=lambda d: d["level"])
@@ -320,7 +320,7 @@ def summarize(load: str, out: Path) -> None:
 
 
 def main():
-    from tissue_reference.meshes.case import TIP_STARTS
+    from tissue_reference.model.case import TIP_STARTS
     from tissue_reference.tissue.common import contact_rule
 
     ap = argparse.ArgumentParser(description=__doc__,

@@ -86,9 +86,9 @@ def main():
     args = ap.parse_args()
 
     import tissue_reference.fem_reference as fr
+    from tissue_reference.errors import ConvergenceError
     from tissue_reference.meshes.builders import build
-    from tissue_reference.meshes.case import load_case
-    from tissue_reference.meshes.errors import ConvergenceError
+    from tissue_reference.model.case import load_case
 
     if args.case:
         path = ROOT / "meshes" / "cases" / f"{args.case}.toml"

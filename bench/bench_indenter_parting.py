@@ -29,8 +29,8 @@ PROBE_POINT = np.array([44.21, 0.0, 15.16])   # on A1's axis, 2.9 mm under its s
 def solve_level(k: int, keep, out: Path) -> None:
     import tissue_reference.fem_reference as fr
     from tissue_reference.meshes.builders import build
-    from tissue_reference.meshes.case import load_case
     from tissue_reference.meshes.io import atomic_path
+    from tissue_reference.model.case import load_case
 
     size, site = level_sizes(k)
     case = load_case(ROOT / "meshes" / "cases" / "phantom-indenter-quarter.toml",

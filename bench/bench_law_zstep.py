@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from tissue_reference.meshes.case import Material
+from tissue_reference.model.case import Material
 from tissue_reference.solvers.admm.kernel_array import LawZStep, aos, soa
 from tissue_reference.solvers.admm.mechanics import INVARIANT_LAWS, Law, LawValues
 

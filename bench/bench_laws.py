@@ -65,7 +65,7 @@ def block_agreement(model, params):
     from test_laws import _stretched_block, piola_formula
 
     import tissue_reference.fem_reference as fr
-    from tissue_reference.meshes.case import Material
+    from tissue_reference.model.case import Material
 
     def principal(t):
         if model == "ogden":
@@ -88,8 +88,8 @@ def main(argv=None):
     logging.disable(logging.INFO)
     warnings.simplefilter("ignore")
     import tissue_reference.fem_reference as fr
-    from tissue_reference.meshes.case import load_case
-    from tissue_reference.meshes.errors import NotModeledError
+    from tissue_reference.errors import NotModeledError
+    from tissue_reference.model.case import load_case
     from tissue_reference.solvers import get_solver
 
     admm = get_solver("admm")

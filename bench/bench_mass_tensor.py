@@ -25,7 +25,7 @@ import scipy.sparse.linalg as spla
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 from tissue_reference.solvers import mass_tensor as mt
 from tissue_reference.solvers.mass_tensor import driver as mt_driver
 

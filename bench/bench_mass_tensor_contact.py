@@ -26,8 +26,8 @@ from _timing import best  # this folder's
 
 from tissue_reference.fem_reference import cholmod_factor
 from tissue_reference.fem_reference import solve as reference_solve
-from tissue_reference.meshes.answer_warnings import TissueWarning
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.answer_warnings import TissueWarning
+from tissue_reference.model.case import load_case
 from tissue_reference.solvers import mass_tensor as mt
 from tissue_reference.solvers.mass_tensor import driver
 

@@ -119,7 +119,7 @@ def rebuilt_every_iteration(case, push: float) -> float:
 def one(size: float, nu: float, push: float, peer: bool = True, lag: bool = False) -> dict:
     sys.path.insert(0, str(ROOT))
     import tissue_reference.fem_reference as fr
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     t0 = time.perf_counter()
     case = load_case(ROOT / "meshes/cases/phantom.toml", size=size).with_material(nu=nu)

@@ -23,7 +23,7 @@ from tissue_reference.control.jacobian import dirichlet_jacobian
 from tissue_reference.control.loop import LoopSettings
 from tissue_reference.control.mpc import MPCSettings
 from tissue_reference.control.plants import ADMM_CONTROL_OPTIONS, build_loop
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 from tissue_reference.solvers.admm import solve, tangent_stiffness
 
 CASE = Path(__file__).resolve().parents[1] / "meshes" / "cases" / "phantom.toml"

@@ -28,7 +28,7 @@ def run(full: bool, steps: int, task_mm: float):
     from tissue_reference.control.scenarios import scenario_loop
     from tissue_reference.fem_reference.kept import forget_solvers
     from tissue_reference.meshes.builders import build
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     case = load_case(ROOT / "meshes" / "cases" / "phantom.toml")
     case = dataclasses.replace(case, mesh=build("phantom", 10.0))

@@ -26,7 +26,7 @@ PUSH = {"A1": 15.0, "A2": 15.0, "A3": 15.0, "A4": 15.0}
 def one(size: float, degree: int) -> dict:
     sys.path.insert(0, str(ROOT))
     import tissue_reference.fem_reference as fr
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     t0 = time.perf_counter()
     case = load_case(ROOT / "meshes/cases/phantom.toml", size=size)

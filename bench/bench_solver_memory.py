@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 import tissue_reference.fem_reference as fr
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 
 ROOT = Path(__file__).resolve().parents[1]
 _LIBC = ctypes.CDLL("libc.so.6")

@@ -26,7 +26,7 @@ def main():
     args = ap.parse_args()
     import test_mixed as tm
 
-    from tissue_reference.meshes.case import Material
+    from tissue_reference.model.case import Material
 
     print(f"{'nu':>7} {'formulation':>12} {'cells':>9} {'size':>5} {'u(B) err':>10} "
           f"{'reaction err':>12} {'dofs':>8} {'solve_s':>8}")

@@ -35,10 +35,10 @@ def run(size: float, radius: float, depths, volumetric: str, rule="nodal") -> No
     import numpy as np
 
     import tissue_reference.fem_reference as fr
+    from tissue_reference.errors import ConvergenceError
     from tissue_reference.fem_reference.field_jacobian import cell_min_J
     from tissue_reference.meshes.builders import indent_block
-    from tissue_reference.meshes.case import Actuator, Boundary, Case, Material
-    from tissue_reference.meshes.errors import ConvergenceError
+    from tissue_reference.model.case import Actuator, Boundary, Case, Material
 
     mesh = indent_block(size)
     tip = Actuator("I", "tip", (0.0, 0.0, -1.0), type="indenter", tip="sphere", radius=radius,

@@ -66,7 +66,7 @@ def main():
     import tissue_reference.fem_reference as fr
     from tissue_reference.fem_reference.richardson import assess
     from tissue_reference.meshes.builders import PHANTOM
-    from tissue_reference.meshes.case import TIP_STARTS
+    from tissue_reference.model.case import TIP_STARTS
 
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)

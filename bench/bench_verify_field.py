@@ -19,7 +19,7 @@ import numpy as np
 
 import tissue_reference.fem_reference as fr
 from tissue_reference.meshes.builders import box
-from tissue_reference.meshes.case import Boundary, Case, Material, Probe
+from tissue_reference.model.case import Boundary, Case, Material, Probe
 from tissue_reference.verification.verify import verify
 
 G = np.array([[0.05, 0.02, 0.0], [0.0, -0.02, 0.0], [0.01, 0.0, -0.02]])

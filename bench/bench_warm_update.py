@@ -27,7 +27,7 @@ from bench_admm_accel import best  # (result, shortest time) of repeated calls (
 
 import tissue_reference.fem_reference as fr
 from tissue_reference.control.fast_model import STATE_TOL_MM, FastModel
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 from tissue_reference.solvers import admm
 
 

@@ -78,7 +78,7 @@ def study_level(load: str, pushes, study: str, case_name: str, rule,
     default's mesh and must be the level's."""
     from tissue_reference.fem_reference.discretization import default_degree, resolve_formulation
     from tissue_reference.fem_reference.dof_counts import entity_counts, predicted_dofs
-    from tissue_reference.meshes.case import load_case, tip_start_for
+    from tissue_reference.model.case import load_case, tip_start_for
 
     loads = json.loads(DATA.read_text())["loads"]
     keys = [k.format(load=load) + s for k in STUDIES[case_name, study] for s in ("", SURFACE)]
@@ -133,7 +133,7 @@ def measured_row(load: str, push: float, r: dict, e: dict, ref: dict | None,
     would not take it by default: the case's ``[reference] tip_start`` (``case_pin``), else the
     start of the row's rule (``fem_reference.measured`` reads rows so). ``actuators``: the
     case's actuator names, where a mirror plane leaves it fewer than the whole phantom's."""
-    from tissue_reference.meshes.case import tip_start_for
+    from tissue_reference.model.case import tip_start_for
 
     lines = ["[[reference.measured]]",
              "pushes = {" + ", ".join(f"{a} = {push:g}" for a in LOADS[load]

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linprog, nnls
 
-from tissue_reference.meshes.errors import CaseError, TissueError
+from tissue_reference.errors import CaseError, TissueError
 
 from .jacobian import dirichlet_jacobian, point_matrix
 from .mpc import quiet_qpoases

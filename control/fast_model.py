@@ -46,7 +46,7 @@ import time
 
 import numpy as np
 
-from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.errors import CaseError, ConvergenceError
 from tissue_reference.solvers.admm import prepare
 from tissue_reference.solvers.admm import solve as admm_solve
 from tissue_reference.solvers.admm.factor import sym_splu

@@ -45,7 +45,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.errors import CaseError, ConvergenceError
 from tissue_reference.solvers.admm import prepare
 
 __all__ = [

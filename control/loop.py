@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.io import save_figure
 
 from .controllability import UnreachableGoalError, inverse_push, task_goal

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.errors import CaseError, ConvergenceError
 
 __all__ = ["WEIGHTS", "MPCSettings", "MPCStep", "PushOnlyMPC"]
 

@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 
-from tissue_reference.meshes.errors import ConvergenceError
+from tissue_reference.errors import ConvergenceError
 
 from .plant_step import itae, measure, solve_checked, step_line, target_errors
 

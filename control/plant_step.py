@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from tissue_reference.meshes.converged_range import unconverged_load
-from tissue_reference.meshes.errors import ConvergenceError
+from tissue_reference.errors import ConvergenceError
+from tissue_reference.model.converged_range import unconverged_load
 
 __all__ = ["check_prescribed", "itae", "measure", "outside_range", "solve_checked", "step_line",
            "target_errors"]
@@ -86,7 +86,7 @@ def step_line(what, k, n, pushes, error, mask, seconds) -> str:
 
 def outside_range(plant_case, model_case, acts, pushes) -> list[str]:
     """Why the loop's pushes ``pushes`` ((steps, n_act) mm, actuators ``acts``) left the range
-    where the plant's or the model's answers converge (``meshes.converged_range``), one line per
+    where the plant's or the model's answers converge (``model.converged_range``), one line per
     actuator and side, each at the actuator's deepest push; [] when they stayed inside."""
     P = np.asarray(pushes, float).reshape(-1, len(acts))
     if not len(P):

@@ -22,9 +22,9 @@ from tissue_reference.control.jacobian import (
     p2_interpolation,
     p2_region_nodes,
 )
-from tissue_reference.meshes.case import E_RANGE_KPA
-from tissue_reference.meshes.errors import CaseError
-from tissue_reference.meshes.results import material_json
+from tissue_reference.errors import CaseError
+from tissue_reference.model.case import E_RANGE_KPA
+from tissue_reference.model.results import material_json
 from tissue_reference.solvers import registry
 from tissue_reference.solvers.admm import prepare
 from tissue_reference.solvers.admm import solve as admm_solve

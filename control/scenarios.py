@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.errors import CaseError, ConvergenceError
 
 from .loop import solve_checked
 from .plants import LoopSetup, build_loop, matching_case

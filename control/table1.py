@@ -29,10 +29,10 @@ from threadpoolctl import threadpool_limits
 
 from tissue_reference.control.controllability import UnreachableGoalError
 from tissue_reference.control.loop import SSE_GOAL_MM, LoopStopped, plot_response
-from tissue_reference.meshes.errors import CaseError, CaseReadError, ConvergenceError, TissueWarning
+from tissue_reference.errors import CaseError, CaseReadError, ConvergenceError, TissueWarning
 from tissue_reference.meshes.html_page import Raw, image, kv_table, page, table, write_page
 from tissue_reference.meshes.io import atomic_path, save_figure
-from tissue_reference.meshes.results import json_ready, write_json
+from tissue_reference.model.results import json_ready, write_json
 
 __all__ = ["LOOP_BLAS_THREADS", "SSE_GOAL_MM", "STEP_LINE_S", "finished_rows", "plot_scenarios",
            "run_table1", "table1_meta", "table1_pairs", "table1_row", "table1_summary",

@@ -20,7 +20,7 @@ import numpy as np
 
 import tissue_reference.fem_reference as fr
 from tissue_reference.control.jacobian import dirichlet_jacobian, full_pushes
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 
 
 def main():

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from tissue_reference.fem_reference.convergence import run_study
 from tissue_reference.fem_reference.richardson import assess
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 from tissue_reference.verification.closed_forms import thick_sphere
 
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 from tissue_reference.control.loop import LoopSettings
 from tissue_reference.control.mpc import MPCSettings
 from tissue_reference.control.plants import build_loop
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 
 
 def main():

@@ -20,8 +20,8 @@ import tempfile
 from pathlib import Path
 
 import tissue_reference.fem_reference as fr
-from tissue_reference.meshes.case import load_case
 from tissue_reference.meshes.writers import write_mesh
+from tissue_reference.model.case import load_case
 from tissue_reference.verification.verify import verify
 
 

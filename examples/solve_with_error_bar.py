@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 import tissue_reference.fem_reference as fr
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 from tissue_reference.verification.closed_forms import thick_sphere
 
 

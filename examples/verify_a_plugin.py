@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 from tissue_reference.verification.plugins import resolve_solver
 from tissue_reference.verification.verify import verify
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from tissue_reference.meshes.builders import box
-from tissue_reference.meshes.case import Boundary, Case, Material, Probe
+from tissue_reference.model.case import Boundary, Case, Material, Probe
 from tissue_reference.verification.verify import verify
 
 

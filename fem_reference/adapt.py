@@ -70,12 +70,12 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_reference.meshes.case import Case
-from tissue_reference.meshes.converged_range import unconverged_load
-from tissue_reference.meshes.errors import AccuracyNotReached, CaseError, ConvergenceError
+from tissue_reference.errors import AccuracyNotReached, CaseError, ConvergenceError
 from tissue_reference.meshes.refine import refine_uniform
 from tissue_reference.meshes.refine_local import dorfler_mark, refine_local
-from tissue_reference.meshes.results import SolveResult
+from tissue_reference.model.case import Case
+from tissue_reference.model.converged_range import unconverged_load
+from tissue_reference.model.results import SolveResult
 
 from .answer import solve
 from .convergence import load_study_case
@@ -324,7 +324,7 @@ def _last_answer(step: AdaptiveStep, accuracy: float) -> str:
 
 def _refuse_unconverged(case, pushes) -> None:
     """CaseError where the load is past the range in which answers are known to converge under
-    refinement (``meshes.converged_range.unconverged_load``): refining there would chase a
+    refinement (``model.converged_range.unconverged_load``): refining there would chase a
     limit that is not known to exist, and no estimate bounds an error."""
 
     if why := unconverged_load(case, pushes):

@@ -1,14 +1,14 @@
 """A reference answer, composed: the solve (on a kept solver, ``kept.solver_for``), then the
 measured accuracy a case file states for exactly that load and discretization (``measured``),
 then, when asked, the estimated discretization error (``estimate``), then the warnings an answer
-that is not valid or not converged deserves (``meshes.answer_warnings``). ``fem_reference.solve``
+that is not valid or not converged deserves (``model.answer_warnings``). ``fem_reference.solve``
 is this module's ``solve``."""
 from __future__ import annotations
 
-from tissue_reference.meshes.answer_warnings import warn_about
-from tissue_reference.meshes.case import Case
-from tissue_reference.meshes.errors import CaseError
-from tissue_reference.meshes.results import SolveResult
+from tissue_reference.errors import CaseError
+from tissue_reference.model.answer_warnings import warn_about
+from tissue_reference.model.case import Case
+from tissue_reference.model.results import SolveResult
 
 from .estimate import auto_estimate
 from .estimate import estimate as with_estimate
@@ -36,7 +36,7 @@ def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None,
     A case file's measured accuracy for exactly this load and discretization
     (``[reference.measured]``, ``fem_reference.measured``) is in ``extra["measured_accuracy"]``.
     An answer that is not valid, past the loads where answers converge, or with an estimated
-    error above 2 % also warns (``meshes.errors.TissueWarning``; ``meshes.answer_warnings``).
+    error above 2 % also warns (``errors.TissueWarning``; ``model.answer_warnings``).
 
     Parameters
     ----------

@@ -7,8 +7,8 @@ import dolfinx
 import dolfinx.fem
 import numpy as np
 
-from tissue_reference.meshes.case import Case
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
+from tissue_reference.model.case import Case
 
 
 class Boundary:

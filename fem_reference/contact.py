@@ -2,7 +2,7 @@
 
 Units: length mm, stress kPa (= mN/mm^2), force mN, energy uJ, penalty stiffness kPa/mm.
 
-Geometry. An indenter (``meshes.case.Actuator`` of type "indenter") is a rigid rod of radius
+Geometry. An indenter (``model.case.Actuator`` of type "indenter") is a rigid rod of radius
 R_o along its unit direction d whose end is a rounded punch: a flat disc of radius a_f with its
 edge rounded by e (R_o = a_f + e); a sphere of radius R is the rod with a_f = 0, e = R (a
 ball-ended rod). Let q be the tip's front point on the axis and o = q - e d. The gap of a skin
@@ -24,7 +24,7 @@ tip starts deeper than on that body by up to the surface's sag between nodes, di
 every mesh (the indenter phantom's 8 mm tip: 0.0002-0.019 mm, up to 0.55 % of its force at 5 mm;
 bench/bench_tip_start.py); ``tip_start = "surface"`` starts it where it first touches the
 facets as the geometry curves them instead (``TIP_STARTS``). Each start goes with a contact rule
-and is its default (``meshes.case.tip_start_for``): the nodal rule knows the gap only at the
+and is its default (``model.case.tip_start_for``): the nodal rule knows the gap only at the
 nodes, so a tip started on the surface would travel through the skin until it reached one; a
 Gauss rule samples the facets' interiors, so a tip started on the nodes would start inside
 them, pressing at rest. A push p (mm) moves it to
@@ -137,11 +137,11 @@ import numpy as np
 import ufl
 from mpi4py import MPI
 
-from tissue_reference.meshes.case import CONTACT_RULES, TIP_STARTS, Case, is_contact_rule
-from tissue_reference.meshes.converged_range import UNCONVERGED_RADII, past_converged_depth
-from tissue_reference.meshes.errors import CaseError
-from tissue_reference.meshes.results import SolveResult
-from tissue_reference.meshes.tips import DEFAULT_CONTACT_PENALTY
+from tissue_reference.errors import CaseError
+from tissue_reference.model.case import CONTACT_RULES, TIP_STARTS, Case, is_contact_rule
+from tissue_reference.model.converged_range import UNCONVERGED_RADII, past_converged_depth
+from tissue_reference.model.results import SolveResult
+from tissue_reference.model.tips import DEFAULT_CONTACT_PENALTY
 
 from .contact_geometry import TipShape, gap_ufl, nodal_rule  # noqa: F401  (re-exported)
 from .contact_indenter import (  # noqa: F401  (re-exported)

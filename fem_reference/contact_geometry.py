@@ -2,7 +2,7 @@
 
 Units: length mm.
 
-``gap_ufl``: the gap of ``meshes.tips.TipShape`` (a rounded punch; a sphere is the punch with
+``gap_ufl``: the gap of ``model.tips.TipShape`` (a rounded punch; a sphere is the punch with
 no flat) as a UFL expression of the current position, for the penalty forms. ``TipShape`` (the
 gap in numpy) and ``nodal_rule`` (one quadrature point per displacement node of a contact facet,
 ``meshes.facet_quadrature``) live in the meshes layer, which the fast solvers share; they are
@@ -13,7 +13,7 @@ from __future__ import annotations
 import ufl
 
 from tissue_reference.meshes.facet_quadrature import nodal_rule
-from tissue_reference.meshes.tips import TipShape
+from tissue_reference.model.tips import TipShape
 
 __all__ = ["TipShape", "nodal_rule"]
 

@@ -22,9 +22,9 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from tissue_reference.meshes.case import Actuator, Case
-from tissue_reference.meshes.errors import CaseError
-from tissue_reference.meshes.tips import (
+from tissue_reference.errors import CaseError
+from tissue_reference.model.case import Actuator, Case
+from tissue_reference.model.tips import (
     SLIP_FRACTION,
     START_SAMPLES,
     SURFACE_SAMPLES,
@@ -197,7 +197,7 @@ class Indenter:
 
     def _start(self, a: Actuator, surface=None) -> np.ndarray:
         """The tip's front point at push 0: where it first touches the contact surface's nodes
-        (``meshes.tips.first_touch``); with ``surface`` (mesh, facets, facet-to-cell
+        (``model.tips.first_touch``); with ``surface`` (mesh, facets, facet-to-cell
         connectivity), where it first touches those facets as the geometry curves them
         (TIP_STARTS)."""
         R = self.shape.radius
@@ -219,7 +219,7 @@ class Indenter:
         return self.site + t * self.d
 
     def curvilinear_shift(self, y0: np.ndarray, y1: np.ndarray) -> np.ndarray:
-        """``meshes.tips.curvilinear_shift`` for this tip where the load step puts it: the
+        """``model.tips.curvilinear_shift`` for this tip where the load step puts it: the
         shift (k, gdim) (mm) that bends the straight Newton trial y1 of contact-surface nodes
         at y0 (each (k, gdim), mm) along the tip."""
         return curvilinear_shift(y0, y1, self._origin(), self.d, self.shape.flat,

@@ -22,8 +22,8 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
-from tissue_reference.meshes.case import Case
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
+from tissue_reference.model.case import Case
 
 from .mumps import set_mumps_workspace, solve_mumps
 from .outputs import probe_values

@@ -30,16 +30,16 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_reference.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.builders import build, estimate_cells
 from tissue_reference.meshes.builders_curved import LOCAL_SIZES
-from tissue_reference.meshes.case import Case, load_case
-from tissue_reference.meshes.case_file import case_path
-from tissue_reference.meshes.case_schema import case_schema
-from tissue_reference.meshes.converged_range import unconverged_load
-from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.io import save_figure
 from tissue_reference.meshes.mesh import MeshData
 from tissue_reference.meshes.refine import mesh_hierarchy, projector_for
+from tissue_reference.model.case import Case, load_case
+from tissue_reference.model.case_file import case_path
+from tissue_reference.model.case_schema import case_schema
+from tissue_reference.model.converged_range import unconverged_load
 
 from .richardson import (
     MIN_LEVELS,
@@ -112,7 +112,7 @@ class ConvergenceStudy:
     case_name: str = "case"
     no_converged_value: tuple = ()
     """Why no mesh-converged answer is known at the study's load
-    (``meshes.converged_range.unconverged_load``); then no quantity is extrapolated or given a
+    (``model.converged_range.unconverged_load``); then no quantity is extrapolated or given a
     GCI band."""
     forces: dict = field(default_factory=dict)
     ratio: float = RATIO

@@ -7,9 +7,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from tissue_reference.meshes.case import UNCOUPLED_LAWS, Case, Material
-from tissue_reference.meshes.errors import CaseError
-from tissue_reference.meshes.tips import default_contact_rule, default_tip_start
+from tissue_reference.errors import CaseError
+from tissue_reference.model.case import UNCOUPLED_LAWS, Case, Material
+from tissue_reference.model.tips import default_contact_rule, default_tip_start
 
 __all__ = ["DEFAULT_QUADRATURE", "FORMULATIONS", "MIXED_FROM_NU", "SPLIT_LAWS", "Discretization",
            "checked_degree", "default_degree", "geometry_order", "resolve_formulation"]

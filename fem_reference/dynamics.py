@@ -47,9 +47,9 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from tissue_reference.meshes.case import Case
-from tissue_reference.meshes.errors import CaseError, ConvergenceError
-from tissue_reference.meshes.results import DynamicsResult
+from tissue_reference.errors import CaseError, ConvergenceError
+from tissue_reference.model.case import Case
+from tissue_reference.model.results import DynamicsResult
 
 from .discretization import default_degree, resolve_formulation
 from .jit import compile_form

@@ -28,7 +28,7 @@ import numpy as np
 import ufl
 from petsc4py import PETSc
 
-from tissue_reference.meshes.case import Case, Material
+from tissue_reference.model.case import Case, Material
 
 from .forms import mixed_energy_density, strain_energy_density, volume_measure
 from .jit import compile_form

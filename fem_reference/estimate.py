@@ -66,9 +66,9 @@ import time
 
 import numpy as np
 
-from tissue_reference.meshes.case import Case
-from tissue_reference.meshes.errors import CaseError, ConvergenceError
-from tissue_reference.meshes.results import SolveResult
+from tissue_reference.errors import CaseError, ConvergenceError
+from tissue_reference.model.case import Case
+from tissue_reference.model.results import SolveResult
 
 from .dof_counts import entity_counts, predicted_dofs
 from .kept import solver_for

@@ -4,10 +4,10 @@ Neo-Hookean:  psi = mu/2 (Ibar1 - 3) + kappa/2 G(J)^2,  with the volume-change m
 G(J) = J - 1 (``volumetric = "quadratic"``, seed 000 eq. 14) or G(J) = ln J (``"log"``),
 Ibar1 = J^(-2/3) tr C,  C = F^T F,  J = det F,  mu = E / (2 (1 + nu)),  kappa = E / (3 (1 - 2 nu)).
 Both laws agree to first order at J = 1; under strong compression the quadratic one's pressure
-is bounded by kappa (``meshes.case_parts.Material``), the log one's is not.
+is bounded by kappa (``model.case_parts.Material``), the log one's is not.
 Mooney-Rivlin:  psi = c1 (Ibar1 - 3) + c2 (Ibar2 - 3) + kappa/2 G(J)^2,
 Yeoh:           psi = c1 (Ibar1 - 3) + c2 (Ibar1 - 3)^2 + c3 (Ibar1 - 3)^3 + kappa/2 G(J)^2,
-with Ibar2 = J^(-4/3) ((tr C)^2 - tr C^2) / 2 and kappa = k (``meshes.case_parts.Material``).
+with Ibar2 = J^(-4/3) ((tr C)^2 - tr C^2) / 2 and kappa = k (``model.case_parts.Material``).
 Stable Neo-Hookean (Smith et al. 2018):  psi = mu/2 (tr C - 3) + lambda'/2 (J - 1 - mu/lambda')^2
 - mu^2 / (2 lambda'),  lambda' = lambda + mu.
 St Venant-Kirchhoff:  psi = lambda/2 (tr Eg)^2 + mu Eg:Eg,  Eg = (C - I) / 2.
@@ -67,7 +67,7 @@ def _invariants(F):
 
 
 def isochoric_energy(F, model: str, mu, coefficients=None):
-    """(W, J): the isochoric energy of an uncoupled law (``meshes.case_parts.UNCOUPLED_LAWS``)
+    """(W, J): the isochoric energy of an uncoupled law (``model.case_parts.UNCOUPLED_LAWS``)
     of Ibar1 = J^(-2/3) I1 and Ibar2 = J^(-4/3) I2 (module docstring); ``mu`` serves the
     Neo-Hookean law, ``coefficients`` (c1, c2, c3 by name) the others."""
     I1, I2, J = _invariants(F)
@@ -132,7 +132,7 @@ def linear_elastic_psi(F, mu, lmbda):
 
 def strain_energy_density(u, model: str, mu, kappa, lmbda, volumetric: str = "quadratic",
                           coefficients=None):
-    """psi(F(u)) for ``model`` (``meshes.case_parts.MATERIAL_MODELS``; the uncoupled laws with
+    """psi(F(u)) for ``model`` (``model.case_parts.MATERIAL_MODELS``; the uncoupled laws with
     the ``volumetric`` law, Mooney-Rivlin and Yeoh with ``coefficients``: module docstring);
     also returns F (a variable)."""
     gdim = u.ufl_shape[0]

@@ -28,9 +28,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from tissue_reference.meshes.case import Case
-from tissue_reference.meshes.errors import CaseError
-from tissue_reference.meshes.results import SolveResult
+from tissue_reference.errors import CaseError
+from tissue_reference.model.case import Case
+from tissue_reference.model.results import SolveResult
 
 from .jit import compile_form
 from .transfer import dolfinx_cells, field

@@ -19,7 +19,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from tissue_reference.meshes.case import Case
+from tissue_reference.model.case import Case
 
 from .contact import contact_key
 from .discretization import Discretization

@@ -12,7 +12,7 @@ import dolfinx.fem
 from dolfinx.la import orthonormalize
 from petsc4py import PETSc
 
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 
 from .factor import quiet_c_output
 from .mumps import grown_mumps_workspace, mumps_failure, set_mumps_workspace, solve_mumps

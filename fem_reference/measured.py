@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import dataclasses
 
-from tissue_reference.meshes.case import Case
-from tissue_reference.meshes.results import SolveResult
-from tissue_reference.meshes.tips import default_contact_rule, default_tip_start
+from tissue_reference.model.case import Case
+from tissue_reference.model.results import SolveResult
+from tissue_reference.model.tips import default_contact_rule, default_tip_start
 
 from .discretization import default_degree
 

@@ -50,7 +50,7 @@ class OgdenFields:
         Its displacement (``x`` itself, or its first part).
     degree : int
         The quadrature degree of the forms.
-    material : tissue_reference.meshes.case.Material
+    material : tissue_reference.model.case.Material
         An Ogden material (its ``ogden_mu`` and ``ogden_alpha``).
     """
 
@@ -88,7 +88,7 @@ class OgdenFields:
 
         Parameters
         ----------
-        material : tissue_reference.meshes.case.Material
+        material : tissue_reference.model.case.Material
             An Ogden material.
         """
         law = OgdenIsochoric(material.ogden_mu, material.ogden_alpha)

@@ -13,10 +13,10 @@ import dolfinx.geometry
 import numpy as np
 from petsc4py import PETSc
 
-from tissue_reference.meshes.case import Case
 from tissue_reference.meshes.mesh import deformation_state
-from tissue_reference.meshes.results import SolveResult
-from tissue_reference.meshes.tips import through_surface_state
+from tissue_reference.model.case import Case
+from tissue_reference.model.results import SolveResult
+from tissue_reference.model.tips import through_surface_state
 
 from .field_jacobian import cell_min_J
 

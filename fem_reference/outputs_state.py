@@ -17,8 +17,8 @@ import ufl
 from petsc4py import PETSc
 from scipy.spatial import cKDTree
 
-from tissue_reference.meshes.errors import CaseError
-from tissue_reference.meshes.results import SolveResult
+from tissue_reference.errors import CaseError
+from tissue_reference.model.results import SolveResult
 
 from .forms import volume_measure
 from .jit import compile_form

@@ -14,7 +14,7 @@ import dolfinx.fem.petsc
 import numpy as np
 import scipy.sparse as sp
 
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 
 __all__ = ["Tangent", "internal_forces", "tangent"]
 

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 
 __all__ = [
     "MIN_LEVELS",

@@ -39,10 +39,10 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from tissue_reference.meshes.case import Case
-from tissue_reference.meshes.errors import CaseError, ConvergenceError
-from tissue_reference.meshes.results import SolveResult
-from tissue_reference.meshes.tips import default_contact_rule, default_tip_start
+from tissue_reference.errors import CaseError, ConvergenceError
+from tissue_reference.model.case import Case
+from tissue_reference.model.results import SolveResult
+from tissue_reference.model.tips import default_contact_rule, default_tip_start
 
 from .boundary import Boundary
 from .contact import DEFAULT_CONTACT_PENALTY, Contact

@@ -18,8 +18,8 @@ import dataclasses
 import numpy as np
 from scipy.spatial import cKDTree
 
-from tissue_reference.meshes.errors import CaseError
-from tissue_reference.meshes.results import SolveResult
+from tissue_reference.errors import CaseError
+from tissue_reference.model.results import SolveResult
 
 __all__ = ["WARM_LINE_SEARCH", "dolfinx_cells", "field", "match_points", "prolong", "warm_settings"]
 

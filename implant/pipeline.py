@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tissue_reference.meshes.case import Material
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.mesh import MeshData
+from tissue_reference.model.case import Material
 from tissue_reference.solvers import mass_tensor as mt
 
 from .library import ImplantSpec, implant_mesh

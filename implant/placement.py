@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.mesh import MeshData, boundary_facets
 
 from .library import ImplantSpec

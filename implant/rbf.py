@@ -19,7 +19,7 @@ import numpy as np
 from scipy.linalg import solve
 from scipy.spatial.distance import cdist
 
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 
 from .surface import TriSurface, triangle_normals, vertex_normals
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 
 from .surface import closest_points
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 import tissue_reference
-from tissue_reference.meshes.errors import WriteError
+from tissue_reference.errors import WriteError
 from tissue_reference.meshes.io import atomic_path, save_figure
 
 __all__ = ["render_distance_png", "write_surface_vtu"]

@@ -14,7 +14,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from tissue_reference.meshes.errors import CaseError, ReadError
+from tissue_reference.errors import CaseError, ReadError
 
 __all__ = [
     "SURFACE_SUFFIXES",

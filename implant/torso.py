@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.builders import finish, gmsh_session
-from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.mesh import MeshData, check_cells
 
 from .rbf import Thickness

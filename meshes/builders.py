@@ -35,6 +35,8 @@ import math
 
 import numpy as np
 
+from tissue_reference.errors import CaseError
+
 from .builders_blocks import (
     INDENT_BLOCK,
     IndentBlock,
@@ -63,7 +65,6 @@ from .builders_curved import (  # noqa: F401  (re-exported)
     shell_octant,
 )
 from .builders_gmsh import GMSH_STATE, finish, gmsh_session  # noqa: F401  (re-exported)
-from .errors import CaseError
 from .mesh import MeshData
 from .mesh_cache import cached
 from .projection import DomeProjection, ShellProjection

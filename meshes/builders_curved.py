@@ -19,9 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tissue_reference.errors import CaseError
+
 from . import builders_gmsh
 from .builders_gmsh import finish
-from .errors import CaseError
 from .mesh import MeshData, quality
 from .mirror import mirror
 from .projection import dome_side_point

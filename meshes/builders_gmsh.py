@@ -18,7 +18,8 @@ import math
 import tempfile
 from pathlib import Path
 
-from .errors import CaseError
+from tissue_reference.errors import CaseError
+
 from .io import atomic_path, read_msh
 from .mesh import MeshData
 

@@ -12,7 +12,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from .errors import WriteError
+from tissue_reference.errors import WriteError
 
 __all__ = ["atomic_path", "check_output_dir", "check_output_file", "save_figure",
            "user_cache_root"]

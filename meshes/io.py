@@ -9,8 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_reference.errors import ReadError
+
 from .curved import from_high_order_cells, validate
-from .errors import ReadError
 from .files import (
     atomic_path,
     check_output_dir,

@@ -10,7 +10,7 @@ from functools import cached_property
 import numpy as np
 import scipy.sparse as sp
 
-from .errors import CaseError, MeshQualityError
+from tissue_reference.errors import CaseError, MeshQualityError
 
 __all__ = ["EdgeTopology", "MeshData", "MeshQuality", "boundary_facets", "cell_jacobians",
            "cell_pairs", "cell_volumes", "check_cell_ids", "check_cells", "check_tangles",

@@ -23,7 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import WriteError
+from tissue_reference.errors import WriteError
+
 from .io import atomic_path, user_cache_root
 from .mesh import MeshData
 

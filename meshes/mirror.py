@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import CaseError
+from tissue_reference.errors import CaseError
+
 from .mesh import MeshData
 
 __all__ = ["mirror"]

@@ -30,9 +30,10 @@ from dataclasses import replace
 
 import numpy as np
 
+from tissue_reference.errors import CaseError, MeshQualityError
+
 from .builders import projector_for
 from .curved import validate
-from .errors import CaseError, MeshQualityError
 from .mesh import MeshData, boundary_facets, check_cells, orient_cells
 from .projection import DomeProjection, ShellProjection  # noqa: F401 (re-exported)
 

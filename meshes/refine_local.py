@@ -44,8 +44,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from tissue_reference.errors import CaseError, MeshQualityError
+
 from .curved import validate
-from .errors import CaseError, MeshQualityError
 from .mesh import MeshData, cell_volumes, check_cells
 from .refine import boundary_edges, edge_keys, harmonic_extension
 

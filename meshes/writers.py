@@ -19,8 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_reference.errors import WriteError
+
 from .curved import EDGES, FACET_EDGES, MESHIO_EDGES, p2_cells, p2_facets
-from .errors import WriteError
 from .files import atomic_path, os_reason
 from .mesh import MeshData
 

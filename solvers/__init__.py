@@ -2,15 +2,15 @@
 solver, the reference included, with one face: ``solvers.registry``.
 
 Every registered ``solve(case, *, pushes=None, initial=None, callback=None, progress=False, ...)``
-returns a ``meshes.results.SolveResult``; every module also has ``require_modeled(case)``, which
-raises ``meshes.errors.NotModeledError`` for a problem its solver does not model. Modules are imported on first use (importing this
+returns a ``model.results.SolveResult``; every module also has ``require_modeled(case)``, which
+raises ``errors.NotModeledError`` for a problem its solver does not model. Modules are imported on first use (importing this
 package stays cheap); a module that cannot be imported raises ImportError from ``get_solver``.
 """
 from __future__ import annotations
 
 import importlib
 
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 
 from .registry import entries
 

@@ -12,7 +12,7 @@ y_p = X_p + S_p u (S_p: the facet's P1 shape functions at the point):
     Pi_c(u) = sum_p W_p k_p phi(-g(y_p)),
     phi(x) = 0 (x <= 0), x^3 / (6 eps) (x < eps), x^2 / 2 - eps x / 2 + eps^2 / 6 (x >= eps),
 
-g the tip's gap (``meshes.tips``) with the tip where its push puts it. ``ContactSet`` holds the
+g the tip's gap (``model.tips``) with the tip where its push puts it. ``ContactSet`` holds the
 points of a Case's indenters (built once per Case structure: the pushes are not part of it), the
 energy, its gradient, its exact Hessian (with the tips' curvature, or without it: positive
 semi-definite), the derivative of the contact forces by the pushes and the report of each tip as
@@ -29,10 +29,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from tissue_reference.meshes.case import CONTACT_RULES, TIP_STARTS, is_contact_rule
-from tissue_reference.meshes.errors import CaseError, NotModeledError
+from tissue_reference.errors import CaseError, NotModeledError
 from tissue_reference.meshes.facet_quadrature import facet_rule
-from tissue_reference.meshes.tips import (
+from tissue_reference.model.case import CONTACT_RULES, TIP_STARTS, is_contact_rule
+from tissue_reference.model.tips import (
     DEFAULT_CONTACT_PENALTY,
     START_SAMPLES,
     SURFACE_SAMPLES,

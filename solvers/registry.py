@@ -1,5 +1,5 @@
 """Every built-in solver, the reference among them, as one ``SolverEntry`` with the same face:
-``solve`` (a ``meshes.results.SolveResult``), ``settings`` (what a solve ran with, JSON-ready),
+``solve`` (a ``model.results.SolveResult``), ``settings`` (what a solve ran with, JSON-ready),
 ``describe`` (what it computes on a Case as a control plant, model or Jacobian's solver) and,
 where it has one, ``simulate`` (implicit-Euler dynamics). ``solver(name)`` looks one up;
 ``names()`` lists them for the command line's ``--solver`` choices.
@@ -14,7 +14,7 @@ import importlib
 import inspect
 from dataclasses import dataclass
 
-from tissue_reference.meshes.errors import CaseError, NotModeledError
+from tissue_reference.errors import CaseError, NotModeledError
 
 __all__ = ["SolverEntry", "control_names", "dynamics_names", "entries", "is_reference", "names",
            "reference", "solver"]
@@ -212,7 +212,7 @@ class SolverEntry:
                  formulation: str = "auto", mass: str = "lumped", ramp_steps: int = 0,
                  progress: bool = False):
         """``steps`` implicit-Euler steps of ``dt`` (s) of ``case`` under ``pushes`` (name ->
-        mm); a ``meshes.results.DynamicsResult``. ``degree``, ``formulation``, ``mass`` and
+        mm); a ``model.results.DynamicsResult``. ``degree``, ``formulation``, ``mass`` and
         ``ramp_steps`` are the reference's: a fast solver runs P1 with the lumped mass and the
         Dirichlet values in full from the first step, and refuses anything else.
 

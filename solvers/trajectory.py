@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from tissue_reference.meshes.results import DynamicsResult
+from tissue_reference.model.results import DynamicsResult
 
 from . import admm
 
@@ -18,7 +18,7 @@ __all__ = ["admm_trajectory"]
 def admm_trajectory(case, *, dt: float, steps: int, progress: bool = False, **options):
     """The ADMM's implicit Euler (``solvers.admm.solve`` with ``ImplicitEuler``), one call per
     step carrying its state and velocity (the same arithmetic as one ``steps``-step call), as a
-    ``meshes.results.DynamicsResult`` (lumped mass, kg; dt in s; mm, mm/s, uJ), the form the
+    ``model.results.DynamicsResult`` (lumped mass, kg; dt in s; mm, mm/s, uJ), the form the
     reference's ``fem_reference.dynamics.simulate`` returns. ``options`` go to ``admm.solve``
     (e.g. ``factorize=fem_reference.cholmod_factor`` for the Newton polish)."""
     t0 = time.perf_counter()

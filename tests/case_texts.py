@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from tissue_reference.meshes.case import load_case
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
+from tissue_reference.model.case import load_case
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = sorted((ROOT / "meshes" / "cases").glob("*.toml"))

@@ -5,8 +5,8 @@ import sys
 import pytest
 from case_texts import COARSE
 
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes import builders
-from tissue_reference.meshes.errors import CaseError
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -68,8 +68,8 @@ def jacobian_column_error(case, actuator: str, push: float, h: float = 0.01) -> 
 def refuse_warm_starts(monkeypatch):
     """Make every warm-started reference solve (``initial`` given) raise ConvergenceError, as
     Newton from an interpolated answer can on hard problems; solves from rest are untouched."""
+    from tissue_reference.errors import ConvergenceError
     from tissue_reference.fem_reference.solver import ReferenceSolver
-    from tissue_reference.meshes.errors import ConvergenceError
 
     solve = ReferenceSolver.solve
 

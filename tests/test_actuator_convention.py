@@ -8,8 +8,8 @@ import pytest
 from fem_checks import jacobian_column_error
 
 import tissue_reference.fem_reference as fr
-from tissue_reference.meshes.case import load_case
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
+from tissue_reference.model.case import load_case
 
 CASE = "meshes/cases/phantom.toml"
 # the loops' task (mm): small enough that no push, open loop included, passes the glued
@@ -63,7 +63,7 @@ def test_a_case_file_may_free_its_patches_and_indenters_take_no_idle(tmp_path):
     c = load_case(free)
     assert c.actuator("A1").idle == "free"
     assert [a.idle for a in c.actuators][1:] == ["held"] * 3
-    from tissue_reference.meshes.case import Actuator
+    from tissue_reference.model.case import Actuator
 
     with pytest.raises(CaseError, match="idle only for a patch"):
         Actuator("I", "skin", (1, 0, 0), type="indenter", tip="sphere", radius=5.0, idle="free")

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 import tissue_reference.fem_reference as fr
+from tissue_reference.errors import CaseError, ConvergenceError
 from tissue_reference.fem_reference.adapt import AccuracyNotReached, solve_to_accuracy
 from tissue_reference.fem_reference.dof_counts import entity_counts, predicted_dofs, refined_counts
 from tissue_reference.meshes.builders import box, cook_membrane
-from tissue_reference.meshes.case import Actuator, Boundary, Case, Material, Probe
-from tissue_reference.meshes.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.refine import refine_uniform
+from tissue_reference.model.case import Actuator, Boundary, Case, Material, Probe
 
 
 def cook(size=8.0):

@@ -7,10 +7,10 @@ import pytest
 import scipy.sparse.linalg as spla
 from fem_checks import central_differences, linear_p1_stiffness
 
+from tissue_reference.errors import SolverDivergedError
 from tissue_reference.meshes.builders import box
-from tissue_reference.meshes.case import Boundary, Case, Material, load_case
-from tissue_reference.meshes.errors import SolverDivergedError
 from tissue_reference.meshes.mesh import cell_volumes
+from tissue_reference.model.case import Boundary, Case, Material, load_case
 from tissue_reference.solvers import admm
 from tissue_reference.solvers.admm import amg, operators, polisher
 

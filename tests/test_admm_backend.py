@@ -13,9 +13,9 @@ import types
 import numpy as np
 import pytest
 
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.builders import box, rectangle
-from tissue_reference.meshes.case import Boundary, Case, Material, load_case
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.model.case import Boundary, Case, Material, load_case
 from tissue_reference.solvers import admm
 from tissue_reference.solvers.admm import backends, kernel_array, operators
 from tissue_reference.tissue.cli import main

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.builders import box
-from tissue_reference.meshes.case import Boundary, Case, Material, load_case
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.model.case import Boundary, Case, Material, load_case
 from tissue_reference.solvers import admm
 from tissue_reference.solvers.admm import chord as chord_module
 
@@ -107,7 +107,7 @@ def test_chord_polish_is_refused_in_dynamics():
 def _tip_block():
     """The quarter block under a sphere of test_admm_contact (cells of 0.5 mm under the tip)."""
     from tissue_reference.meshes.builders import indent_block
-    from tissue_reference.meshes.case import Actuator
+    from tissue_reference.model.case import Actuator
     a = Actuator("I", "tip", (0.0, 0.0, -1.0), type="indenter", tip="sphere",
                  point=(0.0, 0.0, 0.0), contact_region="top", radius=2.0)
     return Case(indent_block(0.5), Material("neo-hookean", 6.0, 0.45, density=1e-6),

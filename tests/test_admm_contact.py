@@ -13,11 +13,11 @@ from tissue_reference.control.fast_model import FastModel
 from tissue_reference.control.jacobian import admm_indenter_jacobian, fd_jacobian, max_rel_error
 from tissue_reference.control.loop import LoopSettings, run_closed_loop
 from tissue_reference.control.plants import PRESS_WIDTHS, build_loop
+from tissue_reference.errors import CaseError
 from tissue_reference.fem_reference.dynamics import simulate
 from tissue_reference.meshes.builders import indent_block
-from tissue_reference.meshes.case import Actuator, Boundary, Case, Material, Probe
-from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.facet_quadrature import gauss_rule, nodal_rule
+from tissue_reference.model.case import Actuator, Boundary, Case, Material, Probe
 from tissue_reference.solvers import admm
 from tissue_reference.solvers.admm import ImplicitEuler
 

@@ -7,7 +7,7 @@ import pytest
 import scipy.sparse as sp
 
 from tissue_reference.meshes.builders import box, rectangle
-from tissue_reference.meshes.case import Boundary, Case, Material
+from tissue_reference.model.case import Boundary, Case, Material
 from tissue_reference.solvers import admm, ckernel
 from tissue_reference.solvers.admm import amg, factor, kernel_array, kernel_c, mechanics, operators
 

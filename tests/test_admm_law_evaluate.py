@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from test_laws import LAWS
 
-from tissue_reference.meshes.case import Material
+from tissue_reference.model.case import Material
 from tissue_reference.solvers.admm.mechanics import ADMM_LAWS, Law
 
 RTOL = 1e-12

@@ -11,8 +11,8 @@ import pytest
 from scipy.optimize import brentq
 from test_laws import GRADIENTS, LAWS, _stretched_block, piola_formula
 
-from tissue_reference.meshes.case import Material
-from tissue_reference.meshes.errors import CaseError, NotModeledError
+from tissue_reference.errors import CaseError, NotModeledError
+from tissue_reference.model.case import Material
 from tissue_reference.solvers.admm.mechanics import ADMM_LAWS, InvariantLaw, Law
 
 NEW_LAWS = [m for m in LAWS if m not in ("neo-hookean", "linear-elastic")]
@@ -74,8 +74,8 @@ def test_admm_stretches_the_block_to_the_formulas_uniaxial_answer(model):
 @pytest.fixture(scope="module")
 def phantom():
     from tissue_reference.meshes.builders import build
-    from tissue_reference.meshes.case import load_case
-    from tissue_reference.meshes.case_file import case_path
+    from tissue_reference.model.case import load_case
+    from tissue_reference.model.case_file import case_path
 
     return load_case(case_path("phantom"), mesh=build("phantom", 10.0))
 

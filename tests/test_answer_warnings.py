@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 
 import tissue_reference.fem_reference as fr
-from tissue_reference.meshes.answer_warnings import (
+from tissue_reference.errors import TissueWarning
+from tissue_reference.model.answer_warnings import (
     FOLDED_ADVICE,
     answer_concerns,
     estimate_warning,
 )
-from tissue_reference.meshes.case import load_case
-from tissue_reference.meshes.errors import TissueWarning
-from tissue_reference.meshes.results import SolveResult
+from tissue_reference.model.case import load_case
+from tissue_reference.model.results import SolveResult
 from tissue_reference.tissue.cli import main
 
 

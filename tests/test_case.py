@@ -6,11 +6,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tissue_reference.errors import CaseError, ConvergenceError, MeshQualityError, ReadError
 from tissue_reference.meshes.builders import box, phantom
-from tissue_reference.meshes.case import Boundary, Case, Material, load_case
-from tissue_reference.meshes.errors import CaseError, ConvergenceError, MeshQualityError, ReadError
 from tissue_reference.meshes.io import read_msh, write_mesh
 from tissue_reference.meshes.mesh import MeshData
+from tissue_reference.model.case import Boundary, Case, Material, load_case
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -17,9 +17,9 @@ from case_texts import (
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from tissue_reference.errors import CaseError, CaseReadError
 from tissue_reference.meshes import builders
-from tissue_reference.meshes.case import BOUNDARY_TYPES, MATERIAL_MODELS, Case, load_case
-from tissue_reference.meshes.errors import CaseError, CaseReadError
+from tissue_reference.model.case import BOUNDARY_TYPES, MATERIAL_MODELS, Case, load_case
 
 KEYS = ["name", "mesh", "file", "builtin", "size", "material", "model", "E", "nu", "density",
         "boundary", "region", "type", "value", "components", "gradient", "offset", "normal",

@@ -19,8 +19,9 @@ from case_texts import (
     message,
 )
 
+from tissue_reference.errors import CaseError, CaseReadError, ReadError
 from tissue_reference.meshes import builders
-from tissue_reference.meshes.case import (
+from tissue_reference.model.case import (
     ACTUATOR_TYPES,
     BOUNDARY_TYPES,
     CONTACT_TYPES,
@@ -30,10 +31,9 @@ from tissue_reference.meshes.case import (
     Actuator,
     load_case,
 )
-from tissue_reference.meshes.case_doc import case_file_markdown
-from tissue_reference.meshes.case_file import PROBE_TOLERANCE
-from tissue_reference.meshes.case_schema import SCHEMA_PATH, case_schema, schema_errors
-from tissue_reference.meshes.errors import CaseError, CaseReadError, ReadError
+from tissue_reference.model.case_doc import case_file_markdown
+from tissue_reference.model.case_file import PROBE_TOLERANCE
+from tissue_reference.model.case_schema import SCHEMA_PATH, case_schema, schema_errors
 
 
 # --------------------------------------------------------------------------- the schema itself
@@ -78,8 +78,8 @@ def test_schema_enums_follow_the_code():
 
 
 def test_schema_defaults_are_the_code_defaults():
-    from tissue_reference.meshes.case import Boundary, Material
-    from tissue_reference.meshes.case_parts import OGDEN_FIELDS
+    from tissue_reference.model.case import Boundary, Material
+    from tissue_reference.model.case_parts import OGDEN_FIELDS
 
     material = case_schema()["properties"]["material"]["properties"]
     defaults = {k: v["default"] for k, v in material.items() if "default" in v}
@@ -92,7 +92,7 @@ def test_schema_defaults_are_the_code_defaults():
 
 def test_schema_ships_as_package_data():
     pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    assert SCHEMA_PATH.name in pyproject["tool"]["setuptools"]["package-data"]["tissue_reference.meshes"]
+    assert SCHEMA_PATH.name in pyproject["tool"]["setuptools"]["package-data"]["tissue_reference.model"]
     assert "jsonschema" in " ".join(pyproject["project"]["dependencies"])
 
 

@@ -357,7 +357,7 @@ def test_atomic_path_removes_its_temporary_on_any_exception(tmp_path, error):
 
 
 def test_atomic_path_onto_a_directory_is_a_write_error_without_temporaries(tmp_path):
-    from tissue_reference.meshes.errors import WriteError
+    from tissue_reference.errors import WriteError
 
     (tmp_path / "d").mkdir()
     with pytest.raises(WriteError, match="is a directory"), atomic_path(tmp_path / "d") as tmp:

@@ -28,9 +28,9 @@ from scipy.integrate import quad
 from scipy.optimize import brentq
 
 import tissue_reference.fem_reference as fr
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.builders import indent_block
-from tissue_reference.meshes.case import Actuator, Boundary, Case, Material
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.model.case import Actuator, Boundary, Case, Material
 
 CASES = Path(__file__).resolve().parents[1] / "meshes" / "cases"
 
@@ -223,7 +223,7 @@ def test_a_failed_push_keeps_the_last_converged_state_with_its_tip(block):
     """When Newton gives up, the last converged state is reported with the tip where that state
     was solved, converged as an answer: its push and force are those of a solve to that push,
     not of the failed try."""
-    from tissue_reference.meshes.errors import ConvergenceError
+    from tissue_reference.errors import ConvergenceError
 
     case = quarter_case(block, sphere(10.0))
     # few Newton iterations and few cut-backs: the first load steps converge (to their loose
@@ -291,7 +291,7 @@ def test_the_shifted_tangent_and_the_fitted_step_lengths_reach_the_same_answer()
     forces and field as plain halving with the exact tangent."""
 
     from tissue_reference.meshes.builders import build
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     case = load_case(CASES / "phantom-indenter-quarter.toml",
                      mesh=build("phantom-quarter", 8.0, site_size=3.2))

@@ -23,9 +23,9 @@ import numpy as np
 import pytest
 
 import tissue_reference.fem_reference as fr
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.builders import indent_block
-from tissue_reference.meshes.case import Actuator, Boundary, Case, Material, load_case
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.model.case import Actuator, Boundary, Case, Material, load_case
 
 E, NU = 6.0, 0.45
 E_STAR = E / (1 - NU ** 2)

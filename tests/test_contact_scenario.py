@@ -15,10 +15,10 @@ from tissue_reference.control.scenarios import (
     scenario_loop,
     skin_region,
 )
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.builders import box
-from tissue_reference.meshes.case import Actuator, Boundary, Case, Material, Probe
-from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.mesh import MeshData
+from tissue_reference.model.case import Actuator, Boundary, Case, Material, Probe
 
 DISC_MM = 3.0                                   # radius of the patches carved in the block
 SITES = {"pX": (10.0, 5.0, 5.5), "pY": (5.0, 10.0, 5.5)}
@@ -87,7 +87,7 @@ def test_the_derived_plant_replaces_each_patch_by_a_sphere_of_the_patch_area(blo
 
 
 def test_the_phantoms_skin_is_found_without_naming_it():
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     phantom = load_case("meshes/cases/phantom.toml", size=14)
     assert skin_region(phantom) == "skin"
@@ -282,7 +282,7 @@ def test_a_contact_plant_too_coarse_for_its_tips_is_refused_before_any_loop():
     scenario says so once, with the remedy, instead of failing every loop on its first step."""
     from pathlib import Path
 
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     case = load_case(Path(__file__).resolve().parents[1] / "meshes" / "cases" / "phantom.toml")
     with pytest.raises(CaseError, match=r"plant .*cannot start.*between the nodes.*--contact-plant"):
@@ -297,7 +297,7 @@ def test_the_shipped_control_plant_starts_valid_and_fits_the_phantom():
     derived from the glued phantom is not (the test above)."""
     from pathlib import Path
 
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     cases = Path(__file__).resolve().parents[1] / "meshes" / "cases"
     model = load_case(cases / "phantom.toml", size=10)

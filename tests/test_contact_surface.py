@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import tissue_reference.fem_reference as fr
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.builders import box, estimate_cells
-from tissue_reference.meshes.case import Actuator, Boundary, Case, Material
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.model.case import Actuator, Boundary, Case, Material
 
 R = 1.0
 

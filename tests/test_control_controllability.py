@@ -14,7 +14,7 @@ from tissue_reference.control.controllability import (
     task_goal,
 )
 from tissue_reference.control.jacobian import dirichlet_jacobian
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 
 AXES2 = np.array([[1.0, 0, -1, 0], [0, 1, 0, -1]])
 TRI = np.array([[np.cos(a), np.sin(a)] for a in np.radians([90, 210, 330])]).T

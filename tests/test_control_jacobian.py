@@ -13,7 +13,7 @@ from tissue_reference.control.jacobian import (
     point_matrix,
     probe_matrix,
 )
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 
 
 @pytest.fixture(scope="module")

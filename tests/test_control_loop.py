@@ -15,7 +15,7 @@ from tissue_reference.control.loop import (
     run_closed_loop,
 )
 from tissue_reference.control.mpc import MPCSettings
-from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.errors import CaseError, ConvergenceError
 
 
 @pytest.fixture(scope="module")
@@ -465,10 +465,10 @@ def test_a_failed_warm_start_is_retried_cold_and_recorded(setup):
 def test_a_converged_but_folded_plant_state_is_not_measured():
     """A plant answer marked invalid (inverted cells) fails the step instead of being measured."""
     from tissue_reference.control.loop import check_prescribed
+    from tissue_reference.errors import ConvergenceError
     from tissue_reference.meshes.builders import box
-    from tissue_reference.meshes.case import Boundary, Case
-    from tissue_reference.meshes.errors import ConvergenceError
-    from tissue_reference.meshes.results import SolveResult
+    from tissue_reference.model.case import Boundary, Case
+    from tissue_reference.model.results import SolveResult
 
     mesh = box(5.0)
     case = Case(mesh=mesh, boundaries=[Boundary("zmin", "fixed")], name="folded")

@@ -6,7 +6,7 @@ from scipy.optimize import lsq_linear
 
 from tissue_reference.control.controllability import inverse_push
 from tissue_reference.control.mpc import MPCSettings, PushOnlyMPC, quiet_qpoases
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 
 RNG = np.random.default_rng(7)
 J = np.array([[-0.13, 0.005, 0.125, 0.001],

@@ -9,9 +9,9 @@ import numpy as np
 import scipy.sparse.linalg as spla
 from fem_checks import linear_p1_stiffness as _p1_stiffness
 
-from tissue_reference.meshes.case import Actuator, Boundary, Case, Material, Probe, load_case
 from tissue_reference.meshes.mesh import MeshData
-from tissue_reference.meshes.results import SolveResult
+from tissue_reference.model.case import Actuator, Boundary, Case, Material, Probe, load_case
+from tissue_reference.model.results import SolveResult
 
 PHANTOM = "meshes/cases/phantom.toml"
 PHANTOM3 = "meshes/cases/phantom-3.toml"

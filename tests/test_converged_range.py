@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 import tissue_reference.fem_reference as fr
+from tissue_reference.errors import CaseError
 from tissue_reference.fem_reference.adapt import solve_to_accuracy
-from tissue_reference.meshes.case import RIM_J_WARN, Actuator, Case, load_case
-from tissue_reference.meshes.case_variants import GLUED_CONVERGED_RADII, patch_radius
-from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.mesh import MeshData
+from tissue_reference.model.case import RIM_J_WARN, Actuator, Case, load_case
+from tissue_reference.model.case_variants import GLUED_CONVERGED_RADII, patch_radius
 from tissue_reference.tissue.cli import main
 
 CASE = "meshes/cases/phantom.toml"
@@ -164,7 +164,7 @@ def test_the_rim_warning_reads_a_degree_2_fields_own_J(monkeypatch):
     straight cell's through the vertex displacements. At A1 = 4 mm on the coarse phantom the
     field's smallest rim J (0.46) is below the vertex one (0.62); with the threshold set between
     them, only a warning that reads the field fires."""
-    import tissue_reference.meshes.case_variants as variants
+    import tissue_reference.model.case_variants as variants
     from tissue_reference.meshes.mesh import cell_jacobians
 
     c = load_case(CASE, size=14.0)

@@ -9,6 +9,7 @@ import pytest
 import ufl
 from scipy.integrate import quad
 
+from tissue_reference.errors import MeshQualityError
 from tissue_reference.fem_reference.convergence import (
     assess,
     gci,
@@ -18,10 +19,9 @@ from tissue_reference.fem_reference.convergence import (
     study_to_json,
 )
 from tissue_reference.meshes.builders import PHANTOM, box, phantom, rectangle
-from tissue_reference.meshes.case import Boundary, Case, Material, Probe
-from tissue_reference.meshes.errors import MeshQualityError
 from tissue_reference.meshes.mesh import MeshData
 from tissue_reference.meshes.refine import projector_for, refine_uniform
+from tissue_reference.model.case import Boundary, Case, Material, Probe
 from tissue_reference.tissue.cli import main
 
 
@@ -373,7 +373,7 @@ def test_a_p2_study_of_the_thick_sphere_converges_at_order_three_to_the_radial_o
     radial equilibrium ODE (an independent answer) within 1e-4. On straight-sided levels the
     faceted surface held the order near 2 (2.17 measured), out of the asymptotic range."""
     from tissue_reference.fem_reference.convergence import run_study
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
     from tissue_reference.verification.closed_forms import thick_sphere
 
     m = load_case("thick-sphere").material

@@ -1,4 +1,4 @@
-"""The curvilinear trials of the contact Newton (``meshes.tips.curvilinear_shift``, used by
+"""The curvilinear trials of the contact Newton (``model.tips.curvilinear_shift``, used by
 ``fem_reference.contact.Contact.follow_tips``) against the geometry of a sphere written here:
 a point at distance r from the sphere's centre o has the gap r - R, and a straight step s
 perpendicular to o-y0 takes it to the distance sqrt(r^2 + s^2). Units: mm."""
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from tissue_reference.meshes.tips import SHORT_STEP, curvilinear_shift
+from tissue_reference.model.tips import SHORT_STEP, curvilinear_shift
 
 R = 5.0
 O = np.zeros(3)

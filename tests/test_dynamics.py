@@ -16,10 +16,10 @@ import scipy.linalg as sla
 from fem_checks import linear_p1_stiffness
 
 import tissue_reference.fem_reference as fr
+from tissue_reference.errors import CaseError, ConvergenceError
 from tissue_reference.fem_reference.dynamics import simulate
 from tissue_reference.meshes.builders import box
-from tissue_reference.meshes.case import Boundary, Case, Material
-from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.model.case import Boundary, Case, Material
 from tissue_reference.solvers import admm
 
 G = 9810.0  # mm/s^2

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import tissue_reference.fem_reference as fr
+from tissue_reference.errors import CaseError
 from tissue_reference.fem_reference.estimate import (
     ESTIMATE_METHOD,
     auto_estimate,
@@ -22,9 +23,8 @@ from tissue_reference.fem_reference.estimate import (
     estimate,
 )
 from tissue_reference.meshes.builders import box, cook_membrane, shell_octant
-from tissue_reference.meshes.case import Actuator, Boundary, Case, Material, Probe
-from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.refine import refine_uniform
+from tissue_reference.model.case import Actuator, Boundary, Case, Material, Probe
 
 LOW, HIGH = 0.3, 3.0
 A, B, UA, E = 10.0, 20.0, 2.0, 6.0      # shell radii, inner radial push (mm), E (kPa)
@@ -136,7 +136,7 @@ def test_phantom_estimate_effectivity_at_a_small_push():
     """Phantom (1.2k tetrahedra, straight cells), A1 = 5 mm: the P1 answer estimated by P2 on the
     same cells; truth: P2 on the uniformly refined mesh (10k tetrahedra filling the same cells,
     so the same faceted dome and polygonal patch)."""
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     case = load_case("meshes/cases/phantom.toml", size=12.0)
     push = {"A1": 5.0}
@@ -212,7 +212,7 @@ def test_phantom_estimate_effectivity_against_an_independent_converged_value(deg
     vertical displacement against the converged value of an independent solve refined at the
     patch rims (tests/data/phantom_reference.json: an interval, both ends checked). The default
     answers are far from converged (P1 about +57 %, P2 about +15 %), and the estimate says so."""
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     ref = PHANTOM_REFERENCE
     case = load_case("meshes/cases/phantom.toml")
@@ -258,7 +258,7 @@ def test_auto_estimate_names_what_it_cannot_estimate(block, monkeypatch):
     import dataclasses
 
     import tissue_reference.fem_reference.estimate as fe
-    from tissue_reference.meshes.errors import ConvergenceError
+    from tissue_reference.errors import ConvergenceError
 
     push = {"A1": 1.0}
     res3 = fr.solve(block, pushes=push, degree=3)

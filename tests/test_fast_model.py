@@ -10,7 +10,7 @@ import pytest
 from tissue_reference.control.fast_model import FastModel
 from tissue_reference.control.jacobian import dirichlet_jacobian, fd_jacobian
 from tissue_reference.control.plants import ADMM_CONTROL_OPTIONS, plant_for
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 from tissue_reference.solvers.admm import solve, tangent_stiffness
 from tissue_reference.tissue.cli import main
 
@@ -62,7 +62,7 @@ def test_state_and_jacobian_match_full_solves_along_a_path(case, factorize):
 def test_a_looser_state_tolerance_keeps_the_state_within_it(case):
     """``state_tol_mm=1e-3`` (the accuracy the fast solvers are held to): every state along the
     path within 1e-3 mm of a full ADMM solve's, in fewer chord iterations than the default's."""
-    from tissue_reference.meshes.errors import CaseError
+    from tissue_reference.errors import CaseError
     counts = {}
     for tol in (1e-3, None):
         m = FastModel(case, "T2") if tol is None else \

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import tissue_reference.fem_reference as fr
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +40,7 @@ def test_a_lagged_preconditioner_that_stops_paying_is_rebuilt(case, monkeypatch)
 
 
 def test_fieldsplit_is_for_the_mixed_formulation_only(case):
-    from tissue_reference.meshes.errors import CaseError
+    from tissue_reference.errors import CaseError
 
     with pytest.raises(CaseError, match="fieldsplit"):
         fr.solve(case.with_material(nu=0.45), pushes={"A1": 1.0}, formulation="displacement",

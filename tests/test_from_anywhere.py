@@ -4,9 +4,9 @@ import json
 
 import pytest
 
-from tissue_reference.meshes.case import load_case
-from tissue_reference.meshes.case_file import SHIPPED_CASES, shipped_cases
-from tissue_reference.meshes.errors import CaseReadError
+from tissue_reference.errors import CaseReadError
+from tissue_reference.model.case import load_case
+from tissue_reference.model.case_file import SHIPPED_CASES, shipped_cases
 from tissue_reference.tissue.cli import main
 
 PLUGIN = '''

@@ -4,7 +4,7 @@ groups), and the reader says to add one instead of talking about planarity."""
 import gmsh
 import pytest
 
-from tissue_reference.meshes.errors import ReadError
+from tissue_reference.errors import ReadError
 from tissue_reference.meshes.io import read_msh
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tissue_reference.errors import CaseError, ReadError
 from tissue_reference.implant.library import ImplantSpec, implant_mesh, mesh_volume
 from tissue_reference.implant.rbf import ImplicitRBF, Thickness, breast_mask, muscle_surface
 from tissue_reference.implant.surface import (
@@ -15,7 +16,6 @@ from tissue_reference.implant.surface import (
     vertex_normals,
 )
 from tissue_reference.implant.torso import SyntheticTorso, grid_triangles, tissue_mesh
-from tissue_reference.meshes.errors import CaseError, ReadError
 from tissue_reference.meshes.mesh import cell_volumes
 
 

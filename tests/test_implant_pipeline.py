@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from tissue_reference.errors import CaseError
 from tissue_reference.implant.library import ImplantSpec
 from tissue_reference.implant.pipeline import (
     PlanSettings,
@@ -24,7 +25,6 @@ from tissue_reference.implant.registration import (
 )
 from tissue_reference.implant.surface import closest_points
 from tissue_reference.implant.torso import SyntheticTorso, grid_triangles
-from tissue_reference.meshes.errors import CaseError
 
 
 @pytest.fixture(scope="module")

@@ -133,7 +133,7 @@ def test_every_project_import_resolves_for_static_tools(jedi_project):
 def test_the_static_check_sees_an_import_that_does_not_resolve(jedi_project, tmp_path):
     jedi, project = jedi_project
     path = ROOT / "tests" / "_probe_for_jedi.py"      # never written: jedi reads the code given
-    good = "from tissue_reference.meshes.case import load_case\n"
+    good = "from tissue_reference.model.case import load_case\n"
     bad = "from tissue_reference.meshes.no_such_module import load_case\n"
     assert _resolves(jedi, project, path, 1, len("from tissue_reference.meshes.cas"), good)
     assert not _resolves(jedi, project, path, 1, len("from tissue_reference.meshes.no_such_modul"),

@@ -23,7 +23,7 @@ import pytest
 
 import tissue_reference.fem_reference as fr
 from tissue_reference.meshes.builders import build
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = ROOT / "meshes" / "cases"

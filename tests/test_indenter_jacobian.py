@@ -8,11 +8,11 @@ import pytest
 
 import tissue_reference.fem_reference as fr
 from tissue_reference.control.plants import build_loop, jacobian_at
+from tissue_reference.errors import CaseError
 from tissue_reference.fem_reference.contact_jacobian import indenter_jacobian
 from tissue_reference.fem_reference.newton_settings import NewtonSettings
 from tissue_reference.meshes.builders import box
-from tissue_reference.meshes.case import Actuator, Boundary, Case, Material, Probe
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.model.case import Actuator, Boundary, Case, Material, Probe
 
 STATE = {"I": 1.0, "S": 0.5}   # mm
 

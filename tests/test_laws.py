@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from tissue_reference.meshes.case import Boundary, Case, Material, Probe
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
+from tissue_reference.model.case import Boundary, Case, Material, Probe
 
 LAWS = {
     "neo-hookean": {"E": 6.0, "nu": 0.45},
@@ -206,8 +206,8 @@ def test_block_stretched_20_percent_meets_the_formulas_uniaxial_answer(model, pa
 
 
 def test_case_file_names_a_law_and_its_coefficients(tmp_path):
-    from tissue_reference.meshes.case import load_case
-    from tissue_reference.meshes.results import material_json
+    from tissue_reference.model.case import load_case
+    from tissue_reference.model.results import material_json
 
     text = ('name = "mr"\n[mesh]\nbuiltin = "box"\nsize = 5.0\n[material]\n'
             'model = "mooney-rivlin"\nc1 = 1.0\nc2 = 0.5\nk = 30.0\n'
@@ -266,7 +266,7 @@ def test_the_jacobian_of_a_mooney_rivlin_phantom_equals_central_differences():
     from fem_checks import jacobian_column_error
 
     from tissue_reference.control.plants import jacobian_at
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     case = load_case("phantom", size=14.0).with_material(
         model="mooney-rivlin", E=None, nu=None, c1=0.6, c2=0.4, k=25.0)

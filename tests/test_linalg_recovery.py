@@ -19,7 +19,7 @@ from petsc4py import PETSc
 import tissue_reference.fem_reference as fr
 from tissue_reference.fem_reference.linalg import LinearSolver
 from tissue_reference.fem_reference.mumps import mumps_failure, set_mumps_workspace, solve_mumps
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -11,8 +11,8 @@ import math
 import pytest
 
 from tissue_reference.control.plant_step import outside_range
-from tissue_reference.meshes.case import load_case
-from tissue_reference.meshes.converged_range import converged_push_limit, converged_travel
+from tissue_reference.model.case import load_case
+from tissue_reference.model.converged_range import converged_push_limit, converged_travel
 from tissue_reference.tissue.cli import main
 
 CASE = "meshes/cases/phantom.toml"

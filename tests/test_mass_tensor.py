@@ -8,9 +8,9 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from tissue_reference.errors import CaseError, SolverDivergedError
 from tissue_reference.meshes.builders import box, rectangle
-from tissue_reference.meshes.case import Boundary, Case, Material, Probe
-from tissue_reference.meshes.errors import CaseError, SolverDivergedError
+from tissue_reference.model.case import Boundary, Case, Material, Probe
 from tissue_reference.solvers import mass_tensor as mt
 from tissue_reference.solvers.admm import kernel_c
 from tissue_reference.solvers.mass_tensor import driver

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 import tissue_reference.fem_reference as fr
+from tissue_reference.errors import NotModeledError
 from tissue_reference.meshes.builders import indent_block
-from tissue_reference.meshes.case import Actuator, Boundary, Case, Material
-from tissue_reference.meshes.errors import NotModeledError
+from tissue_reference.model.case import Actuator, Boundary, Case, Material
 from tissue_reference.solvers import mass_tensor as mt
 from tissue_reference.solvers.mass_tensor import contact as mt_contact
 

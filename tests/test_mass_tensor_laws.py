@@ -4,9 +4,9 @@ left out with the reason where a command runs several solvers."""
 import numpy as np
 import pytest
 
+from tissue_reference.errors import CaseError, NotModeledError
 from tissue_reference.meshes.builders import box
-from tissue_reference.meshes.case import Boundary, Case, Material, load_case
-from tissue_reference.meshes.errors import CaseError, NotModeledError
+from tissue_reference.model.case import Boundary, Case, Material, load_case
 from tissue_reference.solvers import mass_tensor as mt
 from tissue_reference.solvers.registry import solver
 from tissue_reference.verification.suite import law_material, run_suite

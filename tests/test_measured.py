@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 import tissue_reference.fem_reference as fr
+from tissue_reference.errors import CaseError
 from tissue_reference.fem_reference.measured import measured_accuracy, with_measured_accuracy
-from tissue_reference.meshes.case import load_case
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.model.case import load_case
 
 CASES = Path(__file__).resolve().parents[1] / "meshes" / "cases"
 QUARTER = CASES / "phantom-quarter.toml"    # glued patches, P1 by default

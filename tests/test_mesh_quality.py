@@ -8,9 +8,9 @@ import pytest
 import tissue_reference.fem_reference as fr
 from tissue_reference.meshes import builders_curved
 from tissue_reference.meshes.builders_curved import MIN_DIHEDRAL_DEG
-from tissue_reference.meshes.case import load_case
-from tissue_reference.meshes.case_file import shipped_cases
 from tissue_reference.meshes.mesh import quality
+from tissue_reference.model.case import load_case
+from tissue_reference.model.case_file import shipped_cases
 
 # the cases the docs and the tutorial mesh at other sizes (--size), with those sizes
 DOC_SIZES = {"phantom": (10.0, 12.0, 14.0), "phantom-3": (10.0, 12.0, 14.0),

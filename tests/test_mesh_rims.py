@@ -5,9 +5,9 @@ circle), not taken from the builder."""
 import numpy as np
 import pytest
 
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.builders import RIM_GRADING, build, estimate_cells
 from tissue_reference.meshes.builders_curved import PHANTOM
-from tissue_reference.meshes.errors import CaseError
 
 
 def rim_points(azimuth_deg: float, n: int = 720) -> np.ndarray:
@@ -112,7 +112,7 @@ def test_a_bad_rim_size_is_refused_with_its_value(name, kw, match):
 def test_a_rim_size_in_a_case_file_reaches_the_builder(tmp_path):
     from pathlib import Path
 
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     text = Path("meshes/cases/phantom-quarter.toml").read_text()
     f = tmp_path / "rim.toml"
@@ -172,7 +172,7 @@ def test_refined_rims_move_the_glued_phantom_towards_the_independent_converged_v
     from pathlib import Path
 
     import tissue_reference.fem_reference as fr
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     ref = json.loads((Path(__file__).parent / "data/phantom_reference.json").read_text())
     lo, hi = ref["converged_T1_uz_mm"]["low"], ref["converged_T1_uz_mm"]["high"]

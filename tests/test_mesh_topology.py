@@ -63,7 +63,7 @@ def test_a_mesh_owns_read_only_copies_of_its_arrays():
 
 
 def test_a_vertex_id_out_of_range_is_named_with_its_cell():
-    from tissue_reference.meshes.errors import CaseError
+    from tissue_reference.errors import CaseError
     from tissue_reference.meshes.mesh import edge_topology
     mesh = box(4.0)
     cells = mesh.cells.copy()

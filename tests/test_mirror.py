@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.builders import PHANTOM, build, structured_box
-from tissue_reference.meshes.case import load_case
-from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.io import read_msh
 from tissue_reference.meshes.mesh import boundary_facets, cell_volumes
 from tissue_reference.meshes.mirror import mirror
 from tissue_reference.meshes.writers import write_mesh
+from tissue_reference.model.case import load_case
 
 CASES = Path(__file__).resolve().parents[1] / "meshes" / "cases"
 

@@ -13,9 +13,9 @@ from scipy.integrate import solve_bvp
 from scipy.optimize import brentq
 
 import tissue_reference.fem_reference as fr
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.builders import box, shell_octant
-from tissue_reference.meshes.case import Boundary, Case, Material
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.model.case import Boundary, Case, Material
 
 A, B, UA = 10.0, 20.0, 2.0  # shell radii and the inner surface's radial push, mm
 E = 6.0
@@ -191,7 +191,7 @@ def test_mixed_control_jacobian_matches_finite_differences_of_mixed_solves():
         p2_interpolation,
         p2_region_nodes,
     )
-    from tissue_reference.meshes.case import Actuator, Probe
+    from tissue_reference.model.case import Actuator, Probe
 
     mat = Material("neo-hookean", E=E, nu=0.4999)
     case = Case(mesh=box(3.0), material=mat, boundaries=[Boundary("zmin", "fixed")],

@@ -13,8 +13,8 @@ from tissue_reference.control.loop import LoopSettings, run_closed_loop
 from tissue_reference.control.mpc import MPCSettings
 from tissue_reference.control.plants import PRESS_WIDTHS, build_loop, matching_case
 from tissue_reference.control.scenarios import GRAVITY_MM_S2, indenter_plant_case, scenario_loop
-from tissue_reference.meshes.case import Probe
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
+from tissue_reference.model.case import Probe
 
 TIP_MM = 3.0
 COARSE = 1.6

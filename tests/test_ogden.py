@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from tissue_reference.meshes.case import Material
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
+from tissue_reference.model.case import Material
 from tissue_reference.solvers.admm.mechanics import Law
 
 MU, ALPHA, K = (1.2, 0.25, 0.03), (2.5, -2.0, 6.0), 40.0
@@ -196,8 +196,8 @@ def test_stability_checks_refuse_by_name():
 
 
 def test_case_file_table_and_scaling(tmp_path):
-    from tissue_reference.meshes.case import load_case
-    from tissue_reference.meshes.results import material_json
+    from tissue_reference.model.case import load_case
+    from tissue_reference.model.results import material_json
 
     text = ('name = "og"\n[mesh]\nbuiltin = "box"\nsize = 5.0\n[material]\n'
             'model = "ogden"\nmu = [1.5, 0.25]\nalpha = [4.0, -2.0]\nk = 30.0\n'
@@ -326,8 +326,8 @@ def test_admm_with_its_polish_equals_the_reference_on_the_phantom():
 
     from tissue_reference.fem_reference import solve
     from tissue_reference.meshes.builders import build
-    from tissue_reference.meshes.case import load_case
-    from tissue_reference.meshes.case_file import case_path
+    from tissue_reference.model.case import load_case
+    from tissue_reference.model.case_file import case_path
     from tissue_reference.solvers import admm
 
     phantom = load_case(case_path("phantom"), mesh=build("phantom", 10.0))
@@ -364,7 +364,7 @@ def test_plane_strain_reference_equals_admm():
     stretched and sheared by its right edge: the reference and ADMM + polish, 1e-8 mm."""
     from tissue_reference.fem_reference import solve
     from tissue_reference.meshes.builders import rectangle
-    from tissue_reference.meshes.case import Boundary, Case
+    from tissue_reference.model.case import Boundary, Case
     from tissue_reference.solvers import admm
 
     case = Case(mesh=rectangle(2.0), material=OGDEN,

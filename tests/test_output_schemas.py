@@ -290,7 +290,7 @@ def test_the_demo_default_answers_carry_measured_error_bars_within_two_percent()
     """What the demo shows by default is ground truth: its case file measured the default
     discretization at every default push, all tips pushed, within 2 % of converged answers."""
     from tissue_reference.fem_reference.solver import default_tip_start
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
     from tissue_reference.tissue.demo import CASE, PUSHES_MM
 
     case = load_case(CASE)

@@ -17,9 +17,9 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 NS = "tissue_reference"
-LAYERS = ("meshes", "fem_reference", "solvers", "control", "implant", "verification",
-          "tissue")
-DATA = ["meshes/cases/phantom.toml", "meshes/case.schema.json", "solvers/admm_kernel.c",
+LAYERS = ("errors", "meshes", "model", "fem_reference", "solvers", "control", "implant",
+          "verification", "tissue")
+DATA = ["meshes/cases/phantom.toml", "model/case.schema.json", "solvers/admm_kernel.c",
         "solvers/admm_kernel.h", "tissue/schemas/solve.schema.json",
         "tissue/schemas/common.schema.json"]
 
@@ -29,8 +29,8 @@ import importlib, importlib.util, pkgutil, sys
 from pathlib import Path
 import numpy as np
 mode, where = sys.argv[1], Path(sys.argv[2]).resolve()
-LAYERS = ("meshes", "fem_reference", "solvers", "control", "implant", "verification",
-          "tissue")
+LAYERS = ("errors", "meshes", "model", "fem_reference", "solvers", "control", "implant",
+          "verification", "tissue")
 import tissue_reference
 if mode == "fakes":   # the fake packages are what a plain "import control" would get
     for name in LAYERS:
@@ -50,7 +50,7 @@ else:                 # installed into a --target folder together with another "
     assert control.DUMMY == "python-control stand-in"
     assert Path(tissue_reference.__file__).resolve().parent == where / "tissue_reference"
 from tissue_reference.control.mpc import PushOnlyMPC
-from tissue_reference.meshes.case_schema import SCHEMA_PATH, schema_errors
+from tissue_reference.model.case_schema import SCHEMA_PATH, schema_errors
 from tissue_reference.solvers.ckernel import SOURCE
 from tissue_reference.tissue.output_schema import schema
 import tomllib
@@ -243,7 +243,7 @@ import meshes.builders
 import meshes.io
 import solvers
 from control.mpc import PushOnlyMPC
-from meshes.case import (
+from model.case import (
     load_case,
 )
 
@@ -258,7 +258,7 @@ def f(monkeypatch, name):
         from verification.verify import verify
     """
     monkeypatch.setattr("fem_reference.solver.solve", None)
-    monkeypatch.setattr(meshes.builders, "x", __import__("meshes.case").case)
+    monkeypatch.setattr(meshes.builders, "x", __import__("model.case").case)
     subprocess.run([sys.executable, "-m", "tissue", "--version"])  # python -m tissue
     return __import__("importlib").import_module(f"tissue.{name}"), fr, solvers, PushOnlyMPC
 '''
@@ -273,7 +273,7 @@ import tissue_reference.meshes.io
 meshes = tissue_reference.meshes
 from tissue_reference import solvers
 from tissue_reference.control.mpc import PushOnlyMPC
-from tissue_reference.meshes.case import (
+from tissue_reference.model.case import (
     load_case,
 )
 
@@ -288,7 +288,7 @@ def f(monkeypatch, name):
         from tissue_reference.verification.verify import verify
     """
     monkeypatch.setattr("tissue_reference.fem_reference.solver.solve", None)
-    monkeypatch.setattr(meshes.builders, "x", __import__("tissue_reference.meshes.case").meshes.case)
+    monkeypatch.setattr(meshes.builders, "x", __import__("tissue_reference.model.case").model.case)
     subprocess.run([sys.executable, "-m", "tissue_reference", "--version"])  # python -m tissue_reference
     return __import__("importlib").import_module(f"tissue_reference.tissue.{name}"), fr, solvers, PushOnlyMPC
 '''
@@ -304,12 +304,12 @@ def test_the_rewriter_leaves_markdown_prose_and_runs_once():
     tool = _rewriter()
     md = ("Run `python -m tissue solve` or `tissue solve`; `fem_reference.estimate`, the group "
           "`tissue.solvers`, `meshes/cases/phantom.toml`.\n\n```python\nimport fem_reference as "
-          "fr\nfrom meshes.case import load_case\n```\n")
+          "fr\nfrom model.case import load_case\n```\n")
     once = tool.rewrite_markdown(md)
     assert once == ("Run `python -m tissue_reference solve` or `tissue solve`; "
                     "`tissue_reference.fem_reference.estimate`, the group `tissue.solvers`, "
                     "`meshes/cases/phantom.toml`.\n\n```python\nimport "
-                    "tissue_reference.fem_reference as fr\nfrom tissue_reference.meshes.case "
+                    "tissue_reference.fem_reference as fr\nfrom tissue_reference.model.case "
                     "import load_case\n```\n")
     assert tool.rewrite_markdown(once) == once
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import tissue_reference.fem_reference as fr
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 
 CASE = Path(__file__).resolve().parents[1] / "meshes" / "cases" / "phantom-seed.toml"
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from tissue_reference.meshes.builders import PHANTOM, build
-from tissue_reference.meshes.case import load_case
 from tissue_reference.meshes.mesh import cell_volumes
 from tissue_reference.meshes.refine import projector_for, refine_uniform
+from tissue_reference.model.case import load_case
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = ROOT / "meshes" / "cases"

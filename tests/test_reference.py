@@ -9,7 +9,7 @@ from scipy.optimize import brentq
 
 import tissue_reference.fem_reference as fr
 from tissue_reference.meshes.builders import box
-from tissue_reference.meshes.case import Boundary, Case, Material
+from tissue_reference.model.case import Boundary, Case, Material
 
 MAT = Material("neo-hookean", E=6.0, nu=0.45)
 L = 10.0  # box edge, mm
@@ -135,7 +135,7 @@ def test_tangent_is_in_case_vertex_numbering(cube):
 
 
 def test_linear_elasticity_is_the_small_strain_limit_of_neo_hookean():
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     case = load_case("meshes/cases/phantom.toml", size=14)
     push = {"A1": 1e-3}
@@ -146,7 +146,7 @@ def test_linear_elasticity_is_the_small_strain_limit_of_neo_hookean():
 
 
 def test_quadrature_degree_4_matches_degree_6_for_p2():
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     case = load_case("meshes/cases/phantom.toml", size=16)
     a = fr.ReferenceSolver(case, degree=2).solve({"A1": 8.0})
@@ -156,7 +156,7 @@ def test_quadrature_degree_4_matches_degree_6_for_p2():
 
 
 def test_warm_start_gives_the_cold_answer():
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     case = load_case("meshes/cases/phantom.toml", size=14)
     first = fr.solve(case, pushes={"A1": 10.0})
@@ -168,7 +168,7 @@ def test_warm_start_gives_the_cold_answer():
 
 @pytest.mark.parametrize("mode", ["iterative", "lagged"])
 def test_krylov_linear_solvers_give_the_direct_answer(mode):
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     case = load_case("meshes/cases/phantom.toml", size=16)
     a = fr.ReferenceSolver(case, linear_solver="direct").solve({"A1": 12.0, "A3": 6.0})
@@ -186,7 +186,7 @@ def test_a_correction_that_inverts_elements_is_halved_not_fatal():
     """All four actuators pushed 15 mm in one load step: the first Newton correction inverts
     elements at the patch rims. Without the line search the step fails and is cut back; with it
     the correction is halved and the single step converges to the same answer."""
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     case = load_case("meshes/cases/phantom.toml", size=10)
     push = {"A1": 15.0, "A2": 15.0, "A3": 15.0, "A4": 15.0}
@@ -205,7 +205,7 @@ def test_lagged_solver_switches_to_mumps_when_the_tangent_is_not_positive_defini
     MUMPS LDL^T and still solve the system exactly."""
     from petsc4py import PETSc
 
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     case = load_case("meshes/cases/phantom.toml", size=16).with_pushes({"A1": 3.0})
     s = fr.ReferenceSolver(case, linear_solver="lagged")

@@ -7,7 +7,7 @@ import ufl
 
 import tissue_reference.fem_reference as fr
 from tissue_reference.meshes.builders import rectangle
-from tissue_reference.meshes.case import Boundary, Case, Material
+from tissue_reference.model.case import Boundary, Case, Material
 
 MAT = Material("neo-hookean", E=6.0, nu=0.3)
 L = 10.0

@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.builders import box, rectangle
-from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.mesh import cell_volumes, check_cells, quality
 from tissue_reference.meshes.refine_local import dorfler_mark, refine_local
 
@@ -197,7 +197,7 @@ def cook(size=8.0):
     """Cook's membrane (tests/test_adapt.py): plane stress E = 1, nu = 1/3 as plane strain,
     unit shear load; its clamped corners are singular."""
     from tissue_reference.meshes.builders import cook_membrane
-    from tissue_reference.meshes.case import Boundary, Case, Material, Probe
+    from tissue_reference.model.case import Boundary, Case, Material, Probe
 
     return Case(mesh=cook_membrane(size), material=Material("linear-elastic", E=15 / 16, nu=0.25),
                 boundaries=[Boundary("left", "fixed"),
@@ -258,8 +258,8 @@ def test_a_move_that_would_flatten_a_cell_is_damped(monkeypatch):
     damping's bound of the same level left flat, the damped vertices a fraction of a sagitta off
     the dome."""
     import tissue_reference.meshes.refine_local as rl
+    from tissue_reference.errors import MeshQualityError
     from tissue_reference.meshes.builders import phantom
-    from tissue_reference.meshes.errors import MeshQualityError
     from tissue_reference.meshes.refine import projector_for
 
     coarse = phantom(14.0)

@@ -11,14 +11,14 @@ from types import SimpleNamespace
 import pytest
 
 from tissue_reference.control.plants import ADMM_CONTROL_OPTIONS, control_solver, solver_description
-from tissue_reference.meshes.case_parts import Material
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
+from tissue_reference.model.case_parts import Material
 from tissue_reference.solvers import SOLVERS, registry
 from tissue_reference.solvers.registry import is_reference, reference, solver
 
 ROOT = Path(__file__).resolve().parents[1]
-LAYERS = ("meshes", "fem_reference", "solvers", "control", "implant", "verification",
-          "tissue")
+LAYERS = ("errors", "meshes", "model", "fem_reference", "solvers", "control", "implant",
+          "verification", "tissue")
 
 ADMM_SETTINGS = {"tol_mm": 1e-4, "max_iter": None, "rho": None, "polish": True,
                  "polish_tol_mm": None, "polish_max_iter": 25, "load_steps": None,

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tissue_reference.meshes.builders import box
-from tissue_reference.meshes.case import Boundary, Case, Material, Probe
+from tissue_reference.model.case import Boundary, Case, Material, Probe
 from tissue_reference.tissue.implant_report import distance_rows
 from tissue_reference.tissue.suite_report import result_cell
 from tissue_reference.tissue.verify_report import write_report
@@ -18,7 +18,7 @@ from tissue_reference.verification.verify import verify
 @pytest.fixture(scope="module")
 def pulled():
     """A 10 mm box, bottom fixed, its top pulled 0.2 mm up (a glued patch), two targets."""
-    from tissue_reference.meshes.case import Actuator
+    from tissue_reference.model.case import Actuator
 
     return Case(mesh=box(5.0), material=Material("neo-hookean", E=6.0, nu=0.3), name="pulled",
                 boundaries=(Boundary("zmin", "fixed"),),

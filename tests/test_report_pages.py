@@ -19,7 +19,7 @@ from page_checks import PageError, check_page
 from test_cli_fuzz import BOX
 from test_convergence import CASE_TOML
 
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 from tissue_reference.tissue.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_reference.meshes.results import SolveResult
+from tissue_reference.model.results import SolveResult
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("meshes", "fem_reference", "solvers", "control", "implant", "verification",

@@ -29,8 +29,8 @@ SCRIPT = r"""
 import json, sys
 import numpy as np
 from tissue_reference import fem_reference as fr
-from tissue_reference.meshes.case import load_case
-from tissue_reference.meshes.errors import ConvergenceError
+from tissue_reference.model.case import load_case
+from tissue_reference.errors import ConvergenceError
 
 case = load_case(sys.argv[1], size=10.0)
 

@@ -11,7 +11,7 @@ import tissue_reference.fem_reference as fr
 from tissue_reference.fem_reference import kept
 from tissue_reference.fem_reference.discretization import Discretization
 from tissue_reference.fem_reference.petsc_memory import release_petsc_garbage
-from tissue_reference.meshes.case import load_case
+from tissue_reference.model.case import load_case
 
 CASE = "meshes/cases/phantom.toml"
 

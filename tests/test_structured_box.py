@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from tissue_reference.meshes.builders import structured_box
-from tissue_reference.meshes.case import Boundary, Case, Material
 from tissue_reference.meshes.mesh import boundary_facets, cell_volumes, check_cells
+from tissue_reference.model.case import Boundary, Case, Material
 
 L = (10.0, 20.0, 30.0)
 

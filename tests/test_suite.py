@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from test_laws import LAWS, piola_formula
 
-from tissue_reference.meshes.case import Material
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
+from tissue_reference.model.case import Material
 from tissue_reference.tissue.suite_report import write_scorecard
 from tissue_reference.verification import closed_forms as cf
 from tissue_reference.verification.suite import run_suite

@@ -14,7 +14,7 @@ from test_control_support import LinearPlant, linear_p1_stiffness, linear_tangen
 from tissue_reference.control.loop import LoopSettings
 from tissue_reference.control.plants import build_loop
 from tissue_reference.control.table1 import run_table1
-from tissue_reference.meshes.errors import CaseError, CaseReadError
+from tissue_reference.errors import CaseError, CaseReadError
 
 STEPS = 6
 RTOL, ATOL = 1e-9, 1e-12

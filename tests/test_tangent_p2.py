@@ -13,7 +13,7 @@ from test_control_support import column_case
 import tissue_reference.fem_reference as fr
 from tissue_reference.control.jacobian import full_pushes
 from tissue_reference.control.plants import reference_state
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 
 STATE = {"A1": 3.0, "A2": 1.0}
 

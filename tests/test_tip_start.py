@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.builders import box, build
-from tissue_reference.meshes.case import load_case
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.model.case import load_case
 
 DOME_A, DOME_C = 50.0, 45.0   # mm: the phantom's base radius and height
 HALF = Path("meshes/cases/phantom-indenter-half.toml")
@@ -145,7 +145,7 @@ def test_with_a_gauss_rule_a_tip_started_on_the_nodes_presses_at_rest():
     the nodal start puts the tip inside the facets, so at push 0 it already pushes the skin;
     started on the surface it touches without force."""
     import tissue_reference.fem_reference as fr
-    from tissue_reference.meshes.case import Actuator, Boundary, Case, Material
+    from tissue_reference.model.case import Actuator, Boundary, Case, Material
 
     block = Case(mesh=box(1.25), material=Material("neo-hookean", E=6.0, nu=0.3), name="side",
                  boundaries=(Boundary("zmin", "fixed"),),

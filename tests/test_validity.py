@@ -16,11 +16,11 @@ import meshio
 import numpy as np
 import pytest
 
+from tissue_reference.errors import CaseError, MeshQualityError
 from tissue_reference.meshes.builders import box, build, estimate_cells
-from tissue_reference.meshes.case import Boundary, Case, Material, Probe, load_case
-from tissue_reference.meshes.errors import CaseError, MeshQualityError
 from tissue_reference.meshes.io import read_msh
 from tissue_reference.meshes.mesh import cell_jacobians, check_tangles, deformation_state
+from tissue_reference.model.case import Boundary, Case, Material, Probe, load_case
 from tissue_reference.tissue.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]

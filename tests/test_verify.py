@@ -6,8 +6,8 @@ from functools import partial
 import numpy as np
 import pytest
 
-from tissue_reference.meshes.case import load_case
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
+from tissue_reference.model.case import load_case
 from tissue_reference.tissue.verify_report import write_report
 from tissue_reference.verification.verify import verify
 

@@ -12,9 +12,9 @@ import meshio
 import numpy as np
 import pytest
 
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.builders import box
-from tissue_reference.meshes.case import Boundary, Case, Material, Probe, load_case
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.model.case import Boundary, Case, Material, Probe, load_case
 from tissue_reference.verification.plugins import PluginError
 from tissue_reference.verification.scoring import Field
 from tissue_reference.verification.verify import tolerance_failures, verify

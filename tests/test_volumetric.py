@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 import tissue_reference.fem_reference as fr
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.builders import box
-from tissue_reference.meshes.case import Boundary, Case, Material
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.model.case import Boundary, Case, Material
 
 E, NU = 6.0, 0.45
 KAPPA = E / (3 * (1 - 2 * NU))
@@ -95,7 +95,7 @@ def test_a_bad_volumetric_law_is_refused(material, match):
 def test_a_case_file_chooses_the_law(tmp_path):
     from pathlib import Path
 
-    from tissue_reference.meshes.case import load_case
+    from tissue_reference.model.case import load_case
 
     text = Path("meshes/cases/phantom.toml").read_text()
     f = tmp_path / "log.toml"

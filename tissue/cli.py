@@ -23,7 +23,7 @@ import warnings
 from importlib import metadata
 from pathlib import Path
 
-from tissue_reference.meshes.errors import TissueError, TissueWarning
+from tissue_reference.errors import TissueError, TissueWarning
 
 # Each module defines add_parser(subparsers) that registers its command(s) with set_defaults(func=...).
 COMMAND_MODULES = ["cmd_mesh", "cmd_solve", "cmd_verify", "cmd_converge", "cmd_jacobian",

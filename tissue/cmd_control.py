@@ -16,10 +16,10 @@ import numpy as np
 from tissue_reference.control.controllability import UnreachableGoalError, manipulability_map
 from tissue_reference.control.loop import LoopStopped, plot_response
 from tissue_reference.control.plants import material_json, solver_description, tangent_for
-from tissue_reference.meshes.case_file import case_path
-from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.io import check_output_dir, check_output_file, save_figure
-from tissue_reference.meshes.results import write_json
+from tissue_reference.model.case_file import case_path
+from tissue_reference.model.results import write_json
 from tissue_reference.solvers.registry import control_names
 
 from .common import (

@@ -9,12 +9,12 @@ import sys
 import tomllib
 from pathlib import Path
 
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.builders import BODY_DIMENSIONS, estimate_cells
-from tissue_reference.meshes.case import TIP_STARTS, Material
-from tissue_reference.meshes.case_file import case_path
-from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.io import check_output_file
-from tissue_reference.meshes.results import material_json, write_json
+from tissue_reference.model.case import TIP_STARTS, Material
+from tissue_reference.model.case_file import case_path
+from tissue_reference.model.results import material_json, write_json
 
 from .common import (
     announce_build,

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_reference.meshes.errors import CaseError, ConvergenceError
+from tissue_reference.errors import CaseError, ConvergenceError
 from tissue_reference.meshes.io import atomic_path, check_output_file, write_mesh
-from tissue_reference.meshes.results import material_json, write_json
+from tissue_reference.model.results import material_json, write_json
 from tissue_reference.solvers.registry import dynamics_names, reference, solver
 
 from .common import (

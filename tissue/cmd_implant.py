@@ -10,15 +10,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from tissue_reference.errors import CaseError, ReadError
 from tissue_reference.implant.pipeline import (
     PlanSettings,
     patient_from_file,
     synthetic_patient,
 )
 from tissue_reference.implant.surface import check_single_sheet, read_surface
-from tissue_reference.meshes.errors import CaseError, ReadError
 from tissue_reference.meshes.io import check_output_file
-from tissue_reference.meshes.results import write_json
+from tissue_reference.model.results import write_json
 from tissue_reference.solvers.mass_tensor import METHODS
 
 from .common import check_outputs, real

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from tissue_reference.control.plants import FD_FLOOR, jacobian_at
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.io import check_output_file
-from tissue_reference.meshes.results import write_json
+from tissue_reference.model.results import write_json
 from tissue_reference.solvers.registry import control_names
 
 from .common import (

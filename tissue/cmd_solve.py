@@ -7,16 +7,16 @@ import sys
 import time
 from pathlib import Path
 
-from tissue_reference.meshes.answer_warnings import (
+from tissue_reference.errors import AccuracyNotReached, CaseError, ConvergenceError
+from tissue_reference.meshes.io import check_output_file
+from tissue_reference.meshes.refine import projector_for
+from tissue_reference.model.answer_warnings import (
     ESTIMATE_WARN,
     estimate_warning,
     probes_above_estimate_warn,
     relative_estimates,
 )
-from tissue_reference.meshes.converged_range import unconverged_load
-from tissue_reference.meshes.errors import AccuracyNotReached, CaseError, ConvergenceError
-from tissue_reference.meshes.io import check_output_file
-from tissue_reference.meshes.refine import projector_for
+from tissue_reference.model.converged_range import unconverged_load
 from tissue_reference.solvers.admm import require_device
 from tissue_reference.solvers.registry import reference, solver
 

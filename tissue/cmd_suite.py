@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from tissue_reference.meshes.case import MATERIAL_MODELS
+from tissue_reference.model.case import MATERIAL_MODELS
 from tissue_reference.solvers.registry import is_reference
 from tissue_reference.verification.suite import PROBLEMS, run_suite
 

@@ -17,8 +17,8 @@ from tissue_reference.control.table1 import (
     write_scenarios_page,
 )
 from tissue_reference.control.table1 import run_table1 as run_all
-from tissue_reference.meshes.errors import CaseError
-from tissue_reference.meshes.results import write_json
+from tissue_reference.errors import CaseError
+from tissue_reference.model.results import write_json
 from tissue_reference.solvers.registry import solver
 
 from .common import add_case_args, case_from_args, check_outputs, contact_rule, integer

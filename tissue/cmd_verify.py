@@ -9,7 +9,7 @@ import sys
 from functools import partial
 from pathlib import Path
 
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 from tissue_reference.verification.verify import (
     DEFAULT_SOLVERS,
     FAST_SOLVERS,

@@ -18,20 +18,20 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes import mesh_cache
-from tissue_reference.meshes.answer_warnings import advice_for
 from tissue_reference.meshes.builders import MAX_CELLS, estimate_cells
-from tissue_reference.meshes.case import (
+from tissue_reference.meshes.io import check_output_dir, check_output_file
+from tissue_reference.meshes.mesh import RUNAWAY_FACTOR
+from tissue_reference.model.answer_warnings import advice_for
+from tissue_reference.model.case import (
     CONTACT_RULES,
     TIP_STARTS,
     Case,
     is_contact_rule,
     load_case,
 )
-from tissue_reference.meshes.case_file import case_path
-from tissue_reference.meshes.errors import CaseError
-from tissue_reference.meshes.io import check_output_dir, check_output_file
-from tissue_reference.meshes.mesh import RUNAWAY_FACTOR
+from tissue_reference.model.case_file import case_path
 from tissue_reference.solvers.registry import names, solver
 
 __all__ = ["PROGRESS_FROM_CELLS", "SOLVER_NAMES", "add_case_args", "add_discretization_args",

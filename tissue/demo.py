@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 
 from tissue_reference.meshes.builders import MAX_CELLS
-from tissue_reference.meshes.case import load_case
 from tissue_reference.meshes.html_page import Raw, image, page, table, write_page
 from tissue_reference.meshes.io import save_figure
 from tissue_reference.meshes.mesh import quality
-from tissue_reference.meshes.results import write_json
+from tissue_reference.model.case import load_case
+from tissue_reference.model.results import write_json
 from tissue_reference.verification.verify import verify
 
 from .common import check_pushes

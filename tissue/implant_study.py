@@ -19,9 +19,9 @@ import numpy as np
 from tissue_reference.implant.pipeline import PlanSettings, plan_implant
 from tissue_reference.implant.registration import icp, surface_distances
 from tissue_reference.implant.render import render_distance_png, write_surface_vtu
-from tissue_reference.meshes.case import Boundary, Case, Material
 from tissue_reference.meshes.io import write_mesh
 from tissue_reference.meshes.mesh import MeshData
+from tissue_reference.model.case import Boundary, Case, Material
 
 from .implant_report import write_implant_report
 

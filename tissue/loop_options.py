@@ -7,8 +7,8 @@ import argparse
 from tissue_reference.control.loop import LoopSettings
 from tissue_reference.control.mpc import WEIGHTS, MPCSettings
 from tissue_reference.control.plants import MODEL_UPDATES, build_loop, matching_case
-from tissue_reference.meshes.converged_range import converged_push_limit
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
+from tissue_reference.model.converged_range import converged_push_limit
 from tissue_reference.solvers.registry import control_names
 
 from .common import body_diameter, case_from_args, check_prescribed, integer, real

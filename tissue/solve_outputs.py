@@ -7,7 +7,7 @@ import numpy as np
 
 from tissue_reference.meshes.io import write_point_data
 from tissue_reference.meshes.mesh import cell_jacobians
-from tissue_reference.meshes.results import write_json
+from tissue_reference.model.results import write_json
 from tissue_reference.solvers.registry import solver
 
 from .solve_report import write_solve_report

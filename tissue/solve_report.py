@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_reference.meshes.answer_warnings import ESTIMATE_WARN
 from tissue_reference.meshes.html_page import Raw, fmt, image, kv_table, page, table, write_page
 from tissue_reference.meshes.io import save_figure
 from tissue_reference.meshes.mesh import cell_jacobians
+from tissue_reference.model.answer_warnings import ESTIMATE_WARN
 from tissue_reference.solvers.registry import is_reference
 
 from .views import start_views

@@ -1,8 +1,8 @@
 """The project's import graph, read from the source (AST), not by importing anything.
 
-Every module of the layers (meshes, fem_reference, solvers, control, implant, verification,
-tissue and the ``tissue_reference`` package itself) is a node; an edge a -> b is an import in a of
-b or of a name b defines (``from .x import y`` where y is a module counts as an import of that
+Every module of the layers (errors, meshes, model, fem_reference, solvers, control, implant,
+verification, tissue and the ``tissue_reference`` package itself) is a node; an edge a -> b is an
+import in a of b or of a name b defines (``from .x import y`` where y is a module counts as an import of that
 module). Imports inside functions count like module-level ones (they hide a cycle, they do not
 remove it); those under ``if TYPE_CHECKING:`` are left out (they never run). A package's
 ``__init__`` is its own node: importing ``a.b.c`` imports ``a.b`` first, but that edge is
@@ -21,8 +21,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 NS = "tissue_reference"
-LAYERS = ("meshes", "fem_reference", "solvers", "control", "implant", "verification",
-          "tissue")
+LAYERS = ("errors", "meshes", "model", "fem_reference", "solvers", "control", "implant",
+          "verification", "tissue")
 
 
 @dataclass
@@ -72,7 +72,7 @@ class Graph:
 
 
 def module_files(root: Path = ROOT) -> dict[str, Path]:
-    """Module name (``tissue_reference.meshes.case``) -> its file, for every module of the
+    """Module name (``tissue_reference.model.case``) -> its file, for every module of the
     layers and of the ``tissue_reference`` package."""
     out = {}
     for f in sorted((root / NS).glob("*.py")):

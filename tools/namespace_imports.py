@@ -1,6 +1,7 @@
 """Rewrite references to the project's layers so that they go through its one installed name.
 
-The layers (meshes, fem_reference, solvers, control, implant, verification, tissue) stay
+The layers (errors, meshes, model, fem_reference, solvers, control, implant, verification,
+tissue) stay
 top-level folders of the repository but are installed as ``tissue_reference.<layer>`` (see
 pyproject.toml). This rewrites, in every tracked *.py and *.md file:
 
@@ -44,8 +45,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 NS = "tissue_reference"
-LAYERS = ("meshes", "fem_reference", "solvers", "control", "implant", "verification",
-          "tissue")
+LAYERS = ("errors", "meshes", "model", "fem_reference", "solvers", "control", "implant",
+          "verification", "tissue")
 SKIP_MARK = "# namespace_imports: skip"
 WIDTH = 100  # pyproject.toml [tool.ruff] line-length
 _L = "|".join(LAYERS)

@@ -1,4 +1,4 @@
-"""Render the case-file schema (meshes/case.schema.json) into docs/case-file.md.
+"""Render the case-file schema (model/case.schema.json) into docs/case-file.md.
 
     python tools/schema_doc.py           # write docs/case-file.md
     python tools/schema_doc.py --check   # exit 1 if docs/case-file.md is not up to date
@@ -11,7 +11,7 @@ from docgen import ROOT, run
 
 
 def _text():
-    from tissue_reference.meshes.case_doc import case_file_markdown
+    from tissue_reference.model.case_doc import case_file_markdown
 
     return case_file_markdown()
 

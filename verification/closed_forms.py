@@ -37,7 +37,7 @@ def neo_hookean_piola(l1, l2, mu: float, kappa: float):
 
 
 def law_energy(material, l1, l2, l3):
-    """psi (kPa) of ``material``'s law (a ``meshes.case.Material``) at principal stretches
+    """psi (kPa) of ``material``'s law (a ``model.case.Material``) at principal stretches
     (l1, l2, l3), written from the law's formula (docs/laws.md); complex-safe."""
     model = material.model
     mu, lam, kappa = material.mu, material.lmbda, material.kappa

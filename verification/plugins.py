@@ -7,19 +7,19 @@ The protocol every such solver follows (docs/verification.md, "Writing a solver 
         ...
         return u            # (case.mesh.n_vertices, gdim) displacement at the vertices, mm
 
-``case`` is a ``meshes.case.Case`` (mesh points, cells, regions, material, actuators) and
+``case`` is a ``model.case.Case`` (mesh points, cells, regions, material, actuators) and
 ``pushes`` maps actuator names to pushes (mm); ``case.with_pushes(pushes)`` gives the boundary
 values. Instead of an array a solver may return an object (or a mapping) with ``u`` and any of
 ``iterations`` (a whole number), ``converged`` (True or False), ``wall_time_s`` (seconds),
 ``history`` (a mapping of per-iteration lists of numbers: ``max_step_mm`` is drawn in the
 convergence plot, against ``iteration``, the iteration numbers, when that list is as long) and
 ``extra`` (a mapping; its ``"model"``, e.g. "linear-elastic", names the material model the
-solver solves in the scores) — a ``meshes.results.SolveResult`` is one. Each is checked as a
+solver solves in the scores) — a ``model.results.SolveResult`` is one. Each is checked as a
 built-in solver's figures are: a value of another kind is a PluginError naming the field, and so
 is a complex displacement. ``tissue verify`` keeps ``history`` and ``extra`` in its output, so
 ``extra`` holds what JSON can (``json_safe``: numbers, text, booleans, None, lists and mappings,
 NumPy arrays and scalars); another value is a PluginError naming it. A solver that does not
-handle a problem raises ``meshes.errors.CaseError`` with a message saying why; ``verify``
+handle a problem raises ``errors.CaseError`` with a message saying why; ``verify``
 reports that (exit status 2) instead of a score.
 
 A package makes its solver available by name through the entry-point group ``tissue.solvers``::
@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tissue_reference.meshes.errors import TissueError
+from tissue_reference.errors import TissueError
 
 __all__ = ["ENTRY_POINT_GROUP", "PluginError", "PluginRun", "SolverPlugin", "entry_point_solvers",
            "json_safe", "resolve_solver", "run_plugin"]

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 
 log = logging.getLogger("tissue.scoring")
 

@@ -45,17 +45,17 @@ from functools import cached_property
 
 import numpy as np
 
+from tissue_reference.errors import CaseError, TissueError
 from tissue_reference.fem_reference.discretization import SPLIT_LAWS
 from tissue_reference.meshes.builders import box, cook_membrane, shell_octant
-from tissue_reference.meshes.case import (
+from tissue_reference.model.case import (
     MATERIAL_MODELS,
     Boundary,
     Case,
     Material,
     Probe,
 )
-from tissue_reference.meshes.errors import CaseError, TissueError
-from tissue_reference.meshes.results import material_json, write_json
+from tissue_reference.model.results import material_json, write_json
 from tissue_reference.solvers.registry import is_reference
 from tissue_reference.solvers.registry import solver as registry_solver
 

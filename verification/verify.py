@@ -20,7 +20,7 @@ Three kinds of candidate, each scored against the reference it should match:
   in any vertex order or on another mesh of the same body (``verification.scoring``).
 
 Plugins and fields are scored against the reference of the Case's own material (a plugin that
-declares another law of ``meshes.case.MATERIAL_MODELS`` in its ``extra["model"]``, against that
+declares another law of ``model.case.MATERIAL_MODELS`` in its ``extra["model"]``, against that
 law's reference of the same E and nu: ``declared_law_case``, with the two references' distance,
 the law difference, reported beside its score as ``law_difference_mm`` and a note) with the
 discretization options of ``tissue solve`` (``degree``, ``formulation``; default the same as
@@ -45,11 +45,11 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_reference.meshes.case import COEFFICIENT_LAWS, MATERIAL_MODELS, UNCOUPLED_LAWS
-from tissue_reference.meshes.converged_range import unconverged_load
-from tissue_reference.meshes.errors import CaseError, NotModeledError
+from tissue_reference.errors import CaseError, NotModeledError
 from tissue_reference.meshes.mesh import deformation_state
-from tissue_reference.meshes.results import material_json, write_json
+from tissue_reference.model.case import COEFFICIENT_LAWS, MATERIAL_MODELS, UNCOUPLED_LAWS
+from tissue_reference.model.converged_range import unconverged_load
+from tissue_reference.model.results import material_json, write_json
 from tissue_reference.solvers import SOLVERS, get_solver, solver_module
 from tissue_reference.solvers.registry import solver as registry_solver
 

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tissue_reference.meshes.errors import CaseError, TissueError
+from tissue_reference.errors import CaseError, TissueError
 
 from . import amg_array, operators
 from .kernel_array import ArrayElements, NumpyElements, zstep_for

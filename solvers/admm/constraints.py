@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from tissue_reference.meshes.tips import gap_and_normal
+from tissue_reference.model.tips import gap_and_normal
 
 from ..contact import ContactSet, require_frictionless
 

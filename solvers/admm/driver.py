@@ -9,10 +9,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from tissue_reference.meshes.errors import CaseError, SolverDivergedError
+from tissue_reference.errors import CaseError, SolverDivergedError
 from tissue_reference.meshes.mesh import deformation_state
-from tissue_reference.meshes.results import SolveResult
-from tissue_reference.meshes.tips import through_surface_state
+from tissue_reference.model.results import SolveResult
+from tissue_reference.model.tips import through_surface_state
 
 from .backends import backend, require_device
 from .dynamics import ImplicitEuler, implicit_euler
@@ -84,8 +84,8 @@ def solve(case, *, pushes=None, initial=None, tol_mm: float = 1e-4, max_iter: in
     contact_quadrature, contact_penalty, tip_start: the rigid tips' contact (frictionless
         indenters, ``contact``): the rule ("nodal" or a Gauss degree), beta and where the tips
         start, each by default the case's own as the reference takes it
-        (``meshes.tips.default_contact_rule`` and ``default_tip_start``; beta
-        ``meshes.tips.DEFAULT_CONTACT_PENALTY``): the same discrete energy as the P1 reference.
+        (``model.tips.default_contact_rule`` and ``default_tip_start``; beta
+        ``model.tips.DEFAULT_CONTACT_PENALTY``): the same discrete energy as the P1 reference.
         Each tip is reported in ``SolveResult.indenters`` as the reference reports it.
     ``SolveResult.warnings``: one line per pushed glued patch past the range where its answer
     converges or with its rim cells crushed (``Case.glued_patch_warnings``), as the reference's.

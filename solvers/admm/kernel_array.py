@@ -13,7 +13,7 @@ import contextlib
 
 import numpy as np
 
-from tissue_reference.meshes.errors import NotModeledError
+from tissue_reference.errors import NotModeledError
 
 from .mechanics import KERNEL_LAWS
 

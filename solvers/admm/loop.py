@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from tissue_reference.meshes.errors import SolverDivergedError
+from tissue_reference.errors import SolverDivergedError
 
 from .contact import ContactBlocks
 from .kernel_array import aos, soa

@@ -28,9 +28,9 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
+from tissue_reference.errors import CaseError
 from tissue_reference.fem_reference.invariants import principal_stretch_sum
 from tissue_reference.fem_reference.ogden import OgdenIsochoric
-from tissue_reference.meshes.errors import CaseError
 
 KERNEL_LAWS = ("neo-hookean", "linear-elastic")
 """The laws of the compiled element pass (``kernel_c``) and of the closed-form z-steps

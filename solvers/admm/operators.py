@@ -26,7 +26,7 @@ from dataclasses import replace
 import numpy as np
 import scipy.sparse as sp
 
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 
 from .amg import AmgPcg
 from .constraints import constraint_reduction, vertex_rank

@@ -111,7 +111,7 @@ Lower-level API (for the implant-planning code)::
     sol = model.solve(pts, f_ext=None, method="direct")            # -> MTSolution
     x_new = model.points + sol.u
 
-Case-level API: ``solve(case, ...) -> meshes.results.SolveResult`` (solver "mass-tensor").
+Case-level API: ``solve(case, ...) -> model.results.SolveResult`` (solver "mass-tensor").
 Divergence (NaN, growth, non-positive curvature) raises ``SolverDivergedError`` naming the
 iteration and the vertex.
 

@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tissue_reference.meshes.errors import SolverDivergedError
+from tissue_reference.errors import SolverDivergedError
 
 from ..line_search import backtrack
 

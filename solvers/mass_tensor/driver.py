@@ -8,11 +8,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from tissue_reference.meshes.case_constraints import axis_of
-from tissue_reference.meshes.errors import CaseError, NotModeledError
+from tissue_reference.errors import CaseError, NotModeledError
 from tissue_reference.meshes.mesh import deformation_state
-from tissue_reference.meshes.results import SolveResult
-from tissue_reference.meshes.tips import through_surface_state
+from tissue_reference.model.case_constraints import axis_of
+from tissue_reference.model.results import SolveResult
+from tissue_reference.model.tips import through_surface_state
 
 from ..contact import ContactSet, require_frictionless
 from ..registry import solver as registry_solver

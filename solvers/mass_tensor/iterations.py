@@ -12,7 +12,7 @@ import logging
 import numpy as np
 import scipy.sparse as sp
 
-from tissue_reference.meshes.errors import SolverDivergedError
+from tissue_reference.errors import SolverDivergedError
 
 from ..admm.amg import AmgPcg
 from ..spd import spd_splu

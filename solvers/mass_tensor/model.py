@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.mesh import edge_topology
 
 from .iterations import IterationState
@@ -42,7 +42,7 @@ class MTSolution:
 class MassTensorModel:
     """Linear-elastic P1 Mass Tensor model of a tetrahedral (3D) or triangular (2D plane strain)
     mesh: points (n, d) mm, cells (m, d+1); Lame parameters mu, lmbda in kPa (or ``material``
-    with E, nu in kPa, as ``meshes.case.Material``); topology: the cells'
+    with E, nu in kPa, as ``model.case.Material``); topology: the cells'
     ``meshes.mesh.EdgeTopology`` when the caller holds it (``MeshData.edge_topology``), else
     made here."""
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 
 from .surfaces import Plane, check_surface
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from tissue_reference.meshes.errors import CaseError
+from tissue_reference.errors import CaseError
 from tissue_reference.meshes.mesh import cell_pairs, check_cell_ids, edge_topology
 from tissue_reference.solvers import ckernel
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .errors import CaseError, NotModeledError
+from tissue_reference.errors import CaseError, NotModeledError
 
 __all__ = [
     "ACTUATOR_TYPES",

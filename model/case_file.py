@@ -13,12 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .builders import LOCAL_SIZES, MAX_CELLS, build
+from tissue_reference.errors import CaseError, CaseReadError, ReadError
+from tissue_reference.meshes.builders import LOCAL_SIZES, MAX_CELLS, build
+from tissue_reference.meshes.io import read_mesh
+from tissue_reference.meshes.mesh import MeshData, boundary_facets
+
 from .case_model import Actuator, Boundary, Case, Material, Probe, tip_start_for
 from .case_schema import case_schema, schema_errors, show, where
-from .errors import CaseError, CaseReadError, ReadError
-from .io import read_mesh
-from .mesh import MeshData, boundary_facets
 
 __all__ = ["PROBE_TOLERANCE", "SHIPPED_CASES", "case_path", "load_case", "shipped_cases",
            "surface_distance"]
@@ -40,7 +41,9 @@ def _raise(lines):
 
 
 # --------------------------------------------------------------------------- reading
-SHIPPED_CASES = Path(__file__).resolve().parent / "cases"
+# the shipped cases stay in meshes/cases/, beside this layer (installed: in
+# tissue_reference/meshes/cases/)
+SHIPPED_CASES = Path(__file__).resolve().parent.parent / "meshes" / "cases"
 """The folder of the case files shipped with the toolkit (installed with it)."""
 
 

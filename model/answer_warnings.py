@@ -1,5 +1,5 @@
 """What a caller of the Python API must not miss about an answer, said as Python warnings
-(``meshes.errors.TissueWarning``): an answer that is not valid, one past the loads where answers
+(``errors.TissueWarning``): an answer that is not valid, one past the loads where answers
 converge (its estimate is then no error bar), a warning the solve recorded, an estimated error
 above ESTIMATE_WARN of a probe's displacement (``estimate_warning``). The command line prints the
 same lines, as its own warnings instead of Python's.
@@ -10,7 +10,7 @@ import warnings
 
 import numpy as np
 
-from .errors import TissueWarning
+from tissue_reference.errors import TissueWarning
 
 __all__ = ["ESTIMATE_WARN", "FOLDED_ADVICE", "advice_for", "answer_concerns",
            "estimate_warning", "probes_above_estimate_warn", "relative_estimates", "warn_about"]

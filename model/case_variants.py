@@ -1,4 +1,4 @@
-"""Cases derived from a Case: functions of a Case, which ``meshes.case_model.Case`` calls (its
+"""Cases derived from a Case: functions of a Case, which ``model.case_model.Case`` calls (its
 ``with_pushes``, ``with_mesh``, ...).
 
 Units: pushes and displacements mm; J (volume ratio) dimensionless.
@@ -17,9 +17,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tissue_reference.errors import CaseError
+from tissue_reference.meshes.mesh import MeshData, cell_jacobians
+
 from .case_parts import COEFFICIENT_LAWS, MATERIAL_MODELS, UNCOUPLED_LAWS, Boundary, Material
-from .errors import CaseError
-from .mesh import MeshData, cell_jacobians
 
 if TYPE_CHECKING:
     from .case_model import Case

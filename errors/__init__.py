@@ -1,4 +1,6 @@
-"""Exception hierarchy of the toolkit. Every message names the file, region or value at fault."""
+"""Exception hierarchy of the toolkit, and its warning (``TissueWarning``). Every message names the
+file, region or value at fault. The bottom layer: it imports nothing of the project, so that
+meshing, the Case model and the solvers all raise from one tree."""
 
 __all__ = [
     "AccuracyNotReached",

@@ -22,7 +22,7 @@ Start. At push 0 the tip touches the contact surface: on its axis through the si
 or the area centroid of the actuator's ``region``) it sits where the first of the surface's
 points within R_o of the axis has zero gap (points more than R_o behind the site ignored); the
 points are the surface's nodes ("nodes") or the facets sampled START_SAMPLES times per edge
-("surface"; ``meshes.case.TIP_STARTS``).
+("surface"; ``model.case.TIP_STARTS``).
 """
 from __future__ import annotations
 
@@ -30,8 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tissue_reference.errors import CaseError
+
 from .case import Actuator, Case, tip_start_for
-from .errors import CaseError
 
 __all__ = ["DEFAULT_CONTACT_PENALTY", "SHORT_STEP", "SLIP_FRACTION", "START_SAMPLES",
            "SURFACE_SAMPLES", "TipShape", "curvilinear_shift", "default_contact_rule", "default_tip_start", "facet_samples",
@@ -65,7 +66,7 @@ def default_contact_rule(case: Case):
 def default_tip_start(case: Case, rule=None) -> str:
     """Where a solve that names none starts its indenters: the case's own (``[reference]
     tip_start``), else the one that goes with its contact rule ``rule`` (None: the case's;
-    ``meshes.case.tip_start_for``: "nodes" with the nodal rule, "surface" with a Gauss rule)."""
+    ``model.case.tip_start_for``: "nodes" with the nodal rule, "surface" with a Gauss rule)."""
     if case.reference_tip_start:
         return case.reference_tip_start
     return tip_start_for(default_contact_rule(case) if rule is None else rule)

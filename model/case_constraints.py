@@ -1,5 +1,5 @@
 """The Case's boundary conditions as vertex constraints: functions of a Case, which
-``meshes.case_model.Case`` calls (its ``constraints``, ``free_dofs``, ...).
+``model.case_model.Case`` calls (its ``constraints``, ``free_dofs``, ...).
 
 Units: length and displacement mm, traction kPa, reaction force mN.
 
@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from tissue_reference.errors import CaseError
+
 from .case_parts import Boundary, VertexConstraints, vec
-from .errors import CaseError
 
 __all__ = ["axis_of", "check_boundary", "check_rigid_body", "dirichlet_regions", "free_dofs",
            "prescribed_reactions", "reaction_owners", "rigid_body_modes", "vertex_constraints"]

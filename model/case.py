@@ -7,10 +7,10 @@ A Case is built once (``load_case`` from a TOML file, or ``Case(...)`` from Pyth
 then: unknown regions, bad material values, conflicting prescriptions on one vertex and rigid-body
 freedom are all reported here, before any solver starts.
 
-This module is where users take both from. The class is ``meshes.case_model`` (its validation and
-vertex constraints ``meshes.case_constraints``, the Cases derived from it (``with_pushes``,
-``with_mesh``, ...) ``meshes.case_variants``, its parts (Material, Boundary, Probe, Actuator)
-``meshes.case_parts``); the TOML reader is ``meshes.case_file``, which builds on the class.
+This module is where users take both from. The class is ``model.case_model`` (its validation and
+vertex constraints ``model.case_constraints``, the Cases derived from it (``with_pushes``,
+``with_mesh``, ...) ``model.case_variants``, its parts (Material, Boundary, Probe, Actuator)
+``model.case_parts``); the TOML reader is ``model.case_file``, which builds on the class.
 """
 from __future__ import annotations
 

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_reference.meshes.io import atomic_path
+
 from .case_parts import UNCOUPLED_LAWS
-from .io import atomic_path
 
 __all__ = ["DynamicsResult", "SolveResult", "json_ready", "material_json", "write_json"]
 

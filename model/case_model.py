@@ -1,6 +1,6 @@
 """The Case class: one problem description (mesh + material + boundary conditions + probes +
 actuators) consumed by every solver of the project, reference and fast alike. Users import it,
-with its reader ``load_case``, from ``meshes.case``.
+with its reader ``load_case``, from ``model.case``.
 
 Units: length mm, stress kPa (= mN/mm^2), force mN, density kg/mm^3, gravity mm/s^2.
 
@@ -8,10 +8,10 @@ A Case is built once (``load_case`` from a TOML file, or ``Case(...)`` from Pyth
 then: unknown regions, bad material values, conflicting prescriptions on one vertex and rigid-body
 freedom are all reported here, before any solver starts.
 
-The Case's validation and vertex constraints are ``meshes.case_constraints`` (mixed in), the
-Cases derived from it (``with_pushes``, ``with_mesh``, ...) ``meshes.case_variants``; the parts
-(Material, Boundary, Probe, Actuator) are ``meshes.case_parts``, the TOML reader
-``meshes.case_file``.
+The Case's validation and vertex constraints are ``model.case_constraints`` (mixed in), the
+Cases derived from it (``with_pushes``, ``with_mesh``, ...) ``model.case_variants``; the parts
+(Material, Boundary, Probe, Actuator) are ``model.case_parts``, the TOML reader
+``model.case_file``.
 """
 from __future__ import annotations
 
@@ -19,6 +19,9 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+
+from tissue_reference.errors import CaseError, NotModeledError
+from tissue_reference.meshes.mesh import MeshData, cell_volumes, check_cells
 
 from . import case_constraints, case_variants
 from .case_parts import (
@@ -39,8 +42,6 @@ from .case_parts import (
     vec,
 )
 from .case_variants import RIM_J_WARN  # noqa: F401  (re-exported)
-from .errors import CaseError, NotModeledError
-from .mesh import MeshData, cell_volumes, check_cells
 
 __all__ = [
     "ACTUATOR_TYPES",

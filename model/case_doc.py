@@ -6,7 +6,7 @@ from .case_schema import case_schema, expected, is_table, resolve_ref, show
 
 __all__ = ["case_file_markdown"]
 
-HEADER = "<!-- generated from meshes/case.schema.json by tools/schema_doc.py; do not edit -->"
+HEADER = "<!-- generated from model/case.schema.json by tools/schema_doc.py; do not edit -->"
 
 
 def _cell(text) -> str:
