@@ -62,32 +62,54 @@ MASS_KINDS = ("lumped", "consistent")
 
 
 class _Inertia:
-    """M (u - u_tilde) / dt^2 for the residual and M / dt^2 for the tangent of ``solver``'s
-    Newton (``ReferenceSolver.solve``'s ``extra_terms``); M in kg, dt in s, contributions in mN
-    and mN/mm."""
+    """M (u - u_tilde) / dt^2 for the residual and M / dt^2 for the tangent of a reference
+    solver's Newton (``ReferenceSolver.solve``'s ``extra_terms``); M in kg, dt in s,
+    contributions in mN and mN/mm.
 
-    def __init__(self, solver, case: Case, dt: float, kind: str):
-        self.solver, self.kind = solver, kind
+    Parameters
+    ----------
+    x : dolfinx.fem.Function
+        The solver's unknown (on ``W``), whose current value the terms read.
+    W : dolfinx.fem.FunctionSpace
+        The unknown's space.
+    u : UFL expression
+        The displacement part of ``x`` (mm).
+    gdim, degree : int
+        The geometric dimension and the displacement's degree (the consistent mass's
+        quadrature: 2 * degree).
+    comm : MPI communicator
+        The solver's.
+    case : Case
+        Its density (kg/mm^3).
+    dt : float
+        The time step (s).
+    kind : str
+        "lumped" or "consistent" (``MASS_KINDS``).
+    """
+
+    def __init__(self, *, x, W, u, gdim: int, degree: int, comm, case: Case, dt: float,
+                 kind: str):
+        self.x, self.comm, self.kind = x, comm, kind
         self.c = 1.0 / dt ** 2
-        mesh = solver.dm.mesh
+        mesh = W.mesh
         self.rho = dolfinx.fem.Constant(mesh, PETSc.ScalarType(case.material.density))
-        v = ufl.TestFunction(solver.W)
-        imap = solver.W.dofmap.index_map
-        self.n_own = imap.size_local * solver.W.dofmap.index_map_bs
+        v = ufl.TestFunction(W)
+        imap = W.dofmap.index_map
+        self.n_own = imap.size_local * W.dofmap.index_map_bs
         self.target = np.zeros(self.n_own)  # u_tilde, owned dofs
         if kind == "lumped":
             dx = ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": 1})
-            ones = ufl.as_vector([1.0] * solver.gdim)
+            ones = ufl.as_vector([1.0] * gdim)
             self.m = dolfinx.fem.petsc.assemble_vector(
                 compile_form(self.rho * ufl.inner(ones, v) * dx))
             self.m.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
             self.M = self.M_bc = None
         else:
             dx = ufl.Measure("dx", domain=mesh,
-                             metadata={"quadrature_degree": 2 * solver.degree})
-            T = self.rho / 2 * ufl.inner(solver.u_ufl, solver.u_ufl) * dx
-            self.M_form = compile_form(ufl.derivative(ufl.derivative(T, solver.x, v),
-                                                      solver.x, ufl.TrialFunction(solver.W)))
+                             metadata={"quadrature_degree": 2 * degree})
+            T = self.rho / 2 * ufl.inner(u, u) * dx
+            self.M_form = compile_form(ufl.derivative(ufl.derivative(T, x, v), x,
+                                                      ufl.TrialFunction(W)))
             self.M = dolfinx.fem.petsc.assemble_matrix(self.M_form)
             self.M.assemble()
             self.M_bc = None  # the tangent's copy without Dirichlet rows and columns
@@ -103,17 +125,17 @@ class _Inertia:
         """(u - u_tilde)^T M (u - u_tilde) / (2 dt^2) (uJ) at the solver's current state, over
         all ranks: the inertia's share of the total energy that a contact line search weighs
         (``fem_reference.contact.Contact.accepts``)."""
-        d = self.solver.x.vector.array_r[:self.n_own] - self.target
+        d = self.x.vector.array_r[:self.n_own] - self.target
         if self.m is not None:
             local = float(self.m.array_r @ (d * d))
         else:
             self.work.array_w[:] = d
             self.M.mult(self.work, self.work2)
             local = float(self.work2.array_r @ d)
-        return 0.5 * self.c * self.solver.comm.allreduce(local, op=MPI.SUM)
+        return 0.5 * self.c * self.comm.allreduce(local, op=MPI.SUM)
 
     def add_residual(self, b, bcs):
-        d = self.solver.x.vector.array_r[:self.n_own] - self.target
+        d = self.x.vector.array_r[:self.n_own] - self.target
         if self.m is not None:
             b.array_w[:] += self.c * self.m.array_r * d
         else:
@@ -140,7 +162,7 @@ class _Inertia:
         """v^T M v / 2 (uJ) of a full local dof array v (mm/s)."""
         vo = v[:self.n_own]
         if self.m is not None:
-            return 0.5 * self.solver.comm.allreduce(float(self.m.array_r @ (vo * vo)))
+            return 0.5 * self.comm.allreduce(float(self.m.array_r @ (vo * vo)))
         self.work.array_w[:] = vo
         self.M.mult(self.work, self.work2)
         return 0.5 * float(self.work.dot(self.work2))
@@ -239,7 +261,8 @@ def simulate(case: Case, *, dt: float, steps: int, pushes=None, initial=None,
     def case_at(k):
         return _scaled(case, min(k / ramp_steps, 1.0)) if ramp_steps else case
 
-    inertia = _Inertia(solver, case, float(dt), mass)
+    inertia = _Inertia(x=solver.x, W=solver.W, u=solver.u_ufl, gdim=solver.gdim,
+                       degree=solver.degree, comm=solver.comm, case=case, dt=float(dt), kind=mass)
     try:
         # start state: initial (or rest) with the prescribed values of t = 0
         case0 = case_at(0)

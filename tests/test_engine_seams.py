@@ -1,7 +1,8 @@
 """The reference engine's parts receive what they use: no part of ``fem_reference`` sets the
 Newton's extra terms or the contact's line search of another object, no solve swaps a solver's
-settings from outside ``solver.py``, and the contact and its indenters hold no solver (checked on
-the source, with ``ast``; no dolfinx needed)."""
+settings from outside ``solver.py``, no part keeps the solver as an attribute (the contact, its
+indenters, the inertia of a dynamics step) and the energy forms take none (checked on the source,
+with ``ast``; no dolfinx needed)."""
 from __future__ import annotations
 
 import ast
@@ -68,3 +69,19 @@ def test_the_contact_holds_no_solver(name):
                         if isinstance(f, ast.FunctionDef) and f.name == "__init__")
             args = [a.arg for a in init.args.args + init.args.kwonlyargs]
             assert "solver" not in args, f"{node.name}.__init__ takes the solver"
+
+
+@pytest.mark.parametrize("path", [p for p in MODULES if p.name != "solver.py"],
+                         ids=lambda p: p.name)
+def test_no_part_keeps_the_solver(path):
+    bad = [f"{path.name}:{line}: {ast.unparse(attr)}"
+           for attr, line in _assigned_attributes(_tree(path)) if attr.attr == "solver"]
+    assert not bad, f"a part holding the whole solver (pass it what it uses instead): {bad}"
+
+
+def test_the_energy_forms_take_no_solver():
+    tree = _tree(ENGINE / "energy_forms.py")
+    for node in ast.walk(tree):
+        if isinstance(node, ast.FunctionDef):
+            args = [a.arg for a in node.args.args + node.args.kwonlyargs]
+            assert "solver" not in args, node.name
