@@ -193,10 +193,11 @@ def test_tissue_verify_sweep_writes_its_json_and_plot_and_refuses_a_push(box, tm
     path.write_text(BOX)
     js, out = tmp_path / "s.json", tmp_path / "plot"
     assert main(["verify", str(path), "--sweep", "1", "--sweep-actuators", "A2", "-q",
-                 "--free-actuators",
+                 "--free-actuators", "--model-E-factor", "1.2",
                  "--json", str(js), "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "seed 000 Fig. 7" in text and "no [[reference.measured]] rows" in text
+    assert "E = 7.2 kPa" in text        # the model's stiffness, 1.2 times the case's
     data = validate_file("verify_sweep", js)
     assert [r["pushes_mm"] for r in data["experiments"]] == [{"A2": 1.0}]
     assert (out / "sweep_errors.png").stat().st_size > 0
@@ -204,3 +205,26 @@ def test_tissue_verify_sweep_writes_its_json_and_plot_and_refuses_a_push(box, tm
     assert main(["verify", str(path), "--sweep", "1", "--push", "A1=1", "-q"]) == 2
     assert "not with --sweep" in capsys.readouterr().err
     assert main(["verify", str(path), "--model-size", "4", "-q"]) == 2
+
+
+def test_a_stiffer_model_is_solved_on_the_scaled_E_and_another_body_is_refused(box):
+    """--model-E-factor: the solvers get the case with E scaled; a model whose displacement is
+    inversely proportional to E then predicts the reference's targets divided by the factor."""
+    import dataclasses
+
+    def compliant(case, pushes):
+        return _field(case, pushes) * (6.0 / case.material.E)
+
+    res = sweep(box, [compliant], pushes_mm=(2.0,), actuators=["A1"], model_E_factor=1.25,
+                reference_solve=_fake_reference)
+    assert res["model_case"]["material"]["E_kPa"] == pytest.approx(7.5)
+    (name,) = res["summary"]
+    r = res["experiments"][0]
+    for t in res["targets"]:
+        assert np.allclose(r["solvers"][name]["probes_mm"][t],
+                           np.asarray(r["reference"]["probes_mm"][t]) / 1.25, atol=1e-13)
+    other = dataclasses.replace(box, probes=box.probes[:1])
+    with pytest.raises(CaseError, match="probes"):
+        sweep(box, [compliant], model_case=other, reference_solve=_fake_reference)
+    with pytest.raises(CaseError, match="E factor"):
+        sweep(box, [compliant], model_E_factor=-1.0, reference_solve=_fake_reference)

@@ -109,7 +109,8 @@ def _check_sweep_args(args):
     if args.sweep is None:
         given = [o for o, v in (("--sweep-actuators", args.sweep_actuators),
                                 ("--model-case", args.model_case),
-                                ("--model-size", args.model_size)) if v is not None]
+                                ("--model-size", args.model_size),
+                                ("--model-E-factor", args.model_E_factor)) if v is not None]
         if given:
             raise CaseError(f"{', '.join(given)}: only with --sweep")
         return
@@ -133,7 +134,7 @@ def _sweep_lines(res):
     if res["model_case"]:
         m = res["model_case"]
         print(f"  model case {m['case']}: {m['n_vertices']} vertices, {m['n_cells']} cells, "
-              f"E = {m['material']['E']:g} kPa")
+              f"E = {m['material']['E_kPa']:g} kPa")
     ref = [r["reference"] for r in res["experiments"]]
     print(f"  reference (tracker): {sum(r['newton_iterations'] for r in ref)} Newton its, "
           f"{sum(r['wall_time_s'] for r in ref):.1f} s")
@@ -177,7 +178,8 @@ def _run_sweep(args, case) -> int:
     report = partial(write_plot, Path(args.out)) if args.out is not None else None
     res = sweep(case, names, pushes_mm=args.sweep or DEFAULT_PUSHES_MM,
                 actuators=args.sweep_actuators, options=options,
-                model_case=model_case_from_args(args, case), progress=not args.quiet,
+                model_case=model_case_from_args(args, case),
+                model_E_factor=args.model_E_factor or 1.0, progress=not args.quiet,
                 json_file=args.json, report=report)
     _sweep_lines(res)
     status = 0
@@ -300,6 +302,9 @@ def add_parser(sub):
     p.add_argument("--model-size", type=real("positive", "mm"), default=None,
                    help="with --sweep: the solvers' mesh size (mm; default: the case's mesh, "
                         "or the --model-case's own)")
+    p.add_argument("--model-E-factor", type=real("positive"), default=None,
+                   help="with --sweep: the solvers' E = factor * the case's E (a stiffness "
+                        "mismatch; default 1)")
     p.add_argument("--out", help="folder for report.html and the convergence plots (with "
                                  "--sweep: sweep_errors.png)")
     p.add_argument("--json", help="JSON file of the errors and timings")

@@ -25,6 +25,7 @@ import time
 
 import numpy as np
 
+from tissue_reference.meshes.case import E_RANGE_KPA
 from tissue_reference.meshes.converged_range import unconverged_load
 from tissue_reference.meshes.errors import CaseError
 from tissue_reference.meshes.mesh import deformation_state
@@ -143,8 +144,8 @@ def _run_candidate(kind, cand, mcase, pushes, opts):
 
 
 def sweep(case, solvers=("admm",), *, pushes_mm=DEFAULT_PUSHES_MM, actuators=None,
-          options=None, model_case=None, reference_solve=None, progress: bool = False,
-          json_file=None, report=None) -> dict:
+          options=None, model_case=None, model_E_factor: float = 1.0, reference_solve=None,
+          progress: bool = False, json_file=None, report=None) -> dict:
     """Seed 000's model validation on ``case``: every experiment of ``experiments(case,
     pushes_mm, actuators)`` solved by the reference and by each of ``solvers``, and each
     target's localization error per axis (solver minus reference, mm) summarized per solver,
@@ -205,6 +206,13 @@ def sweep(case, solvers=("admm",), *, pushes_mm=DEFAULT_PUSHES_MM, actuators=Non
         from tissue_reference.control.plants import matching_case
 
         mcase = matching_case(case, model_case, "case", "model")
+    if model_E_factor != 1.0:
+        E = mcase.material.E * model_E_factor
+        if not (np.isfinite(model_E_factor) and model_E_factor > 0) or \
+                not E_RANGE_KPA[0] <= E <= E_RANGE_KPA[1]:
+            raise CaseError(f"model E factor {model_E_factor:g}: expected > 0 and a model E "
+                            f"within [{E_RANGE_KPA[0]:g}, {E_RANGE_KPA[1]:g}] kPa")
+        mcase = mcase.with_material(E=E)
     targets = [p.name for p in case.probes]
     if not targets:
         raise CaseError(f"case {case.name!r} has no probes: a sweep compares targets")
@@ -255,7 +263,7 @@ def sweep(case, solvers=("admm",), *, pushes_mm=DEFAULT_PUSHES_MM, actuators=Non
             print(f"sweep {len(rows)}/{len(runs)}: {label}: " + "; ".join(parts), flush=True)
     out = {"case": case.name, "source": case.source, "n_vertices": case.mesh.n_vertices,
            "n_cells": case.mesh.n_cells, "material": material_json(case.material),
-           "model_case": None if model_case is None else {
+           "model_case": None if mcase is case else {
                "case": mcase.name, "source": mcase.source, "n_vertices": mcase.mesh.n_vertices,
                "n_cells": mcase.mesh.n_cells, "material": material_json(mcase.material)},
            "pushes_mm": [float(p) for p in pushes_mm],
