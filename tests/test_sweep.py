@@ -201,7 +201,11 @@ def test_tissue_verify_sweep_writes_its_json_and_plot_and_refuses_a_push(box, tm
     data = validate_file("verify_sweep", js)
     assert [r["pushes_mm"] for r in data["experiments"]] == [{"A2": 1.0}]
     assert (out / "sweep_errors.png").stat().st_size > 0
-    assert json.loads(js.read_text())["summary"]["admm"]["experiments"] == 1
+    summ = json.loads(js.read_text())["summary"]["admm"]
+    assert summ["experiments"] == 1
+    # pushes prescribed, no gravity: the energy scales with E at a fixed nu and its minimizer
+    # does not move, so a model 1.2 times stiffer predicts the same targets (to ADMM's error)
+    assert summ["max_abs_error_mm"] < 1e-6
     assert main(["verify", str(path), "--sweep", "1", "--push", "A1=1", "-q"]) == 2
     assert "not with --sweep" in capsys.readouterr().err
     assert main(["verify", str(path), "--model-size", "4", "-q"]) == 2
