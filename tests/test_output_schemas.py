@@ -36,6 +36,8 @@ RUNS = {
                                     "mass-tensor", "-q", "--json", "OUT/r.json"], 0, ["r.json"]),
     "verify": ("verify", ["verify", "BOX", "--push", "A1=1", "-q", "--json", "OUT/v.json"], 0,
                ["v.json"]),
+    "verify-sweep": ("verify_sweep", ["verify", "BOX", "--sweep", "1", "-q", "--json",
+                                      "OUT/s.json"], 0, ["s.json"]),
     "suite": ("suite", ["suite", "--solvers", "fem", "admm", "--problems", "shear-patch", "-q",
                         "--json", "OUT/s.json"], 0, ["s.json"]),
     "converge": ("converge", ["converge", "BOX", "--push", "A1=1", "--levels", "3", "-q",

@@ -1,7 +1,9 @@
 """``tissue verify CASE [--size MM] [--push A1=15 ...] [--solvers admm admm-plain mass-tensor
 my_module:solve ...] [--field FILE] [--degree N] [--formulation F] [--estimate] [--tol MM]
 [--out DIR] [--json FILE]``: fast solvers, anyone's solver, or a displacement field against the
-reference on the same Case (``verification.verify``)."""
+reference on the same Case (``verification.verify``); with ``--sweep [MM ...]``, seed 000's model
+validation (its Fig. 7): each actuator pushed alone, every target's error per axis summarized
+(``verification.sweep``)."""
 from __future__ import annotations
 
 import json
@@ -10,6 +12,7 @@ from functools import partial
 from pathlib import Path
 
 from tissue_reference.errors import CaseError
+from tissue_reference.verification.sweep import AXES, DEFAULT_PUSHES_MM, sweep
 from tissue_reference.verification.verify import (
     DEFAULT_SOLVERS,
     FAST_SOLVERS,
@@ -28,6 +31,8 @@ from .common import (
     parse_pushes,
     real,
 )
+from .loop_options import model_case_from_args
+from .sweep_report import write_plot
 from .verify_report import write_report
 
 
@@ -98,8 +103,111 @@ def _option(name: str, setting: str, names: list) -> tuple:
     return key, value
 
 
+def _check_sweep_args(args):
+    """The options a sweep refuses (they choose one load or another reference), and those only
+    a sweep takes."""
+    if args.sweep is None:
+        given = [o for o, v in (("--sweep-actuators", args.sweep_actuators),
+                                ("--model-case", args.model_case),
+                                ("--model-size", args.model_size),
+                                ("--model-E-factor", args.model_E_factor)) if v is not None]
+        if given:
+            raise CaseError(f"{', '.join(given)}: only with --sweep")
+        return
+    given = [o for o, v in (("--push", args.push), ("--field", args.field),
+                            ("--degree", args.degree), ("--estimate", args.estimate or None),
+                            ("--stop-mm", args.stop_mm))
+             if v is not None] + (["--formulation"] if args.formulation != "auto" else [])
+    if given:
+        raise CaseError(f"{', '.join(given)}: not with --sweep (a sweep pushes each actuator "
+                        f"alone, --sweep MM ..., and scores solvers against the case's default "
+                        f"reference)")
+
+
+def _sweep_lines(res):
+    """The summary of a sweep: per solver and target its errors per axis, beside the seed's."""
+    seed = res["seed_fig7"]
+    n = len(res["experiments"])
+    print(f"{res['case']}: {res['n_vertices']} vertices, {res['n_cells']} cells; "
+          f"{len(res['actuators'])} actuators alone at {', '.join(f'{p:g}' for p in res['pushes_mm'])}"
+          f" mm: {n} experiments per target")
+    if res["model_case"]:
+        m = res["model_case"]
+        print(f"  model case {m['case']}: {m['n_vertices']} vertices, {m['n_cells']} cells, "
+              f"E = {m['material']['E_kPa']:g} kPa")
+    ref = [r["reference"] for r in res["experiments"]]
+    print(f"  reference (tracker): {sum(r['newton_iterations'] for r in ref)} Newton its, "
+          f"{sum(r['wall_time_s'] for r in ref):.1f} s")
+    bar = res["reference_error_bar"]
+    print("  reference error bar: " + (bar["note"] if bar["max_mm"] is None else ", ".join(
+        f"{t} {v:.3g} mm" for t, v in bar["max_mm"].items())))
+    print(f"  seed 000 Fig. 7 (model vs EM tracker, {seed['experiments_per_target']} experiments "
+          f"x {seed['targets']} targets): largest error ~{seed['max_abs_error_mm']:g} mm; "
+          f"{seed['note']}")
+    for name, s in res["summary"].items():
+        its = s["iterations"]
+        model = f"model {s['model']}, " if s.get("model") else ""
+        print(f"  {name} ({model}{s['experiments']} experiments, {its} its, "
+              f"{s['wall_time_s']:.1f} s): "
+              f"largest |error| {s['max_abs_error_mm']:.3g} mm ({s['target']} {s['axis']}, "
+              + ", ".join(f"{a} = {p:g} mm" for a, p in (s['pushes_mm'] or {}).items())
+              + f") against the seed's ~{seed['max_abs_error_mm']:g} mm")
+        print("    target axis  |e| mean   median     max  signed mean [q25, q75] (mm)")
+        for t, e in s["targets"].items():
+            for ax in AXES:
+                if ax not in e:
+                    continue
+                a, g = e[ax]["absolute"], e[ax]["signed"]
+                print(f"    {t:6s} {ax:4s} {a['mean']:8.3g} {a['median']:8.3g} {a['max']:8.3g}"
+                      f"  {g['mean']:+.3g} [{g['q25']:+.3g}, {g['q75']:+.3g}]")
+        for what in ("not_converged", "not_valid"):
+            if s[what]:
+                print(f"    {what.replace('_', ' ')}: {s[what]}")
+    for name, why in res["skipped"].items():
+        print(f"  skipped: {why}")
+    if "report" in res:
+        print(f"  plot: {res['report']}")
+
+
+def _run_sweep(args, case) -> int:
+    names = list(args.solvers or []) + list(args.solver or []) or ["admm"]
+    options = {}
+    for name, setting in args.option or ():
+        key, value = _option(name, setting, names)
+        options.setdefault(name, {})[key] = value
+    report = partial(write_plot, Path(args.out)) if args.out is not None else None
+    res = sweep(case, names, pushes_mm=args.sweep or DEFAULT_PUSHES_MM,
+                actuators=args.sweep_actuators, options=options,
+                model_case=model_case_from_args(args, case),
+                model_E_factor=args.model_E_factor or 1.0, progress=not args.quiet,
+                json_file=args.json, report=report)
+    _sweep_lines(res)
+    status = 0
+    for r in res["experiments"]:
+        for why in r["reference"].get("no_converged_value", ()):
+            print(f"tissue verify: warning: {why}; the errors measure agreement with the "
+                  f"reference of this mesh, not with a converged answer", file=sys.stderr)
+            status = 1
+    for name, s in res["summary"].items():
+        for what in ("not_converged", "not_valid"):
+            if s[what]:
+                print(f"tissue verify: error: {name}: {what.replace('_', ' ')} at {s[what]}",
+                      file=sys.stderr)
+                status = 1
+        if args.tol is not None and s["max_abs_error_mm"] > args.tol:
+            print(f"tissue verify: error: {name}: largest target error "
+                  f"{s['max_abs_error_mm']:.4g} mm exceeds --tol {args.tol:g} mm", file=sys.stderr)
+            status = 1
+    return status
+
+
 def run(args) -> int:
     check_outputs(args, files=("json",), dirs=("out",))
+    _check_sweep_args(args)
+    if args.sweep is not None:
+        case = case_from_args(args)
+        check_prescribed(case)
+        return _run_sweep(args, case)
     pushes = parse_pushes(args.push)
     case = case_from_args(args)
     check_pushes(case, pushes)
@@ -170,13 +278,34 @@ def add_parser(sub):
                         "an error naming them)")
     add_discretization_args(p)
     p.add_argument("--tol", type=real("positive", "mm"), default=None, metavar="MM",
-                   help="exit status 1 when a max vertex error exceeds MM")
+                   help="exit status 1 when a max vertex error exceeds MM (with --sweep: the "
+                        "largest target error along an axis)")
     p.add_argument("--stop-mm", type=real("positive", "mm", at_least=1e-9), default=None,
                    help="Mass Tensor stopping rule (mm, default 0.01; at least 1e-9: below "
                         "that a step is round-off)")
     p.add_argument("--estimate", action="store_true",
                    help="also estimate the reference's discretization error (one solve at "
                         "degree + 1), printed beside each solver's error to the reference")
-    p.add_argument("--out", help="folder for report.html and the convergence plots")
+    p.add_argument("--sweep", nargs="*", type=real("positive", "mm"), default=None,
+                   metavar="MM",
+                   help="seed 000's model validation (its Fig. 7): push each actuator alone by "
+                        "each MM (default: 5 10 15, the seed's 12 experiments with four "
+                        "actuators), score each solver's targets against the case's default "
+                        "reference and print per target and axis the mean, median and max "
+                        "error (default solver: admm)")
+    p.add_argument("--sweep-actuators", nargs="+", metavar="NAME", default=None,
+                   help="the actuators --sweep pushes (default: all)")
+    p.add_argument("--model-case", default=None, metavar="CASE.toml",
+                   help="with --sweep: the case the solvers solve (the same body, actuators "
+                        "and targets meshed as its file says): a model mismatch; default: the "
+                        "case")
+    p.add_argument("--model-size", type=real("positive", "mm"), default=None,
+                   help="with --sweep: the solvers' mesh size (mm; default: the case's mesh, "
+                        "or the --model-case's own)")
+    p.add_argument("--model-E-factor", type=real("positive"), default=None,
+                   help="with --sweep: the solvers' E = factor * the case's E (a stiffness "
+                        "mismatch; default 1)")
+    p.add_argument("--out", help="folder for report.html and the convergence plots (with "
+                                 "--sweep: sweep_errors.png)")
     p.add_argument("--json", help="JSON file of the errors and timings")
     p.set_defaults(func=run)

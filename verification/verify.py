@@ -56,8 +56,9 @@ from tissue_reference.solvers.registry import solver as registry_solver
 from .plugins import json_safe, resolve_solver, run_plugin
 from .scoring import Field, field_from_array, load_field, score_field, vertex_norms
 
-__all__ = ["DEFAULT_SOLVERS", "FAST_SOLVERS", "VALIDITY_KEYS", "declared_law_case", "invalid_runs",
-           "reference_material_for", "tolerance_failures", "verify"]
+__all__ = ["DEFAULT_SOLVERS", "FAST_SOLVERS", "VALIDITY_KEYS", "builtin_solver",
+           "declared_law_case", "invalid_runs", "reference_material_for", "resolve_candidates",
+           "tolerance_failures", "verify"]
 
 VALIDITY_KEYS = ("valid", "invalid_reason", "inverted_cells", "min_J", "max_displacement_mm")
 
@@ -184,6 +185,52 @@ def _check_options(options, builtins, plugins):
                             f"{sorted(accepted)}")
 
 
+def resolve_candidates(solvers, options) -> tuple[list, list]:
+    """(built-in fast solvers' names, ``plugins.SolverPlugin`` s) of ``solvers`` (built-in names
+    of FAST_SOLVERS, callables, ``"module:function"``, ``"file.py:function"`` or entry-point
+    names), with ``options`` (solver name -> keyword arguments) checked against them: CaseError
+    for an unknown solver or option, a solver given twice or two that share a name."""
+    builtins, plugins = [], []
+    for s in solvers:
+        if isinstance(s, str) and s in FAST_SOLVERS:
+            builtins.append(s)
+        elif isinstance(s, str) and ":" not in s and s in SOLVERS:
+            raise CaseError(f"unknown fast solver {s!r}; solvers: {sorted(FAST_SOLVERS)}")
+        else:
+            try:
+                plugins.append(resolve_solver(s))
+            except CaseError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - PluginError: name the choices too
+                raise CaseError(f"{exc}; built-in solvers: {sorted(FAST_SOLVERS)}") from None
+    names = [*builtins, *(p.name for p in plugins)]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise CaseError(f"solver(s) {twice} given twice (or two solvers share that name): each "
+                        f"candidate is scored and reported under its name, so names must differ")
+    _check_options(dict(options or {}), builtins, plugins)
+    return builtins, plugins
+
+
+def builtin_solver(name: str, case, opts: dict | None = None):
+    """(solve, keyword arguments) of the built-in fast solver ``name`` (FAST_SOLVERS) on
+    ``case`` with the caller's ``opts``, as ``verify`` runs it: ``solve(case, pushes=...,
+    **kwargs)``; (None, why) when it cannot solve the case (not importable, or the case has
+    what it does not model)."""
+    key, defaults, _ = FAST_SOLVERS[name]
+    opts = {**defaults, **(opts or {})}
+    try:
+        solve = get_solver(key)
+        if key == "mass-tensor":   # its tips need the direct solve's factorization
+            solver_module(key).require_modeled(case, opts.get("method", "direct"))
+        else:
+            solver_module(key).require_modeled(case)
+    except (ImportError, NotModeledError) as exc:   # no score, and the reason said
+        why = f"{SOLVERS[key]} not importable ({exc})" if isinstance(exc, ImportError) else exc
+        return None, f"{name}: {why}; skipped"
+    return solve, registry_solver(key).with_factorization(opts)
+
+
 def verify(case, pushes=None, solvers=DEFAULT_SOLVERS, *, report=None, json_file=None,
            options=None, reference_solve=None, progress: bool = False,
            estimate: bool = False, field=None, degree: int | None = None,
@@ -256,25 +303,7 @@ def verify(case, pushes=None, solvers=DEFAULT_SOLVERS, *, report=None, json_file
     """
     pushes = dict(pushes or {})
     options = dict(options or {})
-    builtins, plugins = [], []
-    for s in solvers:
-        if isinstance(s, str) and s in FAST_SOLVERS:
-            builtins.append(s)
-        elif isinstance(s, str) and ":" not in s and s in SOLVERS:
-            raise CaseError(f"unknown fast solver {s!r}; solvers: {sorted(FAST_SOLVERS)}")
-        else:
-            try:
-                plugins.append(resolve_solver(s))
-            except CaseError:
-                raise
-            except Exception as exc:  # noqa: BLE001 - PluginError: name the choices too
-                raise CaseError(f"{exc}; built-in solvers: {sorted(FAST_SOLVERS)}") from None
-    names = [*builtins, *(p.name for p in plugins)]
-    twice = sorted({n for n in names if names.count(n) > 1})
-    if twice:
-        raise CaseError(f"solver(s) {twice} given twice (or two solvers share that name): each "
-                        f"candidate is scored and reported under its name, so names must differ")
-    _check_options(options, builtins, plugins)
+    builtins, plugins = resolve_candidates(solvers, options)
     if (degree is not None or formulation != "auto") and not (plugins or field is not None):
         raise CaseError("degree and formulation choose the reference for plugin solvers and "
                         "fields; the built-in fast solvers are P1 displacement solvers, scored "
@@ -332,22 +361,14 @@ def _disc(res_ref) -> dict:
 
 
 def _score_builtin(name, case, pushes, opts, refs, out):
-    key, defaults, _ = FAST_SOLVERS[name]
-    try:
-        solve = get_solver(key)
-        if key == "mass-tensor":   # its tips need the direct solve's factorization
-            solver_module(key).require_modeled(case, {**defaults, **opts}.get("method", "direct"))
-        else:
-            solver_module(key).require_modeled(case)
-    except (ImportError, NotModeledError) as exc:   # no score, and the reason said
-        why = f"{SOLVERS[key]} not importable ({exc})" if isinstance(exc, ImportError) else exc
-        msg = f"{name}: {why}; skipped"
-        print(f"tissue verify: {msg}")
-        out["skipped"][name] = msg
+    key = FAST_SOLVERS[name][0]
+    solve, kw = builtin_solver(name, case, opts)
+    if solve is None:
+        print(f"tissue verify: {kw}")
+        out["skipped"][name] = kw
         return None, None
     rcase, res_ref = refs.get(reference_material_for(case, name), 1, "displacement")
     model = rcase.material.model
-    kw = registry_solver(key).with_factorization({**defaults, **opts})
     # run 1 (traced): error to the reference and largest displacement at every iteration
     trace = {"iteration": [], "max_error_mm": [], "max_step_mm": []}
     state = {"prev": None}
