@@ -14,7 +14,7 @@ from tissue_reference.meshes.results import SolveResult
 from .estimate import auto_estimate
 from .estimate import estimate as with_estimate
 from .measured import with_measured_accuracy
-from .symmetric import solve_reduced
+from .symmetric import estimate_split, solve_split
 
 __all__ = ["solve"]
 
@@ -42,7 +42,7 @@ def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None,
     e.g. the builtin ``phantom-symmetric``) under a load symmetric about the mirror planes,
     solve the part with its planes sliding (the same discrete problem) and mirror its answer
     back onto the whole mesh (``fem_reference.symmetric``; ``extra["symmetry"]`` says which was
-    solved); False: solve the whole mesh. The error estimate's solve is the whole mesh's.
+    solved; its error estimate is the part's too); False: solve the whole mesh.
 
     Parameters
     ----------
@@ -87,12 +87,14 @@ def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None,
     if estimate and dirichlet_override is not None:
         raise CaseError(f"estimate={estimate!r}: the error estimate does not take "
                         f"dirichlet_override")
-    res = solve_reduced(case, degree, pushes=pushes, initial=initial,
-                        dirichlet_override=dirichlet_override, progress=progress,
-                        symmetry=symmetry, **kw)
+    res, split = solve_split(case, degree, pushes=pushes, initial=initial,
+                             dirichlet_override=dirichlet_override, progress=progress,
+                             symmetry=symmetry, **kw)
     if dirichlet_override is None:   # another problem than the case's: no row describes it
         res = with_measured_accuracy(case, res, pushes)
-    if estimate:   # the estimate's degree is the answer's + 1, whatever degree asked for
+    if estimate and split is not None:   # on the part too (symmetric.estimate_split)
+        res = estimate_split(case, res, split, auto=estimate == "auto", progress=progress, **kw)
+    elif estimate:   # the estimate's degree is the answer's + 1, whatever degree asked for
         add = auto_estimate if estimate == "auto" else with_estimate
         res = add(case, res, pushes=pushes, progress=progress, **kw)
     return warn_about(res)

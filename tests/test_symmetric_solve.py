@@ -144,3 +144,20 @@ def test_tissue_solve_reduces_by_default_and_no_symmetry_solves_the_whole_mesh(t
     for k, ind in whole["indenters"].items():
         assert abs(red["indenters"][k]["force"] - ind["force"]) <= RTOL * abs(ind["force"])
     assert red["discretization"]["dofs"] == whole["discretization"]["dofs"]
+
+
+def test_the_error_estimate_of_a_reduced_answer_is_the_whole_mesh_ones(case):
+    """The degree + 1 solve of the estimate runs on the part too, and gives the whole mesh's
+    estimate of every target and reaction."""
+    import tissue_reference.fem_reference as fr
+
+    pushes = {a.name: 3.0 for a in case.actuators}
+    red = fr.solve(case, pushes=pushes, degree=1, estimate=True)
+    whole = fr.solve(case, pushes=pushes, degree=1, estimate=True, symmetry=False)
+    assert red.extra["estimate_discretization"]["dofs"] == \
+        whole.extra["estimate_discretization"]["dofs"]
+    for k, e in whole.probe_error_estimates.items():
+        assert red.probe_error_estimates[k] == pytest.approx(e, rel=RTOL), k
+    for k, e in whole.reaction_error_estimates.items():
+        assert red.reaction_error_estimates[k] == pytest.approx(e, rel=RTOL), k
+    assert sorted(red.reaction_error_estimates) == sorted(whole.reaction_error_estimates)
