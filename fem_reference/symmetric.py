@@ -138,8 +138,8 @@ def mirrored_result(plan: Reduction, part: SolveResult, formulation: str = "auto
     return dataclasses.replace(
         part, u=plan.vertex_field(part.u), probes=plan.probes(part.probes),
         reactions=plan.reactions(part.reactions), indenters=plan.indenters(part.indenters),
-        strain_energy=2.0 * part.strain_energy, warnings=plan.warnings(part.warnings), case_name=whole.name,
-        n_vertices=whole.mesh.n_vertices, n_cells=whole.mesh.n_cells, discretization=disc,
+        strain_energy=2.0 * part.strain_energy, warnings=plan.warnings(part.warnings),
+        case_name=whole.name, n_vertices=whole.mesh.n_vertices, n_cells=whole.mesh.n_cells, discretization=disc,
         extra={**part.extra, "n_dofs": dofs,
                "symmetry": {"solved_on": "part", "planes": planes, "part_dofs": part_dofs,
                             "part_cells": inner.get("part_cells", part.n_cells)}},

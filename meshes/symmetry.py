@@ -209,12 +209,16 @@ def _asymmetry(case: Case, split: MirrorPart) -> str | None:
     if case.gravity is not None and not _close(case.gravity, flip * np.asarray(case.gravity),
                                                _size(case.gravity)):
         return f"the gravity {list(case.gravity)} has a component across the plane"
+    present = set(split.mesh.facet_regions) | set(split.mesh.point_regions) | \
+        set(split.mesh.cell_regions)
     for a in case.actuators:
         t = rec.twin(a.region)
-        twins = [b for b in case.actuators if b.region == t]
-        if not twins:
-            return f"actuator {a.name!r} on {a.region!r} has no twin on {t!r}"
+        twins = [a] if t == a.region else [b for b in case.actuators if b.region == t]
+        if len(twins) != 1:
+            return f"actuator {a.name!r} on {a.region!r} has {len(twins)} twins on {t!r}"
         b = twins[0]
+        if b is not a and (a.region in present) == (b.region in present):
+            return f"actuators {a.name!r} and {b.name!r} are not one on each side of the plane"
         what = f"actuator {a.name!r} and its mirror twin {b.name!r}"
         if (a.type, a.tip, a.radius, a.edge_radius, a.contact, a.idle) != \
                 (b.type, b.tip, b.radius, b.edge_radius, b.contact, b.idle):

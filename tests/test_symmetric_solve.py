@@ -161,3 +161,14 @@ def test_the_error_estimate_of_a_reduced_answer_is_the_whole_mesh_ones(case):
     for k, e in whole.reaction_error_estimates.items():
         assert red.reaction_error_estimates[k] == pytest.approx(e, rel=RTOL), k
     assert sorted(red.reaction_error_estimates) == sorted(whole.reaction_error_estimates)
+
+
+def test_the_mesh_cache_keeps_how_a_mirrored_mesh_was_joined(case):
+    from tissue_reference.meshes import mesh_cache
+
+    built = mesh_cache.builds()
+    again = build("phantom-symmetric", SIZE, site_size=SITE)    # read from the cache
+    assert mesh_cache.builds() == built
+    assert again is not case.mesh and again.mirrored == case.mesh.mirrored
+    assert [r.plane for r in again.mirrored] == ["sym_y0", "sym_x0"]
+    assert dict(again.mirrored[0].renames) == {"act_py": "act_ny", "T3": "T5"}
