@@ -130,6 +130,15 @@ def mirrored_result(plan: Reduction, part: SolveResult, formulation: str = "auto
     planes = [plan.plane, *(inner.get("planes") or [])] if inner.get("solved_on") == "part" \
         else [plan.plane]
     part_dofs = inner.get("part_dofs", (part.discretization or {}).get("dofs"))
+    # the part's cells are the whole's first, each with its image: twice as many inverted
+    extra, reason = dict(part.extra), part.invalid_reason
+    k = extra.get("inverted_cells")
+    if k and not isinstance(k, bool):
+        k = int(k)
+        extra["inverted_cells"] = 2 * k
+        if reason:
+            said = f"{k} inverted cell{'' if k == 1 else 's'} "
+            reason = reason.replace(said, f"{2 * k} inverted cells ", 1)
     state = {}
     if part.node_u is not None and part.node_points is not None:
         state["node_u"], state["node_points"] = plan.nodes(part.node_u, part.node_points)
@@ -139,8 +148,9 @@ def mirrored_result(plan: Reduction, part: SolveResult, formulation: str = "auto
         part, u=plan.vertex_field(part.u), probes=plan.probes(part.probes),
         reactions=plan.reactions(part.reactions), indenters=plan.indenters(part.indenters),
         strain_energy=2.0 * part.strain_energy, warnings=plan.warnings(part.warnings),
-        case_name=whole.name, n_vertices=whole.mesh.n_vertices, n_cells=whole.mesh.n_cells, discretization=disc,
-        extra={**part.extra, "n_dofs": dofs,
+        case_name=whole.name, n_vertices=whole.mesh.n_vertices, n_cells=whole.mesh.n_cells,
+        discretization=disc, invalid_reason=reason,
+        extra={**extra, "n_dofs": dofs,
                "symmetry": {"solved_on": "part", "planes": planes, "part_dofs": part_dofs,
                             "part_cells": inner.get("part_cells", part.n_cells)}},
         **state)

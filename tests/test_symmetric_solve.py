@@ -172,3 +172,25 @@ def test_the_mesh_cache_keeps_how_a_mirrored_mesh_was_joined(case):
     assert again is not case.mesh and again.mirrored == case.mesh.mirrored
     assert [r.plane for r in again.mirrored] == ["sym_y0", "sym_x0"]
     assert dict(again.mirrored[0].renames) == {"act_py": "act_ny", "T3": "T5"}
+
+
+def test_the_part_s_vertex_field_and_validity_map_onto_the_whole_mesh(case):
+    """A part's field u(X) = X mirrored back is X on the whole mesh (every image vertex gets its
+    part vertex's value mirrored); a part with inverted cells has twice as many on the whole."""
+    from tissue_reference.fem_reference.symmetric import mirrored_result
+    from tissue_reference.meshes.results import SolveResult
+
+    plan = reduction(case, {a.name: 1.0 for a in case.actuators})
+    assert isinstance(plan, Reduction) and plan.plane == "sym_y0"
+    pts = plan.part.mesh.points
+    part = SolveResult(u=pts.copy(), converged=True, iterations=1, residual=0.0,
+                       wall_time_s=0.0, solver="fem", degree=1, valid=False,
+                       invalid_reason="3 inverted cells (J <= 0; worst cell 5 at (1, 2, 3) mm, "
+                                      "J = -0.1)",
+                       extra={"inverted_cells": 3}, discretization={"formulation":
+                                                                    "displacement"})
+    whole = mirrored_result(plan, part)
+    assert np.array_equal(whole.u, case.mesh.points)
+    assert whole.extra["inverted_cells"] == 6
+    assert whole.invalid_reason.startswith("6 inverted cells (J <= 0; worst cell 5 ")
+    assert whole.discretization["dofs"] == 3 * case.mesh.n_vertices
