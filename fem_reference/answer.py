@@ -1,4 +1,5 @@
-"""A reference answer, composed: the solve (on a kept solver, ``kept.solver_for``), then the
+"""A reference answer, composed: the solve (on a kept solver, ``kept.solver_for``; a symmetric
+load on a mirrored mesh on its symmetric part, ``symmetric``), then the
 measured accuracy a case file states for exactly that load and discretization (``measured``),
 then, when asked, the estimated discretization error (``estimate``), then the warnings an answer
 that is not valid or not converged deserves (``model.answer_warnings``). ``fem_reference.solve``
@@ -12,15 +13,15 @@ from tissue_reference.model.results import SolveResult
 
 from .estimate import auto_estimate
 from .estimate import estimate as with_estimate
-from .kept import solver_for
 from .measured import with_measured_accuracy
+from .symmetric import estimate_split, solve_split
 
 __all__ = ["solve"]
 
 
 def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None,
           dirichlet_override=None, progress: bool = False, estimate: bool | str = False,
-          **kw) -> SolveResult:
+          symmetry: bool = True, **kw) -> SolveResult:
     """Solve a Case with the reference (compiled forms are cached per mesh and degree).
 
     degree, formulation (in ``kw``) and the other options: see ReferenceSolver; the default
@@ -37,6 +38,11 @@ def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None,
     (``[reference.measured]``, ``fem_reference.measured``) is in ``extra["measured_accuracy"]``.
     An answer that is not valid, past the loads where answers converge, or with an estimated
     error above 2 % also warns (``errors.TissueWarning``; ``model.answer_warnings``).
+    symmetry: on a mesh joined from a symmetric part and its mirror images (``meshes.mirror``,
+    e.g. the builtin ``phantom-symmetric``) under a load symmetric about the mirror planes,
+    solve the part with its planes sliding (the same discrete problem) and mirror its answer
+    back onto the whole mesh (``fem_reference.symmetric``; ``extra["symmetry"]`` says which was
+    solved; its error estimate is the part's too); False: solve the whole mesh.
 
     Parameters
     ----------
@@ -56,6 +62,9 @@ def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None,
         Log each load step and Newton iteration.
     estimate : bool or str
         True, False or "auto": the estimated discretization error, as above.
+    symmetry : bool
+        Solve a symmetric load on a mirrored mesh's symmetric part (True, default), or the
+        whole mesh (False).
     **kw
         The other options of ``ReferenceSolver`` (formulation, settings, linear_solver, ...).
 
@@ -78,12 +87,14 @@ def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None,
     if estimate and dirichlet_override is not None:
         raise CaseError(f"estimate={estimate!r}: the error estimate does not take "
                         f"dirichlet_override")
-    s = solver_for(case, degree, **kw)
-    res = s.solve(pushes, case=case, initial=initial, dirichlet_override=dirichlet_override,
-                  progress=progress)
+    res, split = solve_split(case, degree, pushes=pushes, initial=initial,
+                             dirichlet_override=dirichlet_override, progress=progress,
+                             symmetry=symmetry, **kw)
     if dirichlet_override is None:   # another problem than the case's: no row describes it
         res = with_measured_accuracy(case, res, pushes)
-    if estimate:   # the estimate's degree is the answer's + 1, whatever degree asked for
+    if estimate and split is not None:   # on the part too (symmetric.estimate_split)
+        res = estimate_split(case, res, split, auto=estimate == "auto", progress=progress, **kw)
+    elif estimate:   # the estimate's degree is the answer's + 1, whatever degree asked for
         add = auto_estimate if estimate == "auto" else with_estimate
         res = add(case, res, pushes=pushes, progress=progress, **kw)
     return warn_about(res)

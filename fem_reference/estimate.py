@@ -76,7 +76,7 @@ from .newton_settings import NewtonSettings
 from .transfer import match_points, warm_settings
 
 __all__ = ["AUTO_MAX_DOFS", "ESTIMATE_METHOD", "ESTIMATE_RTOL", "MAX_DEGREE", "ErrorEstimate",
-           "auto_estimate", "error_estimate", "estimate"]
+           "auto_estimate", "auto_estimate_note", "error_estimate", "estimate"]
 
 ESTIMATE_METHOD = "p-enrichment"
 MAX_DEGREE = 3
@@ -280,6 +280,13 @@ def auto_estimate(case: Case, result: SolveResult, *, pushes=None, progress: boo
             note = f"the degree-{int(result.degree) + 1} solve of the estimate did not converge " \
                    f"({exc})"
     return dataclasses.replace(result, estimate_note=note)
+
+
+def auto_estimate_note(case: Case, result: SolveResult, *, max_dofs: int | None = None,
+                       **solver_options) -> str | None:
+    """Why ``auto_estimate`` would not estimate ``result`` (None: it would)."""
+    return _no_auto_estimate(case, result, AUTO_MAX_DOFS if max_dofs is None else max_dofs,
+                             solver_options)
 
 
 def _no_auto_estimate(case: Case, result: SolveResult, max_dofs: int, options: dict):

@@ -30,6 +30,11 @@ class MeshData:
         (k, 2 vertex ids) whose mid-edge node lies off the straight midpoint, and those nodes'
         coordinates (k, gdim) on the true curved boundary. The linear cells stay the mesh every
         solver uses; the reference builds isoparametric cells from them at degree >= 2.
+    mirrored: how the mesh was joined from a symmetric part and its mirror images
+        (``meshes.mirror.MirrorRecord``s, the last join first; () for any other mesh): the part
+        is this mesh's first vertices and cells, so a solve of a symmetric load can be reduced
+        to it (``model.symmetry``). A mesh derived from this one by refinement or another
+        change of its vertices or cells is built without them.
     """
 
     points: np.ndarray
@@ -39,8 +44,10 @@ class MeshData:
     cell_regions: dict = field(default_factory=dict)
     curved_edges: np.ndarray | None = None
     curved_points: np.ndarray | None = None
+    mirrored: tuple = ()
 
     def __post_init__(self):
+        object.__setattr__(self, "mirrored", tuple(self.mirrored or ()))
         pts = np.ascontiguousarray(self.points, dtype=np.float64)
         cells = np.ascontiguousarray(self.cells, dtype=np.int64)
         if pts.ndim != 2 or pts.shape[1] not in (2, 3):

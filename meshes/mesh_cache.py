@@ -27,6 +27,7 @@ from tissue_reference.errors import WriteError
 
 from .io import atomic_path, user_cache_root
 from .mesh import MeshData
+from .mirror import MirrorRecord
 
 __all__ = ["builds", "cache_dir", "cached", "fingerprint", "mesh_key"]
 
@@ -73,6 +74,8 @@ def _save(path: Path, mesh: MeshData):
     for kind in _KINDS:
         for region, ids in getattr(mesh, kind).items():
             arrays[f"{kind}:{region}"] = np.asarray(ids)
+    if mesh.mirrored:   # how a mirrored mesh was joined (meshes.mirror.MirrorRecord)
+        arrays["mirrored"] = np.array(json.dumps([r.to_json() for r in mesh.mirrored]))
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         np.savez(f, **arrays)
 
@@ -88,7 +91,10 @@ def read_cached(path: Path) -> MeshData | None:
             return MeshData(z["points"], z["cells"], **parts,
                             curved_edges=z["curved_edges"] if "curved_edges" in z.files else None,
                             curved_points=z["curved_points"] if "curved_points" in z.files
-                            else None)
+                            else None,
+                            mirrored=tuple(MirrorRecord.from_json(r) for r in
+                                           json.loads(str(z["mirrored"])))
+                            if "mirrored" in z.files else ())
     except Exception:   # noqa: BLE001 - a file that cannot be read is built again
         return None
 

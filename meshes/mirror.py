@@ -5,16 +5,117 @@ A mesh built this way is exactly symmetric: every vertex, cell and region has it
 Under loads symmetric about the plane its solution is the part's with the plane sliding (the same
 discrete problem), so nothing drifts across the plane for want of a symmetric mesh, and a solve
 of the whole checks the part's sliding plane against an independent formulation.
+
+The joined mesh records each join (``MirrorRecord`` in ``MeshData.mirrored``): the plane, its
+axis, the region renames and the part's size. The part is the joined mesh's first vertices and
+cells, so ``mirror_part`` gives it back (with its plane as a facet region again) and the image of
+each of its vertices; ``model.symmetry`` reduces a solve of a symmetric load to it.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
 from tissue_reference.errors import CaseError
 
-from .mesh import MeshData
+from .mesh import MeshData, boundary_facets
 
-__all__ = ["mirror"]
+__all__ = ["MirrorPart", "MirrorRecord", "mirror", "mirror_part"]
+
+
+@dataclass(frozen=True)
+class MirrorRecord:
+    """One join of ``mirror``: the plane region ``plane`` (dropped from the joined mesh) at
+    ``x[axis] = 0``, the region renames (pairs: a region of the part, the name of its image),
+    and the part's vertex and cell counts (the joined mesh's first ones are the part's)."""
+
+    plane: str
+    axis: int
+    renames: tuple
+    n_vertices: int
+    n_cells: int
+
+    def twin(self, region: str) -> str:
+        """The name of ``region``'s mirror image (itself for a region that kept its name)."""
+        for a, b in self.renames:
+            if region == a:
+                return b
+            if region == b:
+                return a
+        return region
+
+    def to_json(self) -> list:
+        return [self.plane, self.axis, [list(r) for r in self.renames], self.n_vertices,
+                self.n_cells]
+
+    @classmethod
+    def from_json(cls, data) -> MirrorRecord:
+        plane, axis, renames, nv, nc = data
+        return cls(str(plane), int(axis), tuple((str(a), str(b)) for a, b in renames), int(nv),
+                   int(nc))
+
+
+@dataclass(frozen=True)
+class MirrorPart:
+    """The part a joined mesh was mirrored from (``mirror_part``): ``mesh`` (with its plane
+    region and the earlier joins' records), the join's ``record``, and ``image``: for each of
+    the part's vertices, the joined mesh's vertex that is its mirror image (itself on the
+    plane)."""
+
+    mesh: MeshData
+    record: MirrorRecord
+    image: np.ndarray
+
+
+def mirror_part(mesh: MeshData) -> MirrorPart | None:
+    """The part of the last join that made ``mesh`` (``MeshData.mirrored``), or None when the
+    mesh records none or is not that join's mirror image (then it was changed since). Kept on
+    the mesh: the same part (the same object) on every call, so solvers kept per mesh are
+    reused."""
+    if not mesh.mirrored:
+        return None
+    memo = mesh.__dict__.get("_mirror_part")
+    if memo is None:
+        memo = mesh.__dict__.setdefault("_mirror_part", [_part_of(mesh)])
+    return memo[0]
+
+
+def _part_of(mesh: MeshData) -> MirrorPart | None:
+    rec = mesh.mirrored[0]
+    n, m, axis = rec.n_vertices, rec.n_cells, rec.axis
+    x = mesh.points
+    if not (0 < n <= mesh.n_vertices and 0 < m and 2 * m == mesh.n_cells):
+        return None
+    on = np.flatnonzero(x[:n, axis] == 0.0)
+    rest = np.setdiff1d(np.arange(n), on)
+    if n + rest.size != mesh.n_vertices:
+        return None
+    image = np.empty(n, dtype=np.int64)
+    image[on] = on
+    image[rest] = n + np.arange(rest.size)
+    mirrored = x[rest].copy()
+    mirrored[:, axis] *= -1.0
+    part_cells = mesh.cells[:m]
+    flipped = image[part_cells]
+    flipped[:, [0, 1]] = flipped[:, [1, 0]]
+    if not (np.array_equal(x[n:], mirrored) and np.array_equal(mesh.cells[m:], flipped)
+            and part_cells.max(initial=-1) < n):
+        return None
+    facets = {k: f[np.all(f < n, axis=1)] for k, f in mesh.facet_regions.items()}
+    outer = boundary_facets(part_cells)
+    facets[rec.plane] = outer[np.all(x[outer, axis] == 0.0, axis=1)]
+    facets = {k: f for k, f in facets.items() if len(f)}
+    points = {k: ids[ids < n] for k, ids in mesh.point_regions.items()}
+    cells = {k: ids[ids < m] for k, ids in mesh.cell_regions.items()}
+    edges = curved = None
+    if mesh.geometry_order == 2:
+        keep = np.all(mesh.curved_edges < n, axis=1)
+        edges, curved = mesh.curved_edges[keep], mesh.curved_points[keep]
+    part = MeshData(x[:n], part_cells, facets, {k: v for k, v in points.items() if len(v)},
+                    {k: v for k, v in cells.items() if len(v)}, edges, curved,
+                    mirrored=mesh.mirrored[1:])
+    return MirrorPart(part, rec, image)
 
 
 def mirror(mesh: MeshData, plane: str, axis: int, renames: dict[str, str] | None = None,
@@ -90,4 +191,6 @@ def mirror(mesh: MeshData, plane: str, axis: int, renames: dict[str, str] | None
         _, first = np.unique(np.sort(edges, axis=1), axis=0, return_index=True)
         first = np.sort(first)
         edges, curved = edges[first], curved[first]
-    return MeshData(points, cells, facets, point_regions, cell_regions, edges, curved)
+    record = MirrorRecord(plane, int(axis), tuple(sorted(renames.items())), n, m)
+    return MeshData(points, cells, facets, point_regions, cell_regions, edges, curved,
+                    mirrored=(record, *mesh.mirrored))

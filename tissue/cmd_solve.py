@@ -74,6 +74,8 @@ def run(args) -> int:
     case = case_from_args(args)
     check_pushes(case, pushes)
     check_prescribed(case, pushes)
+    if not args.symmetry and not entry.reference:
+        raise CaseError("--no-symmetry applies to the reference (--solver fem)")
     if (args.estimate or args.accuracy is not None) and not entry.reference:
         raise CaseError("--estimate and --accuracy apply to the reference (--solver fem)")
     if args.estimate is not None and args.accuracy is not None:
@@ -84,8 +86,8 @@ def run(args) -> int:
         if args.accuracy is not None:
             case, res = solve_adaptive(case, pushes, args)
         else:
-            estimate = {"estimate": "auto" if args.estimate is None else bool(args.estimate)} \
-                if entry.reference else {}
+            estimate = {"estimate": "auto" if args.estimate is None else bool(args.estimate),
+                        "symmetry": args.symmetry} if entry.reference else {}
             res = run_solver(args.solver, case, degree=args.degree, formulation=args.formulation,
                              pushes=pushes, progress=not args.quiet, **estimate,
                              **({"device": args.device} if len(entry.devices) > 1 else {}))
@@ -120,6 +122,8 @@ def run(args) -> int:
             p = f"/P{disc['pressure_degree']}" if disc.get("pressure_degree") is not None else ""
             print(f"  discretization: {disc['formulation']} P{disc['degree']}{p}, "
                   f"{disc['dofs']} dofs")
+        if line := symmetry_line(res):
+            print(f"  symmetry: {line}")
         print_answer(res)
         for line in filter(None, (estimate_warning(res), *res.warnings)):
             print(f"tissue solve: warning: {line}", file=sys.stderr)
@@ -146,6 +150,18 @@ def solve_adaptive(case, pushes, args):
                             degree=args.degree, refine=args.refine, progress=not args.quiet,
                             **opts)
     return out.case, out.result
+
+
+def symmetry_line(res) -> str | None:
+    """What a reference answer on a mirrored mesh was solved on (``extra["symmetry"]``,
+    ``fem_reference.symmetric``); None for another mesh."""
+    sym = res.extra.get("symmetry")
+    if not sym:
+        return None
+    if sym.get("solved_on") == "part":
+        return (f"solved on the symmetric part cut by {', '.join(sym['planes'])} (sliding), "
+                f"{sym['part_dofs']:,} unknowns, and mirrored back onto the whole mesh")
+    return f"solved on the whole mesh: {sym.get('why')}"
 
 
 def print_answer(res):
@@ -222,6 +238,12 @@ def add_parser(sub):
                         "(local, default) or every cell (uniform)")
     p.add_argument("--max-dofs", type=integer(1), default=500_000,
                    help="with --accuracy: stop (exit 1) before a system larger than this")
+    p.add_argument("--symmetry", action=argparse.BooleanOptionalAction, default=True,
+                   help="on a mesh joined from a symmetric part and its mirror images (builtin "
+                        "phantom-symmetric) under pushes and loads symmetric about the mirror "
+                        "planes, solve the part with its planes sliding (the same discrete "
+                        "problem) and mirror the answer back onto the whole mesh (default); "
+                        "--no-symmetry solves the whole mesh")
     p.add_argument("--device", choices=("cpu", "gpu"), default="cpu",
                    help="where the ADMM iterations run (--solver admm): cpu (default) or gpu "
                         "(CuPy, float64; needs an NVIDIA GPU and pip install "
