@@ -12,6 +12,19 @@ One step (quasi-static, ``dt_s`` seconds of the time axis each):
 Open loop (``control.open_loop``): pushes u_open from the *initial* J_s by eq. 22 (least travel,
 push only), applied with the closed loop's time profile, no feedback.
 
+Preload (``LoopSettings.preload_mm``): every actuator starts pushed in by its preload (mm from the
+position where the Case puts it at rest), as the seed's actuators start in contact with the
+phantom. A rigid head that only touches the skin at rest carries nothing to first order (J_s = 0
+there: ``phantom-seed``'s flat punches on the curved skin), so a loop that linearizes at its
+start needs one. Before step 0 the plant and the model are both solved at the preload (the
+plant's warm state, the model's first linearization), the target's preloaded position is x_0 and
+the task's goal is measured from it. Push-only with a preload: every increment is >= 0, so no
+actuator ever goes back past its preload; the pushes recorded (``LoopResult.pushes``) are total
+pushes from rest (preload included: the rows start at the preload), the push limit
+(``MPCSettings.max_travel``) bounds those totals (the range where answers converge is a depth
+from rest), ``max_retraction_mm`` is the largest decrease between consecutive rows (the first
+from the preload) and the open loop's eq. 22 pushes u_open are increments beyond the preload.
+
 When the plant cannot be solved at the pushes the controller asks for, the loop stops there with
 LoopStopped: the step, the pushes, the plant's reason and the history up to that step.
 
@@ -80,6 +93,9 @@ class LoopSettings:
         The controller's settings.
     task_mm : float
         How far a seed task moves the target along each controlled axis (mm).
+    preload_mm : float or dict
+        Where each actuator starts, pushed in from rest (mm, >= 0): one number for every
+        actuator, or actuator name -> mm (actuators not named start at 0).
     """
 
     steps: int = 60
@@ -90,6 +106,7 @@ class LoopSettings:
     open_loop: bool = True
     mpc: MPCSettings = field(default_factory=MPCSettings)
     task_mm: float = 5.0
+    preload_mm: float | dict = 0.0
 
     def __post_init__(self):
         if not (isinstance(self.steps, (int, np.integer)) and not isinstance(self.steps, bool)
@@ -106,6 +123,28 @@ class LoopSettings:
         if not isinstance(self.mpc, MPCSettings):
             raise CaseError(f"loop setting mpc must be an MPCSettings, "
                             f"got {type(self.mpc).__name__}")
+        pre = self.preload_mm
+        items = pre.items() if isinstance(pre, dict) else [(None, pre)]
+        for name, v in items:
+            if isinstance(v, bool) or not (isinstance(v, (int, float, np.integer, np.floating))
+                                           and np.isfinite(v) and v >= 0):
+                what = "preload_mm" if name is None else f"preload_mm[{name!r}]"
+                raise CaseError(f"loop setting {what} must be a push >= 0 mm, got {v!r}")
+        if isinstance(pre, dict):
+            object.__setattr__(self, "preload_mm", {str(k): float(v) for k, v in pre.items()})
+        else:
+            object.__setattr__(self, "preload_mm", float(pre))
+
+    def preload(self, actuators) -> np.ndarray:
+        """The preload (mm) of each of ``actuators`` (names, in order); CaseError for a preload
+        of an actuator not among them."""
+        acts = list(actuators)
+        if not isinstance(self.preload_mm, dict):
+            return np.full(len(acts), self.preload_mm)
+        unknown = sorted(set(self.preload_mm) - set(acts))
+        if unknown:
+            raise CaseError(f"preload of {unknown}: no such actuator; actuators: {acts}")
+        return np.array([self.preload_mm.get(a, 0.0) for a in acts])
 
 
 class LinearizedModel:
@@ -155,12 +194,16 @@ class LoopResult:
     """time_s (steps + 1,), s; target (steps + 1, gdim) plant positions, mm; error_mm (steps + 1,);
     pushes (steps + 1, n_act) cumulative pushes, mm; itae (mm s^2); steady_state_error_mm;
     ``settled``: within SSE_GOAL_MM of the goal at the end;
-    max_retraction_mm (largest decrease of any push, >= 0); mpc_ms per step; open_loop: dict of the
+    max_retraction_mm (largest decrease of any push, >= 0, the first step's from the preload);
+    mpc_ms per step; open_loop: dict of the
     baseline (same keys, or None); goal (gdim,) absolute target position, mm; mask.
     ``extra["outside_range"]``: why the closed loop's pushes left the range where the plant's or
     the model's answers converge (``plant_step.outside_range``; the open loop's own under
     ``open_loop["outside_range"]``), [] when they did not: a loop outside it computed numbers
-    that no converged answer stands behind."""
+    that no converged answer stands behind. ``extra["preload_mm"]``: the pushes the loop started
+    from (n_act,), mm (``pushes[0]``); ``extra["at_push_limit"]``: the actuators that ended at
+    the push limit (``MPCSettings.max_travel``), [] without one: a loop that ends there short of
+    its goal could not reach it within the limit."""
 
     time_s: np.ndarray
     target: np.ndarray
@@ -196,6 +239,9 @@ class LoopResult:
                 "steady_state_error_mm": float(self.steady_state_error_mm),
                 "settled": self.settled, "sse_goal_mm": SSE_GOAL_MM,
                 "max_retraction_mm": float(self.max_retraction_mm),
+                "preload_mm": [float(v) for v in self.extra.get("preload_mm",
+                                                                 np.zeros(len(self.actuators)))],
+                "at_push_limit": list(self.extra.get("at_push_limit", [])),
                 "mpc_step_median_ms": float(np.median(self.mpc_ms)) if len(self.mpc_ms) else 0.0,
                 "open_loop": open_loop_json(ol),
                 "time_s": self.time_s.tolist(), "target_error_mm": self.error_mm.tolist(),
@@ -254,7 +300,10 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
     plant(case, pushes, initial_u) -> SolveResult (nonlinear, mm). Raises UnreachableGoalError
     (with the closest reachable displacement) when the goal lies outside the positive span of the
     initial J_s; LoopStopped (a ConvergenceError) when the plant cannot be solved at the pushes
-    asked, with the history up to that step; CaseError naming a missing target or actuator.
+    asked, with the history up to that step; CaseError naming a missing target or actuator, or
+    a preload beyond the push limit. With ``settings.preload_mm`` the plant and the model are
+    first solved at the preload, and the goal is measured from the target's preloaded position
+    (module docstring).
     """
     t_start = time.perf_counter()
     plant_case.probe(target)
@@ -275,7 +324,12 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
         dgoal = np.where(mask, g, 0.0)
     same = model.case is plant_case and model.solve is plant
     na = len(acts)
-    s = np.zeros(na)
+    preload = settings.preload(acts)
+    limit = settings.mpc.max_travel
+    if limit is not None and np.any(preload > limit):
+        raise CaseError(f"preload {dict(zip(acts, preload.tolist()))} mm: beyond the push limit "
+                        f"max_travel={limit:g} mm")
+    s = preload.copy()
     pushes = dict(zip(acts, s.tolist()))
     r = plant(plant_case, pushes, None)
     x0 = measure(r, target, plant_case, pushes)
@@ -295,9 +349,8 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
     # the open loop gets what a real actuator can do: the eq. 22 pushes clamped to the push
     # limit; a clamped baseline is flagged infeasible (it cannot reach the goal by construction)
     u_open_raw = np.asarray(u_open, float).copy()
-    limit = settings.mpc.max_travel
     if limit is not None:
-        u_open = np.clip(u_open, 0.0, limit)
+        u_open = np.clip(u_open, 0.0, limit - preload)
     rng = np.random.default_rng(settings.seed)
     mpc = PushOnlyMPC(na, mask, settings.mpc)
     plant_retries: list[str] = []
@@ -335,7 +388,7 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
     ol = None
     if settings.open_loop:
         ol = run_open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, settings,
-                           progress)
+                           progress, preload=preload)
         ol["u_open_unclamped"] = u_open_raw
         ol["clamped"] = bool(np.any(np.abs(u_open_raw - u_open) > 1e-12))
         ol["outside_range"] = outside_range(plant_case, model.case, acts, ol["pushes"])
@@ -345,7 +398,10 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
                       {"model_time_s": model.solve_time_s, "J0": J0, "closed_loop_s": closed_s,
                        "open_loop_s": wall - closed_s, "plant_retries": plant_retries,
                        "model_retries": list(model.retries), "model_step_ms": model_ms,
-                       "outside_range": outside_range(plant_case, model.case, acts, S)})
+                       "outside_range": outside_range(plant_case, model.case, acts, S),
+                       "preload_mm": preload,
+                       "at_push_limit": [] if limit is None else
+                       [a for a, v in zip(acts, S[-1]) if v >= limit - 1e-6]})
 
 
 def plot_response(result: LoopResult, path, *, title=None):

@@ -1,7 +1,8 @@
 """The open-loop baseline of seed 000 (eq. 22): the least-travel, push-only pushes u_open from the
 *initial* J_s, applied on the plant with the closed loop's time profile
-u_open(t_k) = u_open * phi_k, phi_k = sum_i s_i(t_k) / sum_i s_i(t_end) (non-decreasing, so the
-open loop never retracts either), with no feedback. Units: mm, s.
+u_open(t_k) = p + u_open * phi_k, phi_k = sum_i (s_i(t_k) - p_i) / sum_i (s_i(t_end) - p_i)
+(p: the preload the loops start from, ``control.loop``; non-decreasing, so the open loop never
+retracts either), with no feedback. Units: mm, s.
 """
 from __future__ import annotations
 
@@ -17,22 +18,25 @@ __all__ = ["open_loop_json", "run_open_loop"]
 
 
 def run_open_loop(plant, plant_case, acts, target, u_open, S, x_goal, mask, t, settings,
-                  progress=None):
-    """The eq. 22 pushes from the initial J_s applied along the closed loop's time profile.
+                  progress=None, preload=None):
+    """The eq. 22 pushes from the initial J_s applied along the closed loop's time profile,
+    beyond ``preload`` (mm per actuator, the closed loop's start ``S[0]``; None: rest).
 
     When the plant cannot be solved at some open-loop pushes (the baseline asks for pushes the
     tissue model cannot take), the run stops there: ``converged`` False, ``failed_at_step`` and
     ``failed_pushes_mm`` set, ``itae`` summed over the steps reached (a lower bound of the open
     loop's ITAE), ``steady_state_error_mm`` None (never reached) and ``last_error_mm`` the error
     at the last step solved."""
-    total = S[-1].sum()
-    phi = np.clip(S.sum(axis=1) / total, 0.0, 1.0) if total > 0 else np.ones(len(S))
+    p0 = np.zeros(len(acts)) if preload is None else np.asarray(preload, float)
+    travel = (S - p0).sum(axis=1)
+    total = travel[-1]
+    phi = np.clip(travel / total, 0.0, 1.0) if total > 0 else np.ones(len(S))
     SO, XO = [], []
     u_prev = None
     failed = None
     retries: list[str] = []
     for k, f in enumerate(phi):
-        so = f * u_open
+        so = p0 + f * u_open
         tk = time.perf_counter()
         try:
             po = dict(zip(acts, so.tolist()))

@@ -73,7 +73,9 @@ def _fmt(v, spec):
 
 
 def table1_row(t, task, res) -> dict:
-    """One scenario of Table I from a LoopResult (open loop included)."""
+    """One scenario of Table I from a LoopResult (open loop included); ``at_push_limit``: the
+    actuators that ended at the push limit (a loop that ends there short of its goal could not
+    reach it within the limit: its row's note says so)."""
     d = res.to_json_dict()
     ol = d["open_loop"]
     return {"target": t, "task": task, "status": "ok", "open_loop_status": ol["status"],
@@ -87,7 +89,9 @@ def table1_row(t, task, res) -> dict:
             "open_loop_failed_pushes_mm": ol.get("failed_pushes_mm"),
             "open_loop_last_error_mm": ol.get("last_error_mm"),
             "u_open_mm": ol.get("u_open_mm"),
+            "u_open_unclamped_mm": ol.get("u_open_unclamped_mm"),
             "final_pushes_mm": d["actuator_positions_mm"][-1],
+            "preload_mm": d["preload_mm"], "at_push_limit": d["at_push_limit"],
             "max_retraction_mm": d["max_retraction_mm"],
             "mpc_step_median_ms": d["mpc_step_median_ms"], "wall_time_s": res.wall_time_s,
             "closed_loop_s": res.extra.get("closed_loop_s"),
@@ -147,6 +151,15 @@ def write_table1(out, meta, rows, n_expected):
             note = (f"open loop: plant failed at step {r['open_loop_failed_at_step']} (pushes "
                     f"{[round(v, 2) for v in r['open_loop_failed_pushes_mm']]} mm; error "
                     f"{r['open_loop_last_error_mm']:.3f} mm at the last step solved)")
+        if r.get("open_loop_status") == "infeasible" and r.get("u_open_unclamped_mm"):
+            note = "; ".join(filter(None, [note, (
+                f"open loop infeasible: its eq. 22 pushes "
+                f"{[round(v, 2) for v in r['u_open_unclamped_mm']]} mm beyond the preload were "
+                f"clamped to the push limit")]))
+        if r.get("at_push_limit") and r["closed_loop_sse_mm"] > SSE_GOAL_MM:
+            note = "; ".join(filter(None, [note, (
+                f"closed loop held at the push limit by {', '.join(r['at_push_limit'])}: the "
+                f"goal lies beyond the pushes the limit allows")]))
         for side, key in (("closed loop", "outside_range"),
                           ("open loop", "open_loop_outside_range")):
             if r.get(key):

@@ -129,13 +129,13 @@ def _run_scenarios(args, case, targets) -> int:
     range (the summary's settings record the case's and the model's)."""
     check_loop_args(args, case)
     model = model_case_from_args(args, case)
-    record = settings_from_args(args, travel_limit(args, case, model))[1]   # checked: refusals first
+    record = settings_from_args(args, travel_limit(args, case, model), case)[1]   # refusals first
     out = Path(args.out)
     loops = _scenario_loops(args, case, model, args.scenarios)   # every one first: refusals
     summaries, rows, metas, owns = {}, {}, {}, {}
     for name, loop in loops.items():
         owns[name], loop.meta["settings"] = settings_from_args(
-            args, travel_limit(args, loop.case, loop.model_case))
+            args, travel_limit(args, loop.case, loop.model_case), case)
         metas[name] = loop.meta
         if not args.restart:   # a folder that cannot be resumed is refused before any loop
             finished_rows(out / name, table1_meta(loop, owns[name], loop.meta),

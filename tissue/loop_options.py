@@ -3,6 +3,7 @@ share: the plant, the model and their mismatch, the MPC's weights and limits, th
 from __future__ import annotations
 
 import argparse
+import math
 
 from tissue_reference.control.loop import LoopSettings
 from tissue_reference.control.mpc import WEIGHTS, MPCSettings
@@ -11,7 +12,15 @@ from tissue_reference.errors import CaseError
 from tissue_reference.model.converged_range import converged_push_limit
 from tissue_reference.solvers.registry import control_names
 
-from .common import body_diameter, case_from_args, check_prescribed, integer, real
+from .common import (
+    body_diameter,
+    case_from_args,
+    check_prescribed,
+    check_pushes,
+    integer,
+    parse_pushes,
+    real,
+)
 
 POSITIVE_MM = real("positive", "mm, or auto")
 
@@ -65,6 +74,14 @@ def add_loop_args(p):
     p.add_argument("--task-mm", type=real("positive", "mm"), default=5.0,
                    help="how far a task moves the target along each controlled axis (mm; the "
                         "seed's tasks: 5)")
+    p.add_argument("--preload", action="append", default=[], metavar="MM|NAME=MM",
+                   help="start every actuator (MM) or actuator NAME (NAME=MM, repeatable; "
+                        "the others at a bare MM, else 0) pushed in by this much (mm from rest); "
+                        "the plant and the model are solved there first, the goal is measured "
+                        "from the target's preloaded position, and push only means never back "
+                        "past the preload. A rigid head that only touches the skin at rest "
+                        "moves nothing to first order (phantom-seed: J_s = 0), so a loop needs "
+                        "one there (default 0)")
 
 
 def model_case_from_args(args, case):
@@ -86,6 +103,7 @@ def check_loop_args(args, case) -> None:
     """What a closed loop on ``case`` needs of it and of the command line, before any mesh of a
     model is read: prescribed actuators and a noise no larger than the body."""
     check_prescribed(case)
+    preload_from_args(args, case)
     diam = body_diameter(case)
     if args.noise > diam:
         raise CaseError(f"--noise {args.noise:g}: expected a measurement noise <= the body's "
@@ -100,18 +118,49 @@ def travel_limit(args, case, model_case) -> float | None:
     return args.max_travel
 
 
-def settings_from_args(args, limit) -> tuple[LoopSettings, dict]:
-    """The loop's settings named by the command line with the push limit ``limit`` (mm, None:
-    none), and their record in a loop's metadata (``settings``)."""
+def preload_from_args(args, case) -> dict:
+    """--preload resolved on ``case``: actuator name -> mm for every actuator (a bare MM for
+    every one not named, else 0). CaseError naming --preload for a malformed item, a negative
+    push, two bare values, an actuator the case lacks, or a preload past --max-travel."""
+    bare = [v for v in args.preload if "=" not in str(v)]
+    if len(bare) > 1:
+        raise CaseError(f"--preload: one bare MM at most (every actuator's), got {bare}")
+    default = 0.0
+    if bare:
+        try:
+            default = float(bare[0])
+        except ValueError:
+            raise CaseError(f"--preload expects MM or NAME=MM (e.g. 3 or A1=3), got "
+                            f"{bare[0]!r}") from None
+    named = parse_pushes([v for v in args.preload if "=" in str(v)], "--preload")
+    check_pushes(case, named, "--preload")
+    out = {a.name: float(named.get(a.name, default)) for a in case.actuators}
+    bad = {n: v for n, v in out.items() if not (math.isfinite(v) and v >= 0.0)}
+    if bad:
+        raise CaseError(f"--preload: expected pushes >= 0 mm (an actuator only pushes), got "
+                        f"{bad}")
+    limit = args.max_travel if isinstance(args.max_travel, (int, float)) else None
+    if limit is not None and max(out.values(), default=0.0) > limit:
+        raise CaseError(f"--preload {out} mm: beyond --max-travel {limit:g} mm")
+    return out
+
+
+def settings_from_args(args, limit, case) -> tuple[LoopSettings, dict]:
+    """The loop's settings named by the command line on ``case`` with the push limit ``limit``
+    (mm, None: none), and their record in a loop's metadata (``settings``)."""
+    preload = preload_from_args(args, case)
+    if limit is not None and max(preload.values(), default=0.0) > limit:
+        raise CaseError(f"--preload {preload} mm: beyond the push limit {limit:g} mm "
+                        f"(--max-travel)")
     settings = LoopSettings(steps=args.steps, dt_s=args.dt, noise_mm=args.noise, seed=args.seed,
-                            task_mm=args.task_mm,
+                            task_mm=args.task_mm, preload_mm=preload,
                             mpc=MPCSettings(horizon=args.horizon, q=args.q, r=args.r,
                                             weights=args.weights,
                                             max_travel=limit, solver=args.qp_solver))
     return settings, {"steps": args.steps, "dt_s": args.dt, "horizon": args.horizon, "q": args.q,
                       "r": args.r, "weights": args.weights, "max_travel_mm": limit,
                       "noise_mm": args.noise, "seed": args.seed, "qp_solver": args.qp_solver,
-                      "task_mm": args.task_mm}
+                      "task_mm": args.task_mm, "preload_mm": preload}
 
 
 def loop_from_args(args, case):
@@ -124,6 +173,7 @@ def loop_from_args(args, case):
                           model_update=args.model_update)
     except CaseError as exc:
         raise CaseError(f"--model-E-factor / --model: {exc}") from None
-    settings, record = settings_from_args(args, travel_limit(args, loop.case, loop.model_case))
+    settings, record = settings_from_args(args, travel_limit(args, loop.case, loop.model_case),
+                                          case)
     loop.meta.update({"size": args.size, "model_size": args.model_size, "settings": record})
     return loop, settings
