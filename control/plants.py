@@ -386,7 +386,7 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
         sensitivity = indenter_sensitivity() if control_solver(mname).reference else admm_indenter_sensitivity()
     if model_update not in MODEL_UPDATES:
         raise CaseError(f"model update {model_update!r}: choose one of {list(MODEL_UPDATES)}")
-    fast = model_update == "fast" and mname == "admm" and msolve is not psolve
+    fast = model_update == "fast" and control_solver(mname).fast_model and msolve is not psolve
     meta["model_update"] = "fast" if fast else "solve"
     return LoopSetup(pcase, psolve, mcase, msolve, tangent_for(mname), meta, sensitivity, fast)
 

@@ -42,6 +42,7 @@ class SolverEntry:
     degrees: tuple = (1,)
     factorized: bool = False
     control: bool = False
+    fast_model: bool = False
     dynamics: str | None = None
     devices: tuple = ("cpu",)
     laws: tuple | None = None
@@ -51,6 +52,25 @@ class SolverEntry:
     def load(self):
         """The solver's module (ImportError if it cannot be imported)."""
         return importlib.import_module(self.module)
+
+    def require_modeled(self, case, options: dict | None = None) -> None:
+        """Raise NotModeledError (a CaseError) when this solver, with ``options`` (its
+        ``solve`` keywords), cannot solve ``case``: its module's ``require_modeled`` given the
+        options it takes (e.g. the Mass Tensor method's ``method``: its tips need the direct
+        solve). A module without one models every case its ``solve`` accepts."""
+        check = getattr(self.load(), "require_modeled", None)
+        if check is None:
+            return
+        params = inspect.signature(check).parameters
+        check(case, **{k: v for k, v in (options or {}).items() if k in params})
+
+    def forget_kept(self) -> None:
+        """Drop what this solver keeps between solves (factorizations of a pattern it saw),
+        so that its next solve costs what a first one does; nothing for a solver that keeps
+        nothing (its module has no ``forget_factorizations``)."""
+        forget = getattr(self.load(), "forget_factorizations", None)
+        if forget is not None:
+            forget()
 
     def check_discretization(self, degree: int | None = None, formulation: str = "auto"):
         """Raise CaseError for a degree or formulation this solver does not solve with."""
@@ -263,6 +283,7 @@ _ENTRIES = (
                 control=True, dynamics="tissue_reference.fem_reference.dynamics:simulate",
                 summary="the reference"),
     SolverEntry("admm", "tissue_reference.solvers.admm", factorized=True, control=True,
+                fast_model=True,
                 dynamics="tissue_reference.solvers.trajectory:admm_trajectory",
                 devices=("cpu", "gpu"),
                 summary="ADMM, the fast solver (P1)"),

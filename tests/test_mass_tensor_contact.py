@@ -16,7 +16,9 @@ from tissue_reference.errors import NotModeledError
 from tissue_reference.meshes.builders import indent_block
 from tissue_reference.model.case import Actuator, Boundary, Case, Material
 from tissue_reference.solvers import mass_tensor as mt
+from tissue_reference.solvers import registry
 from tissue_reference.solvers.mass_tensor import contact as mt_contact
+from tissue_reference.solvers.mass_tensor.driver import MODEL_CACHE
 
 DOWN = (0.0, 0.0, -1.0)
 SAME = 1e-8  # mm: the Mass Tensor answer against the linear P1 reference
@@ -146,3 +148,30 @@ def test_contact_it_does_not_model_is_refused_by_name(block):
     with pytest.raises(NotModeledError, match="with method 'direct' only.*not 'amg'"):
         mt.solve(tip_case(block), pushes={"I": 0.1}, method="amg")
     mt.require_modeled(tip_case(block))   # frictionless, direct: modeled
+
+
+def test_the_registry_asks_each_solver_with_its_own_options(block):
+    """A caller that scores any solver (``verify``) asks the registry whether it models a case
+    with the options it will solve with: the Mass Tensor method's tips need its direct solve,
+    and an option a solver's check does not take is not its concern."""
+    entry, admm_entry = registry.solver("mass-tensor"), registry.solver("admm")
+    with pytest.raises(NotModeledError, match="with method 'direct' only.*not 'amg'"):
+        entry.require_modeled(tip_case(block), {"method": "amg", "tol_mm": 1e-3})
+    entry.require_modeled(tip_case(block), {"method": "direct"})
+    admm_entry.require_modeled(tip_case(block), {"method": "amg"})   # not ADMM's option
+    with pytest.raises(NotModeledError, match="the ADMM solver models frictionless tips"):
+        admm_entry.require_modeled(tip_case(block, "punch", contact="tied"))
+
+
+def test_forgetting_what_a_solver_keeps_makes_its_next_solve_a_first_one(block):
+    """``forget_kept`` drops the Mass Tensor method's kept factorizations (the next solve
+    factorizes again: same answer) and is harmless for ADMM."""
+    case = tip_case(block)
+    first = mt.solve(case, pushes={"I": 0.1})
+    kept = lambda: sum(len(m._factors) for m in MODEL_CACHE.values())
+    assert kept() > 0
+    registry.solver("mass-tensor").forget_kept()
+    assert kept() == 0
+    again = mt.solve(case, pushes={"I": 0.1})
+    assert np.allclose(again.u, first.u, rtol=0, atol=1e-12)
+    registry.solver("admm").forget_kept()

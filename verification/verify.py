@@ -50,7 +50,7 @@ from tissue_reference.meshes.mesh import deformation_state
 from tissue_reference.model.case import COEFFICIENT_LAWS, MATERIAL_MODELS, UNCOUPLED_LAWS
 from tissue_reference.model.converged_range import unconverged_load
 from tissue_reference.model.results import material_json, write_json
-from tissue_reference.solvers import SOLVERS, get_solver, solver_module
+from tissue_reference.solvers import SOLVERS, get_solver
 from tissue_reference.solvers.registry import solver as registry_solver
 
 from .plugins import json_safe, resolve_solver, run_plugin
@@ -221,10 +221,7 @@ def builtin_solver(name: str, case, opts: dict | None = None):
     opts = {**defaults, **(opts or {})}
     try:
         solve = get_solver(key)
-        if key == "mass-tensor":   # its tips need the direct solve's factorization
-            solver_module(key).require_modeled(case, opts.get("method", "direct"))
-        else:
-            solver_module(key).require_modeled(case)
+        registry_solver(key).require_modeled(case, opts)
     except (ImportError, NotModeledError) as exc:   # no score, and the reason said
         why = f"{SOLVERS[key]} not importable ({exc})" if isinstance(exc, ImportError) else exc
         return None, f"{name}: {why}; skipped"
@@ -389,8 +386,7 @@ def _score_builtin(name, case, pushes, opts, refs, out):
         trace["max_step_mm"] = [float(s) for s in own]     # the solver's own step record
     # run 2 (timed, no callback): the figures reported; the Mass Tensor's direct solve
     # factorizes again, as a first solve does (the tensors stay, as the reference's forms do)
-    if key == "mass-tensor":
-        solver_module(key).forget_factorizations()
+    registry_solver(key).forget_kept()
     res = solve(rcase, pushes=pushes, **kw)
     entry = _errors(rcase, res.u, u_ref, res.probes, res_ref.probes)
     entry.update({
