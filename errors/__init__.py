@@ -47,12 +47,15 @@ class MeshQualityError(CaseError):
 
 
 class ConvergenceError(TissueError, RuntimeError):
-    """A nonlinear solve did not converge. ``last_converged`` holds the last good state."""
+    """A nonlinear solve did not converge. ``last_converged`` holds the last good state;
+    ``trajectory``, for a time integration, what it computed before the step that failed
+    (None otherwise)."""
 
-    def __init__(self, message, *, load_fraction=0.0, last_converged=None):
+    def __init__(self, message, *, load_fraction=0.0, last_converged=None, trajectory=None):
         super().__init__(message)
         self.load_fraction = load_fraction
         self.last_converged = last_converged
+        self.trajectory = trajectory
 
 
 class SolverDivergedError(ConvergenceError):

@@ -225,6 +225,10 @@ class Indenter:
         return curvilinear_shift(y0, y1, self._origin(), self.d, self.shape.flat,
                                  self.shape.edge)
 
+    def place(self, q) -> None:
+        """Put the tip's end at ``q`` (mm, (gdim,)): where the contact forms see it."""
+        self.q.value = q
+
     def push_now(self) -> float:
         """The tip's current position (mm along its direction from its start)."""
         return float((np.asarray(self.q.value) - self.q0) @ self.d)

@@ -68,10 +68,10 @@ def indenter_jacobian(solver, case: Case, *, actuators=None, targets=None,
             step = h if h is not None else 1e-3 * ind.h_range[0] / ind.beta
             sides = []
             for sign in (1.0, -1.0):
-                ind.q.value = q0 + sign * step * ind.d
+                ind.place(q0 + sign * step * ind.d)
                 solver.newton.assemble_residual(bcs)
                 sides.append(solver.b.copy())
-            ind.q.value = q0
+            ind.place(q0)
             # K du = -(R(q + h d) - R(q - h d)) / (2 h)
             sides[0].axpy(-1.0, sides[1])
             sides[0].copy(rhs)

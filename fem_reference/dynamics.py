@@ -266,10 +266,8 @@ def simulate(case: Case, *, dt: float, steps: int, pushes=None, initial=None,
     try:
         # start state: initial (or rest) with the prescribed values of t = 0
         case0 = case_at(0)
-        for const, val in ((solver.E, case.material.E), (solver.nu, case.material.nu),
-                           (solver.inv_kappa, 3.0 * (1.0 - 2.0 * case.material.nu)
-                            / case.material.E), (solver.load, 1.0)):
-            const.value = val
+        solver.set_material(case.material)
+        solver.set_load_fraction(1.0)
         solver.x.x.array[:] = 0.0
         if initial is not None:
             solver.set_state(initial)
@@ -315,8 +313,8 @@ def simulate(case: Case, *, dt: float, steps: int, pushes=None, initial=None,
                 err = ConvergenceError(
                     f"{case.source or case.name}: implicit-Euler step {k}/{steps} "
                     f"(t = {k * dt:g} s) did not converge: {exc}",
-                    load_fraction=(k - 1) / steps, last_converged=state)
-                err.trajectory = partial(state)
+                    load_fraction=(k - 1) / steps, last_converged=state,
+                    trajectory=partial(state))
                 raise err from None
             xn = solver.x.x.array.copy()
             v = (xn - x) / dt

@@ -74,7 +74,7 @@ def solver_for(case, degree: int | None, **kw):
         s = ReferenceSolver(case, **disc.solver_options())
         _CACHE[key] = s
     _CACHE.move_to_end(key)
-    s.case = case
+    s.use_case(case)
     return s
 
 

@@ -122,6 +122,11 @@ class LinearSolver:
             self.use_factor(package)
         self.first_factor_package = self.factor_package
 
+    def tangent_changed(self):
+        """The tangent was changed after it was assembled (e.g. shifted): the next solve
+        factorizes it again, whatever the mode's reuse of an earlier factorization."""
+        self.refactor = True
+
     def _rigid_body_nullspace(self):
         d = int(self.V.dofmap.index_map_bs)
         x = self.V.tabulate_dof_coordinates()[:, :d]

@@ -121,7 +121,7 @@ class Newton:
         d.abs()
         d.scale(mu)
         self.A.setDiagonal(d, addv=PETSc.InsertMode.ADD_VALUES)
-        self.linear.refactor = True
+        self.linear.tangent_changed()
 
     def _correction(self, s: NewtonSettings, bcs, eta, drop, shift, test, extra_terms):
         """Newton's correction du from the tangent (without the tips' curvature if ``drop``,

@@ -69,7 +69,7 @@ def tangent(solver, u=None, *, pushes=None) -> Tangent:
     if u is not None:
         solver.state.set_state(u, exact=True)
     case = solver.case.with_pushes(pushes or {})
-    solver.load.value = 1.0
+    solver.set_load_fraction(1.0)
     solver.refresh_fields()
     A = dolfinx.fem.petsc.assemble_matrix(solver.K_form)
     A.assemble()

@@ -288,6 +288,26 @@ class ReferenceSolver:
                       umap=self._umap, comm=self.comm, timings=self.timings,
                       refresh=self.refresh_fields)
 
+    def set_material(self, material) -> None:
+        """Give the forms ``material``'s values (the same law: E, nu, the volumetric modulus,
+        the law's coefficients; the Ogden law's on its quadrature Functions)."""
+        self.constants.set(material)
+        if self.fields is not None:
+            self.fields.set_material(material)
+
+    def set_load_fraction(self, fraction: float) -> None:
+        """Scale the external loads (gravity, body forces, tractions) by ``fraction`` (1: the
+        case's loads in full)."""
+        self.load.value = fraction
+
+    def use_case(self, case: Case) -> None:
+        """Make ``case`` this solver's Case: another Case on the same mesh and discretization
+        (``kept.solver_for``), whose pushes and loads the next ``solve`` starts from."""
+        if case.mesh is not self.case.mesh:
+            raise CaseError("ReferenceSolver.use_case: the case mesh differs from the solver's "
+                            "mesh")
+        self.case = case
+
     def refresh_fields(self) -> None:
         """Bring the forms' quadrature-point Functions (the Ogden law's isochoric psi, P and A,
         ``ogden_fields``) to the unknown's current value; nothing for the other laws, whose
@@ -385,9 +405,7 @@ class ReferenceSolver:
                             f"({case.material.model}, volumetric {case.material.volumetric!r}) "
                             f"differs from the solver's ({self.case.material.model}, volumetric "
                             f"{self.case.material.volumetric!r}): build a solver for it")
-        self.constants.set(case.material)
-        if self.fields is not None:
-            self.fields.set_material(case.material)
+        self.set_material(case.material)
         s = settings or self.settings
         warm = initial is not None
         if warm:
@@ -433,7 +451,7 @@ class ReferenceSolver:
             trial = min(1.0, lam + inc)
             for garr, start, full in ramps:
                 garr[:] = start + trial * (full - start)
-            self.load.value = 1.0 if warm else trial
+            self.set_load_fraction(1.0 if warm else trial)
             if predict and prev_good is not None and lam > prev_lam:
                 # linear extrapolation of the load path (secant predictor)
                 self.x.x.array[:] += (trial - lam) / (lam - prev_lam) * (last_good - prev_good)
@@ -479,7 +497,7 @@ class ReferenceSolver:
                     # and the indenters' tips back where that state was solved
                     for garr, start, full in ramps:
                         garr[:] = start + lam * (full - start)
-                    self.load.value = 1.0 if warm else lam
+                    self.set_load_fraction(1.0 if warm else lam)
                     if steps:
                         # that state was converged to the intermediate tolerances only (it was
                         # to start the next step): it is the answer now, converged as one

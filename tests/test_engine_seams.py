@@ -85,3 +85,38 @@ def test_the_energy_forms_take_no_solver():
         if isinstance(node, ast.FunctionDef):
             args = [a.arg for a in node.args.args + node.args.kwonlyargs]
             assert "solver" not in args, node.name
+
+
+def _held_by_self(node: ast.expr) -> bool:
+    """Whether ``node`` is ``self`` or reached from it (``self.part``, ``self.parts[k]``): what
+    an object holds it may set; anything else is another object's."""
+    while isinstance(node, (ast.Attribute, ast.Subscript)):
+        node = node.value
+    return _is_self(node)
+
+
+RESTORED_HOOKS = {("__init__.py", "warnings.showwarning")}
+"""Attributes of another module the engine sets, with why: the package's lazy import puts back
+Python's warning display, which importing the form compiler replaces (``_import_keeping_warnings``)."""
+
+
+def test_no_part_sets_an_attribute_of_an_object_it_does_not_hold():
+    """Across the engine's modules an object changes another only through that object's methods
+    (``ReferenceSolver.set_material``, ``set_load_fraction``, ``use_case``,
+    ``LinearSolver.tangent_changed``, ``Indenter.place``): no assignment to an attribute of an
+    object that is not ``self`` or held by it."""
+    bad = []
+    for path in MODULES:
+        for attr, line in _assigned_attributes(_tree(path)):
+            if _held_by_self(attr.value):
+                continue
+            if (path.name, ast.unparse(attr)) not in RESTORED_HOOKS:
+                bad.append(f"{path.name}:{line}: {ast.unparse(attr)}")
+    assert not bad, f"set from outside its owner (give the owner a method instead): {bad}"
+
+
+def test_the_attribute_check_sees_another_objects_attribute():
+    tree = ast.parse("def f(solver, self):\n    solver.load.value = 1.0\n    self.a.b = 2\n"
+                     "    self.c[k].value = 3\n    other.x += 1\n")
+    found = [ast.unparse(a) for a, _ in _assigned_attributes(tree) if not _held_by_self(a.value)]
+    assert found == ["solver.load.value", "other.x"]
