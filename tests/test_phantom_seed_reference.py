@@ -1,0 +1,148 @@
+"""The seed-scale phantom's measured accuracy (meshes/cases/phantom-seed.toml) against its
+refinement study shipped as test data (tests/data/phantom_seed_reference.json, from
+bench/bench_seed_convergence.py: A1 alone at 5, 10 and 15 mm, P2 on the case's builtin remeshed
+with every cell size divided by sqrt 2 per level; a separate, finer run than the case's P1
+default). The case turns into itself under quarter turns about the dome's axis (A1 -> A2 -> A3
+-> A4, T2 -> T3 -> T4 -> T5), so A1's converged answers, turned, stand for the other actuators'.
+Nothing here solves a study level: the rows are checked against the data, and one cheap solve
+of the default (A1 = 5 mm) against the shipped answers."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tissue_reference.fem_reference as fr
+from tissue_reference.model.case import load_case
+
+ROOT = Path(__file__).resolve().parents[1]
+CASE = ROOT / "meshes" / "cases" / "phantom-seed.toml"
+DATA = ROOT / "tests" / "data" / "phantom_seed_reference.json"
+TURN = {"A1": 0, "A2": 1, "A3": 2, "A4": 3}
+NEXT = {"T1": "T1", "T2": "T3", "T3": "T4", "T4": "T5", "T5": "T2"}
+
+
+def _turned(probes: dict, turns: int) -> dict:
+    """Target displacements turned by ``turns`` quarter turns about z, by target name."""
+    out = {n: np.asarray(u, dtype=float) for n, u in probes.items()}
+    for _ in range(turns):
+        out = {NEXT[n]: np.array([-u[1], u[0], u[2]]) for n, u in out.items()}
+    return out
+
+
+def _finest(push: float) -> dict:
+    study = json.loads(DATA.read_text())["study"]
+    return next(e for e in study["pushes"] if e["push_mm"] == push)
+
+
+def _distance(force: float, probes: dict, entry: dict, turns: int) -> tuple[float, float]:
+    """(force, worst target) relative distances of an answer from the finest level, turned."""
+    ref = _turned({n: v[-1] for n, v in entry["probes_mm"].items()}, turns)
+    worst = max(np.linalg.norm(np.asarray(probes[n]) - u) / np.linalg.norm(u)
+                for n, u in ref.items())
+    return abs(force / entry["force_mN"][-1] - 1.0), float(worst)
+
+
+def _bands(entry: dict) -> tuple[float, float]:
+    """The finest level's GCI bands: the force's, and the worst target's (its components'
+    absolute bands combined as its displacement's norm, relative to it)."""
+    q = entry["quantities"]
+    worst = 0.0
+    for n, v in entry["probes_mm"].items():
+        parts = [(q.get(f"{n} u{c}") or {}).get("gci_mm") or 0.0 for c in "xyz"]
+        worst = max(worst, float(np.linalg.norm(parts) / np.linalg.norm(v[-1])))
+    return q["force A1"]["gci_rel"], worst
+
+
+def test_the_case_turns_into_itself_under_quarter_turns():
+    """Actuator sites, directions and the targets facing them: a quarter turn about z takes
+    A1 to A2 to A3 to A4 and T2 to T3 to T4 to T5 (the mesh itself is not symmetric)."""
+    case = load_case(CASE, size=14.0)
+    acts = {a.name: a for a in case.actuators}
+    probes = {p.name: np.asarray(p.point, dtype=float) for p in case.probes}
+
+    def turn(x):
+        return np.array([-x[1], x[0], x[2]])
+
+    for name, k in TURN.items():
+        a1, a = acts["A1"], acts[name]
+        x, d = np.asarray(a1.point, dtype=float), np.asarray(a1.direction, dtype=float)
+        for _ in range(k):
+            x, d = turn(x), turn(d)
+        assert np.allclose(x, a.point, atol=1e-3) and np.allclose(d, a.direction)
+        assert (a.tip, a.radius, a.edge_radius) == (a1.tip, a1.radius, a1.edge_radius)
+    for n, m in NEXT.items():
+        assert np.allclose(turn(probes[n]), probes[m])
+
+
+def test_the_rows_are_the_default_s_distance_from_the_study_s_finest_level():
+    """Every P1 row (A1..A4 at 5, 10, 15 mm) holds the distance of the shipped default answers
+    (the case's P1 on its own mesh) from the study's finest level, A1's turned for the others,
+    computed here from the data, and that level's GCI bands; each P2 row (``degree = 2``: the
+    case's mesh at P2 is the study's level 0) holds level 0's distance from the finest. The
+    finest level is a far finer discretization, and every level is a valid state."""
+    case = load_case(CASE)
+    data = json.loads(DATA.read_text())
+    default = data["default"]
+    assert default["degree"] == 1 and default["contact_quadrature"] == 2
+    checked = set()
+    for row in case.reference_measured:
+        (act, push), = row["pushes"].items()
+        entry = _finest(push)
+        assert all(entry["valid"])
+        if row.get("degree", 1) == 2:
+            i = entry["levels"].index(0)
+            assert entry["dofs"][i] == row["dofs"] and entry["dofs"][-1] > 2 * row["dofs"]
+            force, probes = _distance(entry["force_mN"][i],
+                                      {n: v[i] for n, v in entry["probes_mm"].items()}, entry, 0)
+        else:
+            assert row["dofs"] == default["dofs"] and entry["dofs"][-1] > 6 * default["dofs"]
+            ans = next(a for a in default["answers"][act] if a["push"] == push)
+            force, probes = _distance(ans["force_mN"], ans["probes"], entry, TURN[act])
+        assert row["force"] == pytest.approx(force, abs=6e-5)
+        assert row["probes"] == pytest.approx(probes, abs=6e-5)
+        band = _bands(entry)
+        assert (row["band"]["force"], row["band"]["probes"]) == pytest.approx(band, abs=6e-5)
+        assert ("turned by" in row["against"]) == (act != "A1")
+        checked.add((act, push, row.get("degree", 1)))
+    assert {(a, p, 1) for a in TURN for p in (5.0, 10.0, 15.0)} <= checked
+
+
+def test_a_quarter_turn_agrees_within_the_coarsest_level_s_own_error():
+    """A2 solved on the study's coarsest level against A1 there, turned: they differ by less
+    than that level's own error (its distance from the finest level plus that level's GCI
+    band), at every push: the turned answers are the same problem's, up to the mesh."""
+    data = json.loads(DATA.read_text())
+    (key, rows), = data["rotation_checks"].items()
+    assert key.startswith("A2 P2 level ")
+    level = float(key.rsplit(" ", 1)[1])
+    for r in rows:
+        entry = _finest(r["push_mm"])
+        i = entry["levels"].index(level)
+        assert i < len(entry["levels"]) - 1
+        own = _distance(entry["force_mN"][i], {n: v[i] for n, v in entry["probes_mm"].items()},
+                        entry, 0)
+        band = _bands(entry)
+        d = r["distance_from_A1_turned"]
+        assert d["force"] < own[0] + band[0]
+        assert max(v for k, v in d.items() if k != "force") < own[1] + band[1]
+
+
+def test_the_default_answer_is_within_its_row_and_states_it():
+    """The case's default at A1 = 5 mm (P1, 9,075 unknowns, a few seconds) reproduces the
+    shipped answer to round-off, so its distance from the finest level is its row's, and the
+    answer carries that row as its error bar."""
+    from tissue_reference.fem_reference.measured import error_bar
+
+    case = load_case(CASE)
+    res = fr.solve(case, pushes={"A1": 5.0})
+    shipped = json.loads(DATA.read_text())["default"]["answers"]["A1"][0]
+    assert shipped["push"] == 5.0 and res.valid
+    assert res.indenters["A1"]["force"] == pytest.approx(shipped["force_mN"], rel=1e-6)
+    for n, u in shipped["probes"].items():
+        assert np.linalg.norm(res.probes[n] - u) < 1e-6 * np.linalg.norm(u), n
+    row = res.extra["measured_accuracy"]
+    force, probes = _distance(res.indenters["A1"]["force"], res.probes, _finest(5.0), 0)
+    assert force <= row["force"] + 1e-4 and probes <= row["probes"] + 1e-4
+    bar = error_bar(row)
+    assert bar["force"] == pytest.approx(row["force"] + row["band"]["force"])
