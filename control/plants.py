@@ -35,7 +35,7 @@ from .loop import LinearizedModel, run_closed_loop
 
 __all__ = ["ADMM_CONTROL_OPTIONS", "FD_FLOOR", "MODEL_UPDATES", "PRESS_WIDTHS", "LoopSetup",
            "actuator_kind", "admm_indenter_sensitivity", "build_loop", "control_solver",
-           "indenter_sensitivity", "jacobian_at", "matching_case", "material_json", "plant_for",
+           "indenter_sensitivity", "jacobian_at", "matching_case", "material_json", "model_case_for", "plant_for",
            "pressing", "reference_state", "solver_description", "tangent_for"]
 
 FD_FLOOR = 1e-7
@@ -293,6 +293,27 @@ def matching_case(base, other, base_role: str, other_role: str, hint: str = ""):
     return replace(other, actuators=tuple(other.actuator(n) for n in bnames))
 
 
+def model_case_for(case, model_case=None, E_factor: float = 1.0):
+    """The case a model solves: ``model_case`` (default ``case``) checked to be of ``case``'s
+    body (``matching_case``), with its E scaled by ``E_factor`` (a new Case, also at factor 1).
+
+    Raises
+    ------
+    CaseError
+        For a factor that is not a positive number, a model E outside ``E_RANGE_KPA``, or a
+        ``model_case`` of another body.
+    """
+    if not (np.isfinite(E_factor) and E_factor > 0):
+        raise CaseError(f"model E factor must be > 0, got {E_factor}")
+    base = case if model_case is None or model_case is case else \
+        matching_case(case, model_case, "case", "model")
+    E = base.material.E * E_factor
+    if not E_RANGE_KPA[0] <= E <= E_RANGE_KPA[1]:
+        raise CaseError(f"model E factor {E_factor:g}: the model's E would be {E:g} kPa, "
+                        f"outside the physical range [{E_RANGE_KPA[0]:g}, {E_RANGE_KPA[1]:g}] kPa")
+    return base.with_material(E=E)
+
+
 def build_loop(case, *, plant: str = "fem", model: str | None = None,
                model_E_factor: float = 1.0, model_case=None, plant_case=None,
                scenario: str | None = None, model_update: str = "fast") -> LoopSetup:
@@ -333,16 +354,8 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
     CaseError
         For an unknown solver or update, or a ``model_case`` of another body.
     """
-    if not (np.isfinite(model_E_factor) and model_E_factor > 0):
-        raise CaseError(f"model E factor must be > 0, got {model_E_factor}")
-    E = case.material.E * model_E_factor
-    if not E_RANGE_KPA[0] <= E <= E_RANGE_KPA[1]:
-        raise CaseError(f"model E factor {model_E_factor:g}: the model's E would be {E:g} kPa, "
-                        f"outside the physical range [{E_RANGE_KPA[0]:g}, {E_RANGE_KPA[1]:g}] kPa")
     mname = model or plant
-    if model_case is not None and model_case is not case:
-        model_case = matching_case(case, model_case, "case", "model")
-    mc = model_case if model_case is not None else case
+    mc = model_case_for(case, model_case, model_E_factor)
     if mc.indenters() and len(mc.indenters()) != len(mc.actuators):
         raise CaseError(f"{mc.source or mc.name}: the model mixes indenters and glued patches; "
                         f"a loop's model has actuators of one kind")
@@ -351,9 +364,7 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
     if mname == plant and model_E_factor == 1.0 and model_case is None and plant_case is None:
         mcase, msolve = case, psolve          # the model is the plant: reuse its solution
     else:
-        mcase = (model_case or case)
-        mcase = mcase.with_material(E=mcase.material.E * model_E_factor)
-        msolve = plant_for(mname)
+        mcase, msolve = mc, plant_for(mname)
     meta = {"case": case.name, "source": case.source, "plant": plant, "model": mname,
             "scenario": scenario, "model_case": mcase.name, "model_source": mcase.source,
             "plant_cells": pcase.mesh.n_cells, "model_cells": mcase.mesh.n_cells,

@@ -27,7 +27,6 @@ import numpy as np
 
 from tissue_reference.errors import CaseError
 from tissue_reference.meshes.mesh import deformation_state
-from tissue_reference.model.case import E_RANGE_KPA
 from tissue_reference.model.converged_range import unconverged_load
 from tissue_reference.model.results import material_json, write_json
 
@@ -201,18 +200,11 @@ def sweep(case, solvers=("admm",), *, pushes_mm=DEFAULT_PUSHES_MM, actuators=Non
     runs = experiments(case, pushes_mm, actuators)
     builtins, plugins = resolve_candidates(solvers, options)
     mcase = case
-    if model_case is not None:
-        # lazy: the control layer's check that two cases are of one body (casadi-free)
-        from tissue_reference.control.plants import matching_case
+    if model_case is not None or model_E_factor != 1.0:
+        # lazy: the control layer's model case, checked as a loop's (casadi-free)
+        from tissue_reference.control.plants import model_case_for
 
-        mcase = matching_case(case, model_case, "case", "model")
-    if model_E_factor != 1.0:
-        E = mcase.material.E * model_E_factor
-        if not (np.isfinite(model_E_factor) and model_E_factor > 0) or \
-                not E_RANGE_KPA[0] <= E <= E_RANGE_KPA[1]:
-            raise CaseError(f"model E factor {model_E_factor:g}: expected > 0 and a model E "
-                            f"within [{E_RANGE_KPA[0]:g}, {E_RANGE_KPA[1]:g}] kPa")
-        mcase = mcase.with_material(E=E)
+        mcase = model_case_for(case, model_case, model_E_factor)
     targets = [p.name for p in case.probes]
     if not targets:
         raise CaseError(f"case {case.name!r} has no probes: a sweep compares targets")
