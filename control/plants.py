@@ -316,7 +316,8 @@ def model_case_for(case, model_case=None, E_factor: float = 1.0):
 
 def build_loop(case, *, plant: str = "fem", model: str | None = None,
                model_E_factor: float = 1.0, model_case=None, plant_case=None,
-               scenario: str | None = None, model_update: str = "fast") -> LoopSetup:
+               scenario: str | None = None, model_update: str = "fast",
+               degree: int | None = None) -> LoopSetup:
     """The plant ``plant`` (fem | admm) on ``plant_case`` (default ``case``: the "true" tissue,
     e.g. with gravity or another nu) and the model ``model`` (default: the plant's solver) on
     ``model_case`` (default: ``case``; e.g. a coarser mesh of the same body) with E scaled by
@@ -343,6 +344,9 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
         The mismatch's name in the metadata; None: none.
     model_update : str
         One of MODEL_UPDATES: "fast" or "solve".
+    degree : int or None
+        The reference's Lagrange degree (1 or 2) where the plant or the model is the reference
+        (fem); None: the case's (``[reference] degree``, as ``fem_reference`` resolves it).
 
     Returns
     -------
@@ -352,19 +356,26 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
     Raises
     ------
     CaseError
-        For an unknown solver or update, or a ``model_case`` of another body.
+        For an unknown solver or update, a ``model_case`` of another body, or a ``degree``
+        that is not 1 or 2 or that no reference of the loop solves at.
     """
     mname = model or plant
+    if degree is not None:
+        if degree not in (1, 2):
+            raise CaseError(f"degree {degree!r}: the reference's degree in a loop is 1 or 2")
+        if not (control_solver(plant).reference or control_solver(mname).reference):
+            raise CaseError(f"degree {degree}: neither the plant ({plant}) nor the model "
+                            f"({mname}) is the reference (fem), whose degree it sets")
     mc = model_case_for(case, model_case, model_E_factor)
     if mc.indenters() and len(mc.indenters()) != len(mc.actuators):
         raise CaseError(f"{mc.source or mc.name}: the model mixes indenters and glued patches; "
                         f"a loop's model has actuators of one kind")
-    psolve = plant_for(plant)
+    psolve = plant_for(plant, degree=degree)
     pcase = plant_case if plant_case is not None else case
     if mname == plant and model_E_factor == 1.0 and model_case is None and plant_case is None:
         mcase, msolve = case, psolve          # the model is the plant: reuse its solution
     else:
-        mcase, msolve = mc, plant_for(mname)
+        mcase, msolve = mc, plant_for(mname, degree=degree)
     meta = {"case": case.name, "source": case.source, "plant": plant, "model": mname,
             "scenario": scenario, "model_case": mcase.name, "model_source": mcase.source,
             "plant_cells": pcase.mesh.n_cells, "model_cells": mcase.mesh.n_cells,
@@ -383,8 +394,8 @@ def build_loop(case, *, plant: str = "fem", model: str | None = None,
             "actuators": {a.name: {"type": a.type, "idle": a.idle} for a in case.actuators},
             "plant_actuator_kind": actuator_kind(pcase),
             "model_actuator_kind": actuator_kind(mcase),
-            "plant_solver": solver_description(plant, pcase),
-            "model_solver": solver_description(mname, mcase)}
+            "plant_solver": solver_description(plant, pcase, degree=degree),
+            "model_solver": solver_description(mname, mcase, degree=degree)}
     if pcase.indenters():
         meta["plant_indenters"] = {a.name: {"tip": a.tip, "radius_mm": a.radius,
                                             "contact": a.contact,

@@ -125,7 +125,7 @@ def check_contact_plant(model_case, plant_case):
 
 def scenario_loop(case, name: str, *, model: str = "admm", model_case=None,
                   model_E_factor: float = 1.0, plant_case=None, contact_rule=None,
-                  model_update: str = "fast") -> LoopSetup:
+                  model_update: str = "fast", degree: int | None = None) -> LoopSetup:
     """A mismatch scenario of ``SCENARIOS``: the plant is the reference on ``case`` changed as
     the scenario says, the model the fast solver ``model`` on ``model_case`` (a case of the same
     body, e.g. meshed coarser; default ``case``; required for "mesh", whose mismatch it is) with
@@ -133,7 +133,8 @@ def scenario_loop(case, name: str, *, model: str = "admm", model_case=None,
     ``plant_case`` (a case of the same body with indenters of the same names, e.g. meshed finer
     at the sites; ``check_contact_plant``), by default ``indenter_plant_case(case)``;
     ``contact_rule`` ("nodal" or a Gauss degree) replaces that plant's [reference]
-    contact_quadrature."""
+    contact_quadrature. ``degree``: the reference plant's Lagrange degree (1 or 2; None: the
+    plant case's own, ``build_loop``)."""
     if name not in SCENARIOS:
         raise CaseError(f"unknown mismatch scenario {name!r}; scenarios: {sorted(SCENARIOS)}")
     if (plant_case is not None or contact_rule is not None) and name != "contact":
@@ -161,7 +162,7 @@ def scenario_loop(case, name: str, *, model: str = "admm", model_case=None,
             plant_case = replace(plant_case, reference_contact_quadrature=contact_rule)
     loop = build_loop(case, plant="fem", model=model, model_case=model_case,
                       model_E_factor=model_E_factor, plant_case=plant_case, scenario=name,
-                      model_update=model_update)
+                      model_update=model_update, degree=degree)
     loop.meta["scenario_description"] = SCENARIOS[name]
     if name == "contact":   # which plant: a case file, or derived from the model's (source null)
         loop.meta.update({"plant_case": plant_case.name, "plant_source": plant_case.source})

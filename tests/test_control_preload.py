@@ -121,6 +121,22 @@ def test_a_preloaded_linear_loop_is_the_loop_from_rest_shifted(linear):
                         3, settings=replace(lim, mpc=MPCSettings(max_travel=1.0)))
 
 
+def test_a_loop_s_reference_is_solved_at_the_degree_given(capsys):
+    """build_loop's degree (``tissue mpc`` / ``table1 --degree``) is the reference plant's,
+    recorded in the loop's metadata; without it the case's (phantom-seed: P1). Refused, naming
+    it, where neither the plant nor the model is the reference. Nothing is solved."""
+    case = load_case(SEED, size=14.0)
+    for degree, expected in ((None, 1), (2, 2)):
+        meta = build_loop(case, plant="fem", model="admm", degree=degree).meta
+        assert meta["plant_solver"]["discretization"]["degree"] == expected
+        assert meta["model_solver"]["discretization"]["degree"] == 1     # ADMM: P1
+    with pytest.raises(CaseError, match="neither the plant"):
+        build_loop(case, plant="admm", degree=2)
+    assert main(["mpc", "phantom-seed", "--size", "14", "--target", "T2", "--task", "1",
+                 "--plant", "admm", "--degree", "1", "--preload", "3", "-q"]) == 2
+    assert "--degree 1: the reference's degree" in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_the_models_jacobian_at_the_preload_is_the_reference_plants(tmp_path):
     case = seed_coarse(tmp_path)

@@ -211,6 +211,20 @@ def test_tissue_verify_sweep_writes_its_json_and_plot_and_refuses_a_push(box, tm
     assert main(["verify", str(path), "--model-size", "4", "-q"]) == 2
 
 
+def test_a_sweep_solves_the_reference_at_the_degree_it_is_given(tmp_path):
+    """--degree with --sweep: the reference (the tracker) is solved at that degree, and every
+    experiment records the degree it was solved at (the case's without --degree: P1 here)."""
+    path = tmp_path / "box2.toml"
+    path.write_text(BOX)
+    for degree in (None, 2):
+        js = tmp_path / f"s{degree}.json"
+        argv = ["verify", str(path), "--sweep", "1", "--sweep-actuators", "A1", "-q",
+                "--free-actuators", "--json", str(js)]
+        assert main(argv + (["--degree", str(degree)] if degree else [])) == 0
+        data = validate_file("verify_sweep", js)
+        assert [r["reference"]["degree"] for r in data["experiments"]] == [degree or 1]
+
+
 def test_a_stiffer_model_is_solved_on_the_scaled_E_and_another_body_is_refused(box):
     """--model-E-factor: the solvers get the case with E scaled; a model whose displacement is
     inversely proportional to E then predicts the reference's targets divided by the factor."""

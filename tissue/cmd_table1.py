@@ -117,7 +117,7 @@ def _scenario_loops(args, case, model, names) -> dict:
     return {name: scenario_loop(case, name, model=args.model or "admm",
                                 model_case=coarse if name == "mesh" else model,
                                 model_E_factor=args.model_E_factor,
-                                model_update=args.model_update,
+                                model_update=args.model_update, degree=args.degree,
                                 **(contact if name == "contact" else {}))
             for name in dict.fromkeys(names)}
 

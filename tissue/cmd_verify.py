@@ -115,13 +115,13 @@ def _check_sweep_args(args):
             raise CaseError(f"{', '.join(given)}: only with --sweep")
         return
     given = [o for o, v in (("--push", args.push), ("--field", args.field),
-                            ("--degree", args.degree), ("--estimate", args.estimate or None),
+                            ("--estimate", args.estimate or None),
                             ("--stop-mm", args.stop_mm))
              if v is not None] + (["--formulation"] if args.formulation != "auto" else [])
     if given:
         raise CaseError(f"{', '.join(given)}: not with --sweep (a sweep pushes each actuator "
-                        f"alone, --sweep MM ..., and scores solvers against the case's default "
-                        f"reference)")
+                        f"alone, --sweep MM ..., and scores solvers against the case's reference, "
+                        f"at --degree where given)")
 
 
 def _sweep_lines(res):
@@ -180,7 +180,7 @@ def _run_sweep(args, case) -> int:
                 actuators=args.sweep_actuators, options=options,
                 model_case=model_case_from_args(args, case),
                 model_E_factor=args.model_E_factor or 1.0, progress=not args.quiet,
-                json_file=args.json, report=report)
+                json_file=args.json, report=report, degree=args.degree)
     _sweep_lines(res)
     status = 0
     for r in res["experiments"]:

@@ -10,7 +10,7 @@ from tissue_reference.control.mpc import WEIGHTS, MPCSettings
 from tissue_reference.control.plants import MODEL_UPDATES, build_loop, matching_case
 from tissue_reference.errors import CaseError
 from tissue_reference.model.converged_range import converged_push_limit
-from tissue_reference.solvers.registry import control_names
+from tissue_reference.solvers.registry import control_names, is_reference
 
 from .common import (
     body_diameter,
@@ -35,6 +35,11 @@ def add_loop_args(p):
                    help="the solver playing the tissue (the \"true\" plant)")
     p.add_argument("--model", choices=control_names(), default=None,
                    help="controller's model solver (default: the plant's)")
+    p.add_argument("--degree", type=int, choices=(1, 2), default=None,
+                   help="Lagrange degree of the reference (fem) where it is the plant or the "
+                        "model (default: the case's [reference] degree, else 1). On "
+                        "phantom-seed (P2 by default, 1-2 min a solve) --degree 1 gives the P1 "
+                        "plant, 3-7 s a solve but a fifth too stiff")
     p.add_argument("--model-update", choices=MODEL_UPDATES, default="fast",
                    help="how an ADMM model follows the pushes: fast (chord Newton on its P1 "
                         "energy and the Jacobian by refinement, milliseconds a step; the same "
@@ -101,8 +106,14 @@ def model_case_from_args(args, case):
 
 def check_loop_args(args, case) -> None:
     """What a closed loop on ``case`` needs of it and of the command line, before any mesh of a
-    model is read: prescribed actuators and a noise no larger than the body."""
+    model is read: prescribed actuators, a noise no larger than the body, and a --degree only
+    where the plant or the model is the reference."""
     check_prescribed(case)
+    model = args.model or args.plant
+    if getattr(args, "degree", None) is not None and not (is_reference(args.plant)
+                                                          or is_reference(model)):
+        raise CaseError(f"--degree {args.degree}: the reference's degree, and neither --plant "
+                        f"{args.plant} nor --model {model} is the reference (fem)")
     preload_from_args(args, case)
     diam = body_diameter(case)
     if args.noise > diam:
@@ -170,7 +181,7 @@ def loop_from_args(args, case):
     try:
         loop = build_loop(case, plant=args.plant, model=args.model,
                           model_E_factor=args.model_E_factor, model_case=mcase,
-                          model_update=args.model_update)
+                          model_update=args.model_update, degree=args.degree)
     except CaseError as exc:
         raise CaseError(f"--model-E-factor / --model: {exc}") from None
     settings, record = settings_from_args(args, travel_limit(args, loop.case, loop.model_case),

@@ -93,13 +93,13 @@ def error_statistics(values) -> dict:
             "n": int(v.size)}
 
 
-def _reference(case, pushes, reference_solve):
+def _reference(case, pushes, reference_solve, degree=None):
     # lazy: fem_reference loads dolfinx and PETSc (0.7 s of start-up)
     import tissue_reference.fem_reference as fr
 
     if reference_solve is not None:
         return reference_solve(case.with_pushes(pushes))
-    return fr.solve(case, pushes=pushes)
+    return fr.solve(case, pushes=pushes, degree=degree)
 
 
 def _error_bar(res, probes) -> tuple[dict | None, str | None]:
@@ -144,7 +144,7 @@ def _run_candidate(kind, cand, mcase, pushes, opts):
 
 def sweep(case, solvers=("admm",), *, pushes_mm=DEFAULT_PUSHES_MM, actuators=None,
           options=None, model_case=None, model_E_factor: float = 1.0, reference_solve=None,
-          progress: bool = False, json_file=None, report=None) -> dict:
+          progress: bool = False, json_file=None, report=None, degree: int | None = None) -> dict:
     """Seed 000's model validation on ``case``: every experiment of ``experiments(case,
     pushes_mm, actuators)`` solved by the reference and by each of ``solvers``, and each
     target's localization error per axis (solver minus reference, mm) summarized per solver,
@@ -154,7 +154,7 @@ def sweep(case, solvers=("admm",), *, pushes_mm=DEFAULT_PUSHES_MM, actuators=Non
     ----------
     case : Case
         The body, its actuators and targets (probes); the reference solves it at its default
-        discretization.
+        discretization (``degree`` aside).
     solvers : sequence
         Built-in fast solvers' names (``verify.FAST_SOLVERS``, with their settings: ``admm`` is
         ADMM with the Newton polish), callables, ``"module:function"``, ``"file.py:function"``
@@ -177,6 +177,9 @@ def sweep(case, solvers=("admm",), *, pushes_mm=DEFAULT_PUSHES_MM, actuators=Non
     report : callable or None
         report(result) -> path of what it wrote (the command line's plot), its path kept as
         the result's "report".
+    degree : int or None
+        The reference's Lagrange degree; None: the case's (``[reference] degree``, else 1 for
+        the displacement formulation).
 
     Returns
     -------
@@ -222,13 +225,14 @@ def sweep(case, solvers=("admm",), *, pushes_mm=DEFAULT_PUSHES_MM, actuators=Non
     rows = []
     for pushes in runs:
         t0 = time.perf_counter()
-        ref = _reference(case, pushes, reference_solve)
+        ref = _reference(case, pushes, reference_solve, degree)
         ref_wall = time.perf_counter() - t0
         rp = {k: np.asarray(ref.probes[k], float) for k in targets}
         bar, why = _error_bar(ref, rp)
         row = {"pushes_mm": dict(pushes),
                "reference": {"probes_mm": {k: v.tolist() for k, v in rp.items()},
                              "newton_iterations": int(ref.iterations),
+                             "degree": int(ref.degree) if ref.degree is not None else None,
                              "wall_time_s": float(getattr(ref, "wall_time_s", ref_wall)),
                              "converged": bool(ref.converged), "valid": ref.valid,
                              "error_bar_mm": bar},
