@@ -12,6 +12,14 @@ level 1 (167k unknowns, 5.5-7.5 min per push). Level -3 (17 mm, 8.5 mm sites) is
 P2: the heads' penetration check cannot map its points into its curved cells (dolfinx's
 pull-back fails).
 
+``--defaults`` solves the case's own mesh and contact rule at ``--degree`` (P2 is the case's
+default; P1 its former one), each of ``--actuators`` alone along one warm-started load path:
+``DIR/defaults-P{degree}.json``. ``--summarize --data`` compares those answers with the study's
+finest level (A2..A4 against A1's turned) and prints the case file's ``[[reference.measured]]``
+rows, one per actuator, push and degree; at P2, A1's answers are the study's level 0 (the same
+mesh and degree) unless given. ``--from-data`` does so from the data file's own study and
+answers, with the answers under ``DIR`` added.
+
 The body, the heads and the targets turn into each other under rotations by 90 degrees about the
 dome's axis (A1 -> A2 -> A3 -> A4 and T2 -> T3 -> T4 -> T5; the mesh itself is not symmetric),
 so the converged answer of A1 alone, rotated, is that of A2, A3 or A4 alone. ``--rotation``
@@ -31,9 +39,12 @@ zero are the mesh's asymmetry, not a converging quantity (T4's u_z, 2-5 %, is le
 
     .venv/bin/python bench/bench_seed_convergence.py --level K [--degree 2] [--actuator A1]
         [--pushes 5 10 15] --out DIR            (the shipped study: each K of -2 -1 0 1)
-    .venv/bin/python bench/bench_seed_convergence.py --defaults --out DIR
+    .venv/bin/python bench/bench_seed_convergence.py --defaults --degree 1|2 [--actuators A2 A3 A4]
+        --out DIR
     .venv/bin/python bench/bench_seed_convergence.py --summarize [--levels -2 -1 0 1] --out DIR
         [--data tests/data/phantom_seed_reference.json]
+    .venv/bin/python bench/bench_seed_convergence.py --summarize --from-data
+        --data tests/data/phantom_seed_reference.json --out DIR
     .venv/bin/python bench/bench_seed_convergence.py --rotation A2 --level -2 --out DIR
 """
 from __future__ import annotations
@@ -233,19 +244,20 @@ def rotation_check(out: Path, degree: int, actuator: str, k: int) -> None:
               + ", ".join(f"{n} {100 * v:.2f} %" for n, v in dt.items()))
 
 
-def run_defaults(out: Path, pushes) -> Path:
-    """The case's own default (its mesh, degree and contact rule: what ``tissue solve
-    phantom-seed`` solves) for each actuator alone along one warm-started load path:
-    ``DIR/defaults.json``."""
+def run_defaults(out: Path, pushes, degree: int | None = None, actuators=tuple(TURN)) -> Path:
+    """The case's own mesh and contact rule (what ``tissue solve phantom-seed`` solves) at
+    ``degree`` (None: the case's default degree) for each of ``actuators`` alone along one
+    warm-started load path: ``DIR/defaults-P{degree}.json``."""
     from tissue_reference.fem_reference.solver import ReferenceSolver
     from tissue_reference.model.case import load_case
     from tissue_reference.model.results import write_json
 
     case = load_case(CASE)
-    solver = ReferenceSolver(case)
+    solver = ReferenceSolver(case, degree=degree)
     doc = {"degree": solver.degree, "cells": case.mesh.n_cells,
            "contact_quadrature": case.reference_contact_quadrature, "answers": {}}
-    for act in TURN:
+    path = out / f"defaults-P{solver.degree}.json"
+    for act in actuators:
         prev, rows = None, []
         for p in pushes:
             t0 = time.perf_counter()
@@ -258,10 +270,9 @@ def run_defaults(out: Path, pushes) -> Path:
                          "wall_s": time.perf_counter() - t0})
             print(f"default P{solver.degree} ({doc['dofs']} dofs), {act} = {p:g} mm: force "
                   f"{rows[-1]['force_mN']:.6g} mN, {rows[-1]['wall_s']:.1f} s", flush=True)
-        doc["answers"][act] = rows
+            doc["answers"][act] = rows
+            write_json(doc, path)   # rewritten after every push: a long run keeps what it reached
     solver.close()
-    path = out / "defaults.json"
-    write_json(doc, path)
     return path
 
 
@@ -275,10 +286,10 @@ def distance(force: float, probes: dict, entry: dict, turns: int) -> dict:
     return out
 
 
-def _row(act: str, push: float, dofs: int, d: dict, entry: dict, against: str,
-         degree: int | None = None) -> str:
-    """A ``[[reference.measured]]`` table (TOML): the distance ``d`` of the default's answer
-    from the finest level ``entry`` of the study, with that level's bands."""
+def _row(act: str, push: float, dofs: int, degree: int, d: dict, entry: dict,
+         against: str) -> str:
+    """A ``[[reference.measured]]`` table (TOML): the distance ``d`` of an answer on the case's
+    mesh at ``degree`` from the finest level ``entry`` of the study, with that level's bands."""
     worst = max(v for k, v in d.items() if k != "force")
     band = entry["bands"]
     against += (f", itself within {100 * band['force']:.1f} % (force) and "
@@ -286,40 +297,30 @@ def _row(act: str, push: float, dofs: int, d: dict, entry: dict, against: str,
                 f"bands")
     return "\n".join([
         "[[reference.measured]]", f"pushes = {{{act} = {push:g}}}", f"dofs = {dofs}",
-        *([f"degree = {degree}"] if degree is not None else []),
-        f"force = {d['force']:.4f}", f"probes = {worst:.4f}",
+        f"degree = {degree}", f"force = {d['force']:.4f}", f"probes = {worst:.4f}",
         (f"band = {{force = {band['force']:.4f}, probes = {band['probes']:.4f}}}"
          "  # the finest level's GCI bands"),
         'against = """\\\n' + " \\\n".join(textwrap.wrap(against, 92)) + '"""'])
 
 
-def write_data(out: Path, summary: dict, path: Path) -> None:
-    """The test data (``path``): the study's summary, the default's answers and their distance
-    from the study's finest level (A2..A4 against A1's turned), the rotation checks run under
-    ``out``; and the case file's ``[[reference.measured]]`` rows, printed."""
-    from tissue_reference.model.results import write_json
+def load_defaults(out: Path, data: dict | None = None) -> dict:
+    """The answers on the case's own mesh by degree ("P1", "P2"; ``run_defaults``): those of
+    the data file ``data`` where given, each actuator's replaced by or added from the
+    ``defaults-P{degree}.json`` under ``out``."""
+    found = {k: dict(v) for k, v in (data or {}).get("defaults", {}).items()}
+    for f in sorted(out.glob("defaults-P*.json")):
+        doc = json.loads(f.read_text())
+        key = f"P{doc['degree']}"
+        old = found.get(key, {"answers": {}})
+        if old.get("dofs", doc["dofs"]) != doc["dofs"]:
+            raise SystemExit(f"{f}: {doc['dofs']} unknowns, the data's {key} answers "
+                             f"{old['dofs']}")
+        found[key] = {**old, **doc, "answers": {**old["answers"], **doc["answers"]}}
+    return found
 
-    defaults = json.loads((out / "defaults.json").read_text())
-    rows, measured = [], {}
-    for act, answers in defaults["answers"].items():
-        for a in answers:
-            entry = next(e for e in summary["pushes"] if e["push_mm"] == a["push"])
-            d = distance(a["force_mN"], a["probes"], entry, TURN[act])
-            measured.setdefault(act, []).append({"push_mm": a["push"], **d})
-            turned = "" if act == "A1" else (
-                f", turned by {90 * TURN[act]} degrees about the dome's axis (the case is "
-                f"symmetric under quarter turns; its mesh is not)")
-            rows.append(_row(act, a["push"], defaults["dofs"], d, entry,
-                             f"tests/data/{path.name} A1 P2 level {entry['levels'][-1]:g} "
-                             f"({entry['dofs'][-1]} dofs){turned}"))
-    for entry in summary["pushes"]:   # the study's level 0 is the case's mesh at P2
-        if 0 in entry["levels"][:-1] and summary["degree"] == 2:
-            i = entry["levels"].index(0)
-            d = distance(entry["force_mN"][i], {n: v[i] for n, v in entry["probes_mm"].items()},
-                         entry, 0)
-            rows.append(_row("A1", entry["push_mm"], entry["dofs"][i], d, entry,
-                             f"tests/data/{path.name} A1 P2 level {entry['levels'][-1]:g} "
-                             f"({entry['dofs'][-1]} dofs)", degree=2))
+
+def rotation_checks(out: Path) -> dict:
+    """Each other actuator solved on a study level under ``out`` against A1 there, turned."""
     rotation = {}
     for f in sorted(out.glob("A[234]-P*-level*.json")):
         other = json.loads(f.read_text())
@@ -333,6 +334,53 @@ def write_data(out: Path, summary: dict, path: Path) -> None:
                 {"push_mm": r["push"], "force_mN": r["force_mN"],
                  "probes_mm": r["probes"], "distance_from_A1_turned":
                      distance(r["force_mN"], r["probes"], entry, TURN[other["actuator"]])})
+    return rotation
+
+
+def write_data(out: Path, summary: dict, path: Path, data: dict | None = None) -> None:
+    """The test data (``path``): the study's summary; the answers on the case's own mesh at
+    P1 and P2 (``load_defaults``: under ``out``, and those of ``data``, the data file as it
+    was, where given) and their distance from the study's finest level (A2..A4 against A1's
+    turned; A1 at P2 is the study's level 0 where no answer of it is given); the rotation
+    checks (under ``out``, else ``data``'s); and the case file's ``[[reference.measured]]``
+    rows, printed."""
+    from tissue_reference.model.results import write_json
+
+    defaults = load_defaults(out, data)
+    if "P2" in defaults or summary["degree"] == 2:
+        level0 = {"dofs": None, "answers": {}}
+        for entry in summary["pushes"]:   # the study's level 0 is the case's mesh at P2
+            if summary["degree"] == 2 and 0 in entry["levels"][:-1]:
+                i = entry["levels"].index(0)
+                level0["dofs"] = entry["dofs"][i]
+                level0["answers"].setdefault("A1", []).append(
+                    {"push": entry["push_mm"], "force_mN": entry["force_mN"][i],
+                     "probes": {n: v[i] for n, v in entry["probes_mm"].items()},
+                     "valid": entry["valid"][i], "newton": entry["newton"][i],
+                     "wall_s": entry["wall_s"][i], "from": "the study's level 0"})
+        p2 = defaults.get("P2", {"degree": 2, "answers": {}})
+        if level0["dofs"] is not None and "A1" not in p2["answers"]:
+            if p2.get("dofs", level0["dofs"]) != level0["dofs"]:
+                raise SystemExit(f"P2 on the case's mesh has {p2['dofs']} unknowns, the "
+                                 f"study's level 0 {level0['dofs']}")
+            defaults["P2"] = {**p2, "dofs": level0["dofs"],
+                              "answers": {**level0["answers"], **p2["answers"]}}
+    rows, measured = [], {}
+    for key in sorted(defaults):
+        doc = defaults[key]
+        for act, turns in TURN.items():
+            for a in doc["answers"].get(act, ()):
+                entry = next(e for e in summary["pushes"] if e["push_mm"] == a["push"])
+                d = distance(a["force_mN"], a["probes"], entry, turns)
+                measured.setdefault(key, {}).setdefault(act, []).append(
+                    {"push_mm": a["push"], **d})
+                turned = "" if act == "A1" else (
+                    f", turned by {90 * turns} degrees about the dome's axis (the case is "
+                    f"symmetric under quarter turns; its mesh is not)")
+                rows.append(_row(act, a["push"], doc["dofs"], doc["degree"], d, entry,
+                                 f"tests/data/{path.name} A1 P2 level {entry['levels'][-1]:g} "
+                                 f"({entry['dofs'][-1]} dofs){turned}"))
+    rotation = {**(data or {}).get("rotation_checks", {}), **rotation_checks(out)}
     levels = " ".join(f"{lv['level']:g}" for lv in summary["levels"])
     write_json({
         "description": (
@@ -344,16 +392,21 @@ def write_data(out: Path, summary: dict, path: Path) -> None:
             "case's own mesh, size 6 mm, 3 mm sites). 'study': per push the levels' A1 force "
             "(mN) and targets (mm), each quantity's assessment (observed orders, asymptotic-range "
             "check, GCI band; fem_reference.richardson) and the finest level's bands. "
-            "'default': the case's own default (P1 on its mesh) for each actuator alone; "
-            "'default_vs_finest': its relative distance from the finest level (A2..A4 from A1's "
-            "turned by quarter turns about the dome's axis, under which the case, not its mesh, "
-            "is symmetric); 'rotation_checks': another actuator on a study level against A1 "
-            "there, turned. These are this project's answers, not independent ones."),
+            "'defaults': the case's own mesh and contact rule at P1 ('P1', A1..A4) and at P2 "
+            "('P2', the case's default degree: A2..A4 solved, A1 the study's level 0) for each "
+            "actuator alone along one warm-started load path; 'defaults_vs_finest': their "
+            "relative distance from the finest level (A2..A4 from A1's turned by quarter turns "
+            "about the dome's axis, under which the case, not its mesh, is symmetric); "
+            "'rotation_checks': another actuator on a study level against A1 there, turned. "
+            "These are this project's answers, not independent ones."),
         "command": (f"python bench/bench_seed_convergence.py --level L --out DIR for L in "
-                    f"{levels}; --defaults --out DIR; --rotation A2 --level "
+                    f"{levels}; --defaults --degree 1 --out DIR; --defaults --degree 2 "
+                    f"--actuators A2 A3 A4 --out DIR; --rotation A2 --level "
                     f"{summary['levels'][0]['level']:g} --out DIR; --summarize --levels {levels} "
-                    f"--data {path.name} --out DIR"),
-        "study": summary, "default": defaults, "default_vs_finest": measured,
+                    f"--data {path.name} --out DIR (from this file's own study and the answers "
+                    f"on the case's mesh under DIR: --summarize --from-data --data {path.name} "
+                    f"--out DIR)"),
+        "study": summary, "defaults": defaults, "defaults_vs_finest": measured,
         "rotation_checks": rotation}, path)
     print("\n\n".join(rows))
     print(f"\nwrote {path}")
@@ -366,25 +419,37 @@ def main():
                     help="--summarize: the levels assessed (equally spaced; default: all)")
     ap.add_argument("--degree", type=int, default=2, choices=(1, 2))
     ap.add_argument("--actuator", default="A1", choices=tuple(TURN))
+    ap.add_argument("--actuators", nargs="+", default=list(TURN), choices=tuple(TURN),
+                    help="--defaults: the actuators solved, each alone (default: all four)")
     ap.add_argument("--pushes", type=float, nargs="+", default=[5.0, 10.0, 15.0])
     ap.add_argument("--summarize", action="store_true")
     ap.add_argument("--rotation", choices=("A2", "A3", "A4"), default=None,
                     help="solve this actuator on --level (unless its JSON is there) and "
                          "compare it with A1's answers there, rotated")
     ap.add_argument("--defaults", action="store_true",
-                    help="solve the case's own default for each actuator alone along --pushes")
+                    help="solve the case's own mesh and contact rule at --degree for each of "
+                         "--actuators alone along --pushes")
     ap.add_argument("--data", type=Path, default=None,
                     help="--summarize: also write the test data file and print the case "
                          "file's rows (needs --defaults' answers under --out)")
+    ap.add_argument("--from-data", action="store_true",
+                    help="--summarize: take the study and the rotation checks from the --data "
+                         "file itself (its levels' answers), adding or replacing the answers on "
+                         "the case's mesh under --out (--defaults'), and write it again")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    if args.summarize:
+    if args.summarize and args.from_data:
+        if args.data is None:
+            raise SystemExit("--from-data needs --data")
+        data = json.loads(args.data.read_text())
+        write_data(args.out, data["study"], args.data, data)
+    elif args.summarize:
         summary = summarize(args.out, args.degree, args.actuator, args.levels)
         if args.data is not None:
             write_data(args.out, summary, args.data)
     elif args.defaults:
-        run_defaults(args.out, args.pushes)
+        run_defaults(args.out, args.pushes, args.degree, args.actuators)
     elif args.rotation:
         if args.level is None:
             raise SystemExit("--rotation needs --level")

@@ -34,10 +34,15 @@ PRELOAD = 3.0   # mm, every head
 
 
 def seed_coarse(tmp_path, size=10.0, site_size=6.0):
-    """phantom-seed meshed coarsely (size and site size in mm): 2-3k tets instead of 14k."""
+    """phantom-seed meshed coarsely (size and site size in mm): 2-3k tets instead of 14k, at
+    P1 (``degree = 1`` in place of the case's P2): what these tests check (a preload, the
+    model's Jacobian against the plant's, a loop from the preload) needs no P2, and its P1
+    answers are the ones the ADMM model solves on the same mesh."""
     text = SEED.read_text()
     text = re.sub(r"(?m)^size = 6\.0 .*$", f"size = {size}", text, count=1)
     text = re.sub(r"(?m)^site_size = 3\.0 .*$", f"site_size = {site_size}", text, count=1)
+    text, n = re.subn(r"(?m)^degree = 2 .*$", "degree = 1", text, count=1)
+    assert n == 1
     path = tmp_path / "phantom-seed-coarse.toml"
     path.write_text(text)
     return load_case(path)
@@ -123,10 +128,10 @@ def test_a_preloaded_linear_loop_is_the_loop_from_rest_shifted(linear):
 
 def test_a_loop_s_reference_is_solved_at_the_degree_given(capsys):
     """build_loop's degree (``tissue mpc`` / ``table1 --degree``) is the reference plant's,
-    recorded in the loop's metadata; without it the case's (phantom-seed: P1). Refused, naming
+    recorded in the loop's metadata; without it the case's (phantom-seed: P2). Refused, naming
     it, where neither the plant nor the model is the reference. Nothing is solved."""
     case = load_case(SEED, size=14.0)
-    for degree, expected in ((None, 1), (2, 2)):
+    for degree, expected in ((None, 2), (1, 1)):
         meta = build_loop(case, plant="fem", model="admm", degree=degree).meta
         assert meta["plant_solver"]["discretization"]["degree"] == expected
         assert meta["model_solver"]["discretization"]["degree"] == 1     # ADMM: P1
