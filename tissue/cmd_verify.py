@@ -290,9 +290,9 @@ def add_parser(sub):
                    metavar="MM",
                    help="seed 000's model validation (its Fig. 7): push each actuator alone by "
                         "each MM (default: 5 10 15, the seed's 12 experiments with four "
-                        "actuators), score each solver's targets against the case's default "
-                        "reference and print per target and axis the mean, median and max "
-                        "error (default solver: admm)")
+                        "actuators), score each solver's targets against the case's reference "
+                        "(at its default degree, or --degree) and print per target and axis the "
+                        "mean, median and max error (default solver: admm)")
     p.add_argument("--sweep-actuators", nargs="+", metavar="NAME", default=None,
                    help="the actuators --sweep pushes (default: all)")
     p.add_argument("--model-case", default=None, metavar="CASE.toml",
