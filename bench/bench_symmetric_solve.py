@@ -48,7 +48,7 @@ def main(argv=None) -> int:
     for symmetry in (True, False) if not args.skip_whole else (True,):
         res, wall = _solve(case, pushes, symmetry)
         runs[symmetry] = (res, wall)
-        sym = res.extra.get("symmetry") or {}
+        sym = res.symmetry or {}
         where = (f"the part cut by {', '.join(sym['planes'])} ({sym['part_dofs']:,} unknowns)"
                  if sym.get("solved_on") == "part" else f"the whole mesh ({sym.get('why')})")
         print(f"  {'reduced' if symmetry else 'whole':8s} {wall:8.1f} s wall, "

@@ -41,7 +41,7 @@ def solve(case: Case, *, degree: int | None = None, pushes=None, initial=None,
     symmetry: on a mesh joined from a symmetric part and its mirror images (``meshes.mirror``,
     e.g. the builtin ``phantom-symmetric``) under a load symmetric about the mirror planes,
     solve the part with its planes sliding (the same discrete problem) and mirror its answer
-    back onto the whole mesh (``fem_reference.symmetric``; ``extra["symmetry"]`` says which was
+    back onto the whole mesh (``fem_reference.symmetric``; ``SolveResult.symmetry`` says which was
     solved; its error estimate is the part's too); False: solve the whole mesh.
 
     Parameters

@@ -11,7 +11,7 @@ An error estimate of such an answer (``estimate_split``) is the part's, mirrored
 degree + 1 solve on the part too, where the automatic estimate decides by the whole mesh's
 unknowns as it would for the whole.
 
-The answer says so in ``extra["symmetry"]``: ``solved_on`` "part" with the ``planes`` the
+The answer says so in ``SolveResult.symmetry``: ``solved_on`` "part" with the ``planes`` the
 solve was cut by and the part's ``part_dofs``; on a mirrored mesh solved whole, "whole" and
 ``why`` (an asymmetric load, or ``symmetry=False``, a warm start, a ``dirichlet_override``).
 """
@@ -78,8 +78,7 @@ def solve_split(case: Case, degree: int | None, *, pushes=None, initial=None,
     res = s.solve(pushes, case=case, initial=initial, dirichlet_override=dirichlet_override,
                   progress=progress)
     if why is not None:
-        res = dataclasses.replace(res, extra={**res.extra,
-                                              "symmetry": {"solved_on": "whole", "why": why}})
+        res = dataclasses.replace(res, symmetry={"solved_on": "whole", "why": why})
     return res, None
 
 
@@ -126,7 +125,7 @@ def mirrored_result(plan: Reduction, part: SolveResult, formulation: str = "auto
     form = disc.get("formulation") or resolve_formulation(formulation, whole.material)
     dofs = predicted_dofs(entity_counts(whole.mesh), whole.mesh.gdim, int(part.degree), form)
     disc.update(cells=whole.mesh.n_cells, dofs=dofs)
-    inner = part.extra.get("symmetry") or {}
+    inner = part.symmetry or {}
     planes = [plan.plane, *(inner.get("planes") or [])] if inner.get("solved_on") == "part" \
         else [plan.plane]
     part_dofs = inner.get("part_dofs", (part.discretization or {}).get("dofs"))
@@ -150,7 +149,7 @@ def mirrored_result(plan: Reduction, part: SolveResult, formulation: str = "auto
         strain_energy=2.0 * part.strain_energy, warnings=plan.warnings(part.warnings),
         case_name=whole.name, n_vertices=whole.mesh.n_vertices, n_cells=whole.mesh.n_cells,
         discretization=disc, invalid_reason=reason,
-        extra={**extra, "n_dofs": dofs,
-               "symmetry": {"solved_on": "part", "planes": planes, "part_dofs": part_dofs,
-                            "part_cells": inner.get("part_cells", part.n_cells)}},
+        extra={**extra, "n_dofs": dofs},
+        symmetry={"solved_on": "part", "planes": planes, "part_dofs": part_dofs,
+                  "part_cells": inner.get("part_cells", part.n_cells)},
         **state)

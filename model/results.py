@@ -57,6 +57,9 @@ class SolveResult:
         written with the validity; None when not finite or not checked.
     model: the material model the solver solved when it is not the case's (a fast solver's
         linear elasticity), else None; model_note: that difference in words (None without one).
+    symmetry: on a mesh joined from a symmetric part and its mirror images, which mesh the
+        reference solved (``fem_reference.symmetric``): {"solved_on": "part", "planes",
+        "part_dofs", "part_cells"} or {"solved_on": "whole", "why"}; None on another mesh.
     node_u: (n_nodes, gdim) displacement (mm) at every node of a degree >= 2 reference answer,
         in the order of node_points ((n_nodes, gdim), mm); None at degree 1 and under MPI (the
         warm start and the tangent of a later solve use them).  pressure: the mixed
@@ -159,6 +162,7 @@ class SolveResult:
     min_J: float | None = None
     model: str | None = None
     model_note: str | None = None
+    symmetry: dict | None = None
     node_u: np.ndarray | None = None
     node_points: np.ndarray | None = None
     pressure: object = None
@@ -206,6 +210,8 @@ class SolveResult:
             d["model"] = self.model
         if self.model_note is not None:
             d["model_note"] = self.model_note
+        if self.symmetry is not None:
+            d["symmetry"] = self.symmetry
         return d
 
     def to_json_dict(self, case=None) -> dict:

@@ -15,7 +15,8 @@ PACKAGES = ("meshes", "fem_reference", "solvers", "control", "implant", "verific
             "tissue")
 TYPED = ("valid", "invalid_reason", "warnings", "discretization", "indenters",
          "probe_error_estimates", "reaction_error_estimates", "estimate_note",
-         "no_converged_value", "min_J", "model", "model_note", "node_u", "node_points", "pressure")
+         "no_converged_value", "min_J", "model", "model_note", "symmetry", "node_u", "node_points",
+         "pressure")
 """Fields of SolveResult that a producer sets itself, never through ``extra``."""
 
 
@@ -29,7 +30,8 @@ def test_the_json_form_keys_the_fields():
     given = {"valid": False, "invalid_reason": "runaway", "warnings": ["w"],
              "discretization": {"degree": 2, "dofs": 10}, "indenters": {"A1": {"force": 1.0}},
              "probe_error_estimates": {"T": 0.02}, "reaction_error_estimates": {"base": 0.5},
-             "estimate_note": "not estimated"}
+             "estimate_note": "not estimated",
+             "symmetry": {"solved_on": "whole", "why": "symmetry=False"}}
     r = _result(**given, extra={"own": 3})
     d = json.loads(json.dumps(r.to_json_dict()))
     for key, value in given.items():

@@ -66,10 +66,10 @@ def test_four_equal_pushes_are_solved_on_the_quarter_and_equal_the_whole_mesh_so
     pushes = {a.name: 4.0 for a in case.actuators}
     red = fr.solve(case, pushes=pushes, degree=2)
     whole = fr.solve(case, pushes=pushes, degree=2, symmetry=False)
-    sym = red.extra["symmetry"]
+    sym = red.symmetry
     assert sym["solved_on"] == "part" and sym["planes"] == ["sym_y0", "sym_x0"]
     assert 3.0 * sym["part_dofs"] < whole.discretization["dofs"]   # about a quarter
-    assert whole.extra["symmetry"] == {"solved_on": "whole", "why": "symmetry=False"}
+    assert whole.symmetry == {"solved_on": "whole", "why": "symmetry=False"}
     assert whole.indenters["A1"]["force"] > 10.0                    # mN: the tips press
     _same_answer(red, whole)
 
@@ -81,7 +81,7 @@ def test_a_load_symmetric_about_one_plane_is_solved_on_the_half(case):
     pushes = {"A1": 4.0, "A3": 2.0}
     red = fr.solve(case, pushes=pushes, degree=2)
     whole = fr.solve(case, pushes=pushes, degree=2, symmetry=False)
-    assert red.extra["symmetry"]["planes"] == ["sym_y0"]
+    assert red.symmetry["planes"] == ["sym_y0"]
     _same_answer(red, whole)
 
 
@@ -89,7 +89,7 @@ def test_an_asymmetric_push_solves_the_whole_mesh_and_says_why(case):
     import tissue_reference.fem_reference as fr
 
     res = fr.solve(case, pushes={"A2": 3.0}, degree=1)
-    sym = res.extra["symmetry"]
+    sym = res.symmetry
     assert sym["solved_on"] == "whole"
     assert "'A2'" in sym["why"] and "sym_y0" in sym["why"]
     assert res.discretization["dofs"] == 3 * case.mesh.n_vertices

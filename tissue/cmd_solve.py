@@ -153,9 +153,9 @@ def solve_adaptive(case, pushes, args):
 
 
 def symmetry_line(res) -> str | None:
-    """What a reference answer on a mirrored mesh was solved on (``extra["symmetry"]``,
+    """What a reference answer on a mirrored mesh was solved on (``SolveResult.symmetry``,
     ``fem_reference.symmetric``); None for another mesh."""
-    sym = res.extra.get("symmetry")
+    sym = res.symmetry
     if not sym:
         return None
     if sym.get("solved_on") == "part":
