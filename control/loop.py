@@ -47,6 +47,7 @@ from .jacobian import dirichlet_jacobian
 from .mpc import MPCSettings, PushOnlyMPC
 from .open_loop import open_loop_json, run_open_loop
 from .plant_step import (
+    KeptAnswers,
     check_prescribed,
     itae,
     measure,
@@ -250,6 +251,7 @@ class LoopResult:
                 "mpc_step_ms": self.mpc_ms.tolist(),
                 "outside_range": list(self.extra.get("outside_range", [])),
                 "plant_retries": list(self.extra.get("plant_retries", [])),
+                "plant_kept_steps": int(self.extra.get("plant_kept_steps", 0)),
                 "model_retries": list(self.extra.get("model_retries", [])),
                 "wall_time_s": float(self.wall_time_s)}
 
@@ -323,6 +325,7 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
         mask = np.isfinite(g)
         dgoal = np.where(mask, g, 0.0)
     same = model.case is plant_case and model.solve is plant
+    plant = KeptAnswers(plant)   # a step at pushes already solved keeps that answer
     na = len(acts)
     preload = settings.preload(acts)
     limit = settings.mpc.max_travel
@@ -397,6 +400,7 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
                       np.array(mpc.solve_ms), x_goal, mask, acts, target, task, ol, wall,
                       {"model_time_s": model.solve_time_s, "J0": J0, "closed_loop_s": closed_s,
                        "open_loop_s": wall - closed_s, "plant_retries": plant_retries,
+                       "plant_kept_steps": plant.kept,
                        "model_retries": list(model.retries), "model_step_ms": model_ms,
                        "outside_range": outside_range(plant_case, model.case, acts, S),
                        "preload_mm": preload,

@@ -9,8 +9,8 @@ import numpy as np
 from tissue_reference.errors import ConvergenceError
 from tissue_reference.model.converged_range import unconverged_load
 
-__all__ = ["check_prescribed", "itae", "measure", "outside_range", "solve_checked", "step_line",
-           "target_errors"]
+__all__ = ["KeptAnswers", "check_prescribed", "itae", "measure", "outside_range",
+           "solve_checked", "step_line", "target_errors"]
 
 
 def itae(t, e, dt) -> float:
@@ -22,6 +22,34 @@ def target_errors(x_goal, X, mask) -> np.ndarray:
     """Distance to the goal on the controlled coordinates of each target position in ``X``
     ((steps, gdim), mm): ||mask * (x_goal - x_k)||_2."""
     return np.linalg.norm((np.asarray(x_goal) - np.asarray(X))[:, mask], axis=1)
+
+
+class KeptAnswers:
+    """A plant's solve(case, pushes, initial) that keeps its first and its last answer: asked
+    again at exactly the pushes of one of them (the same case), it gives that answer back
+    instead of solving the same problem again. The plant is a deterministic solve, so a second
+    solve would only agree with the first to its tolerance; on the reference it costs a few
+    Newton iterations (a P2 plant step of phantom-seed at unchanged pushes: 7-10 s). A loop
+    meets both: a closed loop that holds its pushes (at the push limit, or settled), and an
+    open loop that starts where the closed loop started (the preload) and holds its last
+    pushes once the closed loop's travel stops. ``kept``: the answers given back."""
+
+    def __init__(self, solve):
+        self.solve = solve
+        self.kept = 0
+        self._first = self._last = None
+
+    def __call__(self, case, pushes, initial):
+        key = (id(case), tuple(sorted((str(a), float(p)) for a, p in pushes.items())))
+        for hit in (self._last, self._first):
+            if hit is not None and hit[0] == key:
+                self.kept += 1
+                return hit[1]
+        r = self.solve(case, pushes, initial)
+        if self._first is None:
+            self._first = (key, r)
+        self._last = (key, r)
+        return r
 
 
 def solve_checked(solve, case, pushes, initial, who: str, retries: list | None = None):
