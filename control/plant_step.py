@@ -25,29 +25,27 @@ def target_errors(x_goal, X, mask) -> np.ndarray:
 
 
 class KeptAnswers:
-    """A plant's solve(case, pushes, initial) that keeps its first and its last answer: asked
-    again at exactly the pushes of one of them (the same case), it gives that answer back
-    instead of solving the same problem again. The plant is a deterministic solve, so a second
-    solve would only agree with the first to its tolerance; on the reference it costs a few
-    Newton iterations (a P2 plant step of phantom-seed at unchanged pushes: 7-10 s). A loop
-    meets both: a closed loop that holds its pushes (at the push limit, or settled), and an
-    open loop that starts where the closed loop started (the preload) and holds its last
-    pushes once the closed loop's travel stops. ``kept``: the answers given back."""
+    """A plant's solve(case, pushes, initial) that keeps its last answer: asked again at exactly
+    its pushes (the same case), it gives that answer back instead of solving the same problem
+    again. The plant is a deterministic solve, so a second solve would only agree with the
+    first to its tolerance; on the reference it costs a few Newton iterations (a P2 plant step
+    of phantom-seed at unchanged pushes: 7-10 s). A loop meets it where it holds its pushes: a
+    closed loop at the push limit or settled, an open loop once the closed loop's travel stops.
+    Only the last answer is kept: a plant warm-starts from its own last answer as a whole
+    (``control.plants.full_warm_start``: a P2 state's edge nodes, the tips' positions), which
+    an earlier one given back would break. ``kept``: the answers given back."""
 
     def __init__(self, solve):
         self.solve = solve
         self.kept = 0
-        self._first = self._last = None
+        self._last = None
 
     def __call__(self, case, pushes, initial):
         key = (id(case), tuple(sorted((str(a), float(p)) for a, p in pushes.items())))
-        for hit in (self._last, self._first):
-            if hit is not None and hit[0] == key:
-                self.kept += 1
-                return hit[1]
+        if self._last is not None and self._last[0] == key:
+            self.kept += 1
+            return self._last[1]
         r = self.solve(case, pushes, initial)
-        if self._first is None:
-            self._first = (key, r)
         self._last = (key, r)
         return r
 
