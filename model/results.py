@@ -125,6 +125,9 @@ class SolveResult:
         The material model solved when it is not the case's, else None.
     model_note : str or None
         The model difference in words.
+    symmetry : dict or None
+        On a mesh joined from a symmetric part and its mirror images: which mesh the reference
+        solved (the part, its planes and unknowns, or the whole mesh and why); None elsewhere.
     node_u : ndarray or None
         (n_nodes, gdim) displacement (mm) at every node of a degree >= 2 reference answer.
     node_points : ndarray or None
