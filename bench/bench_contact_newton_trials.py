@@ -8,8 +8,8 @@ for one solve each, in this process only, by wrapping the library's functions
 
   default    the reference as shipped
   direct     ReferenceSolver(linear_solver="direct"): every tangent factorized (MUMPS LDL^T)
-  direct-cholmod  direct with CHOLMOD's Cholesky first (MUMPS LDL^T from a tangent that is not
-             positive definite to the end of the solve)
+  cholmod    direct with CHOLMOD's Cholesky first (MUMPS LDL^T from a tangent that is not
+             positive definite to the end of the solve; each package's symbolic analysis kept)
   lagged     ReferenceSolver(linear_solver="lagged"): a factorization (CHOLMOD's in serial,
              MUMPS's where a tangent is not positive definite) reused as GMRES's preconditioner
              of later tangents until GMRES needs more than ``NewtonSettings.lag_max_its``
@@ -49,7 +49,7 @@ from unittest import mock
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-TRIALS = ("default", "direct", "direct-cholmod", "lagged", "lagged-mumps", "exact", "blend85", "margin",
+TRIALS = ("default", "direct", "cholmod", "lagged", "lagged-mumps", "exact", "blend85", "margin",
           "entrants")
 
 
@@ -136,7 +136,7 @@ def variant(name: str, margin_mm: float):
     """(NewtonSettings fields, ReferenceSolver keywords, context) of a trial."""
     if name == "direct":
         return {}, {"linear_solver": "direct"}, contextlib.nullcontext()
-    if name == "direct-cholmod":
+    if name == "cholmod":
         from tissue_reference.fem_reference import solver
         plain = solver.LinearSolver
         return {}, {"linear_solver": "direct"}, mock.patch.object(

@@ -14,7 +14,7 @@ from petsc4py import PETSc
 
 from tissue_reference.errors import CaseError
 
-from .factor import quiet_c_output
+from .factor import cholmod_pc, quiet_c_output
 from .mumps import grown_mumps_workspace, mumps_failure, set_mumps_workspace, solve_mumps
 from .newton_settings import NewtonSettings, Timings
 from .saddle import FieldSplit
@@ -61,7 +61,7 @@ def choose_linear_solver(linear_solver: str, formulation: str, n_dofs: int,
     if linear_solver == "auto":
         # with indenters the tips' contact set moves between Newton iterations: an earlier
         # tangent's factor preconditions the next one poorly (GMRES runs to its restart and
-        # the tangent is factorized anyway), so each is factorized (MUMPS LDL^T)
+        # the tangent is factorized anyway), so each is factorized
         lagged = n_dofs > LAGGED_ABOVE_DOFS and not indenters
         linear_solver = "lagged" if lagged else "direct"
         if formulation == "mixed" and n_dofs > FIELDSPLIT_ABOVE_DOFS:
@@ -89,7 +89,8 @@ class LinearSolver:
     "fieldsplit" (the
     mixed formulation's ``FieldSplit``, MUMPS as the fallback). ``package``: "cholmod" or
     "mumps", the factorization of "direct" and "lagged" (CHOLMOD falls back on MUMPS for a
-    tangent that is not positive definite). ``timings`` (``Timings``) counts factorizations,
+    tangent that is not positive definite, to the end of the solve; each package's factor is
+    kept with its symbolic analysis for the next solve, ``fresh``). ``timings`` (``Timings``) counts factorizations,
     Krylov iterations and preconditioner builds; an owner may share its own and reset it per
     solve."""
 
@@ -104,6 +105,7 @@ class LinearSolver:
         self.mumps_workspace = None  # MUMPS's ICNTL(14) (percent), None: its default
         self.fieldsplit = fieldsplit
         self._factor_broken = False  # the factor's last factorization failed: it needs a new one
+        self._factors = {}  # package -> (KSP, factorized matrix, its conversion): kept
         if mode == "iterative":
             # CG + smoothed-aggregation AMG with the rigid-body modes as near null space;
             # tight tolerance so Newton keeps its quadratic convergence; MUMPS as the fallback
@@ -154,8 +156,11 @@ class LinearSolver:
         "cholmod"): GMRES around it for "lagged", the factorization alone otherwise."""
         k = PETSc.KSP().create(self.comm)
         k.setOperators(self.A)
-        k.getPC().setType("cholesky")
-        k.getPC().setFactorSolverType(pkg)
+        if pkg == "cholmod":
+            cholmod_pc(k)   # LL^T: a tangent that is not positive definite fails, to MUMPS
+        else:
+            k.getPC().setType("cholesky")
+            k.getPC().setFactorSolverType(pkg)
         if self.mode == "lagged":
             # right preconditioning: GMRES then tests the true residual of the current tangent
             k.setType("gmres")
@@ -195,14 +200,26 @@ class LinearSolver:
         if self.fieldsplit is not None:
             self.fieldsplit.forget()
 
-    def use_factor(self, pkg: str):
-        """(Re)build the factorizing KSP with ``pkg``; P is made at the next refresh."""
+    def use_factor(self, pkg: str, *, anew: bool = False):
+        """Factorize with ``pkg`` from the next refresh on. Each package's KSP and factorized
+        matrix are kept once built, so that switching between CHOLMOD and MUMPS keeps each
+        one's symbolic analysis (CHOLMOD's METIS ordering of a P2 tangent takes several
+        factorizations' time); ``anew`` (or a first use): a new KSP, whose P is made at the
+        next refresh."""
+        kept = self._factors
+        if getattr(self, "factor_package", None) and not self._factor_broken:
+            kept[self.factor_package] = (self.ksp, self.P, self._T)
         self.factor_package = pkg
-        self.P = None
-        self._T = None
         self.refactor = True
         self._factor_broken = False
-        self.ksp = self.direct_ksp = self._factor_ksp(pkg)
+        if pkg in kept and not anew:
+            self.ksp, self.P, self._T = kept[pkg]
+        else:
+            kept.pop(pkg, None)
+            self.P = None
+            self._T = None
+            self.ksp = self._factor_ksp(pkg)
+        self.direct_ksp = self.ksp
 
     def _after_mumps_failure(self, ksp) -> bool:
         """After a solve of ``ksp``: whether MUMPS's factorization failed for want of workspace
@@ -259,7 +276,7 @@ class LinearSolver:
         definite) switches to MUMPS and solves again. ``negative_pivots``: the inertia of the
         tangent when it was factorized for this solve, else None."""
         if self._factor_broken:
-            self.use_factor(self.factor_package)
+            self.use_factor(self.factor_package, anew=True)
         refresh = self.mode == "direct" or self.refactor
         if refresh:
             self._refresh_factor()

@@ -213,6 +213,32 @@ def test_polish_factorization_is_cholmod_while_definite_and_superlu_otherwise():
     assert np.abs(f3.solve(b) - ref3).max() <= 1e-8 * np.abs(ref3).max()
 
 
+def test_cholmod_refuses_a_sparse_indefinite_matrix():
+    """A matrix sparse enough that CHOLMOD would pick its simplicial LDL^T (which factorizes
+    an indefinite matrix without complaint) is still refused when it is not positive definite:
+    the tridiagonal 1-D Laplacian shifted by -0.1, 80 negative eigenvalues of 800; shifted by
+    +0.1 it is factorized, and solved as SciPy's LU solves it."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    from tissue_reference.fem_reference import cholmod_factor
+    from tissue_reference.fem_reference.factor import has_cholmod
+    if not has_cholmod():
+        pytest.skip("PETSc has no CHOLMOD")
+    n = 800
+
+    def laplacian(shift):
+        off = -np.ones(n - 1)
+        return sp.diags([off, np.full(n, 2.0 + shift), off], [-1, 0, 1], format="csr")
+
+    assert np.linalg.eigvalsh(laplacian(-0.1).toarray()).min() < 0
+    assert cholmod_factor(laplacian(-0.1)) is None
+    f = cholmod_factor(laplacian(0.1))
+    b = np.random.default_rng(3).standard_normal(n)
+    ref = spla.spsolve(laplacian(0.1).tocsc(), b)
+    assert f is not None and np.abs(f.solve(b) - ref).max() <= 1e-9 * np.abs(ref).max()
+
+
 def test_polished_solve_is_the_same_with_cholmod_and_superlu():
     from tissue_reference.fem_reference import cholmod_factor
     case = _case(box(1.5), "neo-hookean")

@@ -118,13 +118,69 @@ def test_a_singular_tangent_does_not_break_later_solves():
     pushes = {"A1": 4.0, "A3": 2.0}
     expected = fr.ReferenceSolver(case, degree=1, linear_solver="direct").solve(pushes).probes
     s = fr.ReferenceSolver(case, degree=1, linear_solver="direct")
-    assert s.linear.factor_package == "mumps"
     assert s.solve({"A1": 1.0}).converged  # an assembled tangent, factorized
     s.A.scale(0.0)  # the same pattern, all zero: MUMPS's factorization fails (singular)
     s.b.set(1.0)
-    assert not s.linear.solve(1e-3)
-    assert s.linear.ksp.getPC().getFactorMatrix().getMumpsInfog(1) < 0
+    assert not s.linear.solve(1e-3)   # (where CHOLMOD stands first, it hands it to MUMPS)
+    broken = s.linear.ksp
+    assert s.linear.factor_package == "mumps"
+    assert broken.getPC().getFactorMatrix().getMumpsInfog(1) < 0
     r = s.solve(pushes)
     assert r.converged
     for name, u in expected.items():
         assert np.allclose(r.probes[name], u, rtol=1e-6, atol=1e-9), name
+    # MUMPS factorizes again, in a new factor: the failed one is never reused
+    s.linear.use_factor("mumps")
+    s.b.set(1.0)
+    assert s.linear.solve(1e-3)
+    assert s.linear.ksp is not broken
+
+
+def _laplacian(n=800, shift=0.0):
+    """The 1-D Laplacian tridiag(-1, 2, -1) + shift I: positive definite for shift > 0, with
+    negative eigenvalues for shift < 0 (its smallest is about 2 (1 - cos(pi / (n + 1))))."""
+    main = (2.0 + shift) * np.ones(n)
+    off = -np.ones(n - 1)
+    return sp.diags([off, main, off], [-1, 0, 1], format="csr")
+
+
+def test_cholmod_hands_an_indefinite_tangent_to_mumps_and_is_back_with_its_analysis_kept():
+    """The lagged mode's CHOLMOD (serial): a tangent that is not positive definite is solved by
+    MUMPS LDL^T (its inertia reported) to the end of the solve, and the next solve is CHOLMOD's
+    again in the factor built first, its symbolic analysis kept (``fresh``). The tridiagonal
+    Laplacian shifted by -0.1 is sparse enough that CHOLMOD, left to choose, would factorize it
+    by a simplicial LDL^T without complaint: the project's CHOLMOD is always the supernodal
+    LL^T, which refuses it. Answers against SciPy's sparse LU."""
+    from tissue_reference.fem_reference.factor import has_cholmod
+    if not has_cholmod():
+        import pytest
+        pytest.skip("PETSc has no CHOLMOD")
+    shifts = (0.5, -0.1, 0.3, 0.7)
+    A = _petsc(_laplacian(shift=shifts[0]))
+    A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+    b, x = A.createVecLeft(), A.createVecRight()
+    du = SimpleNamespace(vector=x, x=SimpleNamespace(scatter_forward=lambda: None))
+    s = LinearSolver(A, b, du, mode="lagged", comm=PETSc.COMM_SELF, package="cholmod")
+    rhs = np.random.default_rng(2).standard_normal(A.getSize()[0])
+    used, inertia, kernels = [], [], []
+    for i, shift in enumerate(shifts):
+        if i == 3:
+            s.fresh()   # a new solve
+        M = _laplacian(shift=shift)
+        A.zeroEntries()
+        A.setValuesCSR(M.indptr.astype(PETSc.IntType), M.indices.astype(PETSc.IntType), M.data)
+        A.assemble()
+        s.tangent_changed()   # each tangent factorized, as Newton does when GMRES would lag
+        s.b.array[:] = rhs
+        assert s.solve(1e-12)
+        used.append(s.factor_package)
+        inertia.append(s.negative_pivots)
+        kernels.append(s.ksp)
+        expected = -sp.linalg.spsolve(M.tocsc(), rhs)   # Newton's correction: -A^-1 b
+        assert np.abs(s.du.vector.array - expected).max() <= 1e-9 * np.abs(expected).max()
+    assert used == ["cholmod", "mumps", "mumps", "cholmod"]
+    # MUMPS counts the indefinite tangent's negative eigenvalues, 2 (1 - cos(k pi / 801)) < 0.1
+    n_neg = sum(2 * (1 - np.cos(k * np.pi / 801)) < 0.1 for k in range(1, 801))
+    assert inertia == [0, n_neg, 0, 0]
+    # the next solve's CHOLMOD factor is the one built first, the MUMPS one kept as well
+    assert kernels[3] is kernels[0] and kernels[1] is kernels[2] is not kernels[0]
