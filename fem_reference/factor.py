@@ -75,10 +75,10 @@ def cholmod_factor(A, cache: dict | None = None):
     """CHOLMOD factorization (supernodal Cholesky, METIS ordering: ``cholmod_pc``) of a
     symmetric scipy sparse matrix A through PETSc, as an object with ``solve(b)`` (b of shape
     (n,) or (n, k)); None when this PETSc has no CHOLMOD, when A is not positive definite or
-    smaller than 500 rows (not worth it). ``cache`` (a dict): the CHOLMOD matrix is kept there and the next call with the
-    same sparsity pattern only refactorizes numerically. This is the ``factorize`` hook of
-    ``solvers.admm.solve`` (the fast solvers import no PETSc): on the 4k-dof phantom tangent it
-    factorizes in 0.036 s against SuperLU's 0.1 s."""
+    smaller than 500 rows (not worth it). ``cache`` (a dict): the CHOLMOD matrix is kept there
+    and the next call with the same sparsity pattern only refactorizes numerically. This is
+    the ``factorize`` hook of ``solvers.admm.solve`` (the fast solvers import no PETSc): on the
+    4k-dof phantom tangent it factorizes in 0.036 s against SuperLU's 0.1 s."""
     if A.shape[0] < 500 or not has_cholmod():
         return None
     cache = {} if cache is None else cache

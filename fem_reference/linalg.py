@@ -90,9 +90,9 @@ class LinearSolver:
     mixed formulation's ``FieldSplit``, MUMPS as the fallback). ``package``: "cholmod" or
     "mumps", the factorization of "direct" and "lagged" (CHOLMOD falls back on MUMPS for a
     tangent that is not positive definite, to the end of the solve; each package's factor is
-    kept with its symbolic analysis for the next solve, ``fresh``). ``timings`` (``Timings``) counts factorizations,
-    Krylov iterations and preconditioner builds; an owner may share its own and reset it per
-    solve."""
+    kept with its symbolic analysis for the next solve, ``fresh``). ``timings`` (``Timings``)
+    counts factorizations, Krylov iterations and preconditioner builds; an owner may share its
+    own and reset it per solve."""
 
     def __init__(self, A, b, du, *, mode: str, comm,
                  lag_max_its: int = NewtonSettings.lag_max_its, V=None, package: str = "mumps",
@@ -203,9 +203,9 @@ class LinearSolver:
     def use_factor(self, pkg: str, *, anew: bool = False):
         """Factorize with ``pkg`` from the next refresh on. Each package's KSP and factorized
         matrix are kept once built, so that switching between CHOLMOD and MUMPS keeps each
-        one's symbolic analysis (CHOLMOD's METIS ordering of a P2 tangent takes several
-        factorizations' time); ``anew`` (or a first use): a new KSP, whose P is made at the
-        next refresh."""
+        one's symbolic analysis (CHOLMOD's METIS analysis of a P2 tangent of 38-64k unknowns:
+        about 0.8 s, 40-90 % of a factorization); ``anew`` (or a first use): a new KSP, whose P
+        is made at the next refresh."""
         kept = self._factors
         if getattr(self, "factor_package", None) and not self._factor_broken:
             kept[self.factor_package] = (self.ksp, self.P, self._T)
