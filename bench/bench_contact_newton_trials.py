@@ -9,7 +9,7 @@ for one solve each, in this process only, by wrapping the library's functions
   default    the reference as shipped
   direct     ReferenceSolver(linear_solver="direct"): every tangent factorized (MUMPS LDL^T)
   cholmod    direct with CHOLMOD's Cholesky first (MUMPS LDL^T from a tangent that is not
-             positive definite to the end of the solve; each package's symbolic analysis kept)
+             positive definite to the end of the solve)
   lagged     ReferenceSolver(linear_solver="lagged"): a factorization (CHOLMOD's in serial,
              MUMPS's where a tangent is not positive definite) reused as GMRES's preconditioner
              of later tangents until GMRES needs more than ``NewtonSettings.lag_max_its``

@@ -89,8 +89,7 @@ class LinearSolver:
     "fieldsplit" (the
     mixed formulation's ``FieldSplit``, MUMPS as the fallback). ``package``: "cholmod" or
     "mumps", the factorization of "direct" and "lagged" (CHOLMOD falls back on MUMPS for a
-    tangent that is not positive definite, to the end of the solve; each package's factor is
-    kept with its symbolic analysis for the next solve, ``fresh``). ``timings`` (``Timings``)
+    tangent that is not positive definite, to the end of the solve). ``timings`` (``Timings``)
     counts factorizations, Krylov iterations and preconditioner builds; an owner may share its
     own and reset it per solve."""
 
@@ -105,7 +104,6 @@ class LinearSolver:
         self.mumps_workspace = None  # MUMPS's ICNTL(14) (percent), None: its default
         self.fieldsplit = fieldsplit
         self._factor_broken = False  # the factor's last factorization failed: it needs a new one
-        self._factors = {}  # package -> (KSP, factorized matrix, its conversion): kept
         if mode == "iterative":
             # CG + smoothed-aggregation AMG with the rigid-body modes as near null space;
             # tight tolerance so Newton keeps its quadratic convergence; MUMPS as the fallback
@@ -200,26 +198,18 @@ class LinearSolver:
         if self.fieldsplit is not None:
             self.fieldsplit.forget()
 
-    def use_factor(self, pkg: str, *, anew: bool = False):
-        """Factorize with ``pkg`` from the next refresh on. Each package's KSP and factorized
-        matrix are kept once built, so that switching between CHOLMOD and MUMPS keeps each
-        one's symbolic analysis (CHOLMOD's METIS analysis of a P2 tangent of 38-64k unknowns:
-        about 0.8 s, 40-90 % of a factorization); ``anew`` (or a first use): a new KSP, whose P
-        is made at the next refresh."""
-        kept = self._factors
-        if getattr(self, "factor_package", None) and not self._factor_broken:
-            kept[self.factor_package] = (self.ksp, self.P, self._T)
+    def use_factor(self, pkg: str):
+        """(Re)build the factorizing KSP with ``pkg``; P is made at the next refresh. A new
+        KSP every time: keeping each package's factor across solves (to save CHOLMOD's
+        analysis, about 0.8 s at 38-64k unknowns) made a marginal load's Newton path depend on
+        what the solver had solved before, 19 iterations against 4 at one load step
+        (tests/test_same_input_same_answer.py)."""
         self.factor_package = pkg
+        self.P = None
+        self._T = None
         self.refactor = True
         self._factor_broken = False
-        if pkg in kept and not anew:
-            self.ksp, self.P, self._T = kept[pkg]
-        else:
-            kept.pop(pkg, None)
-            self.P = None
-            self._T = None
-            self.ksp = self._factor_ksp(pkg)
-        self.direct_ksp = self.ksp
+        self.ksp = self.direct_ksp = self._factor_ksp(pkg)
 
     def _after_mumps_failure(self, ksp) -> bool:
         """After a solve of ``ksp``: whether MUMPS's factorization failed for want of workspace
@@ -276,7 +266,7 @@ class LinearSolver:
         definite) switches to MUMPS and solves again. ``negative_pivots``: the inertia of the
         tangent when it was factorized for this solve, else None."""
         if self._factor_broken:
-            self.use_factor(self.factor_package, anew=True)
+            self.use_factor(self.factor_package)
         refresh = self.mode == "direct" or self.refactor
         if refresh:
             self._refresh_factor()

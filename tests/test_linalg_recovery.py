@@ -144,10 +144,10 @@ def _laplacian(n=800, shift=0.0):
     return sp.diags([off, main, off], [-1, 0, 1], format="csr")
 
 
-def test_cholmod_hands_an_indefinite_tangent_to_mumps_and_is_back_with_its_analysis_kept():
+def test_cholmod_hands_an_indefinite_tangent_to_mumps_and_the_next_solve_is_cholmods():
     """The lagged mode's CHOLMOD (serial): a tangent that is not positive definite is solved by
     MUMPS LDL^T (its inertia reported) to the end of the solve, and the next solve is CHOLMOD's
-    again in the factor built first, its symbolic analysis kept (``fresh``). The tridiagonal
+    again (``fresh``). The tridiagonal
     Laplacian shifted by -0.1 is sparse enough that CHOLMOD, left to choose, would factorize it
     by a simplicial LDL^T without complaint: the project's CHOLMOD is always the supernodal
     LL^T, which refuses it. Answers against SciPy's sparse LU."""
@@ -182,5 +182,5 @@ def test_cholmod_hands_an_indefinite_tangent_to_mumps_and_is_back_with_its_analy
     # MUMPS counts the indefinite tangent's negative eigenvalues, 2 (1 - cos(k pi / 801)) < 0.1
     n_neg = sum(2 * (1 - np.cos(k * np.pi / 801)) < 0.1 for k in range(1, 801))
     assert inertia == [0, n_neg, 0, 0]
-    # the next solve's CHOLMOD factor is the one built first, the MUMPS one kept as well
-    assert kernels[3] is kernels[0] and kernels[1] is kernels[2] is not kernels[0]
+    # MUMPS to the end of the solve, and the next solve's CHOLMOD a new factor
+    assert kernels[1] is kernels[2] and kernels[3] is not kernels[0]
