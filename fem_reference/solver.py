@@ -266,11 +266,8 @@ class ReferenceSolver:
         # serial "lagged": CHOLMOD's supernodal LL^T (METIS ordering) factorizes ~1.6x and
         # solves ~3x faster than MUMPS here; a tangent that is not positive definite switches
         # the solver to MUMPS LDL^T, which "direct" (exact solves of indefinite tangents),
-        # the mixed formulation's saddle-point tangent and MPI runs always use. (CHOLMOD first
-        # in "direct" too, one run each: phantom-seed's warm plant step 1.14x, the quarter tip
-        # phantom from rest 0.88x, phantom-indenter-control's warm step 0.98x: on those 37-38k
-        # P2 tangents its factorization is no faster than MUMPS's; not kept.
-        # bench/bench_contact_newton_trials.py --trials default cholmod)
+        # the mixed formulation's saddle-point tangent and MPI runs always use ("direct" with
+        # CHOLMOD first measured 0.88-1.14x on the contact cases: docs/figures.md).
         pkg = "cholmod" if linear_solver == "lagged" and comm.size == 1 and has_cholmod() \
             and self.formulation == "displacement" else "mumps"
         self.timings = Timings()   # per-solve counters, shared with the parts below

@@ -13,10 +13,12 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 import scipy.sparse as sp
 from petsc4py import PETSc
 
 import tissue_reference.fem_reference as fr
+from tissue_reference.fem_reference.factor import has_cholmod
 from tissue_reference.fem_reference.linalg import LinearSolver
 from tissue_reference.fem_reference.mumps import mumps_failure, set_mumps_workspace, solve_mumps
 from tissue_reference.model.case import load_case
@@ -147,13 +149,11 @@ def _laplacian(n=800, shift=0.0):
 def test_cholmod_hands_an_indefinite_tangent_to_mumps_and_the_next_solve_is_cholmods():
     """The lagged mode's CHOLMOD (serial): a tangent that is not positive definite is solved by
     MUMPS LDL^T (its inertia reported) to the end of the solve, and the next solve is CHOLMOD's
-    again (``fresh``). The tridiagonal
-    Laplacian shifted by -0.1 is sparse enough that CHOLMOD, left to choose, would factorize it
-    by a simplicial LDL^T without complaint: the project's CHOLMOD is always the supernodal
-    LL^T, which refuses it. Answers against SciPy's sparse LU."""
-    from tissue_reference.fem_reference.factor import has_cholmod
+    again (``fresh``). The tridiagonal Laplacian shifted by -0.1 is sparse enough that
+    CHOLMOD, left to choose, would factorize it by a simplicial LDL^T without complaint: the
+    project's CHOLMOD is always the supernodal LL^T, which refuses it. Answers against SciPy's
+    sparse LU."""
     if not has_cholmod():
-        import pytest
         pytest.skip("PETSc has no CHOLMOD")
     shifts = (0.5, -0.1, 0.3, 0.7)
     A = _petsc(_laplacian(shift=shifts[0]))
