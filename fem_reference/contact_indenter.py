@@ -11,7 +11,8 @@ at ``SURFACE_SAMPLES`` points per edge, and a facet deeper inside the tip than
 ``SLIP_FRACTION`` of its radius (and than 10x the nodal penetration) marks the state invalid
 (``tip_through_surface``). The deformed facets are the field's own surface:
 the displacement evaluated at the sample points, flat between the vertices at degree 1, bending
-at degree >= 2.
+at degree >= 2, its values at the fixed sample points one sparse product of its nodal
+values (``point_values.point_matrix``).
 """
 from __future__ import annotations
 
@@ -39,6 +40,7 @@ from tissue_reference.model.tips import (
 
 from .contact_geometry import gap_ufl
 from .jit import compile_form
+from .point_values import point_matrix
 
 __all__ = ["SLIP_FRACTION", "START_SAMPLES", "SURFACE_SAMPLES"]
 
@@ -146,6 +148,7 @@ class Indenter:
         # undeformed facets and the cell of each, where the displacement is evaluated
         self._u_field = u_field
         self._samples, self._sample_cells = _facet_sample_points(mesh, facets, f2c)
+        self._sample_values = point_matrix(V, self._samples, self._sample_cells)
         # constants: tip front point (ramped by the load stepping), shape, axis
         sc = PETSc.ScalarType
         self.q = dolfinx.fem.Constant(mesh, sc(tuple(self.q0)))
@@ -262,8 +265,7 @@ class Indenter:
         pts = self._samples
         deep = 0.0
         if len(pts):
-            u = self._u_field.eval(np.pad(pts, ((0, 0), (0, 3 - gdim))), self._sample_cells)
-            y = pts + np.asarray(u)[:, :gdim]
+            y = pts + self._sample_values @ self._u_field.x.array.reshape(-1, gdim)
             deep = float(np.max(-self.shape.gap(y, self._origin(), self.d), initial=0.0))
         return max(self.comm.allreduce(deep, op=MPI.MAX), 0.0)
 

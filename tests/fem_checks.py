@@ -1,5 +1,5 @@
 """Shared helpers of the tests (no tests here): an independent linear-elastic P1 stiffness,
-central finite differences along coordinate directions (of a function, and of the reference's
+the 1-D Laplacian (shifted: definite or not, as a test needs), central finite differences along coordinate directions (of a function, and of the reference's
 probes in one push), and a reference whose warm starts fail."""
 from __future__ import annotations
 
@@ -38,6 +38,14 @@ def linear_p1_stiffness(mesh, E, nu) -> sp.csr_matrix:
     n = 3 * len(X)
     return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                          shape=(n, n))
+
+
+def laplacian_1d(n: int = 800, shift: float = 0.0) -> sp.csr_matrix:
+    """The 1-D Laplacian tridiag(-1, 2, -1) + shift I (n x n): positive definite for shift > 0,
+    with negative eigenvalues for shift < 0 (its smallest is 2 (1 - cos(pi / (n + 1))) +
+    shift)."""
+    off = -np.ones(n - 1)
+    return sp.diags([off, np.full(n, 2.0 + shift), off], [-1, 0, 1], format="csr")
 
 
 def central_differences(fun, u, count, seed, h=1e-6):

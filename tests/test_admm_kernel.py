@@ -2,9 +2,12 @@
 same z-step (safeguarded model-Newton step, line search included), dual update, residuals and
 x-step data, element by element, and the same ADMM iterates in whole solves (3D and 2D,
 Neo-Hookean and linear elasticity, oblique sliding, implicit-Euler dynamics)."""
+import functools
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from fem_checks import laplacian_1d
 
 from tissue_reference.meshes.builders import box, rectangle
 from tissue_reference.model.case import Boundary, Case, Material
@@ -218,7 +221,6 @@ def test_cholmod_refuses_a_sparse_indefinite_matrix():
     an indefinite matrix without complaint) is still refused when it is not positive definite:
     the tridiagonal 1-D Laplacian shifted by -0.1, 80 negative eigenvalues of 800; shifted by
     +0.1 it is factorized, and solved as SciPy's LU solves it."""
-    import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
     from tissue_reference.fem_reference import cholmod_factor
@@ -226,11 +228,7 @@ def test_cholmod_refuses_a_sparse_indefinite_matrix():
     if not has_cholmod():
         pytest.skip("PETSc has no CHOLMOD")
     n = 800
-
-    def laplacian(shift):
-        off = -np.ones(n - 1)
-        return sp.diags([off, np.full(n, 2.0 + shift), off], [-1, 0, 1], format="csr")
-
+    laplacian = functools.partial(laplacian_1d, n)
     assert np.linalg.eigvalsh(laplacian(-0.1).toarray()).min() < 0
     assert cholmod_factor(laplacian(-0.1)) is None
     f = cholmod_factor(laplacian(0.1))

@@ -19,6 +19,7 @@ O((1 - 2 nu) a / R), about 0.1 %; the penalty (beta = 1e3) about -0.2 %; the res
 the tolerances are 2 % and 3 % (the punch's pressure is singular-like at its rounded edge).
 Units: mm, kPa, mN.
 """
+import itertools
 import math
 from pathlib import Path
 
@@ -269,9 +270,12 @@ def test_newton_without_the_tips_curvature_reaches_the_same_answer(block):
         assert b.indenters["I"]["force"] == pytest.approx(
             a.indenters["I"]["force"], rel=1e-7), key
         assert np.abs(a.u - b.u).max() < 1e-8, key
-    # each takes another path (28, 36, 49 and 47 Newton iterations measured)
-    assert len({(r.iterations, r.load_steps) for r in out.values()}) == len(out), \
-        {k: (r.iterations, r.load_steps) for k, r in out.items()}
+    # each takes another path: the residual norms of their Newton iterates part (two paths
+    # may take as many iterations: default and halved both 21 in 8 load steps, their residuals
+    # apart by 0.6 % from the 17th iterate); round-off alone moves them by far less than 1e-3
+    traces = {k: np.asarray(r.history["iterate_residual"]) for k, r in out.items()}
+    for (k1, t1), (k2, t2) in itertools.combinations(traces.items(), 2):
+        assert len(t1) != len(t2) or not np.allclose(t1, t2, rtol=1e-3, atol=1e-9), (k1, k2)
     with pytest.raises(ValueError, match="contact_curvature_after_halving"):
         fr.NewtonSettings(contact_curvature_after_halving="sometimes")
     for bad in (0.0, -1.0, float("nan"), "1e-4"):

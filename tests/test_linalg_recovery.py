@@ -15,6 +15,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from fem_checks import laplacian_1d
 from petsc4py import PETSc
 
 import tissue_reference.fem_reference as fr
@@ -138,14 +139,6 @@ def test_a_singular_tangent_does_not_break_later_solves():
     assert s.linear.ksp is not broken
 
 
-def _laplacian(n=800, shift=0.0):
-    """The 1-D Laplacian tridiag(-1, 2, -1) + shift I: positive definite for shift > 0, with
-    negative eigenvalues for shift < 0 (its smallest is about 2 (1 - cos(pi / (n + 1))))."""
-    main = (2.0 + shift) * np.ones(n)
-    off = -np.ones(n - 1)
-    return sp.diags([off, main, off], [-1, 0, 1], format="csr")
-
-
 def test_cholmod_hands_an_indefinite_tangent_to_mumps_and_the_next_solve_is_cholmods():
     """The lagged mode's CHOLMOD (serial): a tangent that is not positive definite is solved by
     MUMPS LDL^T (its inertia reported) to the end of the solve, and the next solve is CHOLMOD's
@@ -156,7 +149,7 @@ def test_cholmod_hands_an_indefinite_tangent_to_mumps_and_the_next_solve_is_chol
     if not has_cholmod():
         pytest.skip("PETSc has no CHOLMOD")
     shifts = (0.5, -0.1, 0.3, 0.7)
-    A = _petsc(_laplacian(shift=shifts[0]))
+    A = _petsc(laplacian_1d(shift=shifts[0]))
     A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
     b, x = A.createVecLeft(), A.createVecRight()
     du = SimpleNamespace(vector=x, x=SimpleNamespace(scatter_forward=lambda: None))
@@ -166,7 +159,7 @@ def test_cholmod_hands_an_indefinite_tangent_to_mumps_and_the_next_solve_is_chol
     for i, shift in enumerate(shifts):
         if i == 3:
             s.fresh()   # a new solve
-        M = _laplacian(shift=shift)
+        M = laplacian_1d(shift=shift)
         A.zeroEntries()
         A.setValuesCSR(M.indptr.astype(PETSc.IntType), M.indices.astype(PETSc.IntType), M.data)
         A.assemble()
