@@ -1,6 +1,6 @@
 """The facet check of a solve with tips: the displacement at the contact facets' sample points
 by ``Function.eval`` (a pull-back and a basis tabulation per point on every call, as the check
-was) against one sparse product with the rows ``point_values.point_matrix`` builds once (as it
+was) against one sparse product with the rows ``point_values.evaluation_rows`` builds once (as it
 is), on a shipped case's reference at a solved state, in one run: the cost of one check per
 indenter, the one-off cost of the rows, and the largest difference of the values.
 
@@ -26,7 +26,7 @@ def main():
     args = ap.parse_args()
 
     import tissue_reference.fem_reference as fr
-    from tissue_reference.fem_reference.point_values import point_matrix
+    from tissue_reference.fem_reference.point_values import evaluation_rows
     from tissue_reference.model.case import load_case
 
     case = load_case(ROOT / "meshes" / "cases" / f"{args.case}.toml")
@@ -43,7 +43,7 @@ def main():
     for ind in solver.contact.indenters:
         pts, cells = ind._samples, ind._sample_cells
         t = time.perf_counter()
-        M = point_matrix(solver.V, pts, cells)
+        M = evaluation_rows(solver.V, pts, cells)
         build = time.perf_counter() - t
         t = time.perf_counter()
         for _ in range(args.repeat):

@@ -14,9 +14,11 @@ state, assembled and factorized) is printed beside it, and the ratio with that c
     .venv/bin/python bench/bench_warm_update.py                 # sizes 10 6 5 2.8
     .venv/bin/python bench/bench_warm_update.py --sizes 10 --push 4
     .venv/bin/python bench/bench_warm_update.py --sizes 1.8 --factorizations cholmod --repeat 2
+    .venv/bin/python bench/bench_warm_update.py --case phantom-indenter-control --push 4
 
-The glued phantom (pushes within the patches' radius); one BLAS thread (OPENBLAS_NUM_THREADS=1
-unless set), as bench/bench_admm_accel.py.
+The glued phantom (pushes within the patches' radius), or with ``--case`` a shipped case as it
+is meshed (e.g. the rigid-tip phantom meshed for control: frictionless tips, P1); one BLAS
+thread (OPENBLAS_NUM_THREADS=1 unless set), as bench/bench_admm_accel.py.
 """
 import argparse
 import os
@@ -59,23 +61,27 @@ def main():
     ap.add_argument("--state-tols", type=float, nargs="+", default=[STATE_TOL_MM, 1e-3],
                     help="the control model's chord tolerances (mm) to time: its default, "
                          "and the 1e-3 mm the fast solvers are held to against the reference")
+    ap.add_argument("--case", help="a shipped case (meshes/cases/CASE.toml) instead of the "
+                    "glued phantom at --sizes")
     args = ap.parse_args()
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs; warm re-solves "
           f"{args.push:g} -> {args.push + 0.5:g} mm on every actuator, best of {args.repeat}")
+    if args.case:
+        rows(load_case(args.case), args.case, args)
+        return
     for size in args.sizes:
-        rows(size, args)
+        rows(load_case("phantom", size=size), f"phantom size {size:g}", args)
 
 
-def rows(size, args):
-    """The rows of one mesh size."""
-    case = load_case("phantom", size=size)
+def rows(case, label, args):
+    """The rows of one case (``label`` names it)."""
     acts = [a.name for a in case.actuators]
     p0 = dict.fromkeys(acts, args.push)
     p1 = dict.fromkeys(acts, args.push + 0.5)
     fr.solve(case, degree=1, pushes=dict.fromkeys(acts, 0.1))   # compile the forms
     ref0 = fr.solve(case, degree=1, pushes=p0)
     ref1, t_ref = best(lambda: fr.solve(case, degree=1, pushes=p1, initial=ref0), args.repeat)
-    print(f"\nphantom size {size:g}: {case.mesh.n_cells} tets; reference P1 Newton warm "
+    print(f"\n{label}: {case.mesh.n_cells} tets; reference P1 Newton warm "
           f"{t_ref * 1e3:8.1f} ms ({ref1.iterations} its)")
 
     def err(u):
@@ -87,8 +93,8 @@ def rows(size, args):
     print(f"  ADMM + chord (rest tangent)    {t_ch * 1e3:8.1f} ms "
           f"({a1.extra['admm_iterations']} ADMM + {a1.extra['chord_iterations']} chord its), "
           f"{err(a1.u):.1e} mm, x{t_ref / t_ch:.1f}")
-    for label, factorize in (("SuperLU", None), ("CHOLMOD", fr.cholmod_factor)):
-        if label.lower() not in args.factorizations:
+    for name, factorize in (("SuperLU", None), ("CHOLMOD", fr.cholmod_factor)):
+        if name.lower() not in args.factorizations:
             continue
         for tol in args.state_tols:
             runs = [fast_update(case, args.target, p0, p1, factorize, tol)
@@ -96,7 +102,7 @@ def rows(size, args):
             model, tm, _, refac, chords = min(runs, key=lambda r: r[1]["state"])
             t_fm = tm["state"] / 1e3
             held_s = min(r[2] for r in runs) / 1e3
-            print(f"  control model update, {label:7s} {t_fm * 1e3:8.1f} ms (predictor + "
+            print(f"  control model update, {name:7s} {t_fm * 1e3:8.1f} ms (predictor + "
                   f"{chords} chord its to {tol:g} mm), {err(model.u):.1e} mm, "
                   f"x{t_ref / t_fm:.1f}; the tangent it holds {held_s * 1e3:.1f} ms: with it "
                   f"x{t_ref / (t_fm + held_s):.1f}; then its Jacobian {tm['jacobian']:.1f} ms "

@@ -33,7 +33,8 @@ from scipy.optimize import linprog, nnls
 
 from tissue_reference.errors import CaseError, TissueError
 
-from .jacobian import dirichlet_jacobian, point_matrix
+from .dof_maps import point_matrix
+from .jacobian import dirichlet_jacobian
 from .mpc import quiet_qpoases
 
 log = logging.getLogger("tissue.control")

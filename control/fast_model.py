@@ -51,7 +51,7 @@ from tissue_reference.solvers.admm import prepare
 from tissue_reference.solvers.admm import solve as admm_solve
 from tissue_reference.solvers.admm.factor import sym_splu
 
-from .jacobian import probe_matrix
+from .dof_maps import probe_matrix
 from .plant_step import solve_checked
 
 __all__ = ["ADMM_CONTROL_OPTIONS", "REFACTOR_RATE", "REFINE_TOL", "FastModel"]

@@ -13,14 +13,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tissue_reference.control.dof_maps import p2_interpolation, p2_region_nodes
 from tissue_reference.control.jacobian import (
     ControlJacobian,
     dirichlet_jacobian,
     fd_jacobian,
     full_pushes,
     max_rel_error,
-    p2_interpolation,
-    p2_region_nodes,
 )
 from tissue_reference.errors import CaseError
 from tissue_reference.model.case import E_RANGE_KPA

@@ -12,7 +12,7 @@ at ``SURFACE_SAMPLES`` points per edge, and a facet deeper inside the tip than
 (``tip_through_surface``). The deformed facets are the field's own surface:
 the displacement evaluated at the sample points, flat between the vertices at degree 1, bending
 at degree >= 2, its values at the fixed sample points one sparse product of its nodal
-values (``point_values.point_matrix``).
+values (``point_values.evaluation_rows``).
 """
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ from tissue_reference.model.tips import (
 
 from .contact_geometry import gap_ufl
 from .jit import compile_form
-from .point_values import point_matrix
+from .point_values import evaluation_rows
 
 __all__ = ["SLIP_FRACTION", "START_SAMPLES", "SURFACE_SAMPLES"]
 
@@ -148,7 +148,7 @@ class Indenter:
         # undeformed facets and the cell of each, where the displacement is evaluated
         self._u_field = u_field
         self._samples, self._sample_cells = _facet_sample_points(mesh, facets, f2c)
-        self._sample_values = point_matrix(V, self._samples, self._sample_cells)
+        self._sample_values = evaluation_rows(V, self._samples, self._sample_cells)
         # constants: tip front point (ramped by the load stepping), shape, axis
         sc = PETSc.ScalarType
         self.q = dolfinx.fem.Constant(mesh, sc(tuple(self.q0)))

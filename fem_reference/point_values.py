@@ -5,7 +5,7 @@ coordinates (a Newton iteration on a curved cell) and tabulates the element's ba
 on every call. Where the points and their cells stay (the facet check of a solve with tips,
 sampled after every solve), both are fixed: the value at point i is sum_j phi_j(xi_i) U_j
 over the nodes j of its cell, with phi the scalar element's basis at the point's reference
-coordinates xi_i, the same for every component of a blocked (vector) Function. ``point_matrix``
+coordinates xi_i, the same for every component of a blocked (vector) Function. ``evaluation_rows``
 builds those rows once; each evaluation is then a sparse product, the same numbers as
 ``Function.eval`` to round-off (tests/test_point_values.py) at a thousandth of its cost (the
 facet check of phantom-seed's four heads: about 0.6 s per solve with ``eval``).
@@ -15,10 +15,10 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["point_matrix"]
+__all__ = ["evaluation_rows"]
 
 
-def point_matrix(V, points: np.ndarray, cells: np.ndarray) -> sp.csr_matrix:
+def evaluation_rows(V, points: np.ndarray, cells: np.ndarray) -> sp.csr_matrix:
     """Rows that evaluate a Function on ``V`` at ``points``.
 
     Parameters
@@ -41,11 +41,11 @@ def point_matrix(V, points: np.ndarray, cells: np.ndarray) -> sp.csr_matrix:
     mesh = V.mesh
     gdim = mesh.geometry.dim
     if V.element.needs_dof_transformations:
-        raise ValueError("point_matrix: the element needs dof transformations (not Lagrange)")
+        raise ValueError("evaluation_rows: the element needs dof transformations (not Lagrange)")
     points = np.asarray(points, float)[:, :gdim]
     cells = np.asarray(cells, np.int32)
     if len(points) != len(cells):
-        raise ValueError(f"point_matrix: {len(points)} points but {len(cells)} cells")
+        raise ValueError(f"evaluation_rows: {len(points)} points but {len(cells)} cells")
     index_map = V.dofmap.index_map
     n_nodes = index_map.size_local + index_map.num_ghosts
     if not len(points):

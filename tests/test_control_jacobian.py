@@ -5,13 +5,12 @@ import pytest
 import scipy.sparse as sp
 from test_control_support import LinearPlant, linear_p1_stiffness, phantom
 
+from tissue_reference.control.dof_maps import point_matrix, probe_matrix
 from tissue_reference.control.jacobian import (
     dirichlet_jacobian,
     fd_jacobian,
     force_jacobian,
     max_rel_error,
-    point_matrix,
-    probe_matrix,
 )
 from tissue_reference.errors import CaseError
 

@@ -9,7 +9,8 @@ pytest.importorskip("dolfinx")
 
 from test_control_support import column_case
 
-from tissue_reference.control.jacobian import full_pushes, max_rel_error, p2_interpolation
+from tissue_reference.control.dof_maps import p2_interpolation
+from tissue_reference.control.jacobian import full_pushes, max_rel_error
 from tissue_reference.control.plants import full_warm_start, plant_for, reference_state
 from tissue_reference.control.plants import jacobian_at as compute
 from tissue_reference.fem_reference import solve

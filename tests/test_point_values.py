@@ -1,4 +1,4 @@
-"""A Function's values at fixed points as one sparse matrix (``point_values.point_matrix``)
+"""A Function's values at fixed points as one sparse matrix (``point_values.evaluation_rows``)
 against dolfinx's own ``Function.eval`` (which pulls each point back and tabulates the basis on
 every call), on a curved (second-order geometry) shell: points inside cells and on the flat
 chords of curved boundary facets, as the facet check of a solve with tips samples them.
@@ -46,7 +46,7 @@ def sample_points(mesh, rng):
 def test_the_matrix_gives_function_eval_values_on_curved_cells(curved, degree, vector):
     import dolfinx.fem
 
-    from tissue_reference.fem_reference.point_values import point_matrix
+    from tissue_reference.fem_reference.point_values import evaluation_rows
 
     mesh = curved
     space = dolfinx.fem.VectorFunctionSpace if vector else dolfinx.fem.FunctionSpace
@@ -60,7 +60,7 @@ def test_the_matrix_gives_function_eval_values_on_curved_cells(curved, degree, v
     pts, cells = sample_points(mesh, np.random.default_rng(degree))
     bs = V.dofmap.index_map_bs
     expected = f.eval(pts, cells).reshape(len(pts), bs)
-    got = point_matrix(V, pts, cells) @ f.x.array.reshape(-1, bs)
+    got = evaluation_rows(V, pts, cells) @ f.x.array.reshape(-1, bs)
     scale = np.abs(expected).max()
     assert np.abs(got - expected).max() <= 1e-12 * scale
     # a degree above 1 is not the vertices' linear interpolation there: the test sees the basis
@@ -74,9 +74,9 @@ def test_the_matrix_gives_function_eval_values_on_curved_cells(curved, degree, v
 def test_mismatched_points_and_cells_are_refused(curved):
     import dolfinx.fem
 
-    from tissue_reference.fem_reference.point_values import point_matrix
+    from tissue_reference.fem_reference.point_values import evaluation_rows
 
     V = dolfinx.fem.FunctionSpace(curved, ("Lagrange", 1))
     with pytest.raises(ValueError, match="3 points but 2 cells"):
-        point_matrix(V, np.zeros((3, 3)), np.zeros(2, np.int32))
-    assert point_matrix(V, np.zeros((0, 3)), np.zeros(0, np.int32)).shape[0] == 0
+        evaluation_rows(V, np.zeros((3, 3)), np.zeros(2, np.int32))
+    assert evaluation_rows(V, np.zeros((0, 3)), np.zeros(0, np.int32)).shape[0] == 0
