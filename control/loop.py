@@ -325,7 +325,7 @@ def run_closed_loop(plant, plant_case, model: LinearizedModel, target: str, task
         mask = np.isfinite(g)
         dgoal = np.where(mask, g, 0.0)
     same = model.case is plant_case and model.solve is plant
-    plant = KeptAnswers(plant)   # a step at the pushes of the one before keeps its answer
+    plant = KeptAnswers(plant)   # a load this run solved before gives its answer back
     na = len(acts)
     preload = settings.preload(acts)
     limit = settings.mpc.max_travel

@@ -9,6 +9,7 @@ so J_s here equals central differences of ``fem_reference.solve`` / ``tissue sol
 """
 from __future__ import annotations
 
+import collections
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -120,22 +121,28 @@ def _solved_reference(case, state_pushes, degree, formulation):
                                                                         initial=initial))
 
 
-def full_warm_start(solve):
+FULL_STATES_KEPT = 64
+"""Answers a ``full_warm_start`` plant keeps, newest first, to start a solve from the full state
+of the one whose vertex field it is given: a loop of up to 31 steps (closed and open loop) finds
+every answer its ``control.plant_step.KeptAnswers`` may give back."""
+
+
+def full_warm_start(solve, keep: int = FULL_STATES_KEPT):
     """plant(case, pushes, initial) around a reference ``solve`` of the same signature: when
-    ``initial`` is the vertex field (``.u``) of the plant's own previous answer, that answer
-    itself warm-starts the solve, so a degree-2 or mixed solve starts from its full state (edge
-    nodes and pressure) rather than from vertex values: on the phantom's nu scenario (size 10,
-    mixed P2/P1, 12 loop steps; bench/bench_plant_warm_start.py) 37 Newton iterations instead of
-    290 (the vertex warm start cut steps back from 1 mm of push on), the same pushes."""
-    last = [None]
+    ``initial`` is the vertex field (``.u``) of one of the plant's own last ``keep`` answers,
+    that answer itself warm-starts the solve, so a degree-2 or mixed solve starts from its full
+    state (edge nodes and pressure) rather than from vertex values: on the phantom's nu scenario
+    (size 10, mixed P2/P1, 12 loop steps; bench/bench_plant_warm_start.py) 37 Newton iterations
+    instead of 290 (the vertex warm start cut steps back from 1 mm of push on), the same
+    pushes. Not only the last answer: a loop gives back earlier ones where a load repeats
+    (``KeptAnswers``), and the next step starts from the one given back."""
+    recent = collections.deque(maxlen=keep)
 
     def plant(case, pushes, initial):
-        prev = last[0]
-        if prev is not None and initial is not None and initial is prev.u:
-            initial = prev
-        last[0] = None
+        if initial is not None:
+            initial = next((r for r in reversed(recent) if r.u is initial), initial)
         r = solve(case, pushes, initial)
-        last[0] = r
+        recent.append(r)
         return r
     return plant
 

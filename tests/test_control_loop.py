@@ -15,6 +15,7 @@ from tissue_reference.control.loop import (
     run_closed_loop,
 )
 from tissue_reference.control.mpc import MPCSettings
+from tissue_reference.control.plant_step import PUSH_MATCH_MM
 from tissue_reference.errors import CaseError, ConvergenceError
 
 
@@ -174,8 +175,9 @@ def test_open_loop_plant_failure_is_reported_with_a_lower_bound_itae(setup, tmp_
     steps = 10
     model = LinearizedModel(case, plant, linear_tangent(K), "T1")
     full = run_closed_loop(plant, case, model, "T1", 2, settings=LoopSettings(steps=steps))
-    # closed loop: 1 + steps solves; the open loop then solves steps 0..3 and fails at step 4
-    fp = FailingAfter(plant, 1 + steps + 4)
+    # closed loop: 1 + steps solves; the open loop's step 0 is the closed loop's first load
+    # (given back), then it solves steps 1..3 and fails at step 4
+    fp = FailingAfter(plant, 1 + steps + 3)
     res = run_closed_loop(fp, case, model, "T1", 2, settings=LoopSettings(steps=steps))
     ol = res.open_loop
     assert not ol["converged"] and ol["failed_at_step"] == 4
@@ -252,7 +254,8 @@ def test_table1_files_and_summary(setup, tmp_path):
     case, K, plant = setup
     model = LinearizedModel(case, plant, linear_tangent(K), "T1")
     ok = run_closed_loop(plant, case, model, "T1", 3, settings=LoopSettings(steps=100))
-    cut = run_closed_loop(FailingAfter(plant, 101 + 5), case, model, "T1", 3,
+    # 101 closed-loop solves, the open loop's first load given back: it fails at step 5
+    cut = run_closed_loop(FailingAfter(plant, 101 + 4), case, model, "T1", 3,
                           settings=LoopSettings(steps=100))
     rows = [table1_row("T1", 3, ok), table1_row("T1", 3, cut),
             {"target": "T2", "task": 1, "status": "unreachable", "error": "goal outside"}]
@@ -482,6 +485,30 @@ def test_a_converged_but_folded_plant_state_is_not_measured():
     check_prescribed(case, {}, ok, "plant")
 
 
+def test_kept_answers_match_a_load_to_round_off_and_no_further():
+    """A load asked again within PUSH_MATCH_MM of one solved gets that answer back, whichever
+    solve it was; one a micrometre away, another case or another set of actuators is solved."""
+    from tissue_reference.control.plant_step import KeptAnswers
+
+    solved = []
+
+    def solve(case, pushes, initial):
+        solved.append(dict(pushes))
+        return object()
+
+    case, other = object(), object()
+    kept = KeptAnswers(solve)
+    a = kept(case, {"A1": 1.0, "A2": 0.5}, None)
+    b = kept(case, {"A1": 2.0, "A2": 0.5}, None)
+    assert kept(case, {"A2": 0.5 + 1e-12, "A1": 1.0 - 1e-12}, None) is a   # the earlier one
+    assert kept(case, {"A1": 2.0, "A2": 0.5}, None) is b
+    assert kept.kept == 2 and len(solved) == 2
+    assert kept(case, {"A1": 1.0 + 1e-6, "A2": 0.5}, None) not in (a, b)
+    assert kept(other, {"A1": 1.0, "A2": 0.5}, None) is not a
+    assert kept(case, {"A1": 1.0}, None) is not a
+    assert len(solved) == 5 and kept.kept == 2
+
+
 class _Counting:
     """A plant that counts its solves and records their pushes."""
 
@@ -494,10 +521,10 @@ class _Counting:
 
 
 def test_a_plant_answer_is_kept_where_the_pushes_repeat(setup):
-    """A loop whose pushes stop at the push limit solves the plant once per change of pushes:
-    the closed loop's and the open loop's held steps give back the answer of the step before,
-    and the loop is the same as with every step solved (the linear plant's answer does not
-    depend on its start)."""
+    """A loop whose pushes stop at the push limit solves the plant once per load: the closed
+    loop's and the open loop's held steps, and the preload both loops start from, give back the
+    answer solved before, and the loop is the same as with every step solved (the linear
+    plant's answer does not depend on its start)."""
     case, K, plant = setup
     model = LinearizedModel(case, plant, linear_tangent(K), "T1")
     settings = LoopSettings(steps=40, task_mm=5.0,
@@ -508,9 +535,11 @@ def test_a_plant_answer_is_kept_where_the_pushes_repeat(setup):
     opened = [tuple(sorted(zip(res.actuators, p))) for p in res.open_loop["pushes"].tolist()]
     assert len(set(closed)) < len(closed) and closed[-1] == closed[-2]   # held at the limit
     asked = closed + opened   # every step's pushes, in the order the loop asks for them
-    changed = [p for i, p in enumerate(asked) if i == 0 or p != asked[i - 1]]
-    assert counted.pushes == changed   # solved where the pushes changed, nowhere else
-    assert res.extra["plant_kept_steps"] == len(asked) - len(changed)
+    assert opened[0] == closed[0]   # both loops start at the preload (here rest)
+    loads = [p for i, p in enumerate(asked) if not any(
+        all(abs(a[1] - b[1]) <= PUSH_MATCH_MM for a, b in zip(p, q)) for q in asked[:i])]
+    assert counted.pushes == loads   # solved at each load the first time, nowhere else
+    assert res.extra["plant_kept_steps"] == len(asked) - len(loads)
     assert res.to_json_dict()["plant_kept_steps"] == res.extra["plant_kept_steps"] > 0
     every = run_closed_loop(plant, case, LinearizedModel(case, plant, linear_tangent(K), "T1"),
                             "T1", 1, settings=settings)
