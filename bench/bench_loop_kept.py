@@ -6,9 +6,10 @@ pushes).
 
 Where the open loop's eq. 22 pushes point along the closed loop's (T3 task 2 on phantom-seed:
 A2 alone), the open loop asks only for loads the closed loop solved; every open loop starts at the
-preload the closed loop solved first. Default: the seed's Table I scenario on phantom-seed that holds a head at the push limit (T2
-task 1, ADMM model at size 12, every head preloaded 3 mm, 5 mm task, 20 steps, limit 15 mm), with
-the reference plant at ``--degree`` (1: a few seconds a solve; 2, the case's default: 1-2 min).
+preload the closed loop solved first. Default: the seed's Table I scenario on phantom-seed that
+holds a head at the push limit (T2 task 1, ADMM model at size 12, every head preloaded 3 mm, 5 mm
+task, 20 steps, limit 15 mm), with the reference plant at ``--degree`` (1: a few seconds a solve;
+2, the case's default: 1-2 min).
 
     .venv/bin/python bench/bench_loop_kept.py [--degree 1] [--target T2] [--task 1]
     .venv/bin/python bench/bench_loop_kept.py --target T3 --task 2

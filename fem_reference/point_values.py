@@ -5,10 +5,11 @@ coordinates (a Newton iteration on a curved cell) and tabulates the element's ba
 on every call. Where the points and their cells stay (the facet check of a solve with tips,
 sampled after every solve), both are fixed: the value at point i is sum_j phi_j(xi_i) U_j
 over the nodes j of its cell, with phi the scalar element's basis at the point's reference
-coordinates xi_i, the same for every component of a blocked (vector) Function. ``evaluation_rows``
-builds those rows once; each evaluation is then a sparse product, the same numbers as
-``Function.eval`` to round-off (tests/test_point_values.py) at a thousandth of its cost (the
-facet check of phantom-seed's four heads: about 0.6 s per solve with ``eval``).
+coordinates xi_i, the same for every component of a blocked (vector) Function.
+``evaluation_rows`` builds those rows once; each evaluation is then a sparse product, the same
+numbers as ``Function.eval`` to round-off (tests/test_point_values.py) at a few thousandths of
+its cost (the facet check of phantom-seed's four heads: 752 ms with ``eval``, 3.1 ms by the
+rows; bench/bench_facet_check.py).
 """
 from __future__ import annotations
 

@@ -1,6 +1,7 @@
 """Shared helpers of the tests (no tests here): an independent linear-elastic P1 stiffness,
-the 1-D Laplacian (shifted: definite or not, as a test needs), central finite differences along coordinate directions (of a function, and of the reference's
-probes in one push), and a reference whose warm starts fail."""
+the 1-D Laplacian (shifted: definite or not, as a test needs), central finite differences
+along coordinate directions (of a function, and of the reference's probes in one push), and a
+reference whose warm starts fail."""
 from __future__ import annotations
 
 import numpy as np
