@@ -46,6 +46,13 @@ zero are the mesh's asymmetry, not a converging quantity (T4's u_z, 2-5 %, is le
     .venv/bin/python bench/bench_seed_convergence.py --summarize --from-data
         --data tests/data/phantom_seed_reference.json --out DIR
     .venv/bin/python bench/bench_seed_convergence.py --rotation A2 --level -2 --out DIR
+    .venv/bin/python bench/bench_seed_convergence.py --level-rows -1
+        --data tests/data/phantom_seed_reference.json --out DIR
+
+``--level-rows K`` prints the case file rows of a case meshed as level K
+(meshes/cases/phantom-seed-coarse.toml: level -1): A1's answers are the study's at that level,
+A2..A4's the rotation checks' there (``--rotation ACT --level K`` for each, then
+``--summarize --from-data`` to keep them in the data file).
 """
 from __future__ import annotations
 
@@ -412,6 +419,40 @@ def write_data(out: Path, summary: dict, path: Path, data: dict | None = None) -
     print(f"\nwrote {path}")
 
 
+def level_rows(data: dict, level: float, path: Path) -> list[str]:
+    """The ``[[reference.measured]]`` rows of a case whose mesh is the study's ``level`` at P2
+    (meshes/cases/phantom-seed-coarse.toml is level -1): A1's answers are the study's own at
+    that level, A2..A4's the rotation checks' there (``--rotation ACT --level K``), each
+    against the study's finest level (turned for A2..A4), with that level's bands."""
+    study = data["study"]
+    rows = []
+    for act, turns in TURN.items():
+        if act == "A1":
+            answers = []
+            for entry in study["pushes"]:
+                i = entry["levels"].index(level)
+                answers.append((entry["dofs"][i], entry["push_mm"], entry["force_mN"][i],
+                                {n: v[i] for n, v in entry["probes_mm"].items()}))
+        else:
+            key = f"{act} P2 level {level:g}"
+            if key not in data.get("rotation_checks", {}):
+                raise SystemExit(f"{path}: no rotation check {key!r}: run --rotation {act} "
+                                 f"--level {level:g}, then --summarize --from-data")
+            dofs = study["pushes"][0]["dofs"][study["pushes"][0]["levels"].index(level)]
+            answers = [(dofs, r["push_mm"], r["force_mN"], r["probes_mm"])
+                       for r in data["rotation_checks"][key]]
+        for dofs, push, force, probes in answers:
+            entry = next(e for e in study["pushes"] if e["push_mm"] == push)
+            d = distance(force, probes, entry, turns)
+            turned = "" if act == "A1" else (
+                f", turned by {90 * turns} degrees about the dome's axis (the case is "
+                f"symmetric under quarter turns; its mesh is not)")
+            rows.append(_row(act, push, dofs, 2, d, entry,
+                             f"tests/data/{path.name} A1 P2 level {entry['levels'][-1]:g} "
+                             f"({entry['dofs'][-1]} dofs){turned}"))
+    return rows
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--level", type=float, default=None)
@@ -436,10 +477,18 @@ def main():
                     help="--summarize: take the study and the rotation checks from the --data "
                          "file itself (its levels' answers), adding or replacing the answers on "
                          "the case's mesh under --out (--defaults'), and write it again")
+    ap.add_argument("--level-rows", type=float, default=None, metavar="K",
+                    help="print the [[reference.measured]] rows of a case meshed as the "
+                         "study's level K at P2, from the --data file")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    if args.summarize and args.from_data:
+    if args.level_rows is not None:
+        if args.data is None:
+            raise SystemExit("--level-rows needs --data")
+        print("\n\n".join(level_rows(json.loads(args.data.read_text()), args.level_rows,
+                                     args.data)))
+    elif args.summarize and args.from_data:
         if args.data is None:
             raise SystemExit("--from-data needs --data")
         data = json.loads(args.data.read_text())
