@@ -310,6 +310,17 @@ def _row(act: str, push: float, dofs: int, degree: int, d: dict, entry: dict,
         'against = """\\\n' + " \\\n".join(textwrap.wrap(against, 92)) + '"""'])
 
 
+def _against(path: Path, entry: dict, turns: int) -> str:
+    """What a row's answer is measured against: the finest level of the study ``entry`` in the
+    data file ``path``, turned by ``turns`` quarter turns for A2..A4 (``_row`` adds its
+    bands)."""
+    turned = "" if turns == 0 else (
+        f", turned by {90 * turns} degrees about the dome's axis (the case is symmetric under "
+        f"quarter turns; its mesh is not)")
+    return (f"tests/data/{path.name} A1 P2 level {entry['levels'][-1]:g} "
+            f"({entry['dofs'][-1]} dofs){turned}")
+
+
 def load_defaults(out: Path, data: dict | None = None) -> dict:
     """The answers on the case's own mesh by degree ("P1", "P2"; ``run_defaults``): those of
     the data file ``data`` where given, each actuator's replaced by or added from the
@@ -381,12 +392,8 @@ def write_data(out: Path, summary: dict, path: Path, data: dict | None = None) -
                 d = distance(a["force_mN"], a["probes"], entry, turns)
                 measured.setdefault(key, {}).setdefault(act, []).append(
                     {"push_mm": a["push"], **d})
-                turned = "" if act == "A1" else (
-                    f", turned by {90 * turns} degrees about the dome's axis (the case is "
-                    f"symmetric under quarter turns; its mesh is not)")
                 rows.append(_row(act, a["push"], doc["dofs"], doc["degree"], d, entry,
-                                 f"tests/data/{path.name} A1 P2 level {entry['levels'][-1]:g} "
-                                 f"({entry['dofs'][-1]} dofs){turned}"))
+                                 _against(path, entry, turns)))
     rotation = {**(data or {}).get("rotation_checks", {}), **rotation_checks(out)}
     levels = " ".join(f"{lv['level']:g}" for lv in summary["levels"])
     write_json({
@@ -425,6 +432,8 @@ def level_rows(data: dict, level: float, path: Path) -> list[str]:
     that level, A2..A4's the rotation checks' there (``--rotation ACT --level K``), each
     against the study's finest level (turned for A2..A4), with that level's bands."""
     study = data["study"]
+    first = study["pushes"][0]
+    level_dofs = first["dofs"][first["levels"].index(level)]
     rows = []
     for act, turns in TURN.items():
         if act == "A1":
@@ -438,18 +447,12 @@ def level_rows(data: dict, level: float, path: Path) -> list[str]:
             if key not in data.get("rotation_checks", {}):
                 raise SystemExit(f"{path}: no rotation check {key!r}: run --rotation {act} "
                                  f"--level {level:g}, then --summarize --from-data")
-            dofs = study["pushes"][0]["dofs"][study["pushes"][0]["levels"].index(level)]
-            answers = [(dofs, r["push_mm"], r["force_mN"], r["probes_mm"])
+            answers = [(level_dofs, r["push_mm"], r["force_mN"], r["probes_mm"])
                        for r in data["rotation_checks"][key]]
         for dofs, push, force, probes in answers:
             entry = next(e for e in study["pushes"] if e["push_mm"] == push)
-            d = distance(force, probes, entry, turns)
-            turned = "" if act == "A1" else (
-                f", turned by {90 * turns} degrees about the dome's axis (the case is "
-                f"symmetric under quarter turns; its mesh is not)")
-            rows.append(_row(act, push, dofs, 2, d, entry,
-                             f"tests/data/{path.name} A1 P2 level {entry['levels'][-1]:g} "
-                             f"({entry['dofs'][-1]} dofs){turned}"))
+            rows.append(_row(act, push, dofs, 2, distance(force, probes, entry, turns), entry,
+                             _against(path, entry, turns)))
     return rows
 
 
